@@ -1,0 +1,160 @@
+"""Exceptions raised by calib_oed.
+
+Every error a user can cause derives from :class:`CalibOedError`. Each one
+carries the offending data and, where there is a finite set of valid choices,
+lists them, so that the message alone says what to fix.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+
+
+def _choices(values: Iterable[str], limit: int = 40) -> str:
+    values = list(values)
+    shown = ", ".join(repr(v) for v in values[:limit])
+    if len(values) > limit:
+        shown += f", ... ({len(values) - limit} more)"
+    return shown
+
+
+class CalibOedError(Exception):
+    """Base class of all calib_oed errors."""
+
+
+class RobotLoadError(CalibOedError):
+    """A robot description could not be loaded (missing file, malformed URDF)."""
+
+
+class UnknownRobotError(RobotLoadError):
+    """A robot name matches no shipped or example-robot-data robot.
+
+    Attributes:
+        name: The name that was asked for.
+        valid: The names that can be loaded.
+    """
+
+    def __init__(self, name: str, valid: Sequence[str]):
+        self.name = name
+        self.valid = list(valid)
+        super().__init__(
+            f"unknown robot {name!r}; valid robot names are: {_choices(self.valid)} "
+            "(or pass the path of a URDF file)"
+        )
+
+
+class UnknownFrameError(CalibOedError):
+    """A frame name is not in the robot model.
+
+    Attributes:
+        name: The frame that was asked for.
+        valid: The frames of the model.
+    """
+
+    def __init__(self, name: str, valid: Sequence[str]):
+        self.name = name
+        self.valid = list(valid)
+        super().__init__(f"unknown frame {name!r}; the model has the frames: {_choices(self.valid)}")
+
+
+class UnknownJointError(CalibOedError):
+    """A joint name is not among the robot's actuated joints."""
+
+    def __init__(self, name: str, valid: Sequence[str]):
+        self.name = name
+        self.valid = list(valid)
+        super().__init__(f"unknown joint {name!r}; the robot's joints are: {_choices(self.valid)}")
+
+
+class UnsupportedModelError(RobotLoadError):
+    """The URDF is valid but not a model calib_oed can calibrate.
+
+    Raised for kinematic trees that are not a serial chain up to the tool
+    frame, and for joints whose configuration is not one real number per
+    degree of freedom (continuous joints, mimic joints on the chain).
+    """
+
+
+class ShapeError(CalibOedError, ValueError):
+    """An array has the wrong shape.
+
+    Attributes:
+        what: Name of the argument.
+        expected: Expected shape, as text (``"(n, 6)"``).
+        got: Shape received.
+    """
+
+    def __init__(self, what: str, expected: str, got: tuple[int, ...]):
+        self.what = what
+        self.expected = expected
+        self.got = tuple(got)
+        super().__init__(f"{what}: expected an array of shape {expected}, got shape {self.got}")
+
+
+class NonFiniteError(CalibOedError, ValueError):
+    """An input array holds NaN or infinite values."""
+
+    def __init__(self, what: str, indices: Sequence[int] | None = None):
+        self.what = what
+        self.indices = list(indices) if indices is not None else []
+        where = f" (at flat indices {self.indices[:10]})" if self.indices else ""
+        super().__init__(f"{what}: contains NaN or infinite values{where}")
+
+
+class JointLimitError(CalibOedError, ValueError):
+    """Joint limits are inconsistent (lower above upper, non-finite)."""
+
+
+class SceneError(CalibOedError):
+    """A scene file is missing, malformed or inconsistent.
+
+    Attributes:
+        key: Dotted path of the offending key (``"tracker.position"``), or
+            ``None`` for problems with the file as a whole.
+        source: The file the scene came from, if any.
+    """
+
+    def __init__(self, message: str, key: str | None = None, source: str | None = None):
+        self.key = key
+        self.source = source
+        where = f"{source}: " if source else ""
+        at = f"{key}: " if key else ""
+        super().__init__(f"{where}{at}{message}")
+
+
+class UnknownSceneError(SceneError):
+    """A scene name matches no shipped scene and no file."""
+
+    def __init__(self, name: str, valid: Sequence[str]):
+        self.name = name
+        self.valid = list(valid)
+        super().__init__(
+            f"unknown scene {name!r}: no such file and no shipped scene of that name; "
+            f"shipped scenes are: {_choices(self.valid)}"
+        )
+
+
+class ParameterError(CalibOedError, ValueError):
+    """A parameter vector or parameter name is invalid."""
+
+
+class UnknownParameterError(ParameterError):
+    """A parameter name is not in the parameter space."""
+
+    def __init__(self, name: str, valid: Sequence[str]):
+        self.name = name
+        self.valid = list(valid)
+        super().__init__(f"unknown parameter {name!r}; parameters are: {_choices(self.valid)}")
+
+
+class NotIdentifiableError(CalibOedError):
+    """A requested set of parameters cannot be identified from the design.
+
+    Attributes:
+        names: The parameters that are not identifiable.
+    """
+
+    def __init__(self, names: Sequence[str], detail: str = ""):
+        self.names = list(names)
+        extra = f" ({detail})" if detail else ""
+        super().__init__(f"parameters not identifiable from this design: {_choices(self.names)}{extra}")

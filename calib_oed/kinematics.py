@@ -1,0 +1,111 @@
+r"""Batched forward kinematics of the tool frame, with its sensitivities.
+
+For configurations :math:`q_1..q_n` this computes, in one pass of Pinocchio
+per configuration, everything the measurement models and KPIs need:
+
+- the tool placement :math:`T_{W,F}(q) = (R, t)` in the world (= robot base);
+- the LOCAL kinematic regressor :math:`K(q) \in \mathbb{R}^{6 \times 6n_j}`:
+  a right perturbation :math:`\epsilon_i` of joint ``i``'s placement
+  (:math:`M_i \leftarrow M_i \exp_6(\epsilon_i)`) moves the tool frame by the
+  local twist :math:`K_{:, 6(i-1):6i}\, \epsilon_i`
+  (``pin.computeFrameKinematicRegressor``, block ``i-1`` for joint ``i``);
+- the LOCAL frame Jacobian :math:`J(q) \in \mathbb{R}^{6 \times n_v}`.
+
+A point :math:`c` fixed in the tool frame, :math:`x = t + R c`, then has
+
+.. math::
+    \frac{\partial x}{\partial \epsilon} = R\,[\,I \;\; -[c]_\times\,]\,K, \qquad
+    \frac{\partial x}{\partial q} = R\,[\,I \;\; -[c]_\times\,]\,J .
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pinocchio as pin
+
+
+@dataclass(frozen=True)
+class ToolKinematics:
+    """Tool-frame kinematics at n configurations (arrays read-only).
+
+    Attributes:
+        q: Configurations, (n, nq) [rad].
+        rotation: :math:`R_{W,F}`, (n, 3, 3).
+        translation: :math:`t_{W,F}`, (n, 3) [m].
+        regressor: LOCAL kinematic regressor, (n, 6, 6 n_j), or None.
+        jacobian: LOCAL frame Jacobian, (n, 6, nv), or None.
+    """
+
+    q: np.ndarray
+    rotation: np.ndarray
+    translation: np.ndarray
+    regressor: np.ndarray | None
+    jacobian: np.ndarray | None
+
+    @property
+    def n(self) -> int:
+        return self.q.shape[0]
+
+    def points(self, offset: np.ndarray) -> np.ndarray:
+        """World position of a point fixed in the tool frame, (n, 3) [m]."""
+        return self.translation + self.rotation @ np.asarray(offset, dtype=float)
+
+    def point_sensitivity(self, offset: np.ndarray, of: str) -> np.ndarray:
+        r"""World-frame derivative of the tool point ``offset``.
+
+        Args:
+            offset: :math:`c` in the tool frame [m].
+            of: ``"regressor"`` for :math:`\partial x/\partial\epsilon`
+                (n, 3, 6 n_j) or ``"jacobian"`` for :math:`\partial x/\partial q`
+                (n, 3, nv).
+        """
+        mat = self.regressor if of == "regressor" else self.jacobian
+        if mat is None:
+            raise ValueError(f"ToolKinematics was computed without the {of}")
+        # [I, -[c]x] M = M_v - c x M_w = M_v + M_w x c  (column-wise cross product)
+        c = np.asarray(offset, dtype=float)
+        local = mat[:, :3, :] - np.cross(c[None, :, None], mat[:, 3:, :], axis=1)
+        return self.rotation @ local
+
+
+def compute_tool_kinematics(
+    model: pin.Model,
+    frame_id: int,
+    q: np.ndarray,
+    *,
+    regressor: bool = True,
+    jacobian: bool = True,
+    data: pin.Data | None = None,
+) -> ToolKinematics:
+    """Tool kinematics at every row of ``q`` (n, nq), see :class:`ToolKinematics`.
+
+    ``q`` is assumed validated (see :meth:`calib_oed.robot.Robot.check_configurations`).
+    """
+    data = data if data is not None else model.createData()
+    q = np.array(q, dtype=float)
+    n = q.shape[0]
+    rot = np.empty((n, 3, 3))
+    trans = np.empty((n, 3))
+    reg = np.empty((n, 6, 6 * (model.njoints - 1))) if regressor else None
+    jac = np.empty((n, 6, model.nv)) if jacobian else None
+    local = pin.ReferenceFrame.LOCAL
+    for k in range(n):
+        qk = q[k]
+        if jacobian:
+            # computeJointJacobians also runs the forward kinematics (data.oMi).
+            pin.computeJointJacobians(model, data, qk)
+        else:
+            pin.forwardKinematics(model, data, qk)
+        placement = pin.updateFramePlacement(model, data, frame_id)
+        if jacobian:
+            jac[k] = pin.getFrameJacobian(model, data, frame_id, local)
+        rot[k] = placement.rotation
+        trans[k] = placement.translation
+        if regressor:
+            reg[k] = pin.computeFrameKinematicRegressor(model, data, frame_id, local)
+    for arr in (q, rot, trans, reg, jac):
+        if arr is not None:
+            arr.setflags(write=False)
+    return ToolKinematics(q=q, rotation=rot, translation=trans, regressor=reg, jacobian=jac)

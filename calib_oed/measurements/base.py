@@ -1,0 +1,162 @@
+r"""Measurement-model contract and the state the models evaluate at.
+
+A measurement model maps parameters :math:`p` and a configuration :math:`q`
+to a measured vector :math:`h(p, q) \in \mathbb{R}^{d}` with independent
+Gaussian noise of standard deviation :math:`\sigma \in \mathbb{R}^d`. It
+implements three ``compute_*`` methods, each batched over the n
+configurations of a :class:`SetupState`:
+
+- :meth:`MeasurementModel.compute_values` :math:`h`, (n, d);
+- :meth:`MeasurementModel.compute_param_jacobian` :math:`\partial h/\partial p`, (n, d, n_p);
+- :meth:`MeasurementModel.compute_config_jacobian` :math:`\partial h/\partial q`, (n, d, nv).
+
+Stacking several models into :math:`F_1 = \Sigma^{-1}\,\partial h/\partial p`
+is done by :mod:`calib_oed.sensitivity`.
+"""
+
+from __future__ import annotations
+
+import abc
+from dataclasses import dataclass
+
+import numpy as np
+import pinocchio as pin
+
+from calib_oed.exceptions import ShapeError
+from calib_oed.kinematics import ToolKinematics, compute_tool_kinematics
+from calib_oed.parameters import ParameterSpace
+
+
+@dataclass(frozen=True)
+class SetupState:
+    """Robot and sensor at parameters ``p``, evaluated at configurations ``q``.
+
+    Attributes:
+        space: The parameter layout.
+        p: Parameter vector (n_p,).
+        kin: Tool kinematics of the perturbed robot.
+        tracker: :math:`T_{W,T}(p)`, tracker frame in world.
+        reflectors: Reflector offsets in the tool frame, (k, 3) [m].
+        joint_jr: Right Jacobians of the joint perturbations (n_j, 6, 6), or
+            None when all joint perturbations are zero.
+    """
+
+    space: ParameterSpace
+    p: np.ndarray
+    kin: ToolKinematics
+    tracker: pin.SE3
+    reflectors: np.ndarray
+    joint_jr: np.ndarray | None
+
+    @property
+    def n(self) -> int:
+        return self.kin.n
+
+    def joint_param_sensitivity(self, d_eps: np.ndarray) -> np.ndarray:
+        r"""Chain rule from right perturbations :math:`\epsilon_i` to parameters :math:`\delta_i`.
+
+        ``d_eps`` is (n, d, 6 n_j); returns :math:`d_\epsilon \cdot \mathrm{blkdiag}(J_r(\delta_i))`.
+        """
+        if self.joint_jr is None:
+            return d_eps
+        n, d, _ = d_eps.shape
+        blocks = d_eps.reshape(n, d, -1, 6)
+        return np.einsum("ndjk,jkl->ndjl", blocks, self.joint_jr).reshape(n, d, -1)
+
+    def tracker_point_sensitivity(self, y: np.ndarray) -> np.ndarray:
+        r"""Derivative of :math:`y = T_{W,T}(\delta_T)^{-1} x` w.r.t. :math:`\delta_T`.
+
+        For a right perturbation :math:`\epsilon = (v, \omega)` of the tracker
+        frame, :math:`dy = -v + [y]_\times \omega`; then times :math:`J_r(\delta_T)`.
+        ``y`` is (n, 3) in the tracker frame; returns (n, 3, 6).
+        """
+        n = y.shape[0]
+        out = np.zeros((n, 3, 6))
+        out[:, :, :3] = -np.eye(3)
+        out[:, :, 3:] = skew(y)
+        delta = self.p[self.space.tracker_slice]
+        if np.any(delta):
+            out = out @ pin.Jexp6(delta)
+        return out
+
+
+def skew(v: np.ndarray) -> np.ndarray:
+    r"""Batched :math:`[v]_\times`: (..., 3) -> (..., 3, 3)."""
+    v = np.asarray(v, dtype=float)
+    out = np.zeros(v.shape[:-1] + (3, 3))
+    out[..., 0, 1], out[..., 0, 2] = -v[..., 2], v[..., 1]
+    out[..., 1, 0], out[..., 1, 2] = v[..., 2], -v[..., 0]
+    out[..., 2, 0], out[..., 2, 1] = -v[..., 1], v[..., 0]
+    return out
+
+
+def evaluate_setup(
+    space: ParameterSpace,
+    p: np.ndarray | None,
+    q: np.ndarray,
+    *,
+    regressor: bool = True,
+    jacobian: bool = True,
+) -> SetupState:
+    """Perturb the robot and the sensor by ``p`` and run the kinematics at ``q`` (n, nq)."""
+    p = space.check(p)
+    q = space.robot.check_configurations(q)
+    model = space.perturbed_model(p)
+    kin = compute_tool_kinematics(
+        model, space.robot.tool_frame_id, q, regressor=regressor, jacobian=jacobian
+    )
+    return SetupState(
+        space=space,
+        p=p,
+        kin=kin,
+        tracker=space.tracker_placement(p),
+        reflectors=space.reflector_offsets(p),
+        joint_jr=space.joint_exp_jacobians(p),
+    )
+
+
+class MeasurementModel(abc.ABC):
+    """A measurement of the robot by an external sensor (see module docstring).
+
+    Args:
+        sigma: Noise standard deviation per measured component, shape (d,)
+            or scalar, in the SI units of the components.
+    """
+
+    #: Dimension d of one measurement.
+    dim: int = 0
+    #: Names of the d components.
+    labels: tuple[str, ...] = ()
+    #: SI units of the d components.
+    units: tuple[str, ...] = ()
+
+    def __init__(self, sigma: float | np.ndarray):
+        s = np.broadcast_to(np.asarray(sigma, dtype=float), (self.dim,)).copy()
+        if not np.all(np.isfinite(s)) or np.any(s <= 0):
+            raise ValueError(f"{type(self).__name__}: sigma must be positive and finite, got {s}")
+        s.setflags(write=False)
+        self.sigma = s
+
+    @property
+    def name(self) -> str:
+        """Short name used in reports."""
+        return type(self).__name__
+
+    @abc.abstractmethod
+    def compute_values(self, state: SetupState) -> np.ndarray:
+        """Model response :math:`h(p, q)`, (n, d)."""
+
+    @abc.abstractmethod
+    def compute_param_jacobian(self, state: SetupState) -> np.ndarray:
+        r""":math:`\partial h / \partial p`, (n, d, n_p)."""
+
+    @abc.abstractmethod
+    def compute_config_jacobian(self, state: SetupState) -> np.ndarray:
+        r""":math:`\partial h / \partial q`, (n, d, nv)."""
+
+    def check_measured(self, values: np.ndarray, n: int) -> np.ndarray:
+        """Validate measured values of this model for n configurations."""
+        arr = np.asarray(values, dtype=float)
+        if arr.shape != (n, self.dim):
+            raise ShapeError(f"{self.name} measurements", f"({n}, {self.dim})", arr.shape)
+        return arr

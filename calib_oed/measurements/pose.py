@@ -1,0 +1,105 @@
+r"""6-D pose measurement: a tracker with a 6-DoF probe, or an optical CMM.
+
+The probe frame :math:`P` sits on the tool at the reflector offset
+:math:`c_j` with a fixed nominal orientation :math:`R_{F,P}`. The sensor
+reports its position and orientation in the sensor (tracker) frame:
+
+.. math::
+    h(p, q) = \big({}^{T}t_P,\; \log_3 R_{T,P}\big) \in \mathbb{R}^6,\qquad
+    R_{T,P} = R_T^\top\, R_{W,F}(q)\, R_{F,P}
+
+(position [m], rotation vector [rad]). The position rows are those of
+:class:`~calib_oed.measurements.position.TrackerPosition`; the rotation rows,
+with :math:`\omega` the LOCAL angular part of the tool-frame regressor or
+Jacobian and :math:`J_{\log}` = ``pin.Jlog3``:
+
+.. math::
+    \frac{\partial \log R_{T,P}}{\partial \delta_i} = J_{\log}\,R_{F,P}^\top\,\omega_{K,i}\,J_r(\delta_i),
+    \qquad
+    \frac{\partial \log R_{T,P}}{\partial \delta_T} = J_{\log}\,[\,0\;\; -R_{T,P}^\top\,]\,J_r(\delta_T),
+    \qquad
+    \frac{\partial \log R_{T,P}}{\partial q} = J_{\log}\,R_{F,P}^\top\,\omega_J .
+
+The orientation of the probe on the tool is not a parameter: it is
+redundant with the last joint's rotation, where the gauge rule puts it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pinocchio as pin
+
+from calib_oed.measurements.base import MeasurementModel, SetupState
+from calib_oed.measurements.position import DEFAULT_SIGMA, TrackerPosition
+
+#: Default rotation noise per axis [rad] (0.01 mrad).
+DEFAULT_SIGMA_ANGLE = 1e-5
+
+
+class PoseMeasurement(MeasurementModel):
+    """Probe pose (position and rotation vector) in the sensor frame.
+
+    Args:
+        reflector: Index j of the reflector/probe offset parameter.
+        sigma: Position noise per axis [m], scalar or (3,).
+        sigma_angle: Rotation noise per axis [rad], scalar or (3,).
+        probe_rotation: Nominal :math:`R_{F,P}` (3, 3); identity by default.
+    """
+
+    dim = 6
+    labels = ("x", "y", "z", "rx", "ry", "rz")
+    units = ("m", "m", "m", "rad", "rad", "rad")
+
+    def __init__(
+        self,
+        reflector: int = 0,
+        sigma: float | np.ndarray = DEFAULT_SIGMA,
+        sigma_angle: float | np.ndarray = DEFAULT_SIGMA_ANGLE,
+        probe_rotation: np.ndarray | None = None,
+    ):
+        s = np.broadcast_to(np.asarray(sigma, dtype=float), (3,))
+        a = np.broadcast_to(np.asarray(sigma_angle, dtype=float), (3,))
+        super().__init__(np.concatenate([s, a]))
+        self._position = TrackerPosition(reflector, s)
+        self.reflector = int(reflector)
+        rot = np.eye(3) if probe_rotation is None else np.asarray(probe_rotation, dtype=float)
+        if rot.shape != (3, 3) or not np.allclose(rot.T @ rot, np.eye(3), atol=1e-9):
+            raise ValueError("probe_rotation must be a 3x3 rotation matrix")
+        self.probe_rotation = rot
+
+    @property
+    def name(self) -> str:
+        return f"probe{self.reflector}"
+
+    def _rotations(self, state: SetupState) -> np.ndarray:
+        return state.tracker.rotation.T @ state.kin.rotation @ self.probe_rotation
+
+    def compute_values(self, state: SetupState) -> np.ndarray:
+        rot = self._rotations(state)
+        logs = np.array([pin.log3(r) for r in rot])
+        return np.concatenate([self._position.compute_values(state), logs], axis=1)
+
+    def _jlog(self, state: SetupState) -> np.ndarray:
+        return np.array([pin.Jlog3(r) for r in self._rotations(state)])
+
+    def compute_param_jacobian(self, state: SetupState) -> np.ndarray:
+        space = state.space
+        out = np.zeros((state.n, 6, space.size))
+        out[:, :3, :] = self._position.compute_param_jacobian(state)
+        jlog = self._jlog(state)
+        rot = self._rotations(state)
+        tracker = np.zeros((state.n, 3, 6))
+        tracker[:, :, 3:] = -np.transpose(rot, (0, 2, 1))
+        delta_t = state.p[space.tracker_slice]
+        if np.any(delta_t):
+            tracker = tracker @ pin.Jexp6(delta_t)
+        out[:, 3:, space.tracker_slice] = jlog @ tracker
+        omega = self.probe_rotation.T @ state.kin.regressor[:, 3:, :]
+        out[:, 3:, space.joints_slice] = state.joint_param_sensitivity(jlog @ omega)
+        return out
+
+    def compute_config_jacobian(self, state: SetupState) -> np.ndarray:
+        out = np.empty((state.n, 6, state.kin.jacobian.shape[2]))
+        out[:, :3, :] = self._position.compute_config_jacobian(state)
+        out[:, 3:, :] = self._jlog(state) @ (self.probe_rotation.T @ state.kin.jacobian[:, 3:, :])
+        return out
