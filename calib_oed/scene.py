@@ -250,7 +250,7 @@ class _Reader:
         valid = (*required, *optional)
         for k in value:
             if k not in valid:
-                raise self.fail(f"{where}{k}", f"unknown key; valid keys {_at(key)} are: "
+                raise self.fail(f"{where}{k}", f"unknown key; valid keys of {_at(key)} are: "
                                 f"{', '.join(valid)}")
         for k in required:
             if k not in value:
@@ -388,10 +388,15 @@ class _Reader:
                     raise self.fail(f"robot.joint_limits.{j}", "unknown joint; the robot's "
                                     f"joints are: {', '.join(robot.joint_names)}")
             scale = {j: self.length if t == "prismatic" else self.angle for j, t in types.items()}
+            bounds = {j: self.vector(v, f"robot.joint_limits.{j}", 2, what="lower, upper")
+                      for j, v in limits.items()}
+            for j, (lo, hi) in bounds.items():
+                if not lo < hi:
+                    raise self.fail(f"robot.joint_limits.{j}", f"lower limit {lo:.6g} is not "
+                                    f"below upper limit {hi:.6g}")
             return load_robot(
                 source, tool_frame=tool,
-                joint_limits={j: self.vector(v, f"robot.joint_limits.{j}", 2, scale[j],
-                                             "lower, upper") for j, v in limits.items()},
+                joint_limits={j: b * scale[j] for j, b in bounds.items()},
                 lock_joints={j: self.number(v, f"robot.lock_joints.{j}", scale[j])
                              for j, v in locks.items()},
             )
@@ -427,7 +432,7 @@ class _Reader:
             for j, name in enumerate(joints):
                 lo, hi, s, unit = robot.lower[j], robot.upper[j], scale[j], units[j]
                 if not lo - 1e-9 <= q[j] <= hi + 1e-9:  # 1e-9: rounding of unit conversion
-                    raise self.fail(f"{key}[{i}].q", f"joint {name} = {q[j] / s:.6g} {unit} is "
+                    raise self.fail(f"{key}[{i}].q", f"{name} = {q[j] / s:.6g} {unit} is "
                                     f"outside its limits [{lo / s:.6g}, {hi / s:.6g}] {unit}")
             configurations.append(WorkingConfiguration(wc["name"], q))
         return KpiSpec(
@@ -442,12 +447,11 @@ def _keys(required, optional) -> str:
 
 
 def _at(key: str | None) -> str:
-    return f"in {key!r}" if key else "at the top level"
+    return repr(key) if key else "the top level"
 
 
 def _parses_as_float(text: str) -> bool:
     try:
-        float(text)
+        return math.isfinite(float(text))
     except ValueError:
         return False
-    return True

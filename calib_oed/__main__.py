@@ -1,0 +1,5 @@
+import sys
+
+from calib_oed.cli import main
+
+sys.exit(main())

@@ -1,0 +1,129 @@
+"""Human-readable and JSON reports. Reports speak mm, mrad and mm², and say so."""
+
+from __future__ import annotations
+
+import textwrap
+
+import numpy as np
+
+from calib_oed.identifiability import Estimability, IdentifiabilityReport
+from calib_oed.measurements import PoseMeasurement
+from calib_oed.problem import CalibrationProblem
+
+
+def classical_count(problem: CalibrationProblem) -> tuple[int, str] | None:
+    """The classical count of identifiable parameters, where it applies.
+
+    Everett and Hollerbach's rule for a complete, minimal model of a serial
+    arm with R revolute and P prismatic joints is N = 4R + 2P + 6 with full
+    pose measurements and unknown base and tool; with position measurements
+    of one point the tool orientation is unobservable: N = 4R + 2P + 3. Our
+    parameters add the tracker pose (6) and the reflector offset (3), which
+    play the roles of the base and tool parameters, so the rules compare
+    with our rank directly. Returns None for set-ups the rule does not cover
+    (several reflectors).
+    """
+    model = problem.robot.model
+    kinds = [j.shortname() for j in model.joints[1:]]
+    n_r = sum(k.startswith("JointModelR") for k in kinds)
+    n_p = len(kinds) - n_r
+    if len(problem.models) != 1:
+        return None
+    if isinstance(problem.models[0], PoseMeasurement):
+        return 4 * n_r + 2 * n_p + 6, f"4R + 2P + 6 = 4*{n_r} + 2*{n_p} + 6 (pose measurements)"
+    return 4 * n_r + 2 * n_p + 3, f"4R + 2P + 6 - 3 = 4*{n_r} + 2*{n_p} + 3 (one measured point)"
+
+
+def identifiability_dict(
+    problem: CalibrationProblem, report: IdentifiabilityReport, estimability: list[Estimability]
+) -> dict:
+    """The identifiability report as JSON-serialisable data."""
+    out = report.to_dict()
+    classical = classical_count(problem)
+    out["robot"] = problem.robot.name
+    out["tool_frame"] = problem.robot.tool_frame
+    out["measurement_models"] = [m.name for m in problem.models]
+    out["classical_count"] = None if classical is None else {
+        "count": classical[0], "rule": classical[1]
+    }
+    out["kpi"] = {
+        "frame": problem.kpi.frame,
+        "point_m": problem.kpi.point.tolist(),
+        "estimability": [e.to_dict() for e in estimability],
+    }
+    return out
+
+
+def format_identifiability(
+    problem: CalibrationProblem,
+    report: IdentifiabilityReport,
+    estimability: list[Estimability],
+    title: str = "",
+) -> str:
+    """The identifiability report as text."""
+    space = problem.space
+    lines = [f"Identifiability{': ' + title if title else ''}"]
+    lines.append(
+        f"  robot {problem.robot.name} ({problem.robot.nq} joints), tool frame "
+        f"{problem.robot.tool_frame!r}, measurements: "
+        + ", ".join(m.name for m in problem.models)
+    )
+    lines.append(
+        f"  generic design: {report.n_configurations} random configurations in the joint "
+        f"limits (seed {report.seed}), {report.n_rows} rows"
+    )
+    lines.append(
+        f"  parameters: {len(report.names)}; free (identifiable): {report.rank}; "
+        f"fixed: {len(report.fixed)}; rank tolerance {report.tol:g}"
+    )
+    lines.append(
+        "  condition number of the weighted Jacobian on the free parameters "
+        f"(columns in mm, mrad): {report.condition_number:.4g}"
+    )
+    classical = classical_count(problem)
+    if classical is not None:
+        count, rule = classical
+        verdict = "agrees" if count == report.rank else f"differs by {report.rank - count:+d}"
+        lines.append(f"  classical rule {rule} = {count}: {verdict} (see docs/conventions.md)")
+    lines.append("")
+    lines.append(f"Free parameters ({report.rank}):")
+    lines += textwrap.wrap(
+        ", ".join(report.free_names), width=96, initial_indent="  ", subsequent_indent="  "
+    )
+    lines.append("")
+    lines.append(f"Fixed parameters ({len(report.fixed)}), held at their nominal value:")
+    width = max((len(f.name) for f in report.fixed), default=0)
+    for f in report.fixed:
+        unit = space.parameters[space.index(f.name)].report_unit
+        lines.append(f"  {f.name:<{width}} [{unit:>4}]  {f.reason}  (residual {f.residual:.1e})")
+    lines.append("")
+    where = "tracker frame" if problem.kpi.frame == "tracker" else "world frame"
+    point = np.round(problem.kpi.point * 1e3, 3).tolist()
+    lines.append(f"KPI: tool point {point} mm in the tool frame, in the {where}:")
+    for e in estimability:
+        if e.estimable:
+            lines.append(f"  {e.label}: estimable (residual {e.residual:.1e})")
+        else:
+            lines.append(
+                f"  {e.label}: NOT estimable (residual {e.residual:.2g}): its value depends on "
+                "the gauge through " + ", ".join(e.gauge)
+            )
+    if not all(e.estimable for e in estimability):
+        lines += textwrap.wrap(
+            "A non-estimable KPI's covariance is relative to the gauge: it is the uncertainty "
+            "with the fixed parameters held at their nominal values (base placement and tool "
+            "orientation as in the nominal model). Estimable alternatives: the KPI in the "
+            "tracker frame at the reflector point, several reflectors, or a 6-D probe.",
+            width=96,
+            initial_indent="  ",
+            subsequent_indent="  ",
+        )
+    return "\n".join(lines)
+
+
+def format_kpi_sigma(problem: CalibrationProblem, sigma: np.ndarray, design: str) -> str:
+    """KPI standard deviations per working configuration [mm]."""
+    lines = [f"KPI standard deviation sqrt(tr(C_s)/3) for {design}:"]
+    for name, s in zip(problem.kpi.names, sigma, strict=True):
+        lines.append(f"  {name}: {s * 1e3:.4f} mm  (average variance {(s * 1e3) ** 2:.3e} mm^2)")
+    return "\n".join(lines)
