@@ -1,0 +1,46 @@
+"""KPI values and Jacobian G against central finite differences."""
+
+from __future__ import annotations
+
+import numpy as np
+import pinocchio as pin
+import pytest
+from conftest import central_difference, relative_error
+
+from calib_oed.exceptions import ShapeError
+from calib_oed.kinematics import compute_tool_kinematics
+from calib_oed.kpi import TcpKpi
+
+
+@pytest.mark.parametrize("frame", ["world", "tracker"])
+@pytest.mark.parametrize("at", ["nominal", "perturbed"])
+def test_kpi_jacobian(space, frame, at):
+    q = space.robot.random_configurations(2, 21)
+    kpi = TcpKpi(q, point=np.array([0.01, -0.02, 0.1]), frame=frame)
+    p = space.zeros() if at == "nominal" else space.random(3, 5e-3, 5e-3)
+    g = kpi.compute_param_jacobian(space, p)
+    numeric = central_difference(lambda x: kpi.compute_values(space, x).ravel(), p)
+    assert g.shape == (6, space.size)
+    assert relative_error(g, numeric) < 1e-6
+    if frame == "world":  # world-frame TCP does not depend on the sensor
+        assert not np.any(g[:, : 6 + 3 * space.n_reflectors])
+
+
+def test_kpi_value_is_the_tool_point(space):
+    q = space.robot.random_configurations(1, 2)
+    kin = compute_tool_kinematics(space.robot.model, space.robot.tool_frame_id, q)
+    point = np.array([0.0, 0.0, 0.2])
+    world = TcpKpi(q, point).compute_values(space)
+    tool = pin.SE3(kin.rotation[0], kin.translation[0])
+    assert np.allclose(world[0], tool.act(point), atol=1e-14)
+    tracker = TcpKpi(q, point, frame="tracker").compute_values(space)
+    assert np.allclose(tracker[0], space.tracker_placement0.actInv(tool.act(point)), atol=1e-14)
+
+
+def test_bad_kpi_input():
+    with pytest.raises(ShapeError):
+        TcpKpi(np.zeros((1, 6)), point=np.zeros(2))
+    with pytest.raises(ValueError, match="world"):
+        TcpKpi(np.zeros((1, 6)), frame="base")
+    with pytest.raises(ShapeError):
+        TcpKpi(np.zeros((2, 6)), names=["only_one"])
