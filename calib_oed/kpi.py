@@ -40,6 +40,10 @@ class TcpKpi:
         point: Point on the tool in the tool frame (3,) [m].
         frame: ``"world"`` or ``"tracker"``.
         names: One name per working configuration.
+        reflector: If given, the KPI point is this reflector's estimated centre
+            :math:`c_j(p)` (its offset parameters enter :math:`G`) and
+            ``point`` is ignored. In the tracker frame this KPI is a predicted
+            measurement, hence estimable.
     """
 
     def __init__(
@@ -48,6 +52,7 @@ class TcpKpi:
         point: np.ndarray | None = None,
         frame: str = "world",
         names: Sequence[str] | None = None,
+        reflector: int | None = None,
     ):
         q = np.atleast_2d(np.asarray(configurations, dtype=float))
         if q.ndim != 2:
@@ -59,6 +64,7 @@ class TcpKpi:
             raise ValueError(f"frame must be one of {FRAMES}, got {frame!r}")
         self.configurations = q
         self.point = b
+        self.reflector = None if reflector is None else int(reflector)
         self.frame = frame
         self.names = tuple(names) if names is not None else tuple(f"work{i}" for i in range(len(q)))
         if len(self.names) != len(q):
@@ -74,10 +80,18 @@ class TcpKpi:
         """Component labels ``"<name>.x"``."""
         return tuple(f"{n}.{c}" for n in self.names for c in "xyz")
 
+    def _point(self, state) -> np.ndarray:
+        if self.reflector is None:
+            return self.point
+        if not 0 <= self.reflector < state.space.n_reflectors:
+            raise ValueError(f"reflector {self.reflector}: the set-up has reflectors "
+                             f"0..{state.space.n_reflectors - 1}")
+        return state.reflectors[self.reflector]
+
     def compute_values(self, space: ParameterSpace, p: np.ndarray | None = None) -> np.ndarray:
         """KPI values :math:`s`, (t, 3) [m]."""
         state = evaluate_setup(space, p, self.configurations, regressor=False, jacobian=False)
-        s = state.kin.points(self.point)
+        s = state.kin.points(self._point(state))
         if self.frame == "tracker":
             s = (s - state.tracker.translation) @ state.tracker.rotation
         return s
@@ -89,11 +103,16 @@ class TcpKpi:
         state = evaluate_setup(space, p, self.configurations, regressor=True, jacobian=False)
         t = state.n
         out = np.zeros((t, 3, space.size))
-        d_eps = state.kin.point_sensitivity(self.point, "regressor")
+        point = self._point(state)
+        d_eps = state.kin.point_sensitivity(point, "regressor")
+        d_refl = state.kin.rotation
         if self.frame == "tracker":
             rt = state.tracker.rotation
             d_eps = rt.T @ d_eps
-            s = (state.kin.points(self.point) - state.tracker.translation) @ rt
+            d_refl = rt.T @ d_refl
+            s = (state.kin.points(point) - state.tracker.translation) @ rt
             out[:, :, space.tracker_slice] = state.tracker_point_sensitivity(s)
+        if self.reflector is not None:
+            out[:, :, space.reflector_slice(self.reflector)] = d_refl
         out[:, :, space.joints_slice] = state.joint_param_sensitivity(d_eps)
         return out.reshape(3 * t, space.size)

@@ -89,6 +89,7 @@ class CalibrationProblem:
             point=scene.kpi.point,
             frame=scene.kpi.frame,
             names=[w.name for w in scene.kpi.configurations],
+            reflector=scene.kpi.reflector,
         )
         generic = GenericDesign(scene.generic_design.n, scene.generic_design.seed)
         return cls(space, models, kpi, generic)

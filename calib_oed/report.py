@@ -98,8 +98,11 @@ def format_identifiability(
         lines.append(f"  {f.name:<{width}} [{unit:>4}]  {f.reason}  (residual {f.residual:.1e})")
     lines.append("")
     where = "tracker frame" if problem.kpi.frame == "tracker" else "world frame"
-    point = np.round(problem.kpi.point * 1e3, 3).tolist()
-    lines.append(f"KPI: tool point {point} mm in the tool frame, in the {where}:")
+    if problem.kpi.reflector is not None:
+        what = f"centre of reflector{problem.kpi.reflector}"
+    else:
+        what = f"tool point {np.round(problem.kpi.point * 1e3, 3).tolist()} mm in the tool frame"
+    lines.append(f"KPI: {what}, in the {where}:")
     for e in estimability:
         if e.estimable:
             lines.append(f"  {e.label}: estimable (residual {e.residual:.1e})")
@@ -112,8 +115,10 @@ def format_identifiability(
         lines += textwrap.wrap(
             "A non-estimable KPI's covariance is relative to the gauge: it is the uncertainty "
             "with the fixed parameters held at their nominal values (base placement and tool "
-            "orientation as in the nominal model). Estimable alternatives: the KPI in the "
-            "tracker frame at the reflector point, several reflectors, or a 6-D probe.",
+            "geometry as in the nominal model), as in the paper. Tracker data cannot place the "
+            "robot in its own base frame when the tracker pose is unknown, nor a tool point "
+            "other than a reflector. Estimable: a reflector centre in the tracker frame "
+            "(scene key kpi.reflector with kpi.frame: tracker).",
             width=96,
             initial_indent="  ",
             subsequent_indent="  ",

@@ -121,11 +121,14 @@ class KpiSpec:
         point: The point in the tool frame, shape (3,) [m] (zero: the tool frame origin).
         frame: Frame the position is expressed in, ``"world"`` or ``"tracker"``.
         configurations: The working configurations (at least one).
+        reflector: Index of the reflector whose (estimated) centre is the KPI
+            point instead of ``point``, or None.
     """
 
     point: np.ndarray
     frame: Literal["world", "tracker"]
     configurations: tuple[WorkingConfiguration, ...]
+    reflector: int | None = None
 
     def __post_init__(self):
         object.__setattr__(self, "point", _readonly(self.point, "kpi.point", 3))
@@ -349,7 +352,7 @@ class _Reader:
             ),
             measurement=self.string(top.get("measurement", "position"), "measurement",
                                     MEASUREMENTS),
-            kpi=self.kpi(top["kpi"], robot),
+            kpi=self.kpi(top["kpi"], robot, [r["name"] for r in top["reflectors"]]),
             generic_design=GenericDesignSpec(
                 n=self.integer(gd.get("n", 200), "generic_design.n", 1),
                 seed=self.integer(gd.get("seed", 0), "generic_design.seed", 0),
@@ -417,8 +420,17 @@ class _Reader:
             sigma_angle=sigma_angle,
         )
 
-    def kpi(self, value, robot: Robot) -> KpiSpec:
-        spec = self.mapping(value, "kpi", ("working_configurations",), ("point", "frame"))
+    def kpi(self, value, robot: Robot, reflector_names: list[str]) -> KpiSpec:
+        spec = self.mapping(value, "kpi", ("working_configurations",),
+                            ("point", "frame", "reflector"))
+        reflector = None
+        if "reflector" in spec:
+            if "point" in spec:
+                raise self.fail("kpi.reflector", "give either kpi.point or kpi.reflector, not both")
+            if spec["reflector"] not in reflector_names:
+                raise self.fail("kpi.reflector", f"expected one of the reflectors "
+                                f"{reflector_names}, got {spec['reflector']!r}")
+            reflector = reflector_names.index(spec["reflector"])
         key = "kpi.working_configurations"
         joints = robot.joint_names
         per_joint = f"one per joint: {', '.join(joints)}"
@@ -439,6 +451,7 @@ class _Reader:
             point=self.vector(spec.get("point", [0, 0, 0]), "kpi.point", 3, self.length),
             frame=self.string(spec.get("frame", "world"), "kpi.frame", KPI_FRAMES),
             configurations=tuple(configurations),
+            reflector=reflector,
         )
 
 

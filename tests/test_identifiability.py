@@ -79,3 +79,12 @@ def test_estimability():
     # The world-frame TCP depends on the base gauge (tracker pose unknown).
     (tcp,) = problem.kpi_estimability()
     assert not tcp.estimable and {"joint1.tx", "joint1.rz"} <= set(tcp.gauge)
+    # A fixed tool point in the tracker frame still depends on the tool gauge ...
+    problem.kpi = TcpKpi(q_work, point=np.array([0.0, 0.0, 0.1]), frame="tracker")
+    (tool_point,) = problem.kpi_estimability()
+    assert not tool_point.estimable and tool_point.gauge
+    assert not any(name.startswith("joint1.") for name in tool_point.gauge)
+    # ... while the reflector centre in the tracker frame is a predicted measurement.
+    problem.kpi = TcpKpi(q_work, frame="tracker", reflector=0)
+    (refl,) = problem.kpi_estimability()
+    assert refl.estimable and refl.residual < 1e-9

@@ -14,16 +14,19 @@ from calib_oed.kpi import TcpKpi
 
 @pytest.mark.parametrize("frame", ["world", "tracker"])
 @pytest.mark.parametrize("at", ["nominal", "perturbed"])
-def test_kpi_jacobian(space, frame, at):
+@pytest.mark.parametrize("reflector", [None, 1])
+def test_kpi_jacobian(space, frame, at, reflector):
     q = space.robot.random_configurations(2, 21)
-    kpi = TcpKpi(q, point=np.array([0.01, -0.02, 0.1]), frame=frame)
+    kpi = TcpKpi(q, point=np.array([0.01, -0.02, 0.1]), frame=frame, reflector=reflector)
     p = space.zeros() if at == "nominal" else space.random(3, 5e-3, 5e-3)
     g = kpi.compute_param_jacobian(space, p)
     numeric = central_difference(lambda x: kpi.compute_values(space, x).ravel(), p)
     assert g.shape == (6, space.size)
     assert relative_error(g, numeric) < 1e-6
-    if frame == "world":  # world-frame TCP does not depend on the sensor
-        assert not np.any(g[:, : 6 + 3 * space.n_reflectors])
+    if frame == "world":  # a world-frame KPI does not depend on the tracker
+        assert not np.any(g[:, :6])
+    if reflector is None:  # nor a fixed tool point on the reflector offsets
+        assert not np.any(g[:, 6: 6 + 3 * space.n_reflectors])
 
 
 def test_kpi_value_is_the_tool_point(space):

@@ -205,7 +205,17 @@ BAD_CASES = [
     ("lock-unknown-joint", ("robot", "lock_joints"), {"joint_x": 0}, "robot",
      "unknown joint 'joint_x'"),
     ("design-size", ("generic_design",), {"n": 0}, "generic_design.n", "integer >= 1"),
+    ("kpi-reflector", ("kpi", "reflector"), "smr9", "kpi.reflector", "expected one of the reflectors"),
 ]
+
+
+def test_kpi_reflector():
+    data = mutated(("kpi", "reflector"), "smr0")
+    assert scene_from_dict(data).kpi.reflector == 0
+    data["kpi"]["point"] = [0, 0, 0]
+    with pytest.raises(SceneError, match="not both") as err:
+        scene_from_dict(data)
+    assert err.value.key == "kpi.reflector"
 
 
 @pytest.mark.parametrize(("path", "value", "key", "text"), [c[1:] for c in BAD_CASES],
