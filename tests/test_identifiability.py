@@ -5,6 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from conftest import make_space
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from calib_oed import load_robot
 from calib_oed.identifiability import check_estimability, select_gauge
@@ -88,3 +90,24 @@ def test_estimability():
     problem.kpi = TcpKpi(q_work, frame="tracker", reflector=0)
     (refl,) = problem.kpi_estimability()
     assert refl.estimable and refl.residual < 1e-9
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    n_independent=st.integers(1, 8),
+    n_dependent=st.integers(0, 6),
+    seed=st.integers(0, 2**32 - 1),
+)
+def test_gauge_rank_and_null_space_on_planted_dependencies(n_independent, n_dependent, seed):
+    """Random columns plus random combinations of them: rank and gauge are recovered."""
+    rng = np.random.default_rng(seed)
+    base = rng.normal(size=(30, n_independent))
+    mix = rng.normal(size=(n_independent, n_dependent))
+    mat = np.hstack([base, base @ mix])[:, rng.permutation(n_independent + n_dependent)]
+    names = [f"c{k}" for k in range(mat.shape[1])]
+    rep = select_gauge(mat, names)
+    assert rep.rank == n_independent
+    assert rep.null_space.shape == (mat.shape[1], n_dependent)
+    assert np.allclose(mat @ rep.null_space, 0.0, atol=1e-9 * np.abs(mat).max())
+    # The free columns are independent and, in order, the first ones that are.
+    assert np.linalg.matrix_rank(mat[:, rep.free]) == n_independent
