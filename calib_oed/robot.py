@@ -13,6 +13,7 @@ import xml.etree.ElementTree as ET
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import pinocchio as pin
@@ -152,49 +153,57 @@ def load_robot(
         UnsupportedModelError: not a serial chain, continuous or mimic joints.
         JointLimitError: inconsistent limits.
     """
-    name, path, text, default_tool, default_lock, dirs = _resolve(source)
-    if package_dirs is not None:
-        dirs = tuple(str(d) for d in package_dirs)
-    locks = dict(default_lock)
-    locks.update(lock_joints or {})
-    mimic = _mimic_joints(text, path)
+    src = _resolve(source)
+    dirs = src.package_dirs if package_dirs is None else tuple(str(d) for d in package_dirs)
+    locks = {**src.locked_joints, **(lock_joints or {})}
+    where = str(src.path or src.name)
+    mimic = _mimic_joints(src.text, where)
     try:
-        full = pin.buildModelFromXML(text)
+        full = pin.buildModelFromXML(src.text)
     except (ValueError, RuntimeError) as exc:
-        where = path or name
         raise RobotLoadError(f"{where}: not a valid URDF model ({exc})") from exc
-    model = _reduce_to_chain(full, locks, mimic, where=str(path or name))
-    tool = tool_frame or default_tool or _default_tool_frame(model)
+    model = _reduce_to_chain(full, locks, mimic, where=where)
+    tool = tool_frame or src.tool_frame or _default_tool_frame(model)
     tool_id = frame_index(model, tool)
     lower, upper = _limits(model, joint_limits)
     lower.setflags(write=False)
     upper.setflags(write=False)
     return Robot(
-        name=name,
+        name=src.name,
         model=model,
         tool_frame=tool,
         tool_frame_id=tool_id,
         lower=lower,
         upper=upper,
-        urdf_path=path,
-        urdf_text=text,
+        urdf_path=src.path,
+        urdf_text=src.text,
         package_dirs=dirs,
         locked_joints=locks,
     )
 
 
-def _resolve(source: str | os.PathLike):
-    """Return (name, path, urdf text, default tool, default locks, package dirs)."""
+class _Source(NamedTuple):
+    """Where a robot description comes from, and its registry defaults."""
+
+    name: str
+    path: Path | None
+    text: str
+    tool_frame: str | None = None
+    locked_joints: Mapping[str, float] = {}
+    package_dirs: tuple[str, ...] = ()
+
+
+def _resolve(source: str | os.PathLike) -> _Source:
     src = str(source)
     if src in OWN_ROBOTS:
         path = own_urdf_path(src)
-        return src, path, path.read_text(), OWN_ROBOTS[src], {}, ()
+        return _Source(src, path, path.read_text(), OWN_ROBOTS[src])
     match = NOTIONAL_PATTERN.match(src)
     if match:
         from calib_oed.kuka import kuka_urdf, notional_dimensions
 
         dims = notional_dimensions(int(match.group(1)) / 1000.0, int(match.group(2)) / 1000.0)
-        return src, None, kuka_urdf(dims), "tool0", {}, ()
+        return _Source(src, None, kuka_urdf(dims), "tool0")
     if src in EXAMPLE_ROBOTS:
         share = example_robot_data_share()
         if share is None:
@@ -204,7 +213,8 @@ def _resolve(source: str | os.PathLike):
             )
         entry = EXAMPLE_ROBOTS[src]
         path = share / "example-robot-data" / "robots" / entry.urdf
-        return src, path, path.read_text(), entry.tool_frame, entry.locked_joints, (str(share),)
+        return _Source(src, path, path.read_text(), entry.tool_frame, entry.locked_joints,
+                       (str(share),))
     path = Path(src)
     looks_like_path = os.sep in src or src.endswith((".urdf", ".xml")) or path.exists()
     if not looks_like_path:
@@ -215,16 +225,16 @@ def _resolve(source: str | os.PathLike):
         text = path.read_text()
     except (OSError, UnicodeDecodeError) as exc:
         raise RobotLoadError(f"{path}: cannot read URDF ({exc})") from exc
-    return path.stem, path.resolve(), text, None, {}, (str(path.resolve().parent),)
+    return _Source(path.stem, path.resolve(), text, package_dirs=(str(path.resolve().parent),))
 
 
-def _mimic_joints(text: str, path: Path | None) -> set[str]:
+def _mimic_joints(text: str, where: str) -> set[str]:
     try:
         root = ET.fromstring(text)
     except ET.ParseError as exc:
-        raise RobotLoadError(f"{path or 'URDF'}: malformed XML ({exc})") from exc
+        raise RobotLoadError(f"{where}: malformed XML ({exc})") from exc
     if root.tag != "robot":
-        raise RobotLoadError(f"{path or 'URDF'}: root element is <{root.tag}>, expected <robot>")
+        raise RobotLoadError(f"{where}: root element is <{root.tag}>, expected <robot>")
     return {j.get("name") for j in root.iter("joint") if j.find("mimic") is not None}
 
 

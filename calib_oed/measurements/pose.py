@@ -79,15 +79,16 @@ class PoseMeasurement(MeasurementModel):
         logs = np.array([pin.log3(r) for r in rot])
         return np.concatenate([self._position.compute_values(state), logs], axis=1)
 
-    def _jlog(self, state: SetupState) -> np.ndarray:
-        return np.array([pin.Jlog3(r) for r in self._rotations(state)])
+    @staticmethod
+    def _jlog(rotations: np.ndarray) -> np.ndarray:
+        return np.array([pin.Jlog3(r) for r in rotations])
 
     def compute_param_jacobian(self, state: SetupState) -> np.ndarray:
         space = state.space
         out = np.zeros((state.n, 6, space.size))
         out[:, :3, :] = self._position.compute_param_jacobian(state)
-        jlog = self._jlog(state)
         rot = self._rotations(state)
+        jlog = self._jlog(rot)
         tracker = np.zeros((state.n, 3, 6))
         tracker[:, :, 3:] = -np.transpose(rot, (0, 2, 1))
         delta_t = state.p[space.tracker_slice]
@@ -101,5 +102,6 @@ class PoseMeasurement(MeasurementModel):
     def compute_config_jacobian(self, state: SetupState) -> np.ndarray:
         out = np.empty((state.n, 6, state.kin.jacobian.shape[2]))
         out[:, :3, :] = self._position.compute_config_jacobian(state)
-        out[:, 3:, :] = self._jlog(state) @ (self.probe_rotation.T @ state.kin.jacobian[:, 3:, :])
+        jlog = self._jlog(self._rotations(state))
+        out[:, 3:, :] = jlog @ (self.probe_rotation.T @ state.kin.jacobian[:, 3:, :])
         return out
