@@ -21,6 +21,13 @@ EXIT_BAD_INPUT = 2
 DEFAULT_SCENE = "fms_kr16"
 
 
+def _positive_int(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text}")
+    return value
+
+
 def _problem(scene_ref: str):
     from calib_oed.problem import CalibrationProblem
     from calib_oed.scene import load_scene
@@ -48,11 +55,11 @@ def cmd_demo(args) -> int:
     from calib_oed.report import format_identifiability, format_kpi_sigma
 
     scene, problem = _problem(args.scene)
+    q = problem.robot.random_configurations(args.n, args.seed)
+    sigma = problem.kpi_sigma(q)
     print(format_identifiability(problem, problem.identifiability, problem.kpi_estimability(),
                                  title=f"scene {scene.name!r}"))
     print()
-    q = problem.robot.random_configurations(args.n, args.seed)
-    sigma = problem.kpi_sigma(q)
     print(format_kpi_sigma(
         problem, sigma,
         f"a random {args.n}-pose design (uniform in the joint limits, seed {args.seed}; "
@@ -92,7 +99,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("demo", help="identifiability and KPI sigma of a random design")
     p.add_argument("scene", nargs="?", default=DEFAULT_SCENE, help=f"default {DEFAULT_SCENE}")
-    p.add_argument("-n", type=int, default=60, help="number of random poses (default 60)")
+    p.add_argument("-n", type=_positive_int, default=60,
+                   help="number of random poses (default 60)")
     p.add_argument("--seed", type=int, default=0, help="seed of the random design (default 0)")
     p.set_defaults(func=cmd_demo)
 

@@ -1,7 +1,8 @@
 r"""Covariances of the estimated parameters and KPIs (linear error propagation).
 
-On the free parameters :math:`p_f` chosen by the gauge rule (paper eq. 10 and
-Theorem 1, explicit form):
+On the free parameters :math:`p_f` chosen by the gauge rule (the paper's
+parameter covariance of §1.1, and the explicit form of its KKT covariance,
+Theorem of §2.1, eq. 19):
 
 .. math::
     C_p = (F_1^\top F_1)^{-1}, \qquad C_s = G\,C_p\,G^\top,
@@ -30,6 +31,13 @@ def information_cholesky(f1: np.ndarray, names=None) -> np.ndarray:
     f1 = np.asarray(f1, dtype=float)
     if f1.ndim != 2:
         raise ShapeError("F1", "(m, n_p)", f1.shape)
+    if f1.shape[0] < f1.shape[1]:
+        labels = list(names) if names is not None else [str(i) for i in range(f1.shape[1])]
+        raise NotIdentifiableError(
+            labels,
+            f"the design gives {f1.shape[0]} measured values for {f1.shape[1]} free "
+            "parameters; measure more configurations",
+        )
     # QR of F1 is better conditioned than Cholesky of F1^T F1.
     r = scipy.linalg.qr(f1, mode="r")[0][: f1.shape[1]]
     diag = np.abs(np.diag(r))

@@ -7,15 +7,17 @@ For working configurations :math:`q^{work}_1..q^{work}_t` and a point
     s_i = t_{W,F}(p, q^{work}_i) + R_{W,F}(p, q^{work}_i)\, b \in \mathbb{R}^3\;[\mathrm{m}]
 
 in the world (= robot base) frame, or :math:`T_{W,T}(\delta_T)^{-1} s_i` in
-the tracker frame. Its parameter Jacobian (paper's :math:`F_2` block of
-:math:`\partial\,\mathrm{TCP}/\partial p`) is
+the tracker frame. With ``reflector=j`` the point is the reflector centre
+:math:`b = c_j(p)`. Its parameter Jacobian (paper's :math:`F_2` block of
+:math:`\partial\,\mathrm{TCP}/\partial p`) is, in the world frame,
 
 .. math::
     G = \frac{\partial s}{\partial p}, \qquad
-    \frac{\partial s_i}{\partial \delta_j} = R\,[I\; -[b]_\times]\,K_{:,j}\,J_r(\delta_j)
+    \frac{\partial s_i}{\partial \delta_j} = R\,[I\; -[b]_\times]\,K_{:,j}\,J_r(\delta_j),
+    \qquad \frac{\partial s_i}{\partial \delta c_j} = R \;(\text{reflector KPI only});
 
-(plus :math:`[-I\;[s_i]_\times]J_r(\delta_T)` on the tracker columns in the
-tracker frame). Whether :math:`s` is determined by the measurements at all is
+in the tracker frame every row is premultiplied by :math:`R_T^\top` and the
+tracker columns get :math:`[-I\;[s_i]_\times]J_r(\delta_T)`. Whether :math:`s` is determined by the measurements at all is
 answered by :mod:`calib_oed.identifiability`.
 """
 

@@ -11,6 +11,31 @@ from calib_oed.measurements import PoseMeasurement
 from calib_oed.problem import CalibrationProblem
 
 
+def reflectors_on_last_axis(problem: CalibrationProblem, tol: float = 1e-9) -> list[int]:
+    """Reflectors whose nominal centre lies on the last joint's axis (revolute only).
+
+    Such a reflector traces no circle about that axis: the axis' two tilts
+    about the reflector are unobservable and the rank drops by 2.
+    """
+    model = problem.robot.model
+    joint = model.joints[model.njoints - 1]
+    kind = joint.shortname()
+    axes = {"JointModelRX": (1.0, 0, 0), "JointModelRY": (0, 1.0, 0), "JointModelRZ": (0, 0, 1.0)}
+    if kind in axes:
+        axis = np.array(axes[kind])
+    elif kind == "JointModelRevoluteUnaligned":
+        axis = np.asarray(joint.extract().axis, dtype=float)
+    else:
+        return []
+    frame = model.frames[problem.robot.tool_frame_id]
+    out = []
+    for j, c in enumerate(problem.space.reflector_offsets0):
+        x = frame.placement.act(c)  # in the last joint's frame
+        if np.linalg.norm(x - (x @ axis) * axis) < tol:
+            out.append(j)
+    return out
+
+
 def classical_count(problem: CalibrationProblem) -> tuple[int, str] | None:
     """The classical count of identifiable parameters, where it applies.
 
@@ -85,6 +110,11 @@ def format_identifiability(
         count, rule = classical
         verdict = "agrees" if count == report.rank else f"differs by {report.rank - count:+d}"
         lines.append(f"  classical rule {rule} = {count}: {verdict} (see docs/conventions.md)")
+        if isinstance(problem.models[0], PoseMeasurement):
+            lines.append("    the probe's two tilts on the tool are not parameters here: -2")
+        elif reflectors_on_last_axis(problem):
+            lines.append("    the reflector lies on the last joint's axis, so the axis' two tilts "
+                         "about it are unobservable: -2")
     lines.append("")
     lines.append(f"Free parameters ({report.rank}):")
     lines += textwrap.wrap(

@@ -51,3 +51,15 @@ def test_scenes_and_robots(capsys):
     assert "fms_kr16" in capsys.readouterr().out.split()
     assert main(["robots"]) == EXIT_OK
     assert {"kr16", "ur5", "panda"} <= set(capsys.readouterr().out.split())
+
+
+def test_demo_rejects_a_non_positive_pose_count(capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["demo", "-n", "0"])
+    assert exc.value.code == 2 and "expected an integer >= 1" in capsys.readouterr().err
+
+
+def test_demo_with_too_few_poses_says_so(capsys):
+    assert main(["demo", "-n", "5"]) == EXIT_BAD_INPUT
+    err = capsys.readouterr().err
+    assert "measure more configurations" in err and "Traceback" not in err

@@ -97,3 +97,9 @@ def test_kpi_covariance_against_monte_carlo(problem):
     d2 = np.einsum("ki,ij,kj->k", errors[:, :3], c_inv, errors[:, :3])
     coverage = np.mean(d2 <= scipy.stats.chi2.ppf(0.95, 3))
     assert 0.92 <= coverage <= 0.98
+
+
+def test_too_few_poses_is_a_clear_error(problem):
+    q = problem.robot.random_configurations(5, 3)  # 15 values for 25+ free parameters
+    with pytest.raises(NotIdentifiableError, match="measure more configurations"):
+        problem.kpi_covariance(q)

@@ -111,3 +111,13 @@ def test_gauge_rank_and_null_space_on_planted_dependencies(n_independent, n_depe
     assert np.allclose(mat @ rep.null_space, 0.0, atol=1e-9 * np.abs(mat).max())
     # The free columns are independent and, in order, the first ones that are.
     assert np.linalg.matrix_rank(mat[:, rep.free]) == n_independent
+
+
+def test_report_explains_the_on_axis_reflector():
+    from calib_oed.report import reflectors_on_last_axis
+
+    robot = load_robot("kr16")
+    kpi = TcpKpi(robot.random_configurations(1, 1))
+    on = CalibrationProblem(make_space(robot, [(0.0, 0.0, 0.05), (0.03, 0.0, 0.05)]),
+                            [TrackerPosition(0)], kpi)
+    assert reflectors_on_last_axis(on) == [0]

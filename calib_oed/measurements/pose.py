@@ -20,8 +20,11 @@ Jacobian and :math:`J_{\log}` = ``pin.Jlog3``:
     \qquad
     \frac{\partial \log R_{T,P}}{\partial q} = J_{\log}\,R_{F,P}^\top\,\omega_J .
 
-The orientation of the probe on the tool is not a parameter: it is
-redundant with the last joint's rotation, where the gauge rule puts it.
+The orientation of the probe on the tool is not a parameter (the binding
+layout has a 3-vector per reflector). Its rotation about the last joint axis
+is redundant with that joint's placement; its two tilts are not representable,
+so they are taken as known: with this model the identifiable count is
+4R + 2P + 6 - 2 (docs/conventions.md).
 """
 
 from __future__ import annotations
