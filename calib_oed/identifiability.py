@@ -69,7 +69,7 @@ class FixedParameter:
         return f"redundant with {names}" + (f" and {more} more" if more > 0 else "")
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class IdentifiabilityReport:
     """Result of the gauge rule on a generic design.
 

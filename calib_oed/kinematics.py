@@ -26,7 +26,7 @@ import numpy as np
 import pinocchio as pin
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class ToolKinematics:
     """Tool-frame kinematics at n configurations (arrays read-only).
 

@@ -50,7 +50,7 @@ _SUPPORTED_JOINTS = {
 }
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Robot:
     """A serial arm ready for calibration.
 

@@ -27,7 +27,7 @@ from calib_oed.kinematics import ToolKinematics, compute_tool_kinematics
 from calib_oed.parameters import ParameterSpace
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class SetupState:
     """Robot and sensor at parameters ``p``, evaluated at configurations ``q``.
 
