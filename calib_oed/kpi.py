@@ -83,38 +83,17 @@ class TcpKpi:
         return tuple(f"{n}.{c}" for n in self.names for c in "xyz")
 
     def _point(self, state) -> np.ndarray:
-        if self.reflector is None:
-            return self.point
-        if not 0 <= self.reflector < state.space.n_reflectors:
-            raise ValueError(f"reflector {self.reflector}: the set-up has reflectors "
-                             f"0..{state.space.n_reflectors - 1}")
-        return state.reflectors[self.reflector]
+        return self.point if self.reflector is None else state.reflector_offset(self.reflector)
 
     def compute_values(self, space: ParameterSpace, p: np.ndarray | None = None) -> np.ndarray:
         """KPI values :math:`s`, (t, 3) [m]."""
         state = evaluate_setup(space, p, self.configurations, regressor=False, jacobian=False)
-        s = state.kin.points(self._point(state))
-        if self.frame == "tracker":
-            s = (s - state.tracker.translation) @ state.tracker.rotation
-        return s
+        return state.tool_point(self._point(state), self.frame)
 
     def compute_param_jacobian(
         self, space: ParameterSpace, p: np.ndarray | None = None
     ) -> np.ndarray:
         r""":math:`G = \partial s / \partial p`, (3t, n_p)."""
         state = evaluate_setup(space, p, self.configurations, regressor=True, jacobian=False)
-        t = state.n
-        out = np.zeros((t, 3, space.size))
-        point = self._point(state)
-        d_eps = state.kin.point_sensitivity(point, "regressor")
-        d_refl = state.kin.rotation
-        if self.frame == "tracker":
-            rt = state.tracker.rotation
-            d_eps = rt.T @ d_eps
-            d_refl = rt.T @ d_refl
-            s = (state.kin.points(point) - state.tracker.translation) @ rt
-            out[:, :, space.tracker_slice] = state.tracker_point_sensitivity(s)
-        if self.reflector is not None:
-            out[:, :, space.reflector_slice(self.reflector)] = d_refl
-        out[:, :, space.joints_slice] = state.joint_param_sensitivity(d_eps)
-        return out.reshape(3 * t, space.size)
+        g = state.tool_point_param_jacobian(self._point(state), self.frame, self.reflector)
+        return g.reshape(3 * state.n, space.size)

@@ -79,6 +79,54 @@ class SetupState:
             out = out @ pin.Jexp6(delta)
         return out
 
+    def reflector_offset(self, j: int) -> np.ndarray:
+        """Offset :math:`c_j(p)` of reflector ``j`` in the tool frame (3,) [m]."""
+        if not 0 <= j < self.space.n_reflectors:
+            raise ValueError(f"reflector {j}: the set-up has reflectors "
+                             f"0..{self.space.n_reflectors - 1}")
+        return self.reflectors[j]
+
+    def tool_point(self, offset: np.ndarray, frame: str) -> np.ndarray:
+        r"""A tool point in the ``"world"`` or ``"tracker"`` frame, (n, 3) [m].
+
+        World: :math:`x = t + R c`; tracker: :math:`T_{W,T}^{-1} x`.
+        """
+        x = self.kin.points(offset)
+        if frame == "tracker":
+            x = (x - self.tracker.translation) @ self.tracker.rotation
+        return x
+
+    def tool_point_param_jacobian(
+        self, offset: np.ndarray, frame: str, reflector: int | None = None
+    ) -> np.ndarray:
+        r""":math:`\partial x/\partial p` of :meth:`tool_point`, (n, 3, n_p).
+
+        Joint columns :math:`R[I\; -[c]_\times]K\,J_r`; with ``reflector=j`` the
+        point is :math:`c_j(p)` and its offset columns are :math:`R`; in the
+        tracker frame every row is premultiplied by :math:`R_T^\top` and the
+        tracker columns are :meth:`tracker_point_sensitivity`.
+        """
+        space = self.space
+        out = np.zeros((self.n, 3, space.size))
+        d_eps = self.kin.point_sensitivity(offset, "regressor")
+        d_refl = self.kin.rotation
+        if frame == "tracker":
+            rt = self.tracker.rotation
+            d_eps = rt.T @ d_eps
+            d_refl = rt.T @ d_refl
+            out[:, :, space.tracker_slice] = self.tracker_point_sensitivity(
+                self.tool_point(offset, frame)
+            )
+        if reflector is not None:
+            out[:, :, space.reflector_slice(reflector)] = d_refl
+        out[:, :, space.joints_slice] = self.joint_param_sensitivity(d_eps)
+        return out
+
+    def tool_point_config_jacobian(self, offset: np.ndarray, frame: str) -> np.ndarray:
+        r""":math:`\partial x/\partial q` of :meth:`tool_point`, (n, 3, nv)."""
+        d_q = self.kin.point_sensitivity(offset, "jacobian")
+        return self.tracker.rotation.T @ d_q if frame == "tracker" else d_q
+
 
 def skew(v: np.ndarray) -> np.ndarray:
     r"""Batched :math:`[v]_\times`: (..., 3) -> (..., 3, 3)."""

@@ -46,30 +46,12 @@ class TrackerPosition(MeasurementModel):
     def name(self) -> str:
         return f"reflector{self.reflector}"
 
-    def _offset(self, state: SetupState) -> np.ndarray:
-        if not 0 <= self.reflector < state.space.n_reflectors:
-            raise ValueError(
-                f"{self.name}: the set-up has reflectors 0..{state.space.n_reflectors - 1}"
-            )
-        return state.reflectors[self.reflector]
-
     def compute_values(self, state: SetupState) -> np.ndarray:
-        x_world = state.kin.points(self._offset(state))
-        t = state.tracker
-        return (x_world - t.translation) @ t.rotation
+        return state.tool_point(state.reflector_offset(self.reflector), "tracker")
 
     def compute_param_jacobian(self, state: SetupState) -> np.ndarray:
-        space = state.space
-        rt = state.tracker.rotation
-        out = np.zeros((state.n, 3, space.size))
-        out[:, :, space.tracker_slice] = state.tracker_point_sensitivity(
-            self.compute_values(state)
-        )
-        out[:, :, space.reflector_slice(self.reflector)] = rt.T @ state.kin.rotation
-        d_eps = rt.T @ state.kin.point_sensitivity(self._offset(state), "regressor")
-        out[:, :, space.joints_slice] = state.joint_param_sensitivity(d_eps)
-        return out
+        offset = state.reflector_offset(self.reflector)
+        return state.tool_point_param_jacobian(offset, "tracker", reflector=self.reflector)
 
     def compute_config_jacobian(self, state: SetupState) -> np.ndarray:
-        rt = state.tracker.rotation
-        return rt.T @ state.kin.point_sensitivity(self._offset(state), "jacobian")
+        return state.tool_point_config_jacobian(state.reflector_offset(self.reflector), "tracker")
