@@ -158,3 +158,41 @@ class NotIdentifiableError(CalibOedError):
         self.names = list(names)
         extra = f" ({detail})" if detail else ""
         super().__init__(f"parameters not identifiable from this design: {_choices(self.names)}{extra}")
+
+
+class MeasurementFileError(CalibOedError):
+    """A measurement file has bad rows or a bad header; nothing was read.
+
+    Attributes:
+        source: The file (or ``"<string>"``).
+        problems: ``(row, message)`` pairs; ``row`` is the 1-based line number
+            in the file (the header is line 1), or ``None`` for the file as a whole.
+    """
+
+    def __init__(self, source: str, problems: Sequence[tuple[int | None, str]]):
+        self.source = source
+        self.problems = list(problems)
+        lines = [f"line {row}: {msg}" if row is not None else msg for row, msg in self.problems[:20]]
+        more = f"\n  ... ({len(self.problems) - 20} more)" if len(self.problems) > 20 else ""
+        super().__init__(
+            f"{source}: {len(self.problems)} problem(s) in the measurement file, nothing was read:\n  "
+            + "\n  ".join(lines)
+            + more
+        )
+
+
+class ExportError(CalibOedError):
+    """A result could not be written (bad output path, unsupported URDF content)."""
+
+
+class UnknownLinkError(CalibOedError):
+    """A link name is not in the robot model (capsule tables, excluded pairs)."""
+
+    def __init__(self, name: str, valid: Sequence[str]):
+        self.name = name
+        self.valid = list(valid)
+        super().__init__(f"unknown link {name!r}; the robot's links are: {_choices(self.valid)}")
+
+
+class SamplingError(CalibOedError):
+    """Too few feasible configurations were found (the constraints may be too tight)."""
