@@ -1,0 +1,356 @@
+r"""All feasibility constraints of measurement configurations, values and exact gradients.
+
+Every constraint is written :math:`g(q) \ge 0` (feasible), in SI, per pose:
+
+- **joint** (2 per joint): :math:`q_i - (\underline q_i + m_q) \ge 0`,
+  :math:`(\overline q_i - m_q) - q_i \ge 0` [rad or m];
+- **incidence** (1 per reflector, paper eq. 4):
+  :math:`z_F^\top u - \cos(\beta_{max} - m_\beta) \ge 0` [1], with
+  :math:`z_F` the tool z axis and :math:`u = (t_T - c)/\lVert t_T - c\rVert`
+  the unit direction from the reflector :math:`c` to the tracker :math:`t_T`;
+- **self**, **obstacle**, **beam** (capsule pairs, paper §2.2):
+  :math:`d(S_1, S_2) - r_1 - r_2 - m_d \ge 0` [m] with :math:`d` the distance
+  of the axis segments; against a half-space :math:`n^\top x \ge c_0`:
+  :math:`\min(n^\top a, n^\top b) - c_0 - r - m_d \ge 0`.
+
+Gradients (envelope theorem: the closest-point parameters are held fixed):
+with witness points :math:`w_1, w_2` and :math:`u = (w_1 - w_2)/\lVert w_1 - w_2\rVert`,
+
+.. math::
+    \frac{\partial g}{\partial q} = u^\top\!\left(\frac{\partial w_1}{\partial q}
+    - \frac{\partial w_2}{\partial q}\right),\qquad
+    \frac{\partial w}{\partial q} = (1-s)\,J_{a} + s\,J_{b},
+
+:math:`J_a, J_b` the point Jacobians of the segment's end points (zero for
+world-fixed ones, see :mod:`calib_oed.feasibility.bodies`). For incidence,
+:math:`\partial(z^\top u) = (z\times u)^\top J^{ang} - z^\top (I - uu^\top) J_c / L`.
+
+Each pose's constraints depend on that pose only, so the Jacobian of a design
+is block diagonal (:meth:`FeasibilityModel.sparse_jacobian`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse
+
+from calib_oed.feasibility.bodies import BodyStates, compute_body_states
+from calib_oed.feasibility.segments import closest_parameters
+from calib_oed.feasibility.shapes import Capsule, Cell, FeasibilitySettings
+from calib_oed.robot import Robot, frame_index
+
+#: Constraint kinds, in row order within a pose.
+KINDS = ("joint", "incidence", "self", "obstacle", "beam")
+
+
+@dataclass(frozen=True, eq=False)
+class SegmentTable:
+    """All capsule axes: end points fixed on bodies (0 = world).
+
+    Attributes:
+        body_a, body_b: Body (joint index) of each end point, (s,).
+        a_local, b_local: End points in their body frames [m], (s, 3).
+        radius: Radii [m], (s,).
+        names: Labels (``"link_2#0"``, ``"reflector:smr0"``, ``"beam:smr0"``, ``"car_lower"``).
+        links: Link name each robot segment belongs to (``""`` for world-fixed and beams).
+        roles: ``"robot"``, ``"reflector"``, ``"beam"`` or ``"obstacle"``.
+    """
+
+    body_a: np.ndarray
+    a_local: np.ndarray
+    body_b: np.ndarray
+    b_local: np.ndarray
+    radius: np.ndarray
+    names: tuple[str, ...]
+    links: tuple[str, ...]
+    roles: tuple[str, ...]
+
+    def __len__(self) -> int:
+        return len(self.names)
+
+
+@dataclass(frozen=True, eq=False)
+class ConstraintValues:
+    """Constraint values of a design (and their Jacobian).
+
+    Attributes:
+        values: :math:`g(q)`, (n, m); feasible where every entry is >= 0.
+        jacobian: :math:`\\partial g_k/\\partial q_k` per pose, (n, m, nq), or ``None``.
+        kinds: Kind of each of the m rows (see :data:`KINDS`).
+        labels: Label of each row.
+    """
+
+    values: np.ndarray
+    jacobian: np.ndarray | None
+    kinds: tuple[str, ...]
+    labels: tuple[str, ...]
+
+    @property
+    def feasible(self) -> np.ndarray:
+        """Boolean (n,): every constraint of the pose holds."""
+        return np.all(self.values >= 0.0, axis=1)
+
+
+def build_segments(
+    robot: Robot,
+    capsules: Sequence[Capsule],
+    cell: Cell,
+    settings: FeasibilitySettings,
+    tracker_position: np.ndarray,
+    reflector_offsets: np.ndarray,
+    reflector_names: Sequence[str],
+) -> SegmentTable:
+    """Put robot capsules, reflector capsules, beams and obstacle capsules in one table."""
+    model = robot.model
+    rows: list[tuple] = []
+    for cap in capsules:
+        fid = frame_index(model, cap.frame)
+        frame = model.frames[fid]
+        a = frame.placement.act(cap.a)
+        b = frame.placement.act(cap.b)
+        rows.append((frame.parentJoint, a, frame.parentJoint, b, cap.radius, cap.name or cap.frame, cap.frame, "robot"))
+    tool = model.frames[robot.tool_frame_id]
+    tool_link = tool.name
+    for name, offset in zip(reflector_names, reflector_offsets):
+        a = tool.placement.translation.copy()
+        b = tool.placement.act(np.asarray(offset, dtype=float))
+        rows.append((tool.parentJoint, a, tool.parentJoint, b, settings.reflector_radius,
+                     f"reflector:{name}", tool_link, "reflector"))
+    for cap in cell.capsules:
+        rows.append((0, cap.a, 0, cap.b, cap.radius, cap.name, "", "obstacle"))
+    t_world = np.asarray(tracker_position, dtype=float)
+    for name, offset in zip(reflector_names, reflector_offsets):
+        c = tool.placement.act(np.asarray(offset, dtype=float))
+        rows.append((tool.parentJoint, c, 0, t_world, settings.beam_radius, f"beam:{name}", "", "beam"))
+    cols = list(zip(*rows))
+    return SegmentTable(
+        body_a=np.array(cols[0], dtype=int),
+        a_local=np.array(cols[1], dtype=float).reshape(-1, 3),
+        body_b=np.array(cols[2], dtype=int),
+        b_local=np.array(cols[3], dtype=float).reshape(-1, 3),
+        radius=np.array(cols[4], dtype=float),
+        names=tuple(cols[5]),
+        links=tuple(cols[6]),
+        roles=tuple(cols[7]),
+    )
+
+
+class FeasibilityModel:
+    """Constraint values and Jacobians for batches of configurations.
+
+    Args:
+        robot: The robot (nominal model; joint limits).
+        segments: Capsule axes (:func:`build_segments`).
+        pairs: Capsule pairs ``(i, j)`` to check, (P, 2) indices into ``segments``.
+        pair_kinds: Kind of each pair (``"self"``, ``"obstacle"``, ``"beam"``).
+        halfspace_pairs: ``(segment, half-space)`` pairs, (H, 2).
+        halfspace_kinds: Kind of each half-space pair.
+        cell: The cell (for its half-spaces).
+        settings: Limits and margins.
+        tracker_position: Tracker origin in the world [m], (3,).
+        reflector_offsets: Reflector offsets in the tool frame [m], (k, 3).
+        reflector_names: Names of the reflectors.
+    """
+
+    def __init__(
+        self,
+        robot: Robot,
+        segments: SegmentTable,
+        pairs: np.ndarray,
+        pair_kinds: Sequence[str],
+        halfspace_pairs: np.ndarray,
+        halfspace_kinds: Sequence[str],
+        cell: Cell,
+        settings: FeasibilitySettings,
+        tracker_position: np.ndarray,
+        reflector_offsets: np.ndarray,
+        reflector_names: Sequence[str],
+    ):
+        self.robot = robot
+        self.segments = segments
+        self.pairs = np.asarray(pairs, dtype=int).reshape(-1, 2)
+        self.pair_kinds = tuple(pair_kinds)
+        self.halfspace_pairs = np.asarray(halfspace_pairs, dtype=int).reshape(-1, 2)
+        self.halfspace_kinds = tuple(halfspace_kinds)
+        self.cell = cell
+        self.settings = settings
+        self.tracker_position = np.asarray(tracker_position, dtype=float).reshape(3)
+        self.reflector_offsets = np.asarray(reflector_offsets, dtype=float).reshape(-1, 3)
+        self.reflector_names = tuple(reflector_names)
+        tool = robot.model.frames[robot.tool_frame_id]
+        self._tool_body = int(tool.parentJoint)
+        self._tool_rotation = tool.placement.rotation.copy()
+        self._reflector_local = np.array([tool.placement.act(c) for c in self.reflector_offsets]).reshape(-1, 3)
+        if self.halfspace_pairs.size:
+            hs = cell.halfspaces
+            self._hs_normal = np.array([hs[h].normal for h in self.halfspace_pairs[:, 1]])
+            self._hs_offset = np.array([hs[h].offset for h in self.halfspace_pairs[:, 1]])
+        else:
+            self._hs_normal = np.zeros((0, 3))
+            self._hs_offset = np.zeros(0)
+        self._pair_clearance = self._clearance(self.pair_kinds)
+        self._hs_clearance = self._clearance(self.halfspace_kinds)
+        self.kinds, self.labels = self._rows()
+
+    # ------------------------------------------------------------ layout
+    def _clearance(self, kinds) -> np.ndarray:
+        return np.full(len(kinds), self.settings.margins.clearance)
+
+    def _rows(self) -> tuple[tuple[str, ...], tuple[str, ...]]:
+        kinds, labels = [], []
+        for name in self.robot.joint_names:
+            kinds += ["joint", "joint"]
+            labels += [f"joint:{name}:lower", f"joint:{name}:upper"]
+        for name in self.reflector_names:
+            kinds.append("incidence")
+            labels.append(f"incidence:{name}")
+        names = self.segments.names
+        for (i, j), kind in zip(self.pairs, self.pair_kinds):
+            kinds.append(kind)
+            labels.append(f"{kind}:{names[i]}|{names[j]}")
+        for (i, h), kind in zip(self.halfspace_pairs, self.halfspace_kinds):
+            kinds.append(kind)
+            labels.append(f"{kind}:{names[i]}|{self.cell.halfspaces[h].name}")
+        return tuple(kinds), tuple(labels)
+
+    @property
+    def n_constraints(self) -> int:
+        """Constraints per pose, m."""
+        return len(self.kinds)
+
+    def kind_slices(self) -> dict[str, np.ndarray]:
+        """Row indices of each kind."""
+        kinds = np.array(self.kinds)
+        return {k: np.flatnonzero(kinds == k) for k in KINDS}
+
+    def count_per_pose(self) -> dict[str, int]:
+        """Number of constraints per pose of each kind."""
+        return {k: int(len(v)) for k, v in self.kind_slices().items()}
+
+    # ------------------------------------------------------------ evaluation
+    def compute(self, q: np.ndarray, jacobian: bool = True) -> ConstraintValues:
+        """All constraint values (and Jacobians) at configurations ``q`` (n, nq)."""
+        q = self.robot.check_configurations(q)
+        states = compute_body_states(self.robot.model, q, jacobian=jacobian)
+        return self.compute_from_states(q, states, jacobian)
+
+    def compute_from_states(self, q: np.ndarray, states: BodyStates, jacobian: bool = True,
+                            kinds: Sequence[str] = KINDS) -> ConstraintValues:
+        """Constraint values from evaluated body states; ``kinds`` restricts the rows
+        (``("joint", "incidence")`` is the cheap pre-filter of the sampler)."""
+        parts_v, parts_j = [], []
+        fns = []
+        if "joint" in kinds:
+            fns.append(self._joint_rows)
+        if "incidence" in kinds:
+            fns.append(self._incidence_rows)
+        if {"self", "obstacle", "beam"} & set(kinds):
+            fns += [self._pair_rows, self._halfspace_rows]
+        for fn in fns:
+            v, jac = fn(q, states, jacobian)
+            parts_v.append(v)
+            parts_j.append(jac)
+        values = np.concatenate(parts_v, axis=1)
+        jac = np.concatenate(parts_j, axis=1) if jacobian else None
+        rows = [k in kinds for k in self.kinds]
+        return ConstraintValues(values, jac, tuple(k for k, r in zip(self.kinds, rows) if r),
+                                tuple(lbl for lbl, r in zip(self.labels, rows) if r))
+
+    def compute_values(self, q: np.ndarray) -> np.ndarray:
+        """Constraint values :math:`g(q)`, (n, m)."""
+        return self.compute(q, jacobian=False).values
+
+    def sparse_jacobian(self, q: np.ndarray) -> tuple[np.ndarray, scipy.sparse.csr_matrix]:
+        """Values (n·m,) and the block-diagonal Jacobian (n·m, n·nq) of the stacked design."""
+        res = self.compute(q, jacobian=True)
+        n, m, nq = res.jacobian.shape
+        bsr = scipy.sparse.bsr_matrix(
+            (res.jacobian, np.arange(n), np.arange(n + 1)), shape=(n * m, n * nq)
+        )
+        return res.values.ravel(), bsr.tocsr()
+
+    def _joint_rows(self, q, states, jacobian):
+        margin = self.settings.margins.joint
+        lo = q - (self.robot.lower + margin)
+        hi = (self.robot.upper - margin) - q
+        n, nq = q.shape
+        values = np.stack([lo, hi], axis=2).reshape(n, 2 * nq)
+        if not jacobian:
+            return values, None
+        jac = np.zeros((n, 2 * nq, nq))
+        idx = np.arange(nq)
+        jac[:, 2 * idx, idx] = 1.0
+        jac[:, 2 * idx + 1, idx] = -1.0
+        return values, jac
+
+    def _incidence_rows(self, q, states: BodyStates, jacobian):
+        k = len(self.reflector_names)
+        n = q.shape[0]
+        if k == 0:
+            return np.zeros((n, 0)), (np.zeros((n, 0, q.shape[1])) if jacobian else None)
+        body = np.full(k, self._tool_body)
+        c = states.points(body, self._reflector_local)  # (n, k, 3)
+        rot = states.rotation[:, self._tool_body] @ self._tool_rotation  # (n, 3, 3)
+        z = rot[:, :, 2][:, None, :].repeat(k, axis=1)  # (n, k, 3)
+        diff = self.tracker_position - c
+        length = np.linalg.norm(diff, axis=2, keepdims=True)
+        u = diff / length
+        limit = self.settings.incidence_limit - self.settings.margins.incidence
+        values = np.einsum("nki,nki->nk", z, u) - np.cos(limit)
+        if not jacobian:
+            return values, None
+        jac_ang = states.jacobian[:, self._tool_body, 3:]  # (n, 3, nv)
+        d_rot = np.einsum("nki,niv->nkv", np.cross(z, u), jac_ang)
+        # -z^T (I - u u^T) / L  applied to the point Jacobian of c
+        w = -(z - np.einsum("nki,nki->nk", z, u)[..., None] * u) / length
+        d_pt = states.directional_jacobian(body, c, w)
+        return values, d_rot + d_pt
+
+    def _pair_rows(self, q, states: BodyStates, jacobian):
+        n = q.shape[0]
+        if len(self.pairs) == 0:
+            return np.zeros((n, 0)), (np.zeros((n, 0, q.shape[1])) if jacobian else None)
+        seg = self.segments
+        i, j = self.pairs[:, 0], self.pairs[:, 1]
+        a1 = states.points(seg.body_a[i], seg.a_local[i])
+        b1 = states.points(seg.body_b[i], seg.b_local[i])
+        a2 = states.points(seg.body_a[j], seg.a_local[j])
+        b2 = states.points(seg.body_b[j], seg.b_local[j])
+        s, t = closest_parameters(a1, b1, a2, b2)
+        w1 = a1 + s[..., None] * (b1 - a1)
+        w2 = a2 + t[..., None] * (b2 - a2)
+        diff = w1 - w2
+        dist = np.linalg.norm(diff, axis=2)
+        values = dist - seg.radius[i] - seg.radius[j] - self._pair_clearance
+        if not jacobian:
+            return values, None
+        u = diff / np.maximum(dist, 1e-12)[..., None]
+        d1 = (1 - s)[..., None] * states.directional_jacobian(seg.body_a[i], a1, u) + s[
+            ..., None
+        ] * states.directional_jacobian(seg.body_b[i], b1, u)
+        d2 = (1 - t)[..., None] * states.directional_jacobian(seg.body_a[j], a2, u) + t[
+            ..., None
+        ] * states.directional_jacobian(seg.body_b[j], b2, u)
+        return values, d1 - d2
+
+    def _halfspace_rows(self, q, states: BodyStates, jacobian):
+        n = q.shape[0]
+        if len(self.halfspace_pairs) == 0:
+            return np.zeros((n, 0)), (np.zeros((n, 0, q.shape[1])) if jacobian else None)
+        seg = self.segments
+        i = self.halfspace_pairs[:, 0]
+        a = states.points(seg.body_a[i], seg.a_local[i])
+        b = states.points(seg.body_b[i], seg.b_local[i])
+        da = np.einsum("nhi,hi->nh", a, self._hs_normal)
+        db = np.einsum("nhi,hi->nh", b, self._hs_normal)
+        use_a = da <= db
+        values = np.where(use_a, da, db) - self._hs_offset - seg.radius[i] - self._hs_clearance
+        if not jacobian:
+            return values, None
+        u = np.broadcast_to(self._hs_normal, a.shape)
+        ja = states.directional_jacobian(seg.body_a[i], a, u)
+        jb = states.directional_jacobian(seg.body_b[i], b, u)
+        return values, np.where(use_a[..., None], ja, jb)

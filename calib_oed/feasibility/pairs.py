@@ -1,0 +1,234 @@
+r"""Which capsule pairs are checked, and why the others are not.
+
+Candidates (paper §2.2): every pair of robot capsules (the reflector's capsule
+counts as part of the tool link) except those on the same body, on adjacent
+bodies, on two fixed bodies, or on a link pair the scene excludes; every moving
+robot capsule against every obstacle capsule and half-space; every laser beam
+against every robot capsule except those of the body carrying the reflector,
+and against every obstacle.
+
+A seeded sampling pass (uniform in the joint limits) then drops candidates
+that cannot matter: clearance never below ``prune_distance``, clearance
+constant (e.g. a link turning about the floor normal against the floor), or
+overlapping in every sample (a capsule model too coarse to separate them:
+reported loudly, since such a pair could never be satisfied). Sampling cannot
+prove a pair harmless; the drop is reported with the sampled range so a user
+can see it, and the independent mesh check (:mod:`calib_oed.feasibility.mesh_check`)
+catches what the capsule model misses.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from calib_oed.exceptions import UnknownLinkError
+from calib_oed.feasibility.constraints import FeasibilityModel, SegmentTable, build_segments
+from calib_oed.feasibility.shapes import Capsule, Cell, FeasibilitySettings
+from calib_oed.robot import Robot
+
+
+@dataclass(frozen=True)
+class DroppedPair:
+    """A candidate pair that is not checked.
+
+    Attributes:
+        label: ``"kind:segment|segment"``.
+        reason: Why (``"adjacent links"``, ``"never closer than 100 mm"``, ...).
+        min_clearance: Smallest sampled clearance [m] (NaN if not sampled).
+        max_clearance: Largest sampled clearance [m] (NaN if not sampled).
+    """
+
+    label: str
+    reason: str
+    min_clearance: float = float("nan")
+    max_clearance: float = float("nan")
+
+
+@dataclass(frozen=True)
+class PairReport:
+    """The pair selection, for reports.
+
+    Attributes:
+        checked: Labels of the checked capsule and half-space pairs.
+        dropped: Pairs not checked, with reasons.
+        n_links: Robot links with capsules (n of the paper's count).
+        samples: Size of the sampling pass (0: no pruning).
+        seed: Its seed.
+    """
+
+    checked: tuple[str, ...]
+    dropped: tuple[DroppedPair, ...]
+    n_links: int
+    samples: int
+    seed: int
+    counts: dict = field(default_factory=dict)
+
+    @property
+    def paper_count(self) -> int:
+        """Self-collision pairs by the paper's formula :math:`n(n-1)/2 - (n-1)`."""
+        n = self.n_links
+        return n * (n - 1) // 2 - (n - 1)
+
+    def summary(self) -> str:
+        lines = [f"checked pairs per pose: {len(self.checked)} ("
+                 + ", ".join(f"{k} {v}" for k, v in self.counts.items()) + ")",
+                 f"paper formula n(n-1)/2-(n-1) for n={self.n_links} links: {self.paper_count} self pairs"]
+        by_reason: dict[str, int] = {}
+        for d in self.dropped:
+            key = d.reason.split(" (")[0]
+            by_reason[key] = by_reason.get(key, 0) + 1
+        for reason, count in by_reason.items():
+            lines.append(f"dropped {count}: {reason}")
+        for d in self.dropped:
+            if d.reason.startswith("overlapping"):
+                lines.append(f"  WARNING {d.label}: {d.reason}")
+        return "\n".join(lines)
+
+
+def _candidates(robot: Robot, seg: SegmentTable, cell: Cell, excluded: Sequence[tuple[str, str]]):
+    parents = robot.model.parents
+    tool_body = int(robot.model.frames[robot.tool_frame_id].parentJoint)
+    excl = {frozenset(p) for p in excluded}
+    pairs, kinds, hs_pairs, hs_kinds, dropped = [], [], [], [], []
+    body_roles = ("robot", "reflector")
+    ns = len(seg)
+    for i in range(ns):
+        for j in range(i + 1, ns):
+            ri, rj = seg.roles[i], seg.roles[j]
+            bi, bj = int(seg.body_a[i]), int(seg.body_a[j])
+            label_ij = f"{seg.names[i]}|{seg.names[j]}"
+            if ri in body_roles and rj in body_roles:
+                reason = None
+                if bi == bj:
+                    reason = "same body"
+                elif parents[bi] == bj or parents[bj] == bi:
+                    reason = "adjacent links"
+                elif frozenset((seg.links[i], seg.links[j])) in excl:
+                    reason = "excluded by the scene"
+                elif bi == 0 and bj == 0:
+                    reason = "both fixed"
+                if reason:
+                    dropped.append(DroppedPair(f"self:{label_ij}", reason))
+                else:
+                    pairs.append((i, j))
+                    kinds.append("self")
+            elif {ri, rj} == {"obstacle"} or {ri, rj} == {"beam"}:
+                continue
+            elif "obstacle" in (ri, rj) and "beam" not in (ri, rj):
+                body = bi if ri != "obstacle" else bj
+                if body == 0:
+                    dropped.append(DroppedPair(f"obstacle:{label_ij}", "both fixed"))
+                else:
+                    pairs.append((i, j))
+                    kinds.append("obstacle")
+            else:  # a beam and a robot/reflector capsule or an obstacle
+                other = j if ri == "beam" else i
+                if seg.roles[other] != "obstacle" and int(seg.body_a[other]) == tool_body:
+                    dropped.append(DroppedPair(f"beam:{label_ij}", "carries the reflector"))
+                else:
+                    pairs.append((i, j) if ri == "beam" else (j, i))
+                    kinds.append("beam")
+    for i in range(ns):
+        for h, hs in enumerate(cell.halfspaces):
+            role = seg.roles[i]
+            if role == "obstacle":
+                continue
+            if role != "beam" and int(seg.body_a[i]) == 0:
+                dropped.append(DroppedPair(f"obstacle:{seg.names[i]}|{hs.name}", "both fixed"))
+                continue
+            hs_pairs.append((i, h))
+            hs_kinds.append("beam" if role == "beam" else "obstacle")
+    return pairs, kinds, hs_pairs, hs_kinds, dropped
+
+
+def build_feasibility_model(
+    robot: Robot,
+    cell: Cell,
+    settings: FeasibilitySettings,
+    tracker_position: np.ndarray,
+    reflector_offsets: np.ndarray,
+    reflector_names: Sequence[str] | None = None,
+    capsules: Sequence[Capsule] | None = None,
+    prune: bool = True,
+) -> tuple[FeasibilityModel, PairReport]:
+    """Assemble the feasibility model of a cell and report the pair selection.
+
+    Args:
+        robot: The robot.
+        cell: Obstacles.
+        settings: Limits, margins, exclusions, pruning pass.
+        tracker_position: Tracker origin in the world [m].
+        reflector_offsets: Reflector offsets in the tool frame [m], (k, 3).
+        reflector_names: Their names (default ``reflector0..``).
+        capsules: Robot capsules (link frames); default: the scene's table or
+            the fit to the URDF collision geometry (:func:`robot_capsules`).
+        prune: Run the sampling pass that drops pairs that cannot matter.
+    """
+    reflector_offsets = np.asarray(reflector_offsets, dtype=float).reshape(-1, 3)
+    if reflector_names is None:
+        reflector_names = [f"reflector{j}" for j in range(len(reflector_offsets))]
+    if capsules is None:
+        from calib_oed.feasibility.capsules import robot_capsules
+
+        capsules = robot_capsules(robot, settings)
+    links = {f.name for f in robot.model.frames}
+    for pair in settings.excluded_pairs:
+        for name in pair:
+            if name not in links:
+                raise UnknownLinkError(name, sorted(links))
+    seg = build_segments(robot, capsules, cell, settings, tracker_position, reflector_offsets, reflector_names)
+    pairs, kinds, hs_pairs, hs_kinds, dropped = _candidates(robot, seg, cell, settings.excluded_pairs)
+    args = (cell, settings, tracker_position, reflector_offsets, reflector_names)
+    model = FeasibilityModel(robot, seg, np.array(pairs), kinds, np.array(hs_pairs), hs_kinds, *args)
+    n_links = len({c.frame for c in capsules})
+    samples = int(settings.prune_samples) if prune else 0
+    if samples > 0:
+        q = robot.random_configurations(samples, settings.prune_seed)
+        values = model.compute_values(q)
+        rows = model.kind_slices()
+        first_pair = len(model.kinds) - len(pairs) - len(hs_pairs)
+        raw = values[:, first_pair:] + settings.margins.clearance
+        lo, hi = raw.min(axis=0), raw.max(axis=0)
+        keep = np.ones(raw.shape[1], dtype=bool)
+        labels = model.labels[first_pair:]
+        for k in range(raw.shape[1]):
+            reason = None
+            if hi[k] - lo[k] < 1e-9:
+                reason = f"constant clearance ({lo[k] * 1e3:.1f} mm)"
+                if lo[k] < 0:
+                    reason = f"overlapping in every configuration ({lo[k] * 1e3:.1f} mm, constant)"
+            elif hi[k] < 0:
+                reason = (f"overlapping in every one of {samples} samples "
+                          f"(clearance {lo[k] * 1e3:.1f} to {hi[k] * 1e3:.1f} mm): capsules too coarse?")
+            elif lo[k] > settings.prune_distance:
+                reason = f"never closer than {settings.prune_distance * 1e3:.0f} mm in {samples} samples"
+            if reason:
+                keep[k] = False
+                dropped.append(DroppedPair(labels[k], reason, float(lo[k]), float(hi[k])))
+        del rows
+        kp, kh = keep[: len(pairs)], keep[len(pairs):]
+        pairs = [p for p, k in zip(pairs, kp) if k]
+        kinds = [p for p, k in zip(kinds, kp) if k]
+        hs_pairs = [p for p, k in zip(hs_pairs, kh) if k]
+        hs_kinds = [p for p, k in zip(hs_kinds, kh) if k]
+        model = FeasibilityModel(robot, seg, np.array(pairs), kinds, np.array(hs_pairs), hs_kinds, *args)
+    counts = {k: v for k, v in model.count_per_pose().items()}
+    checked = tuple(lbl for lbl, kind in zip(model.labels, model.kinds) if kind in ("self", "obstacle", "beam"))
+    report = PairReport(checked, tuple(dropped), n_links, samples, int(settings.prune_seed), counts)
+    return model, report
+
+
+def feasibility_from_scene(scene, prune: bool = True) -> tuple[FeasibilityModel, PairReport]:
+    """The feasibility model of a :class:`calib_oed.scene.Scene` (its cell and settings)."""
+    return build_feasibility_model(
+        scene.robot,
+        scene.cell,
+        scene.feasibility,
+        scene.tracker.placement().translation,
+        np.array([r.offset for r in scene.reflectors]),
+        [r.name for r in scene.reflectors],
+        prune=prune,
+    )
