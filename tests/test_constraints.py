@@ -6,11 +6,11 @@ import numpy as np
 import pinocchio as pin
 import pytest
 import scipy.sparse
+from conftest import central_difference
 
 from calib_oed.feasibility import Capsule, Cell, FeasibilitySettings, HalfSpace
 from calib_oed.feasibility.pairs import build_feasibility_model
 from calib_oed.feasibility.segments import closest_parameters, segment_distance
-from conftest import central_difference
 
 
 def skeleton_capsules(robot, radius=0.04):

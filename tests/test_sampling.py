@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from test_constraints import model_for
 
 from calib_oed import load_robot
 from calib_oed.exceptions import SamplingError
 from calib_oed.feasibility.sampling import sample_feasible
-from test_constraints import model_for
 
 
 @pytest.fixture(scope="module")

@@ -54,7 +54,7 @@ class SegmentTable:
         body_a, body_b: Body (joint index) of each end point, (s,).
         a_local, b_local: End points in their body frames [m], (s, 3).
         radius: Radii [m], (s,).
-        names: Labels (``"link_2#0"``, ``"reflector:smr0"``, ``"beam:smr0"``, ``"car_lower"``).
+        names: Labels (``"link_2#0"``, ``"reflector(smr0)"``, ``"laser(smr0)"``, ``"car_lower"``).
         links: Link name each robot segment belongs to (``""`` for world-fixed and beams).
         roles: ``"robot"``, ``"reflector"``, ``"beam"`` or ``"obstacle"``.
     """
@@ -114,18 +114,18 @@ def build_segments(
         rows.append((frame.parentJoint, a, frame.parentJoint, b, cap.radius, cap.name or cap.frame, cap.frame, "robot"))
     tool = model.frames[robot.tool_frame_id]
     tool_link = tool.name
-    for name, offset in zip(reflector_names, reflector_offsets):
+    for name, offset in zip(reflector_names, reflector_offsets, strict=False):
         a = tool.placement.translation.copy()
         b = tool.placement.act(np.asarray(offset, dtype=float))
         rows.append((tool.parentJoint, a, tool.parentJoint, b, settings.reflector_radius,
-                     f"reflector:{name}", tool_link, "reflector"))
+                     f"reflector({name})", tool_link, "reflector"))
     for cap in cell.capsules:
         rows.append((0, cap.a, 0, cap.b, cap.radius, cap.name, "", "obstacle"))
     t_world = np.asarray(tracker_position, dtype=float)
-    for name, offset in zip(reflector_names, reflector_offsets):
+    for name, offset in zip(reflector_names, reflector_offsets, strict=False):
         c = tool.placement.act(np.asarray(offset, dtype=float))
-        rows.append((tool.parentJoint, c, 0, t_world, settings.beam_radius, f"beam:{name}", "", "beam"))
-    cols = list(zip(*rows))
+        rows.append((tool.parentJoint, c, 0, t_world, settings.beam_radius, f"laser({name})", "", "beam"))
+    cols = list(zip(*rows, strict=False))
     return SegmentTable(
         body_a=np.array(cols[0], dtype=int),
         a_local=np.array(cols[1], dtype=float).reshape(-1, 3),
@@ -208,10 +208,10 @@ class FeasibilityModel:
             kinds.append("incidence")
             labels.append(f"incidence:{name}")
         names = self.segments.names
-        for (i, j), kind in zip(self.pairs, self.pair_kinds):
+        for (i, j), kind in zip(self.pairs, self.pair_kinds, strict=False):
             kinds.append(kind)
             labels.append(f"{kind}:{names[i]}|{names[j]}")
-        for (i, h), kind in zip(self.halfspace_pairs, self.halfspace_kinds):
+        for (i, h), kind in zip(self.halfspace_pairs, self.halfspace_kinds, strict=False):
             kinds.append(kind)
             labels.append(f"{kind}:{names[i]}|{self.cell.halfspaces[h].name}")
         return tuple(kinds), tuple(labels)
@@ -256,8 +256,8 @@ class FeasibilityModel:
         values = np.concatenate(parts_v, axis=1)
         jac = np.concatenate(parts_j, axis=1) if jacobian else None
         rows = [k in kinds for k in self.kinds]
-        return ConstraintValues(values, jac, tuple(k for k, r in zip(self.kinds, rows) if r),
-                                tuple(lbl for lbl, r in zip(self.labels, rows) if r))
+        return ConstraintValues(values, jac, tuple(k for k, r in zip(self.kinds, rows, strict=False) if r),
+                                tuple(lbl for lbl, r in zip(self.labels, rows, strict=False) if r))
 
     def compute_values(self, q: np.ndarray) -> np.ndarray:
         """Constraint values :math:`g(q)`, (n, m)."""
@@ -354,3 +354,66 @@ class FeasibilityModel:
         ja = states.directional_jacobian(seg.body_a[i], a, u)
         jb = states.directional_jacobian(seg.body_b[i], b, u)
         return values, np.where(use_a[..., None], ja, jb)
+
+
+@dataclass(frozen=True)
+class KindMargin:
+    """The tightest constraint of one kind over a design, in report units.
+
+    Attributes:
+        kind: Constraint kind.
+        slack: Value beyond the required safety margin (>= 0 feasible), in ``unit``.
+        actual: The physical quantity at that constraint: clearance between
+            surfaces [mm], incidence angle [deg], distance to the joint limit [deg or mm].
+        required: What the constraint demands of ``actual`` (same unit; for
+            incidence the largest allowed angle).
+        unit: ``"mm"`` or ``"deg"``.
+        label: The constraint row.
+        pose: Index of the pose.
+    """
+
+    kind: str
+    slack: float
+    actual: float
+    required: float
+    unit: str
+    label: str
+    pose: int
+
+
+def margin_report(model: FeasibilityModel, values: np.ndarray) -> list[KindMargin]:
+    """Smallest margin per constraint kind of a design's constraint ``values`` (n, m)."""
+    out = []
+    st = model.settings
+    for kind, rows in model.kind_slices().items():
+        if rows.size == 0:
+            continue
+        sub = values[:, rows]
+        pose, col = np.unravel_index(int(np.argmin(sub)), sub.shape)
+        g = float(sub[pose, col])
+        label = model.labels[rows[col]]
+        if kind == "incidence":
+            limit = st.incidence_limit - st.margins.incidence
+            beta = np.degrees(np.arccos(np.clip(g + np.cos(limit), -1.0, 1.0)))
+            out.append(KindMargin(kind, float(np.degrees(limit) - beta), float(beta),
+                                  float(np.degrees(limit)), "deg", label, int(pose)))
+        elif kind == "joint":
+            joint = model.robot.joint_names.index(label.split(":")[1])
+            prismatic = model.robot.model.joints[joint + 1].shortname().startswith("JointModelP")
+            scale, unit = (1e3, "mm") if prismatic else (np.degrees(1.0), "deg")
+            out.append(KindMargin(kind, g * scale, (g + st.margins.joint) * scale,
+                                  st.margins.joint * scale, unit, label, int(pose)))
+        else:
+            out.append(KindMargin(kind, g * 1e3, (g + st.margins.clearance) * 1e3,
+                                  st.margins.clearance * 1e3, "mm", label, int(pose)))
+    return out
+
+
+def format_margins(margins: list[KindMargin]) -> str:
+    """A table of :func:`margin_report` for the terminal."""
+    lines = [f"{'kind':10s} {'slack':>10s} {'actual':>10s} {'required':>10s}  tightest constraint (pose)"]
+    for m in margins:
+        req = f"<={m.required:.1f}" if m.kind == "incidence" else f">={m.required:.1f}"
+        lines.append(f"{m.kind:10s} {m.slack:7.2f} {m.unit:3s}{m.actual:7.2f} {m.unit:3s}{req:>8s} {m.unit:3s}"
+                     f" {m.label} ({m.pose})")
+    return "\n".join(lines)

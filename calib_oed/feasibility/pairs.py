@@ -210,13 +210,13 @@ def build_feasibility_model(
                 dropped.append(DroppedPair(labels[k], reason, float(lo[k]), float(hi[k])))
         del rows
         kp, kh = keep[: len(pairs)], keep[len(pairs):]
-        pairs = [p for p, k in zip(pairs, kp) if k]
-        kinds = [p for p, k in zip(kinds, kp) if k]
-        hs_pairs = [p for p, k in zip(hs_pairs, kh) if k]
-        hs_kinds = [p for p, k in zip(hs_kinds, kh) if k]
+        pairs = [p for p, k in zip(pairs, kp, strict=False) if k]
+        kinds = [p for p, k in zip(kinds, kp, strict=False) if k]
+        hs_pairs = [p for p, k in zip(hs_pairs, kh, strict=False) if k]
+        hs_kinds = [p for p, k in zip(hs_kinds, kh, strict=False) if k]
         model = FeasibilityModel(robot, seg, np.array(pairs), kinds, np.array(hs_pairs), hs_kinds, *args)
     counts = {k: v for k, v in model.count_per_pose().items()}
-    checked = tuple(lbl for lbl, kind in zip(model.labels, model.kinds) if kind in ("self", "obstacle", "beam"))
+    checked = tuple(lbl for lbl, kind in zip(model.labels, model.kinds, strict=False) if kind in ("self", "obstacle", "beam"))
     report = PairReport(checked, tuple(dropped), n_links, samples, int(settings.prune_seed), counts)
     return model, report
 
