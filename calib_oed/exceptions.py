@@ -196,3 +196,31 @@ class UnknownLinkError(CalibOedError):
 
 class SamplingError(CalibOedError):
     """Too few feasible configurations were found (the constraints may be too tight)."""
+
+
+class NotPositiveDefiniteError(CalibOedError, ValueError):
+    """A covariance matrix is not symmetric positive definite.
+
+    Attributes:
+        what: Which matrix.
+        eigenvalues: Its eigenvalues (of the symmetric part), ascending.
+    """
+
+    def __init__(self, what: str, eigenvalues: Sequence[float], detail: str = ""):
+        self.what = what
+        self.eigenvalues = list(map(float, eigenvalues))
+        extra = f" ({detail})" if detail else ""
+        super().__init__(
+            f"{what}: a confidence ellipsoid needs a symmetric positive definite covariance; "
+            f"eigenvalues are {self.eigenvalues}{extra}"
+        )
+
+
+class ConfidenceLevelError(CalibOedError, ValueError):
+    """A confidence level is not a number strictly between 0 and 1."""
+
+    def __init__(self, level):
+        self.level = level
+        super().__init__(
+            f"confidence level must be strictly between 0 and 1 (e.g. 0.95), got {level!r}"
+        )
