@@ -2,7 +2,8 @@
 
 A scene file states its units once (``units: {length: mm, angle: deg}``);
 everything in a :class:`Scene` is SI [m, rad]. The world frame is the robot
-base, z up. The schema is documented in ``docs/scenes.md``.
+base, z up. The schema is documented in ``docs/scenes.md``; the optional
+``cell:`` and ``feasibility:`` blocks are read by :mod:`calib_oed.scene_cell`.
 """
 
 from __future__ import annotations
@@ -11,7 +12,7 @@ import math
 import os
 import xml.etree.ElementTree as ET
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
 from typing import Any, Literal
@@ -27,7 +28,9 @@ from calib_oed.exceptions import (
     ShapeError,
     UnknownSceneError,
 )
+from calib_oed.feasibility.shapes import Cell, FeasibilitySettings
 from calib_oed.robot import Robot, load_robot
+from calib_oed.scene_cell import read_cell, read_feasibility
 
 #: Supported units and their value in SI [m] or [rad].
 LENGTH_UNITS: dict[str, float] = {"m": 1.0, "mm": 1e-3}
@@ -174,6 +177,9 @@ class Scene:
         kpi: The key performance indicator.
         generic_design: The gauge rule's random design.
         units: The file's units as written (``{"length": "mm", "angle": "deg"}``), for reports.
+        cell: World-fixed obstacles (capsules, half-spaces) [m]; empty if the file has none.
+        feasibility: What makes a measurement configuration executable [m, rad];
+            the defaults of :class:`FeasibilitySettings` if the file has no ``feasibility:``.
     """
 
     name: str
@@ -186,6 +192,8 @@ class Scene:
     kpi: KpiSpec
     generic_design: GenericDesignSpec
     units: dict[str, str]
+    cell: Cell = field(default_factory=Cell)
+    feasibility: FeasibilitySettings = field(default_factory=FeasibilitySettings)
 
 
 def scene_names() -> list[str]:
@@ -266,7 +274,7 @@ class _Reader:
             raise self.fail(key, f"expected a mapping {{joint name: value}}, got {value!r}")
         return dict(value)
 
-    def number(self, value, key, scale=1.0, positive=False) -> float:
+    def number(self, value, key, scale=1.0, positive=False, nonnegative=False) -> float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             hint = ""
             if isinstance(value, str) and _parses_as_float(value):
@@ -276,6 +284,8 @@ class _Reader:
             raise self.fail(key, f"expected a finite number, got {value!r}")
         if positive and value <= 0:
             raise self.fail(key, f"expected a number > 0, got {value!r}")
+        if nonnegative and value < 0:
+            raise self.fail(key, f"expected a number >= 0, got {value!r}")
         return float(value) * scale
 
     def vector(self, value, key, n, scale=1.0, what=None) -> np.ndarray:
@@ -324,7 +334,8 @@ class _Reader:
     def scene(self, data) -> Scene:
         top = self.mapping(data, None, ("version", "name", "units", "robot", "tracker",
                                         "reflectors", "kpi"),
-                           ("description", "measurement", "generic_design"))
+                           ("description", "measurement", "generic_design", "cell",
+                            "feasibility"))
         if top["version"] not in SUPPORTED_VERSIONS or isinstance(top["version"], bool):
             raise self.fail("version", f"unsupported scene file version {top['version']!r}; "
                             f"supported versions: {', '.join(map(str, SUPPORTED_VERSIONS))}")
@@ -358,6 +369,9 @@ class _Reader:
                 seed=self.integer(gd.get("seed", 0), "generic_design.seed", 0),
             ),
             units=dict(self.units),
+            cell=read_cell(self, top["cell"]) if "cell" in top else Cell(),
+            feasibility=(read_feasibility(self, top["feasibility"], robot)
+                         if "feasibility" in top else FeasibilitySettings()),
         )
 
     def robot(self, value) -> Robot:

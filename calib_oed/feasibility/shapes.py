@@ -71,8 +71,10 @@ class HalfSpace:
     r"""World-fixed free half-space :math:`n^\top x \ge c`.
 
     Attributes:
-        normal: Normal :math:`n` pointing into the free side (normalised on construction), (3,).
-        offset: :math:`c` [m]: the plane is :math:`n^\top x = c`.
+        normal: Normal :math:`n` pointing into the free side, (3,). Normalised on
+            construction together with ``offset``, so the half-space is unchanged.
+        offset: :math:`c` [m]: the plane is :math:`n^\top x = c` (after normalisation,
+            its signed distance from the origin).
         name: Label used in reports (``"floor"``, ``"wall"``).
     """
 
@@ -88,7 +90,8 @@ class HalfSpace:
         n = n / norm
         n.setflags(write=False)
         object.__setattr__(self, "normal", n)
-        object.__setattr__(self, "offset", float(self.offset))
+        # n^T x >= c is the same half-space as (n/|n|)^T x >= c/|n|
+        object.__setattr__(self, "offset", float(self.offset) / norm)
 
     def signed_distance(self, points: np.ndarray) -> np.ndarray:
         """Signed distance [m] of points (..., 3) to the plane, positive on the free side."""
