@@ -28,8 +28,9 @@ shortest segment is
 
 when :math:`a \le b`. Otherwise all intervals share :math:`[b, a]` and a sphere
 centred on the axis in :math:`[b, a]` (near the centre minimising its radius) is used.
-The axis starts as the principal axis of the points (SVD) through their centroid,
-or a single primitive's own axis, whichever gives the smaller capsule, and is then
+Plain points inside the convex hull of the others are dropped first. The axis
+starts as whichever of the three principal axes of the points (SVD, through their
+centroid) and the primitives' own axes gives the smallest capsule, and is then
 refined by a Nelder-Mead search over its direction and offset minimising the
 capsule volume :math:`\pi r^2 \|b - a\| + \tfrac{4}{3} \pi r^3`. Enclosure holds
 for every axis, so the search only makes capsules tighter.
@@ -130,7 +131,9 @@ def _local_balls(geometry) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         return pts, np.zeros(len(pts)), z
     geometry.computeLocalAABB()
     lo, hi = np.asarray(geometry.aabb_local.min_), np.asarray(geometry.aabb_local.max_)
-    corners = np.array([[x, y, w] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for w in (lo[2], hi[2])])
+    corners = np.array(
+        [[x, y, w] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for w in (lo[2], hi[2])]
+    )
     return corners, np.zeros(8), None
 
 
@@ -278,6 +281,7 @@ def fit_capsules(
     out = []
     for link, (pts, rad, axes) in link_geometry_points(robot, geometry_model).items():
         a, b, r = fit_capsule(pts, rad, axes)
+        r = max(r, 1e-9)  # a degenerate geometry (one point, a segment) still gets a capsule
         out.append(Capsule(a, b, r + margin, frame=link, name=f"{link}#0"))
     return tuple(out)
 

@@ -267,10 +267,10 @@ def check_design_meshes(
         pin.forwardKinematics(model, data, qi)
         pin.updateGeometryPlacements(model, data, geom, gdata)
         oMg = gdata.oMg
-        row = [_distance(objs[k].geometry, oMg[k], objs[m].geometry, oMg[m]) for k, m in robot_pairs]
-        row += [
-            _distance(objs[k].geometry, oMg[k], *cell_shapes[o]) for k, o in cell_pairs
+        row = [
+            _distance(objs[k].geometry, oMg[k], objs[m].geometry, oMg[m]) for k, m in robot_pairs
         ]
+        row += [_distance(objs[k].geometry, oMg[k], *cell_shapes[o]) for k, o in cell_pairs]
         if beams is not None:
             tracker, offsets, radius = beams
             oMf = pin.updateFramePlacement(model, data, tool_id)
