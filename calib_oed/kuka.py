@@ -218,8 +218,12 @@ def _link_shapes(d: KukaDimensions) -> dict[str, list[_Shape]]:
                    _Shape((d.a1, 0.0, 0.0), "y", 0.5 * s, 1.2 * s)],
         "link_2": [_cyl_x(0.0, d.a2, 0.35 * s)],
         "link_3": [_Shape((0.0, 0.0, 0.0), "y", 0.4 * s, s),
-                   _cyl_x(-0.35 * s, 0.25 * d.d4, 0.3 * s, d.a3)],
-        "link_4": [_cyl_x(-0.75 * d.d4, 0.0, 0.25 * s)],
+                   _cyl_x(-0.35 * s, 0.35 * d.d4, 0.3 * s, d.a3)],
+        # The forearm is split at 0.35 d4 between link_3 and link_4, and link_4 ends
+        # short of the wrist centre (the wrist sphere of link_5 covers it): so the
+        # enclosing capsules of non-adjacent links (2-4, 4-6) do not overlap in
+        # every pose, which would make those pairs impossible to constrain.
+        "link_4": [_cyl_x(-0.65 * d.d4, -0.3 * s, 0.25 * s)],
         "link_5": [_Shape((0.0, 0.0, 0.0), None, 0.3 * s)],
         "link_6": [_cyl_x(0.5 * d.d6, d.d6, 0.2 * s)],
     }  # fmt: skip
