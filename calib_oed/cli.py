@@ -11,6 +11,9 @@ import json
 import os
 import sys
 import traceback
+from pathlib import Path
+
+import numpy as np
 
 from calib_oed.exceptions import CalibOedError
 
@@ -51,20 +54,198 @@ def cmd_identifiability(args) -> int:
     return EXIT_OK
 
 
-def cmd_demo(args) -> int:
-    from calib_oed.report import format_identifiability, format_kpi_sigma
+def _setup(scene_ref: str):
+    from calib_oed.scene import load_scene
+    from calib_oed.workflow import setup
 
-    scene, problem = _problem(args.scene)
-    q = problem.robot.random_configurations(args.n, args.seed)
-    sigma = problem.kpi_sigma(q)
+    return setup(load_scene(scene_ref))
+
+
+def _design(s, args):
+    """The design of a command: a design CSV, or n heuristic feasible poses."""
+    from calib_oed.design_file import read_design_csv
+    from calib_oed.workflow import heuristic_design
+
+    if getattr(args, "design", None):
+        return read_design_csv(args.design, s.problem.robot), f"design file {args.design}"
+    q = heuristic_design(s, args.n, args.seed)
+    return q, f"{args.n} random feasible poses (seed {args.seed})"
+
+
+def _say(args, text: str = "") -> None:
+    if not getattr(args, "quiet", False) and not getattr(args, "json", False):
+        print(text)
+
+
+def cmd_demo(args) -> int:
+    """The whole job on one scene: feasible design, simulated data, identification,
+    export with round trip, Monte Carlo validation."""
+    import tempfile
+    import time
+
+    from calib_oed.montecarlo import monte_carlo
+    from calib_oed.report import format_identifiability, format_kpi_sigma
+    from calib_oed.workflow import (
+        export_result,
+        identify_measurements,
+        round_trip_error,
+        simulated_measurements,
+        tcp_errors,
+    )
+
+    s = _setup(args.scene)
+    problem = s.problem
     print(format_identifiability(problem, problem.identifiability, problem.kpi_estimability(),
-                                 title=f"scene {scene.name!r}"))
+                                 title=f"scene {s.scene.name!r}"))
     print()
-    print(format_kpi_sigma(
-        problem, sigma,
-        f"a random {args.n}-pose design (uniform in the joint limits, seed {args.seed}; "
-        "feasibility constraints are not yet applied)",
-    ))
+    t0 = time.perf_counter()
+    q, what = _design(s, args)
+    print(f"design: {what}, sampled in {time.perf_counter() - t0:.2f} s; feasible: "
+          f"{bool(s.feasibility.compute(q, jacobian=False).feasible.all())}")
+    print(format_kpi_sigma(problem, problem.kpi_sigma(q), what))
+    print()
+    mset, p_true = simulated_measurements(s, q, args.truth_seed)
+    result = identify_measurements(s, mset)
+    before = np.linalg.norm(tcp_errors(s, p_true, None), axis=1)
+    after = np.linalg.norm(tcp_errors(s, p_true, result.p), axis=1)
+    print(f"one simulated calibration (truth seed {args.truth_seed}): {result.status.value}, "
+          f"{result.nfev} evaluations, residual RMS {result.rms_mm:.4f} mm")
+    for name, b, a in zip(problem.kpi.names, before, after, strict=True):
+        print(f"  {name}: TCP error before {b * 1e3:.4f} mm, after {a * 1e3:.4f} mm")
+    out = args.output or tempfile.mkdtemp(prefix="calib_oed_demo_")
+    paths = export_result(s, result, out)
+    err = round_trip_error(s, result.p, paths["urdf"])
+    print(f"exported {paths['urdf']} and {paths['sensor']}; round trip: "
+          f"largest tool difference {err * 1e9:.3g} nm")
+    print()
+    mc = monte_carlo(problem, q, args.runs, args.mc_seed, n_jobs=args.jobs, progress=not args.quiet)
+    print(mc.summary())
+    return EXIT_OK
+
+
+def cmd_feasibility(args) -> int:
+    import time
+
+    from calib_oed.design_file import write_design_csv
+    from calib_oed.feasibility.constraints import format_margins, margin_report
+    from calib_oed.feasibility.mesh_check import check_design_meshes
+
+    s = _setup(args.scene)
+    t0 = time.perf_counter()
+    q, what = _design(s, args)
+    elapsed = time.perf_counter() - t0
+    res = s.feasibility.compute(q, jacobian=False)
+    scene = s.scene
+    mesh = None
+    if not args.no_mesh_check:
+        mesh = check_design_meshes(
+            scene.robot, q, scene.cell,
+            tracker_position=scene.tracker.placement().translation,
+            reflector_offsets=np.array([r.offset for r in scene.reflectors]),
+            beam_radius=scene.feasibility.beam_radius,
+            excluded_pairs=scene.feasibility.excluded_pairs,
+        )
+    margins = margin_report(s.feasibility, res.values)
+    if args.output:
+        write_design_csv(args.output, scene.robot, q, comment=f"scene {scene.name}: {what}")
+    if args.json:
+        data = {
+            "scene": scene.name, "design": what, "n": int(len(q)), "seconds": elapsed,
+            "constraints_per_pose": s.feasibility.count_per_pose(),
+            "paper_self_pairs": s.pairs.paper_count,
+            "dropped_pairs": [vars(d) for d in s.pairs.dropped],
+            "feasible": int(res.feasible.sum()),
+            "margins": [vars(m) for m in margins],
+            "mesh_feasible": None if mesh is None else int(mesh.feasible.sum()),
+            "mesh_min_distance_mm": None if mesh is None else float(mesh.min_distance.min() * 1e3),
+        }
+        print(json.dumps(data, indent=2))
+        return EXIT_OK
+    print(f"scene {scene.name!r}: capsule pairs")
+    print(s.pairs.summary())
+    print()
+    print(f"design: {what} ({elapsed:.2f} s); {int(res.feasible.sum())} of {len(q)} feasible")
+    print("smallest margin per constraint kind:")
+    print(format_margins(margins))
+    if mesh is not None:
+        print()
+        print("independent check against the URDF collision meshes:")
+        print(mesh.summary())
+    if args.output:
+        print(f"wrote {args.output}")
+    return EXIT_OK
+
+
+def cmd_simulate(args) -> int:
+    from calib_oed.workflow import simulated_measurements, write_measurement_file, write_truth
+
+    s = _setup(args.scene)
+    q, what = _design(s, args)
+    mset, p_true = simulated_measurements(s, q, args.truth_seed)
+    write_measurement_file(s, args.output, mset,
+                           f"simulated by calib_oed: scene {s.scene.name}, {what}, truth seed {args.truth_seed}")
+    truth = args.truth or str(Path(args.output).with_suffix("")) + "_truth.yaml"
+    write_truth(truth, s, p_true, args.truth_seed)
+    _say(args, f"wrote {len(q)} simulated measurements per reflector to {args.output}; the truth to {truth}")
+    return EXIT_OK
+
+
+def cmd_identify(args) -> int:
+    from calib_oed.workflow import (
+        export_result,
+        identify_measurements,
+        read_scene_measurements,
+        read_truth,
+        round_trip_error,
+        tcp_errors,
+    )
+
+    s = _setup(args.scene)
+    units = {k: v for k, v in (("length_unit", args.length_unit), ("angle_unit", args.angle_unit)) if v}
+    mset = read_scene_measurements(s, args.measurements, **units)
+    result = identify_measurements(s, mset, loss=args.loss)
+    data = result.to_dict()
+    if args.truth:
+        p_true = read_truth(args.truth, s)
+        data["tcp_error_mm"] = {
+            "before": (np.linalg.norm(tcp_errors(s, p_true, None), axis=1) * 1e3).tolist(),
+            "after": (np.linalg.norm(tcp_errors(s, p_true, result.p), axis=1) * 1e3).tolist(),
+        }
+    if args.output:
+        paths = export_result(s, result, args.output)
+        data["files"] = {k: str(v) for k, v in paths.items()}
+        data["round_trip_m"] = round_trip_error(s, result.p, paths["urdf"])
+        from calib_oed.io_utils import atomic_write_text
+
+        atomic_write_text(Path(args.output) / "identification.json", json.dumps(data, indent=2))
+    if args.json:
+        print(json.dumps(data, indent=2))
+        return EXIT_OK
+    print(result.summary())
+    if args.truth:
+        for name, b, a in zip(s.problem.kpi.names, data["tcp_error_mm"]["before"],
+                              data["tcp_error_mm"]["after"], strict=True):
+            print(f"TCP error at {name} against the truth: before {b:.4f} mm, after {a:.4f} mm")
+    if args.output:
+        print(f"wrote {data['files']['urdf']}, {data['files']['sensor']} and identification.json; "
+              f"round trip of the URDF: {data['round_trip_m'] * 1e9:.3g} nm")
+    return EXIT_OK
+
+
+def cmd_montecarlo(args) -> int:
+    from calib_oed.montecarlo import monte_carlo
+
+    s = _setup(args.scene)
+    q, what = _design(s, args)
+    mc = monte_carlo(s.problem, q, args.runs, args.mc_seed, n_jobs=args.jobs,
+                     progress=not (args.quiet or args.json))
+    if args.json:
+        data = mc.to_dict()
+        data.update(scene=s.scene.name, design=what)
+        print(json.dumps(data, indent=2))
+    else:
+        print(f"scene {s.scene.name!r}, {what}")
+        print(mc.summary())
     return EXIT_OK
 
 
@@ -97,12 +278,62 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.set_defaults(func=cmd_identifiability)
 
-    p = sub.add_parser("demo", help="identifiability and KPI sigma of a random design")
+    def design_args(p):
+        p.add_argument("--design", metavar="CSV", help="design file (header = joint names, rad); "
+                       "default: -n random feasible poses")
+        p.add_argument("-n", type=_positive_int, default=60, help="random feasible poses (default 60)")
+        p.add_argument("--seed", type=int, default=0, help="seed of the random design (default 0)")
+
+    p = sub.add_parser("demo", help="the whole job on a scene: design, simulated calibration, "
+                       "export, Monte Carlo")
     p.add_argument("scene", nargs="?", default=DEFAULT_SCENE, help=f"default {DEFAULT_SCENE}")
-    p.add_argument("-n", type=_positive_int, default=60,
-                   help="number of random poses (default 60)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the random design (default 0)")
+    design_args(p)
+    p.add_argument("--truth-seed", type=int, default=1, help="seed of the simulated robot (default 1)")
+    p.add_argument("-N", "--runs", type=_positive_int, default=200, help="Monte Carlo runs (default 200)")
+    p.add_argument("--mc-seed", type=int, default=0, help="Monte Carlo seed (default 0)")
+    p.add_argument("--jobs", type=_positive_int, default=2, help="parallel workers (default 2)")
+    p.add_argument("-o", "--output", help="folder for the calibrated URDF (default: a temporary folder)")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=cmd_demo)
+
+    p = sub.add_parser("feasibility", help="constraint pairs, a feasible design, margins, mesh check")
+    p.add_argument("scene", help="shipped scene name or scene file path")
+    design_args(p)
+    p.add_argument("-o", "--output", metavar="CSV", help="write the design (joint names, rad)")
+    p.add_argument("--no-mesh-check", action="store_true", help="skip the URDF mesh check")
+    p.add_argument("--json", action="store_true", help="machine-readable output")
+    p.set_defaults(func=cmd_feasibility)
+
+    p = sub.add_parser("simulate", help="simulated tracker measurements of a random true robot")
+    p.add_argument("scene", help="shipped scene name or scene file path")
+    design_args(p)
+    p.add_argument("--truth-seed", type=int, default=1, help="seed of the simulated robot (default 1)")
+    p.add_argument("-o", "--output", required=True, metavar="CSV", help="measurement file to write")
+    p.add_argument("--truth", metavar="YAML", help="where to write the true parameters "
+                   "(default: <output>_truth.yaml)")
+    p.add_argument("--quiet", action="store_true")
+    p.set_defaults(func=cmd_simulate)
+
+    p = sub.add_parser("identify", help="identify the parameters from a measurement file")
+    p.add_argument("scene", help="shipped scene name or scene file path")
+    p.add_argument("measurements", help="measurement CSV (docs/data_format.md)")
+    p.add_argument("-o", "--output", metavar="DIR", help="write calibrated URDF, sensor YAML, report")
+    p.add_argument("--loss", default="linear", help="linear (default), huber or soft_l1")
+    p.add_argument("--length-unit", choices=("m", "mm"), help="if the file states no units")
+    p.add_argument("--angle-unit", choices=("rad", "deg"), help="if the file states no units")
+    p.add_argument("--truth", metavar="YAML", help="true parameters of a simulation: report TCP errors")
+    p.add_argument("--json", action="store_true", help="machine-readable output")
+    p.set_defaults(func=cmd_identify)
+
+    p = sub.add_parser("montecarlo", help="simulated calibrations against the predicted KPI covariance")
+    p.add_argument("scene", help="shipped scene name or scene file path")
+    design_args(p)
+    p.add_argument("-N", "--runs", type=_positive_int, default=500, help="runs (default 500)")
+    p.add_argument("--mc-seed", type=int, default=0, help="Monte Carlo seed (default 0)")
+    p.add_argument("--jobs", type=_positive_int, default=2, help="parallel workers (default 2)")
+    p.add_argument("--json", action="store_true", help="machine-readable output")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_montecarlo)
 
     p = sub.add_parser("scenes", help="list the shipped scenes")
     p.set_defaults(func=cmd_scenes)

@@ -27,10 +27,16 @@ def test_identifiability_json(capsys):
     assert kpi["estimable"] is False and kpi["residual"] > 1e-3 and kpi["gauge"]
 
 
-def test_demo_prints_kpi_sigma(capsys):
-    assert main(["demo", "ur5_table", "-n", "40", "--seed", "1"]) == EXIT_OK
+def test_demo_runs_the_whole_job(capsys, tmp_path):
+    argv = ["demo", "ur5_table", "-n", "40", "--seed", "1", "-N", "6", "--jobs", "1", "--quiet",
+            "-o", str(tmp_path)]
+    assert main(argv) == EXIT_OK
     out = capsys.readouterr().out
     assert "KPI standard deviation" in out and " mm" in out
+    assert "feasible: True" in out
+    assert "TCP error before" in out and "round trip" in out
+    assert "coverage of the 95% ellipsoid" in out
+    assert (tmp_path / "ur5_calibrated.urdf").is_file() and (tmp_path / "ur5_sensor.yaml").is_file()
 
 
 @pytest.mark.parametrize(
@@ -63,3 +69,62 @@ def test_demo_with_too_few_poses_says_so(capsys):
     assert main(["demo", "-n", "5"]) == EXIT_BAD_INPUT
     err = capsys.readouterr().err
     assert "measure more configurations" in err and "Traceback" not in err
+
+
+def test_feasibility_command(capsys, tmp_path):
+    design = tmp_path / "design.csv"
+    assert main(["feasibility", "fms_kr16", "-n", "10", "-o", str(design)]) == EXIT_OK
+    out = capsys.readouterr().out
+    assert "paper formula" in out and "10 of 10 feasible" in out
+    assert "incidence" in out and "all 10 poses" in out.lower() or "feasible" in out
+    from calib_oed.design_file import read_design_csv
+    from calib_oed.scene import load_scene
+
+    q = read_design_csv(design, load_scene("fms_kr16").robot)
+    assert q.shape == (10, 6)
+    assert main(["feasibility", "fms_kr16", "--design", str(design), "--json", "--no-mesh-check"]) == EXIT_OK
+    data = json.loads(capsys.readouterr().out)
+    assert data["feasible"] == 10 and data["constraints_per_pose"]["joint"] == 12
+
+
+def test_simulate_then_identify_with_export(capsys, tmp_path):
+    meas = tmp_path / "meas.csv"
+    assert main(["simulate", "fms_kr16", "-n", "40", "--seed", "2", "--truth-seed", "3",
+                 "-o", str(meas)]) == EXIT_OK
+    truth = tmp_path / "meas_truth.yaml"
+    assert meas.is_file() and truth.is_file()
+    out_dir = tmp_path / "cal"
+    capsys.readouterr()
+    assert main(["identify", "fms_kr16", str(meas), "--truth", str(truth), "-o", str(out_dir),
+                 "--json"]) == EXIT_OK
+    data = json.loads(capsys.readouterr().out)
+    assert data["status"] == "converged"
+    before, after = data["tcp_error_mm"]["before"][0], data["tcp_error_mm"]["after"][0]
+    assert after < 0.05 < before
+    assert data["round_trip_m"] < 1e-9
+    assert (out_dir / "kr16_calibrated.urdf").is_file() and (out_dir / "identification.json").is_file()
+
+
+def test_montecarlo_command_json(capsys, tmp_path):
+    assert main(["montecarlo", "fms_kr16", "-n", "30", "-N", "8", "--jobs", "1", "--json"]) == EXIT_OK
+    data = json.loads(capsys.readouterr().out)
+    (wc,) = data["working_configurations"]
+    assert wc["rms_after_mm"] < wc["rms_before_mm"] and 0 <= wc["coverage"] <= 1
+
+
+def test_identify_bad_file_names_the_lines(capsys, tmp_path):
+    bad = tmp_path / "bad.csv"
+    bad.write_text("# units: length=mm angle=deg\n"
+                   "joint_a1,joint_a2,joint_a3,joint_a4,joint_a5,joint_a6,x,y,z\n"
+                   "0,-90,90,0,0,0,1,2,3\n"
+                   "0,-90,nan,0,0,0,1,2,3\n")
+    assert main(["identify", "fms_kr16", str(bad)]) == EXIT_BAD_INPUT
+    err = capsys.readouterr().err
+    assert "line 4" in err and "Traceback" not in err
+
+
+def test_bad_design_file_is_reported(capsys, tmp_path):
+    bad = tmp_path / "design.csv"
+    bad.write_text("joint_a1,joint_a2,joint_a3,joint_a4,joint_a5,joint_a9\n0,0,0,0,0,0\n")
+    assert main(["feasibility", "fms_kr16", "--design", str(bad)]) == EXIT_BAD_INPUT
+    assert "joint_a9" in capsys.readouterr().err

@@ -170,11 +170,11 @@ def build_feasibility_model(
     reflector_offsets = np.asarray(reflector_offsets, dtype=float).reshape(-1, 3)
     if reflector_names is None:
         reflector_names = [f"reflector{j}" for j in range(len(reflector_offsets))]
-    if capsules is None:
-        from calib_oed.feasibility.capsules import robot_capsules
+    from calib_oed.feasibility.capsules import link_names, robot_capsules
 
+    if capsules is None:
         capsules = robot_capsules(robot, settings)
-    links = {f.name for f in robot.model.frames}
+    links = set(link_names(robot))
     for pair in settings.excluded_pairs:
         for name in pair:
             if name not in links:

@@ -23,7 +23,7 @@ def sample_feasible(
     rng: np.random.Generator | int,
     *,
     batch: int = 4096,
-    max_draws: int = 2_000_000,
+    max_draws: int = 500_000,
 ) -> np.ndarray:
     """``n`` feasible configurations, uniform on the feasible set, (n, nq).
 
@@ -45,21 +45,33 @@ def sample_feasible(
     robot = model.robot
     found: list[np.ndarray] = []
     count, draws = 0, 0
+    rejected = {kind: 0 for kind in model.kind_slices()}
     while count < n:
         if draws >= max_draws:
+            worst = ", ".join(f"{kind} {k / draws:.1%}" for kind, k in
+                              sorted(rejected.items(), key=lambda kv: -kv[1]) if k)
             raise SamplingError(
                 f"only {count} of {n} feasible configurations in {draws} uniform draws "
-                f"(acceptance {count / max(draws, 1):.2e}); loosen the constraints or the margins, "
-                "or check the scene (tracker visible from the working volume?)"
+                f"(acceptance {count / max(draws, 1):.2e}); draws violating each constraint kind: "
+                f"{worst}. Loosen those constraints or their margins in the scene's feasibility "
+                "block, or check the cell (tracker visible from the working volume?)"
             )
         q = rng.uniform(robot.lower, robot.upper, size=(batch, robot.nq))
         draws += batch
         states = compute_body_states(robot.model, q, jacobian=False)
         cheap = model.compute_from_states(q, states, jacobian=False, kinds=("joint", "incidence"))
+        for kind in ("joint", "incidence"):
+            cols = [i for i, k in enumerate(cheap.kinds) if k == kind]
+            if cols:
+                rejected[kind] += int(np.any(cheap.values[:, cols] < 0, axis=1).sum())
         idx = np.flatnonzero(cheap.feasible)
         if idx.size == 0:
             continue
         full = model.compute_from_states(q[idx], states.take(idx), jacobian=False)
+        for kind in ("self", "obstacle", "beam"):
+            cols = [i for i, k in enumerate(full.kinds) if k == kind]
+            if cols:
+                rejected[kind] += int(np.any(full.values[:, cols] < 0, axis=1).sum())
         ok = idx[full.feasible]
         found.append(q[ok])
         count += ok.size

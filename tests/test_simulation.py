@@ -1,0 +1,57 @@
+"""Simulated calibrations: truth, noise, identification and TCP errors."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from calib_oed.measurements import TrackerPosition
+from calib_oed.problem import CalibrationProblem
+from calib_oed.scene import load_scene
+from calib_oed.simulation import draw_true_parameters, simulate_calibration, simulate_observations
+
+
+@pytest.fixture(scope="module")
+def problem():
+    return CalibrationProblem.from_scene(load_scene("fms_kr16"))
+
+
+def test_truth_perturbs_only_free_parameters(problem):
+    space = problem.space
+    free = problem.identifiability.free_indices
+    p = np.array([draw_true_parameters(space, free, seed, 2e-3, 3e-3) for seed in range(400)])
+    fixed = np.setdiff1d(np.arange(space.size), free)
+    assert not p[:, fixed].any()
+    sd = p[:, free].std(axis=0)
+    units = np.array([space.parameters[i].unit for i in free])
+    # 400 samples: the sample sd is within ~4 standard errors (7 %) of the truth
+    assert np.all(np.abs(sd[units == "m"] / 2e-3 - 1) < 0.15)
+    assert np.all(np.abs(sd[units == "rad"] / 3e-3 - 1) < 0.15)
+
+
+def test_simulated_noise_has_the_model_sigma(problem):
+    space = problem.space
+    q = problem.robot.random_configurations(2000, 1)
+    model = TrackerPosition(0, 2e-5)
+    exact = simulate_observations(space, [TrackerPosition(0, 1e-300)], q, np.zeros(space.size), 0)[0]
+    noisy = simulate_observations(space, [model], q, np.zeros(space.size), 0)[0]
+    noise = noisy.values - exact.values
+    assert noise.std() == pytest.approx(2e-5, rel=0.03)
+    assert abs(noise.mean()) < 4 * 2e-5 / np.sqrt(noise.size)
+
+
+def test_calibration_trial_errors(problem):
+    q = problem.robot.random_configurations(40, 3)
+    trial = simulate_calibration(problem, q, 11)
+    assert trial.converged
+    space = problem.space
+    s_true = problem.kpi.compute_values(space, trial.p_true)
+    np.testing.assert_allclose(trial.error_before, problem.kpi.compute_values(space, None) - s_true)
+    np.testing.assert_allclose(trial.error_after, problem.kpi.compute_values(space, trial.p_est) - s_true)
+    # calibration reduces a ~mm error to the predicted micrometre level
+    sigma = problem.kpi_sigma(q)
+    assert np.linalg.norm(trial.error_before) > 0.1e-3
+    assert np.linalg.norm(trial.error_after) < 6 * np.sqrt(3) * sigma.max()
+    # same seed, same trial
+    again = simulate_calibration(problem, q, 11)
+    np.testing.assert_array_equal(again.p_est, trial.p_est)
