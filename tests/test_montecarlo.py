@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from calib_oed.montecarlo import monte_carlo
-from calib_oed.workflow import heuristic_design, setup
 from calib_oed.scene import load_scene
+from calib_oed.workflow import heuristic_design, setup
 
 
 @pytest.fixture(scope="module")
