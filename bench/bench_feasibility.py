@@ -24,23 +24,12 @@ import time
 import coal
 import numpy as np
 import pinocchio as pin
+from _timing import timed  # bench/ is the script folder, first on sys.path
 
 from calib_oed.feasibility.bodies import compute_body_states
 from calib_oed.feasibility.pairs import feasibility_from_scene
 from calib_oed.feasibility.sampling import sample_feasible
 from calib_oed.scene import load_scene
-
-
-def timed(fun, repeat, number):
-    """Best of ``repeat`` samples, each the mean of ``number`` calls (as timeit)."""
-    out = fun()
-    samples = []
-    for _ in range(repeat):
-        start = time.perf_counter()
-        for _ in range(number):
-            fun()
-        samples.append((time.perf_counter() - start) / number)
-    return min(samples), out
 
 
 def coal_pair_distances(fm, q):

@@ -14,10 +14,10 @@ from __future__ import annotations
 import argparse
 import functools
 import platform
-import time
 
 import numpy as np
 import pinocchio as pin
+from _timing import timed  # bench/ is the script folder, first on sys.path
 
 from calib_oed import load_robot
 from calib_oed.measurements import TrackerPosition, evaluate_setup
@@ -37,21 +37,6 @@ def finite_difference_f1(space, models, q, eps=1e-6):
         minus = stacked_values(models, evaluate_setup(space, p0 - dp, q, jacobian=False))
         cols.append((plus - minus) / (2 * eps) / sigma)
     return np.column_stack(cols)
-
-
-def timed(fun, repeat, number):
-    """Best of ``repeat`` samples, each the mean of ``number`` calls (as timeit).
-
-    The minimum is the least disturbed by other load on the machine.
-    """
-    out = fun()
-    samples = []
-    for _ in range(repeat):
-        start = time.perf_counter()
-        for _ in range(number):
-            fun()
-        samples.append((time.perf_counter() - start) / number)
-    return min(samples), out
 
 
 def main(argv=None) -> int:

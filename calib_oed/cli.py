@@ -318,7 +318,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("scene", help="shipped scene name or scene file path")
     p.add_argument("measurements", help="measurement CSV (docs/data_format.md)")
     p.add_argument("-o", "--output", metavar="DIR", help="write calibrated URDF, sensor YAML, report")
-    p.add_argument("--loss", default="linear", help="linear (default), huber or soft_l1")
+    p.add_argument("--loss", default="linear", choices=("linear", "huber", "soft_l1"),
+                   help="linear (default; Levenberg-Marquardt), or a robust loss")
     p.add_argument("--length-unit", choices=("m", "mm"), help="if the file states no units")
     p.add_argument("--angle-unit", choices=("rad", "deg"), help="if the file states no units")
     p.add_argument("--truth", metavar="YAML", help="true parameters of a simulation: report TCP errors")
