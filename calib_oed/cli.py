@@ -153,7 +153,10 @@ def cmd_feasibility(args) -> int:
             "scene": scene.name, "design": what, "n": int(len(q)), "seconds": elapsed,
             "constraints_per_pose": s.feasibility.count_per_pose(),
             "paper_self_pairs": s.pairs.paper_count,
-            "dropped_pairs": [vars(d) for d in s.pairs.dropped],
+            "dropped_pairs": [
+                {k: (None if isinstance(v, float) and not np.isfinite(v) else v) for k, v in vars(d).items()}
+                for d in s.pairs.dropped
+            ],
             "feasible": int(res.feasible.sum()),
             "margins": [vars(m) for m in margins],
             "mesh_feasible": None if mesh is None else int(mesh.feasible.sum()),

@@ -50,7 +50,8 @@ def read_design_csv(path: str | os.PathLike, robot: Robot, check_limits: bool = 
     try:
         text = Path(path).read_text(encoding="utf-8-sig")
     except OSError as exc:
-        raise MeasurementFileError(source, [(None, f"cannot read the design file ({exc})")]) from exc
+        raise MeasurementFileError(source, [(None, f"cannot read the design file ({exc})")],
+                                   kind="design file") from exc
     problems: list[tuple[int | None, str]] = []
     header, header_line, rows = None, None, []
     for number, line in enumerate(text.splitlines(), start=1):
@@ -62,7 +63,7 @@ def read_design_csv(path: str | os.PathLike, robot: Robot, check_limits: bool = 
             continue
         rows.append((number, fields))
     if header is None:
-        raise MeasurementFileError(source, [(None, "no header line with the joint names")])
+        raise MeasurementFileError(source, [(None, "no header line with the joint names")], kind="design file")
     names = list(robot.joint_names)
     unknown = [h for h in header if h not in names]
     missing = [n for n in names if n not in header]
@@ -74,7 +75,7 @@ def read_design_csv(path: str | os.PathLike, robot: Robot, check_limits: bool = 
     if dupes:
         problems.append((header_line, f"duplicate column(s) {dupes}"))
     if problems:
-        raise MeasurementFileError(source, problems)
+        raise MeasurementFileError(source, problems, kind="design file")
     order = [header.index(n) for n in names]
     q = np.empty((len(rows), len(names)))
     for k, (number, fields) in enumerate(rows):
@@ -92,11 +93,11 @@ def read_design_csv(path: str | os.PathLike, robot: Robot, check_limits: bool = 
         if check_limits:
             bad = np.flatnonzero((vals < robot.lower - 1e-9) | (vals > robot.upper + 1e-9))
             for i in bad:
-                problems.append((number, f"{names[i]} = {vals[i]:.6g} rad outside the limits "
-                                         f"[{robot.lower[i]:.6g}, {robot.upper[i]:.6g}]"))
+                problems.append((number, f"{names[i]} = {vals[i]:.6g} outside the limits "
+                                         f"[{robot.lower[i]:.6g}, {robot.upper[i]:.6g}] (rad, or m if prismatic)"))
         q[k] = vals
     if not rows:
         problems.append((header_line, "no configurations after the header"))
     if problems:
-        raise MeasurementFileError(source, problems)
+        raise MeasurementFileError(source, problems, kind="design file")
     return q

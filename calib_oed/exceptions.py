@@ -169,13 +169,14 @@ class MeasurementFileError(CalibOedError):
             in the file (the header is line 1), or ``None`` for the file as a whole.
     """
 
-    def __init__(self, source: str, problems: Sequence[tuple[int | None, str]]):
+    def __init__(self, source: str, problems: Sequence[tuple[int | None, str]], kind: str = "measurement file"):
         self.source = source
         self.problems = list(problems)
+        self.kind = kind
         lines = [f"line {row}: {msg}" if row is not None else msg for row, msg in self.problems[:20]]
         more = f"\n  ... ({len(self.problems) - 20} more)" if len(self.problems) > 20 else ""
         super().__init__(
-            f"{source}: {len(self.problems)} problem(s) in the measurement file, nothing was read:\n  "
+            f"{source}: {len(self.problems)} problem(s) in the {kind}, nothing was read:\n  "
             + "\n  ".join(lines)
             + more
         )

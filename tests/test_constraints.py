@@ -209,8 +209,12 @@ def test_pruning_reports_dropped_pairs():
     vals = fm_all.compute_values(q)
     for d in rep.dropped:
         if d.reason.startswith("never closer"):
-            row = fm_all.labels.index(d.label)
-            assert vals[:, row].min() + fm_all.settings.margins.clearance > 0.0
+            if d.label in fm_all.labels:
+                rows = [fm_all.labels.index(d.label)]
+            else:  # a half-space pair: one row per capsule end
+                kind_seg, plane = d.label.split("|")
+                rows = [fm_all.labels.index(f"{kind_seg}.{end}|{plane}") for end in "ab"]
+            assert vals[:, rows].min() + fm_all.settings.margins.clearance > 0.0
 
 
 def test_excluded_pair_is_not_checked():

@@ -10,8 +10,9 @@ Every constraint is written :math:`g(q) \ge 0` (feasible), in SI, per pose:
   the unit direction from the reflector :math:`c` to the tracker :math:`t_T`;
 - **self**, **obstacle**, **beam** (capsule pairs, paper §2.2):
   :math:`d(S_1, S_2) - r_1 - r_2 - m_d \ge 0` [m] with :math:`d` the distance
-  of the axis segments; against a half-space :math:`n^\top x \ge c_0`:
-  :math:`\min(n^\top a, n^\top b) - c_0 - r - m_d \ge 0`.
+  of the axis segments; against a half-space :math:`n^\top x \ge c_0` one
+  row per end point, :math:`n^\top a - c_0 - r - m_d \ge 0` and the same for
+  :math:`b` (smooth, unlike their minimum).
 
 Gradients (envelope theorem: the closest-point parameters are held fixed):
 with witness points :math:`w_1, w_2` and :math:`u = (w_1 - w_2)/\lVert w_1 - w_2\rVert`,
@@ -114,7 +115,7 @@ def build_segments(
         rows.append((frame.parentJoint, a, frame.parentJoint, b, cap.radius, cap.name or cap.frame, cap.frame, "robot"))
     tool = model.frames[robot.tool_frame_id]
     tool_link = tool.name
-    for name, offset in zip(reflector_names, reflector_offsets, strict=False):
+    for name, offset in zip(reflector_names, reflector_offsets, strict=True):
         a = tool.placement.translation.copy()
         b = tool.placement.act(np.asarray(offset, dtype=float))
         rows.append((tool.parentJoint, a, tool.parentJoint, b, settings.reflector_radius,
@@ -122,10 +123,10 @@ def build_segments(
     for cap in cell.capsules:
         rows.append((0, cap.a, 0, cap.b, cap.radius, cap.name, "", "obstacle"))
     t_world = np.asarray(tracker_position, dtype=float)
-    for name, offset in zip(reflector_names, reflector_offsets, strict=False):
+    for name, offset in zip(reflector_names, reflector_offsets, strict=True):
         c = tool.placement.act(np.asarray(offset, dtype=float))
         rows.append((tool.parentJoint, c, 0, t_world, settings.beam_radius, f"laser({name})", "", "beam"))
-    cols = list(zip(*rows, strict=False))
+    cols = list(zip(*rows, strict=True))
     return SegmentTable(
         body_a=np.array(cols[0], dtype=int),
         a_local=np.array(cols[1], dtype=float).reshape(-1, 3),
@@ -208,12 +209,13 @@ class FeasibilityModel:
             kinds.append("incidence")
             labels.append(f"incidence:{name}")
         names = self.segments.names
-        for (i, j), kind in zip(self.pairs, self.pair_kinds, strict=False):
+        for (i, j), kind in zip(self.pairs, self.pair_kinds, strict=True):
             kinds.append(kind)
             labels.append(f"{kind}:{names[i]}|{names[j]}")
-        for (i, h), kind in zip(self.halfspace_pairs, self.halfspace_kinds, strict=False):
-            kinds.append(kind)
-            labels.append(f"{kind}:{names[i]}|{self.cell.halfspaces[h].name}")
+        for (i, h), kind in zip(self.halfspace_pairs, self.halfspace_kinds, strict=True):
+            for end in ("a", "b"):
+                kinds.append(kind)
+                labels.append(f"{kind}:{names[i]}.{end}|{self.cell.halfspaces[h].name}")
         return tuple(kinds), tuple(labels)
 
     @property
@@ -256,8 +258,8 @@ class FeasibilityModel:
         values = np.concatenate(parts_v, axis=1)
         jac = np.concatenate(parts_j, axis=1) if jacobian else None
         rows = [k in kinds for k in self.kinds]
-        return ConstraintValues(values, jac, tuple(k for k, r in zip(self.kinds, rows, strict=False) if r),
-                                tuple(lbl for lbl, r in zip(self.labels, rows, strict=False) if r))
+        return ConstraintValues(values, jac, tuple(k for k, r in zip(self.kinds, rows, strict=True) if r),
+                                tuple(lbl for lbl, r in zip(self.labels, rows, strict=True) if r))
 
     def compute_values(self, q: np.ndarray) -> np.ndarray:
         """Constraint values :math:`g(q)`, (n, m)."""
@@ -337,6 +339,10 @@ class FeasibilityModel:
         return values, d1 - d2
 
     def _halfspace_rows(self, q, states: BodyStates, jacobian):
+        r"""Two smooth rows per (segment, half-space) pair, one per end point
+        (paper §2.2): :math:`n^\top a - c - r - m_d \ge 0`, :math:`n^\top b - c - r - m_d \ge 0`.
+        Together they say the same as :math:`\min(n^\top a, n^\top b) - c - r - m_d \ge 0`,
+        without its kink when the segment is parallel to the plane."""
         n = q.shape[0]
         if len(self.halfspace_pairs) == 0:
             return np.zeros((n, 0)), (np.zeros((n, 0, q.shape[1])) if jacobian else None)
@@ -344,17 +350,16 @@ class FeasibilityModel:
         i = self.halfspace_pairs[:, 0]
         a = states.points(seg.body_a[i], seg.a_local[i])
         b = states.points(seg.body_b[i], seg.b_local[i])
-        da = np.einsum("nhi,hi->nh", a, self._hs_normal)
-        db = np.einsum("nhi,hi->nh", b, self._hs_normal)
-        use_a = da <= db
-        values = np.where(use_a, da, db) - self._hs_offset - seg.radius[i] - self._hs_clearance
+        base = self._hs_offset + seg.radius[i] + self._hs_clearance
+        va = np.einsum("nhi,hi->nh", a, self._hs_normal) - base
+        vb = np.einsum("nhi,hi->nh", b, self._hs_normal) - base
+        values = np.stack([va, vb], axis=2).reshape(n, -1)
         if not jacobian:
             return values, None
         u = np.broadcast_to(self._hs_normal, a.shape)
         ja = states.directional_jacobian(seg.body_a[i], a, u)
         jb = states.directional_jacobian(seg.body_b[i], b, u)
-        return values, np.where(use_a[..., None], ja, jb)
-
+        return values, np.stack([ja, jb], axis=2).reshape(n, -1, q.shape[1])
 
 @dataclass(frozen=True)
 class KindMargin:

@@ -73,8 +73,9 @@ class PairReport:
         return n * (n - 1) // 2 - (n - 1)
 
     def summary(self) -> str:
-        lines = [f"checked pairs per pose: {len(self.checked)} ("
-                 + ", ".join(f"{k} {v}" for k, v in self.counts.items()) + ")",
+        lines = [f"checked pairs per pose: {len(self.checked)}; constraint rows per pose: "
+                 + ", ".join(f"{k} {v}" for k, v in self.counts.items())
+                 + " (a half-space pair gives a row per capsule end)",
                  f"paper formula n(n-1)/2-(n-1) for n={self.n_links} links: {self.paper_count} self pairs"]
         by_reason: dict[str, int] = {}
         for d in self.dropped:
@@ -108,8 +109,6 @@ def _candidates(robot: Robot, seg: SegmentTable, cell: Cell, excluded: Sequence[
                     reason = "adjacent links"
                 elif frozenset((seg.links[i], seg.links[j])) in excl:
                     reason = "excluded by the scene"
-                elif bi == 0 and bj == 0:
-                    reason = "both fixed"
                 if reason:
                     dropped.append(DroppedPair(f"self:{label_ij}", reason))
                 else:
@@ -188,12 +187,15 @@ def build_feasibility_model(
     if samples > 0:
         q = robot.random_configurations(samples, settings.prune_seed)
         values = model.compute_values(q)
-        rows = model.kind_slices()
-        first_pair = len(model.kinds) - len(pairs) - len(hs_pairs)
-        raw = values[:, first_pair:] + settings.margins.clearance
+        first_pair = len(model.kinds) - len(pairs) - 2 * len(hs_pairs)
+        rows = values[:, first_pair:] + settings.margins.clearance
+        # one clearance per pair: a half-space pair has a row per end point
+        hs = rows[:, len(pairs):].reshape(len(q), len(hs_pairs), 2).min(axis=2)
+        raw = np.concatenate([rows[:, :len(pairs)], hs], axis=1)
         lo, hi = raw.min(axis=0), raw.max(axis=0)
         keep = np.ones(raw.shape[1], dtype=bool)
-        labels = model.labels[first_pair:]
+        labels = list(model.labels[first_pair:first_pair + len(pairs)])
+        labels += [lbl.replace(".a|", "|") for lbl in model.labels[first_pair + len(pairs)::2]]
         for k in range(raw.shape[1]):
             reason = None
             if hi[k] - lo[k] < 1e-9:
@@ -208,15 +210,17 @@ def build_feasibility_model(
             if reason:
                 keep[k] = False
                 dropped.append(DroppedPair(labels[k], reason, float(lo[k]), float(hi[k])))
-        del rows
         kp, kh = keep[: len(pairs)], keep[len(pairs):]
-        pairs = [p for p, k in zip(pairs, kp, strict=False) if k]
-        kinds = [p for p, k in zip(kinds, kp, strict=False) if k]
-        hs_pairs = [p for p, k in zip(hs_pairs, kh, strict=False) if k]
-        hs_kinds = [p for p, k in zip(hs_kinds, kh, strict=False) if k]
+        pairs = [p for p, k in zip(pairs, kp, strict=True) if k]
+        kinds = [p for p, k in zip(kinds, kp, strict=True) if k]
+        hs_pairs = [p for p, k in zip(hs_pairs, kh, strict=True) if k]
+        hs_kinds = [p for p, k in zip(hs_kinds, kh, strict=True) if k]
         model = FeasibilityModel(robot, seg, np.array(pairs), kinds, np.array(hs_pairs), hs_kinds, *args)
     counts = {k: v for k, v in model.count_per_pose().items()}
-    checked = tuple(lbl for lbl, kind in zip(model.labels, model.kinds, strict=False) if kind in ("self", "obstacle", "beam"))
+    checked = tuple(dict.fromkeys(
+        lbl.replace(".a|", "|").replace(".b|", "|")
+        for lbl, kind in zip(model.labels, model.kinds, strict=True) if kind in ("self", "obstacle", "beam")
+    ))
     report = PairReport(checked, tuple(dropped), n_links, samples, int(settings.prune_seed), counts)
     return model, report
 

@@ -52,8 +52,9 @@ def sample_feasible(
                               sorted(rejected.items(), key=lambda kv: -kv[1]) if k)
             raise SamplingError(
                 f"only {count} of {n} feasible configurations in {draws} uniform draws "
-                f"(acceptance {count / max(draws, 1):.2e}); draws violating each constraint kind: "
-                f"{worst}. Loosen those constraints or their margins in the scene's feasibility "
+                f"(acceptance {count / max(draws, 1):.2e}); share of draws rejected by each "
+                f"constraint kind (self, obstacle and beam are only evaluated on draws that pass "
+                f"the joint and incidence rows): {worst}. Loosen those constraints or their margins in the scene's feasibility "
                 "block, or check the cell (tracker visible from the working volume?)"
             )
         q = rng.uniform(robot.lower, robot.upper, size=(batch, robot.nq))
