@@ -61,3 +61,16 @@ def test_working_configuration_clears_the_cell(scene_model):
     res = fm.compute(scene.kpi.q, jacobian=False)
     rows = [i for i, k in enumerate(res.kinds) if k in ("self", "obstacle")]
     assert np.all(res.values[:, rows] >= 0.0)
+
+
+def test_scene_constraint_jacobian_matches_finite_differences(scene_model):
+    """The shipped cells with fitted capsules, beam and half-space rows, at feasible poses."""
+    from conftest import central_difference
+
+    scene, fm, _ = scene_model
+    q = sample_feasible(fm, 4, 8)
+    jac = fm.compute(q).jacobian
+    for k in range(len(q)):
+        num = central_difference(lambda x: fm.compute_values(x[None])[0], q[k], eps=1e-6)
+        scale = np.maximum(np.abs(num).max(axis=1, keepdims=True), 1e-3)
+        assert np.max(np.abs(jac[k] - num) / scale) < 1e-6
