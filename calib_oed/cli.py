@@ -127,7 +127,7 @@ def cmd_feasibility(args) -> int:
     import time
 
     from calib_oed.design_file import write_design_csv
-    from calib_oed.feasibility.constraints import format_margins, margin_report
+    from calib_oed.feasibility.margins import format_margins, margin_report
     from calib_oed.feasibility.mesh_check import check_design_meshes
 
     s = _setup(args.scene)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from calib_oed.feasibility.constraints import margin_report
+from calib_oed.feasibility.margins import margin_report
 from calib_oed.feasibility.mesh_check import check_design_meshes
 from calib_oed.feasibility.pairs import feasibility_from_scene
 from calib_oed.feasibility.sampling import sample_feasible
