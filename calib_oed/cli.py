@@ -281,6 +281,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.set_defaults(func=cmd_identifiability)
 
+    def scene_arg(p):
+        p.add_argument("scene", help="shipped scene name or scene file path")
+
     def design_args(p):
         p.add_argument("--design", metavar="CSV", help="design file (header = joint names, rad); "
                        "default: -n random feasible poses")
@@ -300,7 +303,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_demo)
 
     p = sub.add_parser("feasibility", help="constraint pairs, a feasible design, margins, mesh check")
-    p.add_argument("scene", help="shipped scene name or scene file path")
+    scene_arg(p)
     design_args(p)
     p.add_argument("-o", "--output", metavar="CSV", help="write the design (joint names, rad)")
     p.add_argument("--no-mesh-check", action="store_true", help="skip the URDF mesh check")
@@ -308,7 +311,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_feasibility)
 
     p = sub.add_parser("simulate", help="simulated tracker measurements of a random true robot")
-    p.add_argument("scene", help="shipped scene name or scene file path")
+    scene_arg(p)
     design_args(p)
     p.add_argument("--truth-seed", type=int, default=1, help="seed of the simulated robot (default 1)")
     p.add_argument("-o", "--output", required=True, metavar="CSV", help="measurement file to write")
@@ -318,7 +321,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_simulate)
 
     p = sub.add_parser("identify", help="identify the parameters from a measurement file")
-    p.add_argument("scene", help="shipped scene name or scene file path")
+    scene_arg(p)
     p.add_argument("measurements", help="measurement CSV (docs/data_format.md)")
     p.add_argument("-o", "--output", metavar="DIR", help="write calibrated URDF, sensor YAML, report")
     p.add_argument("--loss", default="linear", choices=("linear", "huber", "soft_l1"),
@@ -330,7 +333,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_identify)
 
     p = sub.add_parser("montecarlo", help="simulated calibrations against the predicted KPI covariance")
-    p.add_argument("scene", help="shipped scene name or scene file path")
+    scene_arg(p)
     design_args(p)
     p.add_argument("-N", "--runs", type=_positive_int, default=500, help="runs (default 500)")
     p.add_argument("--mc-seed", type=int, default=0, help="Monte Carlo seed (default 0)")

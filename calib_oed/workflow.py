@@ -9,7 +9,7 @@ has mathematics of its own.
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -30,14 +30,30 @@ from calib_oed.scene import Scene
 from calib_oed.simulation import draw_true_parameters, simulate_observations
 
 
-@dataclass(frozen=True, eq=False)
 class Setup:
-    """A scene with its calibration problem and feasibility model."""
+    """A scene with its calibration problem and (built on first use) its feasibility model.
 
-    scene: Scene
-    problem: CalibrationProblem
-    feasibility: FeasibilityModel
-    pairs: PairReport
+    Args:
+        scene: The scene.
+    """
+
+    def __init__(self, scene: Scene):
+        self.scene = scene
+        self.problem = CalibrationProblem.from_scene(scene)
+
+    @cached_property
+    def _feasibility(self) -> tuple[FeasibilityModel, PairReport]:
+        return feasibility_from_scene(self.scene)  # the pruning pass takes ~1 s: only when needed
+
+    @property
+    def feasibility(self) -> FeasibilityModel:
+        """The scene's constraints (capsules, cell, beam, incidence, joint limits)."""
+        return self._feasibility[0]
+
+    @property
+    def pairs(self) -> PairReport:
+        """Which capsule pairs are checked, and why the others are not."""
+        return self._feasibility[1]
 
     @property
     def reflector_names(self) -> list[str]:
@@ -46,9 +62,7 @@ class Setup:
 
 def setup(scene: Scene) -> Setup:
     """Assemble problem and feasibility model of a scene."""
-    problem = CalibrationProblem.from_scene(scene)
-    fm, report = feasibility_from_scene(scene)
-    return Setup(scene, problem, fm, report)
+    return Setup(scene)
 
 
 def heuristic_design(s: Setup, n: int, seed: int) -> np.ndarray:
