@@ -225,3 +225,17 @@ class ConfidenceLevelError(CalibOedError, ValueError):
         super().__init__(
             f"confidence level must be strictly between 0 and 1 (e.g. 0.95), got {level!r}"
         )
+
+
+class UnknownCriterionError(CalibOedError):
+    """A design criterion name is not one calib_oed knows.
+
+    Attributes:
+        name: The name that was asked for.
+        valid: The criterion names that can be made.
+    """
+
+    def __init__(self, name: str, valid: Sequence[str]):
+        self.name = name
+        self.valid = list(valid)
+        super().__init__(f"unknown criterion {name!r}; valid criterion names are: {_choices(self.valid)}")

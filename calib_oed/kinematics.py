@@ -109,3 +109,83 @@ def compute_tool_kinematics(
         if arr is not None:
             arr.setflags(write=False)
     return ToolKinematics(q=q, rotation=rot, translation=trans, regressor=reg, jacobian=jac)
+
+
+# ------------------------------------------------------- second order
+def _ad_apply(twist: np.ndarray, mat: np.ndarray) -> np.ndarray:
+    r""":math:`\mathrm{ad}(\xi)\,X` column-wise, :math:`\xi = (v, \omega)` (n, 6), X (n, 6, c).
+
+    :math:`\mathrm{ad}(\xi) \begin{bmatrix} a \\ b \end{bmatrix}
+    = \begin{bmatrix} \omega \times a + v \times b \\ \omega \times b \end{bmatrix}`
+    (Pinocchio's order, linear part first), as skew-matrix products.
+    """
+    sv = _skew(twist[:, :3])
+    sw = _skew(twist[:, 3:])
+    out = np.empty_like(mat)
+    out[:, :3] = sw @ mat[:, :3] + sv @ mat[:, 3:]
+    out[:, 3:] = sw @ mat[:, 3:]
+    return out
+
+
+def _skew(v: np.ndarray) -> np.ndarray:
+    """Batched cross-product matrices of (n, 3) vectors, (n, 3, 3)."""
+    out = np.zeros(v.shape[:-1] + (3, 3))
+    out[..., 0, 1], out[..., 0, 2] = -v[..., 2], v[..., 1]
+    out[..., 1, 0], out[..., 1, 2] = v[..., 2], -v[..., 0]
+    out[..., 2, 0], out[..., 2, 1] = -v[..., 1], v[..., 0]
+    return out
+
+
+def regressor_config_derivative(kin: ToolKinematics) -> np.ndarray:
+    r""":math:`\partial K/\partial q`, (n, 6, 6 n_j, nv), of the LOCAL regressor.
+
+    Block :math:`K_i` maps a right perturbation of joint ``i``'s placement,
+    applied *before* the motion of joint ``i``, to the tool's local twist:
+    :math:`K_i = \mathrm{Ad}(T_{W,F}^{-1} T_{W,K_i})`. Joint ``k`` with
+    :math:`k \ge i` moves the tool relative to :math:`K_i`
+    (:math:`dT_{W,F} = T_{W,F}\,\hat{J}_k\,dq_k`), joints before ``i`` move
+    both rigidly, so
+
+    .. math::
+        \frac{\partial K_i}{\partial q_k} =
+        \begin{cases} -\mathrm{ad}(J_k)\,K_i & k \ge i \\ 0 & k < i \end{cases}
+
+    with :math:`J_k` column ``k`` of the LOCAL frame Jacobian
+    (``docs/derivations.md`` §11). Valid for chains of 1-DoF joints whose
+    velocity index is the joint index minus one (every robot calib_oed loads).
+    """
+    reg, jac = _need_both(kin)
+    n, _, ncol = reg.shape
+    nv = jac.shape[2]
+    out = np.zeros((n, 6, ncol, nv))
+    for k in range(nv):
+        cols = slice(0, 6 * (k + 1))  # blocks of joints 1..k+1 (i <= k)
+        out[:, :, cols, k] = -_ad_apply(jac[:, :, k], reg[:, :, cols])
+    return out
+
+
+def jacobian_config_derivative(kin: ToolKinematics) -> np.ndarray:
+    r""":math:`\partial J/\partial q`, (n, 6, nv, nv), of the LOCAL frame Jacobian.
+
+    :math:`J_l = \mathrm{Ad}(T_{W,F}^{-1} T_{W,l})\,S_l` with joint ``l``'s
+    frame after its own motion, so only joints *after* ``l`` change it:
+
+    .. math::
+        \frac{\partial J_l}{\partial q_k} =
+        \begin{cases} -\mathrm{ad}(J_k)\,J_l & k > l \\ 0 & k \le l \end{cases}
+
+    (column ``l`` of the result's third axis, derivative along the fourth).
+    """
+    _, jac = _need_both(kin)
+    n, _, nv = jac.shape
+    out = np.zeros((n, 6, nv, nv))
+    for k in range(1, nv):
+        out[:, :, :k, k] = -_ad_apply(jac[:, :, k], jac[:, :, :k])
+    return out
+
+
+def _need_both(kin: ToolKinematics) -> tuple[np.ndarray, np.ndarray]:
+    if kin.regressor is None or kin.jacobian is None:
+        raise ValueError("second-order kinematics need both the regressor and the Jacobian; "
+                         "compute the kinematics with regressor=True, jacobian=True")
+    return kin.regressor, kin.jacobian

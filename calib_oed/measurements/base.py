@@ -23,7 +23,11 @@ import numpy as np
 import pinocchio as pin
 
 from calib_oed.exceptions import ShapeError
-from calib_oed.kinematics import ToolKinematics, compute_tool_kinematics
+from calib_oed.kinematics import (
+    ToolKinematics,
+    compute_tool_kinematics,
+    regressor_config_derivative,
+)
 from calib_oed.parameters import ParameterSpace
 
 
@@ -122,6 +126,65 @@ class SetupState:
         out[:, :, space.joints_slice] = self.joint_param_sensitivity(d_eps)
         return out
 
+    def joint_param_config_sensitivity(self, d_eps_q: np.ndarray) -> np.ndarray:
+        """:meth:`joint_param_sensitivity` for a derivative along q, (n, d, 6 n_j, nv)."""
+        if self.joint_jr is None:
+            return d_eps_q
+        moved = np.moveaxis(d_eps_q, 3, 1)  # (n, nv, d, 6 n_j)
+        n, nv, d, c = moved.shape
+        out = self.joint_param_sensitivity(moved.reshape(n * nv, d, c)).reshape(n, nv, d, c)
+        return np.moveaxis(out, 1, 3)
+
+    def tool_point_param_config_jacobian(
+        self, offset: np.ndarray, frame: str, reflector: int | None = None
+    ) -> np.ndarray:
+        r"""Mixed derivative :math:`\partial^2 x/\partial p\,\partial q` of :meth:`tool_point`, (n, 3, n_p, nv).
+
+        With :math:`L(X) = X_v + X_\omega \times c` column-wise (so that
+        :math:`\partial x/\partial\epsilon = R\,L(K)`), :math:`\omega_k` the
+        LOCAL angular part of Jacobian column ``k`` and :math:`\partial K/\partial q_k`
+        from :func:`calib_oed.kinematics.regressor_config_derivative`:
+
+        .. math::
+            \frac{\partial^2 x}{\partial\epsilon\,\partial q_k}
+                = R\,\big([\omega_k]_\times L(K) + L(\partial K/\partial q_k)\big),\qquad
+            \frac{\partial^2 x}{\partial c_j\,\partial q_k} = R\,[\omega_k]_\times .
+
+        In the tracker frame every row is premultiplied by :math:`R_T^\top`, and
+        the tracker columns :math:`[-I\;\; [y]_\times]\,J_r(\delta_T)` give
+        :math:`[\,0\;\; [\partial y/\partial q_k]_\times]\,J_r(\delta_T)`
+        (``docs/derivations.md`` §11).
+        """
+        space = self.space
+        kin = self.kin
+        c = np.asarray(offset, dtype=float)
+        reg_q = regressor_config_derivative(kin)  # (n, 6, 6nj, nv)
+        omega = kin.jacobian[:, 3:, :]  # (n, 3, nv) local
+        n, nv = self.n, omega.shape[2]
+        out = np.zeros((n, 3, space.size, nv))
+        lk = kin.regressor[:, :3, :] + np.cross(kin.regressor[:, 3:, :], c[None, :, None], axis=1)
+        lkq = reg_q[:, :3] + np.cross(reg_q[:, 3:], c[None, :, None, None], axis=1)
+        # [w_k]x L(K): cross of omega (n,3,1,nv) with L(K) (n,3,6nj,1)
+        d_eps = np.cross(omega[:, :, None, :], lk[:, :, :, None], axis=1) + lkq
+        rot = kin.rotation
+        if frame == "tracker":
+            rot = self.tracker.rotation.T @ rot
+        d_eps = np.einsum("nab,nbcq->nacq", rot, d_eps)
+        out[:, :, space.joints_slice, :] = self.joint_param_config_sensitivity(d_eps)
+        if reflector is not None:
+            # R [w_k]x e_m = R (w_k x e_m)
+            refl = np.einsum("nab,nbmq->namq", rot, skew(np.moveaxis(omega, 1, 2)).transpose(0, 2, 3, 1))
+            out[:, :, space.reflector_slice(reflector), :] = refl
+        if frame == "tracker":
+            dy = self.tool_point_config_jacobian(c, frame)  # (n, 3, nv)
+            trk = np.zeros((n, nv, 3, 6))
+            trk[:, :, :, 3:] = skew(np.moveaxis(dy, 1, 2))
+            delta = self.p[space.tracker_slice]
+            if np.any(delta):
+                trk = trk @ pin.Jexp6(delta)
+            out[:, :, space.tracker_slice, :] = np.moveaxis(trk, 1, 3)
+        return out
+
     def tool_point_config_jacobian(self, offset: np.ndarray, frame: str) -> np.ndarray:
         r""":math:`\partial x/\partial q` of :meth:`tool_point`, (n, 3, nv)."""
         d_q = self.kin.point_sensitivity(offset, "jacobian")
@@ -201,6 +264,18 @@ class MeasurementModel(abc.ABC):
     @abc.abstractmethod
     def compute_config_jacobian(self, state: SetupState) -> np.ndarray:
         r""":math:`\partial h / \partial q`, (n, d, nv)."""
+
+    def compute_param_config_jacobian(self, state: SetupState) -> np.ndarray:
+        r"""Mixed derivative :math:`\partial^2 h / \partial p\,\partial q`, (n, d, n_p, nv).
+
+        Row block j of :math:`F_1` depends on :math:`q_j` alone, so this is all
+        the criterion gradient of the design optimisation needs. ``state``
+        must carry both the regressor and the Jacobian.
+        """
+        raise NotImplementedError(
+            f"{type(self).__name__} does not provide the mixed derivative needed for design "
+            "optimisation; implement compute_param_config_jacobian"
+        )
 
     def check_measured(self, values: np.ndarray, n: int) -> np.ndarray:
         """Validate measured values of this model for n configurations."""

@@ -32,7 +32,8 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
-from calib_oed.measurements.base import MeasurementModel, SetupState
+from calib_oed.kinematics import regressor_config_derivative
+from calib_oed.measurements.base import MeasurementModel, SetupState, skew
 from calib_oed.measurements.position import DEFAULT_SIGMA, TrackerPosition
 
 #: Default rotation noise per axis [rad] (0.01 mrad).
@@ -107,4 +108,45 @@ class PoseMeasurement(MeasurementModel):
         out[:, :3, :] = self._position.compute_config_jacobian(state)
         jlog = self._jlog(self._rotations(state))
         out[:, 3:, :] = jlog @ (self.probe_rotation.T @ state.kin.jacobian[:, 3:, :])
+        return out
+
+    def compute_param_config_jacobian(self, state: SetupState) -> np.ndarray:
+        r"""Position rows as :class:`TrackerPosition`; rotation rows below.
+
+        With :math:`w_k = R_{F,P}^\top \omega_{J,k}` the probe-frame rotation
+        rate of joint ``k`` (:math:`R_{T,P}(q + dq_k) = R_{T,P}\exp(w_k\,dq_k)`),
+        :math:`H_k = d J_{\log}/dq_k` = ``pin.Hlog3(R_{T,P}, w_k)``, and
+        :math:`\partial\omega_K/\partial q_k` the angular rows of
+        :func:`~calib_oed.kinematics.regressor_config_derivative`:
+
+        .. math::
+            \partial_k\big(J_{\log} R_{F,P}^\top \omega_K\big)
+                &= H_k R_{F,P}^\top \omega_K + J_{\log} R_{F,P}^\top\,\partial_k\omega_K,\\
+            \partial_k\big(J_{\log} [\,0\;\; -R_{T,P}^\top]\big)
+                &= H_k [\,0\;\; -R_{T,P}^\top] + J_{\log} [\,0\;\; [w_k]_\times R_{T,P}^\top],
+
+        each times the right Jacobians :math:`J_r` of the perturbations.
+        """
+        space = state.space
+        n = state.n
+        nv = state.kin.jacobian.shape[2]
+        out = np.zeros((n, 6, space.size, nv))
+        out[:, :3] = self._position.compute_param_config_jacobian(state)
+        rot = self._rotations(state)
+        jlog = self._jlog(rot)
+        w = self.probe_rotation.T @ state.kin.jacobian[:, 3:, :]  # (n, 3, nv)
+        hlog = np.array([[pin.Hlog3(rot[i], w[i, :, k]) for k in range(nv)] for i in range(n)])
+        omega = self.probe_rotation.T @ state.kin.regressor[:, 3:, :]  # (n, 3, 6nj)
+        omega_q = np.einsum("ab,nbcq->nacq", self.probe_rotation.T,
+                            regressor_config_derivative(state.kin)[:, 3:])
+        joints = np.einsum("nqab,nbc->nacq", hlog, omega) + np.einsum("nab,nbcq->nacq", jlog, omega_q)
+        out[:, 3:, space.joints_slice] = state.joint_param_config_sensitivity(joints)
+        rot_t = np.transpose(rot, (0, 2, 1))
+        trk = np.zeros((n, nv, 3, 6))
+        trk[:, :, :, 3:] = (-np.einsum("nqab,nbc->nqac", hlog, rot_t)
+                            + jlog[:, None] @ skew(np.moveaxis(w, 1, 2)) @ rot_t[:, None])
+        delta_t = state.p[space.tracker_slice]
+        if np.any(delta_t):
+            trk = trk @ pin.Jexp6(delta_t)
+        out[:, 3:, space.tracker_slice] = np.moveaxis(trk, 1, 3)
         return out

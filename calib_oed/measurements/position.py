@@ -55,3 +55,7 @@ class TrackerPosition(MeasurementModel):
 
     def compute_config_jacobian(self, state: SetupState) -> np.ndarray:
         return state.tool_point_config_jacobian(state.reflector_offset(self.reflector), "tracker")
+
+    def compute_param_config_jacobian(self, state: SetupState) -> np.ndarray:
+        offset = state.reflector_offset(self.reflector)
+        return state.tool_point_param_config_jacobian(offset, "tracker", reflector=self.reflector)
