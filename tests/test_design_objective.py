@@ -84,7 +84,7 @@ def test_kpi_criterion_is_the_average_kpi_variance(robot):
 def test_blocks_are_the_scaled_rows_of_f1(robot):
     problem = _problem(robot)
     objective = DesignObjective(problem, "params")
-    q = robot.random_configurations(3, 34)
+    q = robot.random_configurations(7, 34)
     f1 = weighted_jacobian(problem.space, problem.models, q)[:, objective.free] * objective.scale
     blocks = objective.compute_blocks(q)
     # sensitivity.py stacks model-major; the objective stacks pose-major
@@ -94,3 +94,12 @@ def test_blocks_are_the_scaled_rows_of_f1(robot):
         assert np.allclose(blocks[j], expect, rtol=1e-12, atol=0)
     info = objective.information(blocks)
     assert np.allclose(info, f1.T @ f1, rtol=1e-10)
+
+
+def test_too_few_poses_names_the_parameters(robot):
+    from calib_oed.exceptions import NotIdentifiableError
+
+    objective = DesignObjective(_problem(robot), "kpi")
+    with pytest.raises(NotIdentifiableError, match="measure more configurations") as err:
+        objective.compute_value(robot.random_configurations(2, 0))
+    assert set(err.value.names) == set(objective.free_names)
