@@ -83,6 +83,8 @@ def cmd_demo(args) -> int:
     import tempfile
     import time
 
+    from calib_oed.design import evaluate_design
+    from calib_oed.design_result import format_design_table, write_design
     from calib_oed.montecarlo import monte_carlo
     from calib_oed.report import format_identifiability, format_kpi_sigma
     from calib_oed.workflow import (
@@ -99,10 +101,21 @@ def cmd_demo(args) -> int:
                                  title=f"scene {s.scene.name!r}"))
     print()
     t0 = time.perf_counter()
-    q, what = _design(s, args)
-    print(f"design: {what}, sampled in {time.perf_counter() - t0:.2f} s; feasible: "
-          f"{bool(s.feasibility.compute(q, jacobian=False).feasible.all())}")
+    q_start, what = _design(s, args)
+    print(f"start: {what}, sampled in {time.perf_counter() - t0:.2f} s; feasible: "
+          f"{bool(s.feasibility.compute(q_start, jacobian=False).feasible.all())}")
+    designs = {"heuristic": evaluate_design(s, q_start, "kpi", method="heuristic", seed=args.seed)}
+    if not args.no_optimise:
+        designs["C_p-optimal"] = _optimise(s, args, "params", q_start)
+        designs["KPI-optimal"] = _optimise(s, args, "kpi", q_start)
+    print(format_design_table(designs))
+    final = designs["KPI-optimal" if not args.no_optimise else "heuristic"]
+    q = final.q
+    what = f"{final.method} {final.criterion} design of {final.n} poses"
     print(format_kpi_sigma(problem, problem.kpi_sigma(q), what))
+    out = args.output or tempfile.mkdtemp(prefix="calib_oed_demo_")
+    files = write_design(out, final, problem.robot)
+    print(f"wrote {files['yaml']} and {files['csv']}")
     print()
     mset, p_true = simulated_measurements(s, q, args.truth_seed)
     result = identify_measurements(s, mset)
@@ -112,7 +125,6 @@ def cmd_demo(args) -> int:
           f"{result.nfev} evaluations, residual RMS {result.rms_mm:.4f} mm")
     for name, b, a in zip(problem.kpi.names, before, after, strict=True):
         print(f"  {name}: TCP error before {b * 1e3:.4f} mm, after {a * 1e3:.4f} mm")
-    out = args.output or tempfile.mkdtemp(prefix="calib_oed_demo_")
     paths = export_result(s, result, out)
     err = round_trip_error(s, result.p, paths["urdf"])
     print(f"exported {paths['urdf']} and {paths['sensor']}; round trip: "
@@ -120,6 +132,68 @@ def cmd_demo(args) -> int:
     print()
     mc = monte_carlo(problem, q, args.runs, args.mc_seed, n_jobs=args.jobs, progress=not args.quiet)
     print(mc.summary())
+    return EXIT_OK
+
+
+def _sqp_settings(args):
+    from dataclasses import replace
+
+    from calib_oed.design import DESIGN_SQP
+
+    if getattr(args, "iterations", None):
+        return replace(DESIGN_SQP, max_iterations=args.iterations)
+    return DESIGN_SQP
+
+
+def _progress(args, what: str):
+    """An SQP iteration callback drawing a tqdm bar (None when quiet)."""
+    if getattr(args, "quiet", False) or getattr(args, "json", False):
+        return None, None
+    from tqdm import tqdm
+
+    bar = tqdm(desc=what, unit=" it", leave=False, file=sys.stderr)
+
+    def callback(record):
+        bar.update(1)
+        bar.set_postfix(objective=f"{record.objective:.4g}", violation=f"{record.violation:.1e}")
+
+    return callback, bar
+
+
+def _optimise(s, args, criterion: str, start):
+    from calib_oed.design import design
+
+    callback, bar = _progress(args, f"{criterion}-optimal design")
+    try:
+        return design(s, args.n, criterion, start=start, seed=args.seed,
+                      n_starts=getattr(args, "starts", 1), collisions=not getattr(args, "no_collisions", False),
+                      settings=_sqp_settings(args), callback=callback)
+    finally:
+        if bar is not None:
+            bar.close()
+
+
+def cmd_design(args) -> int:
+    from calib_oed.design_file import read_design_csv
+    from calib_oed.design_result import write_design
+
+    s = _setup(args.scene)
+    start = "heuristic"
+    if args.start != "heuristic":
+        start = read_design_csv(args.start, s.problem.robot)
+        args.n = len(start)
+    result = _optimise(s, args, args.criterion, start)
+    paths = write_design(args.output, result, s.problem.robot) if args.output else {}
+    if args.json:
+        data = result.to_dict()
+        data["files"] = {k: str(v) for k, v in paths.items()}
+        print(json.dumps(data, indent=2))
+        return EXIT_OK
+    print(result.summary())
+    if paths:
+        print(f"wrote {paths['yaml']} and {paths['csv']}")
+    else:
+        print("(no -o DIR given: nothing written)")
     return EXIT_OK
 
 
@@ -298,9 +372,34 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-N", "--runs", type=_positive_int, default=200, help="Monte Carlo runs (default 200)")
     p.add_argument("--mc-seed", type=int, default=0, help="Monte Carlo seed (default 0)")
     p.add_argument("--jobs", type=_positive_int, default=2, help="parallel workers (default 2)")
-    p.add_argument("-o", "--output", help="folder for the calibrated URDF (default: a temporary folder)")
+    p.add_argument("-o", "--output", help="folder for the design and the calibrated URDF "
+                   "(default: a temporary folder)")
+    p.add_argument("--no-optimise", action="store_true", help="skip the design optimisation "
+                   "(use the heuristic design)")
+    p.add_argument("--iterations", type=_positive_int, help="limit the SQP iterations")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=cmd_demo)
+
+    from calib_oed.criteria import CRITERIA
+
+    p = sub.add_parser("design", help="optimal measurement configurations (SQP from a heuristic start)")
+    scene_arg(p)
+    p.add_argument("-n", type=_positive_int, default=60, help="number of poses (default 60)")
+    p.add_argument("--criterion", default="kpi", choices=CRITERIA,
+                   help="kpi (default: the paper's KPI A-criterion), params (A on the parameter "
+                   "covariance, mm and mrad), D, E, or an observability index O1..O5")
+    p.add_argument("--start", default="heuristic", metavar="heuristic|CSV",
+                   help="start design: random feasible poses (default) or a design CSV")
+    p.add_argument("--seed", type=int, default=0, help="seed of the heuristic start (default 0)")
+    p.add_argument("--starts", type=_positive_int, default=1,
+                   help="multi-start: keep the best of this many seeded starts (default 1)")
+    p.add_argument("--no-collisions", action="store_true",
+                   help="only joint limits and incidence (no capsule or beam constraints)")
+    p.add_argument("--iterations", type=_positive_int, help="limit the SQP iterations")
+    p.add_argument("-o", "--output", metavar="DIR", help="write DIR/design.yaml and DIR/design.csv")
+    p.add_argument("--json", action="store_true", help="machine-readable output")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_design)
 
     p = sub.add_parser("feasibility", help="constraint pairs, a feasible design, margins, mesh check")
     scene_arg(p)

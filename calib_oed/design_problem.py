@@ -1,7 +1,7 @@
 r"""The OED problem (paper eq. 24a–24e) as a nonlinear program in :math:`x = \mathrm{vec}(q)`.
 
 .. math::
-    \min_{q_1..q_n}\; \phi(q)/\phi(q^0) \quad\text{s.t.}\quad
+    \min_{q_1..q_n}\; \phi(q)/|\phi(q^0)| \quad\text{s.t.}\quad
     g(q_j) \ge 0,\quad q^{\min} + m_q \le q_j \le q^{\max} - m_q,\quad j = 1..n,
 
 with :math:`\phi` a :class:`~calib_oed.design_objective.DesignObjective`

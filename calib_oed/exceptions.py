@@ -239,3 +239,31 @@ class UnknownCriterionError(CalibOedError):
         self.name = name
         self.valid = list(valid)
         super().__init__(f"unknown criterion {name!r}; valid criterion names are: {_choices(self.valid)}")
+
+
+class SQPSettingsError(CalibOedError, ValueError):
+    """An :class:`SQPSettings` value is invalid.
+
+    Attributes:
+        name: The setting.
+        value: The value given.
+        valid: The valid choices, for settings that take one of a few names.
+    """
+
+    def __init__(self, name: str, value, requirement: str, valid=None):
+        self.name = name
+        self.value = value
+        self.valid = list(valid) if valid is not None else None
+        super().__init__(f"SQPSettings.{name} = {value!r}: {requirement}")
+
+
+class SQPProblemError(CalibOedError, ValueError):
+    """The problem given to :func:`~calib_oed.sqp.solve_sqp` is inconsistent (``lb > ub``).
+
+    Attributes:
+        indices: The offending variable indices.
+    """
+
+    def __init__(self, message: str, indices=()):
+        self.indices = list(indices)
+        super().__init__(message)

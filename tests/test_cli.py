@@ -29,7 +29,7 @@ def test_identifiability_json(capsys):
 
 def test_demo_runs_the_whole_job(capsys, tmp_path):
     argv = ["demo", "ur5_table", "-n", "40", "--seed", "1", "-N", "6", "--jobs", "1", "--quiet",
-            "-o", str(tmp_path)]
+            "--iterations", "15", "-o", str(tmp_path)]
     assert main(argv) == EXIT_OK
     out = capsys.readouterr().out
     assert "KPI standard deviation" in out and " mm" in out
@@ -37,6 +37,7 @@ def test_demo_runs_the_whole_job(capsys, tmp_path):
     assert "TCP error before" in out and "round trip" in out
     assert "coverage of the 95% ellipsoid" in out
     assert (tmp_path / "ur5_calibrated.urdf").is_file() and (tmp_path / "ur5_sensor.yaml").is_file()
+    assert "C_p-optimal" in out and "KPI-optimal" in out and (tmp_path / "design.yaml").is_file()
 
 
 @pytest.mark.parametrize(
@@ -128,3 +129,31 @@ def test_bad_design_file_is_reported(capsys, tmp_path):
     bad.write_text("joint_a1,joint_a2,joint_a3,joint_a4,joint_a5,joint_a9\n0,0,0,0,0,0\n")
     assert main(["feasibility", "fms_kr16", "--design", str(bad)]) == EXIT_BAD_INPUT
     assert "joint_a9" in capsys.readouterr().err
+
+
+def test_design_command_writes_both_files(capsys, tmp_path):
+    import yaml
+
+    argv = ["design", "fms_kr16", "-n", "12", "--seed", "4", "--iterations", "10", "--quiet",
+            "-o", str(tmp_path)]
+    assert main(argv) == EXIT_OK
+    out = capsys.readouterr().out
+    assert "sqp design of 12 poses" in out and "feasible: True" in out
+    data = yaml.safe_load((tmp_path / "design.yaml").read_text())
+    assert data["criterion"] == "kpi" and len(data["configurations_rad"]) == 12
+    assert data["value"] < data["start_value"]
+    header = (tmp_path / "design.csv").read_text().splitlines()
+    assert "joint_a1" in [h for h in header if not h.startswith("#")][0]
+
+
+def test_design_command_json_and_errors(capsys, tmp_path):
+    assert main(["design", "fms_kr16", "-n", "12", "--criterion", "D", "--iterations", "3",
+                 "--json"]) == EXIT_OK
+    data = json.loads(capsys.readouterr().out)
+    assert data["criterion"] == "D" and data["files"] == {}
+    with pytest.raises(SystemExit):
+        main(["design", "fms_kr16", "--criterion", "Z"])
+    assert "invalid choice" in capsys.readouterr().err
+    assert main(["design", "fms_kr16", "-n", "3"]) == EXIT_BAD_INPUT
+    assert "measure more configurations" in capsys.readouterr().err
+    assert main(["design", "fms_kr16", "--start", str(tmp_path / "missing.csv")]) == EXIT_BAD_INPUT

@@ -1,0 +1,251 @@
+"""Designing: heuristic start, SQP on the OED problem, baselines; the driver only assembles.
+
+- :func:`design` runs the paper's problem (24a)–(24e): n poses minimising a
+  criterion under all feasibility constraints, solved by
+  :func:`calib_oed.sqp.solve_sqp` from a heuristic start (random feasible
+  poses), a given design, or the best of several seeded starts.
+- :func:`evaluate_design` reports any design the same way (criteria, KPI σ,
+  margins), so heuristic, exchange and optimised designs compare directly.
+- :func:`exchange_baseline` selects n poses from a feasible candidate pool
+  with the exchange algorithm (:mod:`calib_oed.exchange`).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+
+import numpy as np
+from threadpoolctl import threadpool_limits
+
+from calib_oed.criteria import CRITERIA, Criterion, make_criterion
+from calib_oed.design_objective import DesignObjective
+from calib_oed.design_problem import DesignProblem
+from calib_oed.design_result import Design
+from calib_oed.exceptions import ShapeError
+from calib_oed.exchange import exchange_design
+from calib_oed.feasibility.margins import margin_report
+from calib_oed.feasibility.sampling import sample_feasible
+from calib_oed.scene import Scene
+from calib_oed.sqp import SQPSettings, solve_sqp
+from calib_oed.workflow import Setup
+
+#: SQP settings of the design problem (objective scaled to 1 at the start, x in rad).
+DESIGN_SQP = SQPSettings()
+
+#: Largest constraint violation a design may have and still count as feasible
+#: [m for distances, cosine units for incidence]: 1 µm against 10 mm margins.
+FEASIBILITY_TOL = 1e-6
+
+
+def project_feasible(nlp: DesignProblem, x: np.ndarray, max_iterations: int = 50) -> np.ndarray:
+    r"""The nearest feasible design: :math:`\min_y \tfrac12\|y - x\|^2` s.t. the design constraints.
+
+    Used when the SQP stops (iteration limit) at an iterate violating a
+    constraint by more than :data:`FEASIBILITY_TOL`; the quadratic objective
+    makes the SQP's BFGS start exact, so a few iterations suffice.
+    """
+    def distance(y):
+        d = y - x
+        return 0.5 * float(d @ d), d
+
+    res = solve_sqp(distance, x, constraints=nlp.compute_constraints, bounds=nlp.bounds,
+                    settings=SQPSettings(max_iterations=max_iterations, step_bound=0.05,
+                                         tol_feasibility=0.1 * FEASIBILITY_TOL))
+    return res.x
+
+
+def _setup(scene: Scene | Setup) -> Setup:
+    return scene if isinstance(scene, Setup) else Setup(scene)
+
+
+def criterion_values(objective: DesignObjective, q: np.ndarray) -> dict[str, float]:
+    """Every criterion of :data:`calib_oed.criteria.CRITERIA` at design ``q``.
+
+    ``kpi`` and ``params`` are average variances [mm², (mm or mrad)²], ``D``
+    is log det C, ``E`` the largest covariance eigenvalue, ``O1..O5`` the
+    observability indices (larger is better).
+    """
+    blocks = objective.compute_blocks(q)
+    info = objective.information(blocks)
+    n_rows = blocks.shape[0] * blocks.shape[1]
+    out = {}
+    for name in CRITERIA:
+        crit = make_criterion(name, kpi_jacobian=objective.kpi_jacobian(), n_params=objective.n_free)
+        out[name] = float(crit.compute_index(info, n_rows))
+    return out
+
+
+def evaluate_design(
+    s: Setup | Scene,
+    q: np.ndarray,
+    criterion: str | Criterion = "kpi",
+    *,
+    method: str = "given",
+    start_value: float | None = None,
+    solver: dict | None = None,
+    seconds: float = 0.0,
+    seed: int | None = None,
+    collisions: bool = True,
+) -> Design:
+    """The :class:`~calib_oed.design_result.Design` record of configurations ``q`` (n, nq)."""
+    s = _setup(s)
+    problem = s.problem
+    q = problem.robot.check_configurations(q, "design")
+    objective = DesignObjective(problem, criterion)
+    value = objective.compute_value(q)
+    res = s.feasibility.compute(q, jacobian=False)
+    feasible = bool(res.values.min() >= -FEASIBILITY_TOL) if res.values.size else True
+    return Design(
+        scene=s.scene.name,
+        joint_names=tuple(problem.robot.joint_names),
+        q=q,
+        criterion=objective.criterion.name,
+        value=value,
+        start_value=value if start_value is None else float(start_value),
+        criteria=criterion_values(objective, q),
+        kpi_sigma_mm=problem.kpi_sigma(q) * 1e3,
+        kpi_names=tuple(problem.kpi.names),
+        margins=tuple(margin_report(s.feasibility, res.values)),
+        feasible=feasible,
+        solver=solver or {},
+        seconds=float(seconds),
+        seed=seed,
+        collisions=collisions,
+        method=method,
+    )
+
+
+#: Named start designs of :func:`design`.
+STARTS = ("heuristic", "exchange")
+
+
+def _start_designs(s: Setup, n: int, start, seed: int, n_starts: int, criterion,
+                   pool: int) -> list[tuple[int | None, np.ndarray]]:
+    if isinstance(start, str):
+        if start not in STARTS:
+            raise ValueError(f"start must be one of {', '.join(map(repr, STARTS))} or an (n, nq) "
+                             f"array of configurations, got {start!r}")
+        if start == "exchange":
+            return [(seed + k, exchange_baseline(s, n, criterion, pool=pool, seed=seed + k).q)
+                    for k in range(n_starts)]
+        return [(seed + k, sample_feasible(s.feasibility, n, seed + k)) for k in range(n_starts)]
+    q0 = s.problem.robot.check_configurations(start, "start design")
+    if q0.shape[0] != n:
+        raise ShapeError("start design", f"({n}, {s.problem.robot.nq})", q0.shape)
+    return [(None, q0)]
+
+
+def design(
+    scene: Scene | Setup,
+    n: int = 60,
+    criterion: str | Criterion = "kpi",
+    *,
+    start: str | np.ndarray = "heuristic",
+    seed: int = 0,
+    n_starts: int = 1,
+    collisions: bool = True,
+    settings: SQPSettings | None = None,
+    callback=None,
+    pool: int = 3000,
+) -> Design:
+    """An optimal design of ``n`` measurement configurations.
+
+    Args:
+        scene: A scene, or a :class:`~calib_oed.workflow.Setup` (reuses its
+            feasibility model).
+        n: Number of poses.
+        criterion: A name of :data:`calib_oed.criteria.CRITERIA` or a criterion.
+        start: ``"heuristic"`` (random feasible poses from ``seed``, the
+            paper's start), ``"exchange"`` (the exchange algorithm's best
+            ``n`` of ``pool`` random feasible poses for the same criterion:
+            a better basin, see docs/oed.md) or a design (n, nq) [rad].
+        seed: Seed of the heuristic start; start ``k`` of a multi-start uses
+            ``seed + k``. Same seed, same design.
+        n_starts: Run from this many heuristic starts and keep the best.
+        collisions: Impose the capsule and beam constraints (default), or only
+            joint limits and incidence.
+        settings: SQP settings (default :data:`DESIGN_SQP`).
+        callback: Called with each SQP iteration record.
+        pool: Candidate pool of the ``"exchange"`` start.
+
+    Returns:
+        The best design, with the SQP record of its run.
+    """
+    s = _setup(scene)
+    if n_starts < 1:
+        raise ValueError(f"n_starts must be >= 1, got {n_starts}")
+    best = None
+    t0 = time.perf_counter()
+    with threadpool_limits(limits=1, user_api="blas"):
+        best = _optimise_starts(s, int(n), criterion, start, seed, n_starts, collisions,
+                                settings, callback, pool)
+    value, q, phi0, result, start_seed = best
+    record = result.to_dict()
+    record.pop("x", None)
+    record.pop("multipliers", None)
+    return evaluate_design(
+        s, q, criterion, method="sqp", start_value=phi0, solver=record,
+        seconds=time.perf_counter() - t0, seed=start_seed, collisions=collisions,
+    )
+
+
+def _optimise_starts(s, n, criterion, start, seed, n_starts, collisions, settings, callback, pool):
+    """Run the SQP from every start; the best ``(value, q, phi0, result, seed)``."""
+    best = None
+    for start_seed, q0 in _start_designs(s, n, start, seed, n_starts, criterion, pool):
+        objective = DesignObjective(s.problem, criterion)
+        phi0 = objective.compute_value(q0)
+        # |phi0| (log-type criteria can be negative): the solver sees O(1) numbers
+        nlp = DesignProblem(objective, s.feasibility, len(q0), collisions=collisions,
+                            scale=max(abs(phi0), 1e-300))
+        result = solve_sqp(nlp.compute_objective, q0.ravel(), constraints=nlp.compute_constraints,
+                           bounds=nlp.bounds, settings=settings or DESIGN_SQP, callback=callback)
+        x = result.x
+        if nlp.max_violation(x) > FEASIBILITY_TOL:
+            x = project_feasible(nlp, x)
+        q = nlp.configurations(x)
+        value = objective.compute_value(q)
+        if best is None or value < best[0]:
+            best = (value, q, phi0, result, start_seed)
+    return best
+
+
+def exchange_baseline(
+    scene: Scene | Setup,
+    n: int = 60,
+    criterion: str | Criterion = "kpi",
+    *,
+    pool: int | np.ndarray = 3000,
+    seed: int = 0,
+) -> Design:
+    """The best n poses of a feasible candidate pool by the exchange algorithm.
+
+    Args:
+        pool: Number of random feasible candidates drawn from ``seed``, or the
+            candidates themselves (N, nq).
+    """
+    s = _setup(scene)
+    t0 = time.perf_counter()
+    if isinstance(pool, (int, np.integer)):
+        candidates = sample_feasible(s.feasibility, int(pool), seed, max_draws=50_000_000)
+    else:
+        candidates = s.problem.robot.check_configurations(pool, "candidate pool")
+    objective = DesignObjective(s.problem, criterion)
+    blocks = objective.compute_blocks(candidates)
+    with threadpool_limits(limits=1, user_api="blas"):
+        result = exchange_design(blocks, n, objective.criterion, rng=seed)
+    q = candidates[np.asarray(result.indices)]
+    record = result.to_dict()
+    record["pool"] = int(len(candidates))
+    return evaluate_design(
+        s, q, criterion, method="exchange", start_value=result.initial_value, solver=record,
+        seconds=time.perf_counter() - t0, seed=seed,
+    )
+
+
+def heuristic_designs(scene: Scene | Setup, n: int, seeds: Sequence[int]) -> list[Design]:
+    """The paper's heuristic designs (random feasible poses), one per seed."""
+    s = _setup(scene)
+    return [evaluate_design(s, sample_feasible(s.feasibility, n, k), "kpi", method="heuristic",
+                            seed=k) for k in seeds]

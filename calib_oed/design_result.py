@@ -1,0 +1,159 @@
+"""The result of a design optimisation, and its files.
+
+``DIR/design.yaml`` holds the scene, the joint names, the configurations (rad
+and deg), the criterion values, the KPI standard deviations, the constraint
+margins and the solver record; ``DIR/design.csv`` the plain joint values
+(header = URDF joint names, one row per pose, rad). Both are written
+atomically (:mod:`calib_oed.io_utils`).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from calib_oed.design_file import write_design_csv
+from calib_oed.feasibility.margins import KindMargin, format_margins
+from calib_oed.io_utils import atomic_write_text
+from calib_oed.robot import Robot
+
+
+def _finite(value):
+    """JSON/YAML-safe: NaN and inf become None, numpy scalars plain floats."""
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_finite(v) for v in value]
+    if isinstance(value, (np.floating, float)):
+        return float(value) if math.isfinite(value) else None
+    if isinstance(value, np.integer):
+        return int(value)
+    if isinstance(value, np.ndarray):
+        return _finite(value.tolist())
+    return value
+
+
+@dataclass(frozen=True, eq=False)
+class Design:
+    """An optimised (or baseline) design of measurement configurations.
+
+    Attributes:
+        scene: Scene name.
+        joint_names: URDF joint names, the columns of ``q``.
+        q: Configurations (n, nq) [rad].
+        criterion: Name of the criterion optimised (``"heuristic"`` for none).
+        value: Its value at ``q`` (the criterion's unit, e.g. mm² for ``kpi``).
+        start_value: Its value at the start design.
+        criteria: Value of every criterion at ``q`` (``kpi`` and ``params`` in
+            mm², ``D`` log det C, ``E`` mm², ``O1..O5`` the indices).
+        kpi_sigma_mm: :math:`\\sqrt{\\mathrm{tr}\\,C_{s,i}/3}` per working configuration [mm].
+        kpi_names: Names of the working configurations.
+        margins: Tightest constraint of each kind.
+        feasible: Every constraint of the full feasibility model holds.
+        solver: The solver record (:meth:`calib_oed.sqp.SQPResult.to_dict`), or {}.
+        seconds: Wall time of the optimisation [s].
+        seed: Seed of the start design.
+        collisions: Whether collision constraints were imposed.
+        method: ``"sqp"`` (continuous optimisation), ``"exchange"`` (from a
+            candidate pool) or ``"heuristic"`` (random feasible poses).
+    """
+
+    scene: str
+    joint_names: tuple[str, ...]
+    q: np.ndarray
+    criterion: str
+    value: float
+    start_value: float
+    criteria: dict[str, float]
+    kpi_sigma_mm: np.ndarray
+    kpi_names: tuple[str, ...]
+    margins: tuple[KindMargin, ...]
+    feasible: bool
+    solver: dict = field(default_factory=dict)
+    seconds: float = 0.0
+    seed: int | None = None
+    collisions: bool = True
+    method: str = "sqp"
+
+    @property
+    def n(self) -> int:
+        return int(self.q.shape[0])
+
+    @property
+    def kpi_variance(self) -> float:
+        """The paper's KPI criterion: average variance of the KPI coordinates [mm²]."""
+        return float(self.criteria["kpi"])
+
+    def summary(self) -> str:
+        """A short report for the terminal."""
+        lines = [
+            f"{self.method} design of {self.n} poses for scene {self.scene!r}, "
+            f"criterion {self.criterion!r}"
+            f"{'' if self.collisions else ' (no collision constraints)'}",
+            f"  criterion value {self.value:.6g} (start {self.start_value:.6g}), "
+            f"{self.seconds:.2f} s",
+            f"  KPI average variance {self.kpi_variance:.4g} mm²; KPI sigma per axis "
+            + ", ".join(f"{n} {s:.5f} mm" for n, s in zip(self.kpi_names, self.kpi_sigma_mm,
+                                                          strict=True)),
+            f"  feasible: {self.feasible}",
+        ]
+        if self.solver:
+            lines.append(f"  solver: {self.solver.get('status')}, {self.solver.get('iterations')} "
+                         f"iterations, {self.solver.get('message', '')}")
+        lines.append(format_margins(list(self.margins)))
+        return "\n".join(lines)
+
+    def to_dict(self) -> dict:
+        """A plain, YAML/JSON-safe record (SI configurations plus degrees)."""
+        return _finite({
+            "format": "calib_oed design v1",
+            "scene": self.scene,
+            "criterion": self.criterion,
+            "method": self.method,
+            "collisions": self.collisions,
+            "seed": self.seed,
+            "n": self.n,
+            "joint_names": list(self.joint_names),
+            "configurations_rad": self.q.tolist(),
+            "configurations_deg": np.degrees(self.q).round(6).tolist(),
+            "value": self.value,
+            "start_value": self.start_value,
+            "criteria": dict(self.criteria),
+            "kpi_sigma_mm": dict(zip(self.kpi_names, self.kpi_sigma_mm.tolist(), strict=True)),
+            "feasible": self.feasible,
+            "margins": [vars(m) for m in self.margins],
+            "seconds": self.seconds,
+            "solver": self.solver,
+        })
+
+
+def write_design(folder: str | os.PathLike, design: Design, robot: Robot) -> dict[str, Path]:
+    """Write ``design.yaml`` and ``design.csv`` into ``folder`` (created if needed)."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    text = yaml.safe_dump(design.to_dict(), sort_keys=False, width=120)
+    yaml_path = atomic_write_text(folder / "design.yaml", text)
+    csv_path = write_design_csv(
+        folder / "design.csv", robot, design.q,
+        comment=f"scene {design.scene}: {design.criterion}-optimal design of {design.n} poses",
+    )
+    return {"yaml": yaml_path, "csv": csv_path}
+
+
+def format_design_table(designs: dict[str, Design]) -> str:
+    """Designs side by side: KPI average variance [mm²], KPI σ [mm], ratio to the first, time."""
+    names = list(designs)
+    ref = designs[names[0]].kpi_variance
+    lines = [f"{'design':14s} {'KPI avg var':>12s} {'KPI sigma':>10s} {'vs ' + names[0]:>14s} "
+             f"{'feasible':>8s} {'time':>8s}",
+             f"{'':14s} {'[mm²]':>12s} {'[mm]':>10s} {'':>14s} {'':>8s} {'[s]':>8s}"]
+    for name in names:
+        d = designs[name]
+        lines.append(f"{name:14s} {d.kpi_variance:12.4e} {np.sqrt(d.kpi_variance):10.5f} "
+                     f"{d.kpi_variance / ref:13.1%} {str(d.feasible):>8s} {d.seconds:8.2f}")
+    return "\n".join(lines)
