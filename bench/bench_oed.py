@@ -28,11 +28,13 @@ from __future__ import annotations
 import argparse
 import os
 import platform
+import sys
 import time
 
 import numpy as np
 import scipy
 import scipy.optimize
+from threadpoolctl import threadpool_limits
 
 from calib_oed.design import design, evaluate_design, exchange_baseline
 from calib_oed.design_objective import DesignObjective
@@ -203,7 +205,7 @@ def main(argv=None) -> int:
     parser.add_argument("--pool", type=int, default=3000)
     parser.add_argument("--no-quality", action="store_true")
     args = parser.parse_args(argv)
-    print(f"# {' '.join(['.venv/bin/python', 'bench/bench_oed.py'] + (argv or []))}")
+    print(f"# {' '.join(['.venv/bin/python', 'bench/bench_oed.py'] + (sys.argv[1:] if argv is None else argv))}")
     print(f"# {platform.processor() or platform.machine()}, {os.cpu_count()} cores, python "
           f"{platform.python_version()}, numpy {np.__version__}, scipy {scipy.__version__}")
     s = setup(load_scene(args.scene))
@@ -270,4 +272,6 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    # every solver with single-threaded BLAS, as calib_oed.design runs ours
+    with threadpool_limits(limits=1, user_api="blas"):
+        raise SystemExit(main())

@@ -148,6 +148,7 @@ def design(
     settings: SQPSettings | None = None,
     callback=None,
     pool: int = 3000,
+    structured_hessian: bool = False,
 ) -> Design:
     """An optimal design of ``n`` measurement configurations.
 
@@ -168,6 +169,10 @@ def design(
         settings: SQP settings (default :data:`DESIGN_SQP`).
         callback: Called with each SQP iteration record.
         pool: Candidate pool of the ``"exchange"`` start.
+        structured_hessian: Give the SQP the criterion's exact curvature
+            through M (A and D criteria) plus per-pose BFGS blocks instead of
+            one dense BFGS matrix. Fewer iterations, but each QP is slower:
+            measured slower overall on fms_kr16 (docs/oed.md), so off by default.
 
     Returns:
         The best design, with the SQP record of its run.
@@ -179,7 +184,7 @@ def design(
     t0 = time.perf_counter()
     with threadpool_limits(limits=1, user_api="blas"):
         best = _optimise_starts(s, int(n), criterion, start, seed, n_starts, collisions,
-                                settings, callback, pool)
+                                settings, callback, pool, structured_hessian)
     value, q, phi0, result, start_seed = best
     record = result.to_dict()
     record.pop("x", None)
@@ -190,7 +195,8 @@ def design(
     )
 
 
-def _optimise_starts(s, n, criterion, start, seed, n_starts, collisions, settings, callback, pool):
+def _optimise_starts(s, n, criterion, start, seed, n_starts, collisions, settings, callback, pool,
+                     structured_hessian):
     """Run the SQP from every start; the best ``(value, q, phi0, result, seed)``."""
     best = None
     for start_seed, q0 in _start_designs(s, n, start, seed, n_starts, criterion, pool):
@@ -199,8 +205,11 @@ def _optimise_starts(s, n, criterion, start, seed, n_starts, collisions, setting
         # |phi0| (log-type criteria can be negative): the solver sees O(1) numbers
         nlp = DesignProblem(objective, s.feasibility, len(q0), collisions=collisions,
                             scale=max(abs(phi0), 1e-300))
+        structured = structured_hessian and nlp.compute_curvature(q0.ravel()) is not None
         result = solve_sqp(nlp.compute_objective, q0.ravel(), constraints=nlp.compute_constraints,
-                           bounds=nlp.bounds, settings=settings or DESIGN_SQP, callback=callback)
+                           bounds=nlp.bounds, settings=settings or DESIGN_SQP, callback=callback,
+                           hessian_model=nlp.compute_curvature if structured else None,
+                           block_size=nlp.nq)
         x = result.x
         if nlp.max_violation(x) > FEASIBILITY_TOL:
             x = project_feasible(nlp, x)

@@ -37,7 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from calib_oed.criteria import ACriterion, Criterion, make_criterion
+from calib_oed.criteria import ACriterion, Criterion, DCriterion, make_criterion
 from calib_oed.exceptions import NotIdentifiableError, ShapeError
 from calib_oed.measurements import evaluate_setup
 from calib_oed.problem import CalibrationProblem
@@ -177,16 +177,68 @@ class DesignObjective:
         except NotIdentifiableError as exc:
             raise self._named(exc) from None
 
+    def _first_order(self, q: np.ndarray):
+        """Rows, their q-derivatives and M at ``q`` (the last few cached by value)."""
+        q = np.asarray(q, dtype=float)
+        key = q.tobytes()
+        cache = self.__dict__.setdefault("_cache", {})
+        if key not in cache:
+            state = self._state(q, second_order=True)
+            rows = self._rows(state)
+            info = self.information(rows)
+            if len(cache) >= 4:
+                cache.pop(next(iter(cache)))
+            cache[key] = (rows, self._row_derivatives(state), info)
+        return cache[key]
+
+    def compute_curvature(self, q: np.ndarray) -> np.ndarray | None:
+        r"""The criterion's exact curvature through :math:`M`, (n·nv, n·nv), or None.
+
+        With :math:`M_a = \partial M/\partial q_a
+        = \tilde F_j^\top \partial_a\tilde F_j + \partial_a\tilde F_j^\top \tilde F_j`
+        (``a`` a joint of pose ``j``) and :math:`C = M^{-1}`, the Hessian of
+        :math:`\phi = \Phi(M(q))` is
+
+        .. math::
+            \nabla^2\phi = \underbrace{\nabla^2\Phi[M_a, M_b]}_{\text{this}}
+              + \sum_{rs} \Gamma_{rs}\,\partial_a\partial_b M_{rs},
+
+        and the first term is exact and positive semidefinite for the convex
+        criteria: A (:math:`\Phi = \mathrm{tr}(WC)/k`) gives
+        :math:`\tfrac1k[\mathrm{tr}(P M_a C M_b) + \mathrm{tr}(P M_b C M_a)]`,
+        :math:`P = CWC`; D (:math:`-\log\det M`) gives
+        :math:`\mathrm{tr}(C M_a C M_b)`. The second term is block diagonal
+        per pose (it needs :math:`\partial^2\tilde F_j/\partial q_j^2`) and is
+        left to the SQP's per-pose quasi-Newton blocks
+        (``docs/derivations.md`` §12). None for other criteria.
+        """
+        crit = self.criterion
+        if not isinstance(crit, (ACriterion, DCriterion)):
+            return None
+        rows, d_rows, info = self._first_order(q)
+        n, _, nf, nv = d_rows.shape
+        c = np.linalg.inv(info)
+        c = 0.5 * (c + c.T)
+        g = np.moveaxis(d_rows, 3, 1).reshape(n * nv, -1, nf)  # (a, d, nf)
+        f = np.repeat(rows, nv, axis=0)  # (a, d, nf)
+        half = np.einsum("adi,adj->aij", f, g)
+        m_a = half + np.transpose(half, (0, 2, 1))  # (a, nf, nf)
+        v = c @ m_a  # C M_a
+        if isinstance(crit, DCriterion):
+            x = np.einsum("aij,bji->ab", v, v)
+            return 0.5 * (x + x.T)
+        p = c @ np.asarray(crit.weight) @ c
+        u = p @ m_a  # P M_a
+        x = u.reshape(n * nv, -1) @ np.transpose(v, (0, 2, 1)).reshape(n * nv, -1).T
+        return (x + x.T) / crit.dim
+
     def compute(self, q: np.ndarray) -> DesignEvaluation:
         r""":math:`\phi(q)` and :math:`\partial\phi/\partial q` (n, nv), exact."""
-        state = self._state(q, second_order=True)
-        rows = self._rows(state)
-        info = self.information(rows)
+        rows, d_rows, info = self._first_order(q)
         try:
             grad_m = self.criterion.compute_gradient(info)
         except NotIdentifiableError as exc:
             raise self._named(exc) from None
-        d_rows = self._row_derivatives(state)
         # dphi/dq_jk = 2 sum_d (F_j G)_d . dF_j/dq_k
         grad = 2.0 * np.einsum("jdf,jdfk->jk", rows @ grad_m, d_rows)
         value = float(self.criterion.compute_value(info))

@@ -80,6 +80,14 @@ class DesignProblem:
         ev = self.objective.compute(self.configurations(x))
         return ev.value / self.scale, ev.gradient.ravel() / self.scale
 
+    def compute_curvature(self, x: np.ndarray) -> np.ndarray | None:
+        """The objective's exact curvature through M (scaled like the objective), or None.
+
+        See :meth:`calib_oed.design_objective.DesignObjective.compute_curvature`.
+        """
+        h = self.objective.compute_curvature(self.configurations(x))
+        return None if h is None else h / self.scale
+
     def compute_constraint_rows(self, x: np.ndarray, jacobian: bool = True):
         """Constraint values (n, m) and Jacobian (n, m, nq) or None."""
         q = self.configurations(x)

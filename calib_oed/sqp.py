@@ -229,11 +229,20 @@ _MESSAGES = {
 class _Run:
     """State of one :func:`solve_sqp` call; the iteration is in :meth:`iterate`."""
 
-    def __init__(self, problem: _Problem, pt: _Point, lb, ub, settings: SQPSettings, t0):
+    def __init__(self, problem: _Problem, pt: _Point, lb, ub, settings: SQPSettings, t0,
+                 hessian_model=None, block_size=None):
         s = self.s = settings
         self.p, self.pt, self.lb, self.ub, self.t0 = problem, pt, lb, ub, t0
         n, m = pt.x.size, pt.c.size
-        self.B = np.eye(n) * s.initial_hessian_scale
+        self.hessian_model = hessian_model
+        self.block_size = int(block_size) if block_size else n
+        if n % self.block_size:
+            raise ShapeError("Hessian block size", f"a divisor of n = {n}", (self.block_size,))
+        nb, bs = n // self.block_size, self.block_size
+        # quasi-Newton remainder: one BFGS matrix per diagonal block
+        self.R = np.tile(np.eye(bs) * s.initial_hessian_scale, (nb, 1, 1))
+        self.H0 = self._known_hessian(pt.x)
+        self.B = self._assemble()
         self.first_update = True
         self.delta = s.step_bound
         self.mu = s.penalty_margin
@@ -317,8 +326,35 @@ class _Run:
     def _merit(self, pt: _Point):
         return pt.f + self.mu * pt.violation_l1
 
+    def _known_hessian(self, x):
+        if self.hessian_model is None:
+            return None
+        t = time.perf_counter()
+        h0 = np.asarray(self.hessian_model(x), dtype=float)
+        self.p.times["hessian"] += time.perf_counter() - t
+        if h0.shape != (x.size, x.size) or not np.all(np.isfinite(h0)):
+            raise ShapeError("known Hessian part", f"finite ({x.size}, {x.size})", h0.shape)
+        return 0.5 * (h0 + h0.T)
+
+    def _assemble(self):
+        r""":math:`B = H_0 + \mathrm{blkdiag}(R_1..R_b)` (structured) or the BFGS matrix itself."""
+        nb, bs = self.R.shape[0], self.R.shape[1]
+        if nb == 1 and self.H0 is None:
+            return self.R[0]
+        B = np.zeros((nb * bs, nb * bs)) if self.H0 is None else self.H0.copy()
+        for j in range(nb):
+            B[j * bs:(j + 1) * bs, j * bs:(j + 1) * bs] += self.R[j]
+        return B
+
     def _accept(self, new: _Point, lam):
-        """Move to ``new``; damped BFGS update with multipliers ``lam``."""
+        r"""Move to ``new``; damped BFGS update of the quasi-Newton part with multipliers ``lam``.
+
+        Structured (``hessian_model`` given): :math:`B = H_0(x) + \mathrm{blkdiag}(R_j)`,
+        each block :math:`R_j` updated with the residual secant pair
+        :math:`(s_j,\; (y - H_0(x_{k+1}) s)_j)` (Dennis & Moré's structured
+        secant idea; Nocedal & Wright §18.3 for the damping). Without it, one
+        dense BFGS matrix (one block of size n).
+        """
         t = time.perf_counter()
         old = self.pt
         s = new.x - old.x
@@ -326,7 +362,16 @@ class _Run:
             y = (new.g - new.A.T @ lam) - (old.g - old.A.T @ lam)
         else:
             y = new.g - old.g
-        self.B = damped_bfgs_update(self.B, s, y, self.s.bfgs_damping, self.first_update)
+        self.p.times["hessian"] += time.perf_counter() - t
+        self.H0 = self._known_hessian(new.x)
+        t = time.perf_counter()
+        if self.H0 is not None:
+            y = y - self.H0 @ s
+        bs = self.block_size
+        for j in range(self.R.shape[0]):
+            sl = slice(j * bs, (j + 1) * bs)
+            self.R[j] = damped_bfgs_update(self.R[j], s[sl], y[sl], self.s.bfgs_damping, self.first_update)
+        self.B = self._assemble()
         self.first_update = False
         self.p.times["hessian"] += time.perf_counter() - t
         self.pt = new
@@ -497,7 +542,7 @@ class _Run:
 
 
 def solve_sqp(objective, x0, *, constraints=None, bounds=None, settings: SQPSettings | None = None,
-              callback=None) -> SQPResult:
+              callback=None, hessian_model=None, block_size: int | None = None) -> SQPResult:
     r"""Minimise :math:`f(x)` s.t. :math:`c(x) \ge 0`, :math:`lb \le x \le ub` by SQP (module docstring).
 
     Args:
@@ -509,6 +554,13 @@ def solve_sqp(objective, x0, *, constraints=None, bounds=None, settings: SQPSett
         bounds: ``(lb, ub)``, arrays of shape ``(n,)`` (or scalars), may hold ±inf.
         settings: :class:`SQPSettings`; defaults if ``None``.
         callback: Called with each :class:`IterationRecord`.
+        hessian_model: Optional ``x -> H_0`` (n, n), a known positive
+            semidefinite part of the Lagrangian's Hessian (e.g. the
+            Gauss–Newton-like term of an OED criterion); the quasi-Newton
+            matrices then only learn the remainder.
+        block_size: Size of the diagonal blocks of the quasi-Newton remainder
+            (e.g. the joints of one pose when every constraint and the unknown
+            curvature are per pose); default one dense block.
 
     Returns:
         :class:`SQPResult`; call ``check()`` for the KKT residuals.
@@ -529,7 +581,8 @@ def solve_sqp(objective, x0, *, constraints=None, bounds=None, settings: SQPSett
     lb, ub = _bounds(bounds, n)
     times = dict.fromkeys(("objective", "constraints", "qp", "hessian", "total"), 0.0)
     problem = _Problem(objective, constraints, n, lb, ub, times)
-    run = _Run(problem, problem.evaluate(np.clip(x0, lb, ub), strict=True), lb, ub, s, t0)
+    run = _Run(problem, problem.evaluate(np.clip(x0, lb, ub), strict=True), lb, ub, s, t0,
+               hessian_model, block_size)
     for k in range(s.max_iterations):
         record = run.iterate(k)
         if callback is not None:

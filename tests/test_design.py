@@ -83,3 +83,18 @@ def test_design_table(kr16, kpi_design):
     heur = heuristic_designs(kr16, N, [0, 1])
     text = format_design_table({"heuristic": heur[0], "KPI-optimal": kpi_design})
     assert "KPI-optimal" in text and "100.0%" in text
+
+
+def test_exchange_start_then_sqp(kr16):
+    ex = exchange_baseline(kr16, N, "kpi", pool=150, seed=5)
+    d = design(kr16, N, "kpi", start="exchange", seed=5, pool=150, settings=SQPSettings(max_iterations=5))
+    assert np.isclose(d.start_value, ex.value, rtol=1e-9)  # the SQP starts from the exchange design
+    assert d.value <= ex.value * (1 + 1e-9) and d.feasible
+
+
+def test_multi_start_keeps_the_best(kr16):
+    settings = SQPSettings(max_iterations=3)
+    runs = [design(kr16, N, "kpi", seed=k, settings=settings) for k in (7, 8)]
+    best = design(kr16, N, "kpi", seed=7, n_starts=2, settings=settings)
+    assert np.isclose(best.value, min(r.value for r in runs), rtol=1e-6)
+    assert best.seed == min(runs, key=lambda r: r.value).seed

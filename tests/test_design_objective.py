@@ -103,3 +103,40 @@ def test_too_few_poses_names_the_parameters(robot):
     with pytest.raises(NotIdentifiableError, match="measure more configurations") as err:
         objective.compute_value(robot.random_configurations(2, 0))
     assert set(err.value.names) == set(objective.free_names)
+
+
+@pytest.mark.parametrize("criterion", ["kpi", "params", "D"])
+def test_curvature_is_the_criterion_hessian_along_dm(criterion):
+    """H1[a, b] = d2/dta dtb Phi(M + ta Ma + tb Mb), with Ma = dM/dq_a by central differences."""
+    from calib_oed import load_robot
+
+    robot = load_robot("ur5")
+    objective = DesignObjective(_problem(robot), criterion)
+    q = robot.random_configurations(7, 35)
+    h1 = objective.compute_curvature(q)
+    assert h1.shape == (q.size, q.size) and np.allclose(h1, h1.T)
+    assert np.linalg.eigvalsh(h1).min() >= -1e-9 * np.abs(h1).max()  # convex criteria: PSD
+    info = objective.compute_information(q)
+    picks = [0, 4, 9, 20, 41]
+
+    def m_a(a):
+        def info_at(x):
+            qq = q.ravel().copy()
+            qq[a] = x[0]
+            return objective.compute_information(qq.reshape(q.shape))
+        return central_difference(info_at, q.ravel()[a:a + 1])[..., 0]
+
+    mats = {a: m_a(a) for a in picks}
+    phi = objective.criterion.compute_value
+    eps = 1e-4
+    for a in picks:
+        for b in picks:
+            num = (phi(info + eps * mats[a] + eps * mats[b]) - phi(info + eps * mats[a] - eps * mats[b])
+                   - phi(info - eps * mats[a] + eps * mats[b]) + phi(info - eps * mats[a] - eps * mats[b])
+                   ) / (4 * eps**2)
+            assert np.isclose(h1[a, b], num, rtol=1e-4, atol=1e-6 * np.abs(h1).max())
+
+
+def test_no_curvature_for_eigenvalue_criteria(robot):
+    objective = DesignObjective(_problem(robot), "E")
+    assert objective.compute_curvature(robot.random_configurations(8, 1)) is None
