@@ -170,6 +170,9 @@ def _configure(qp, eps_abs: float, max_iter: int) -> None:
     s.eps_duality_gap_abs = eps_abs
     s.eps_duality_gap_rel = 0.0
     s.max_iter = max_iter
+    # bounds the time of one QP: ProxQP's default 1500 inner iterations per outer one let a
+    # degenerate QP of the design problem run for minutes (seen in bench/bench_oed.py)
+    s.max_iter_in = 200
     s.verbose = False
 
 
