@@ -140,9 +140,12 @@ def _sqp_settings(args):
 
     from calib_oed.design import DESIGN_SQP
 
+    settings = DESIGN_SQP
     if getattr(args, "iterations", None):
-        return replace(DESIGN_SQP, max_iterations=args.iterations)
-    return DESIGN_SQP
+        settings = replace(settings, max_iterations=args.iterations)
+    if getattr(args, "time_limit", None):
+        settings = replace(settings, time_limit=args.time_limit)
+    return settings
 
 
 def _progress(args, what: str):
@@ -178,8 +181,8 @@ def cmd_design(args) -> int:
     from calib_oed.design_result import write_design
 
     s = _setup(args.scene)
-    start = "heuristic"
-    if args.start != "heuristic":
+    start = args.start
+    if args.start not in ("heuristic", "exchange"):
         start = read_design_csv(args.start, s.problem.robot)
         args.n = len(start)
     result = _optimise(s, args, args.criterion, start)
@@ -388,14 +391,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--criterion", default="kpi", choices=CRITERIA,
                    help="kpi (default: the paper's KPI A-criterion), params (A on the parameter "
                    "covariance, mm and mrad), D, E, or an observability index O1..O5")
-    p.add_argument("--start", default="heuristic", metavar="heuristic|CSV",
-                   help="start design: random feasible poses (default) or a design CSV")
+    p.add_argument("--start", default="heuristic", metavar="heuristic|exchange|CSV",
+                   help="start design: random feasible poses (default), the exchange algorithm's "
+                   "best poses of a 3000-pose feasible pool (better designs), or a design CSV")
     p.add_argument("--seed", type=int, default=0, help="seed of the heuristic start (default 0)")
     p.add_argument("--starts", type=_positive_int, default=1,
                    help="multi-start: keep the best of this many seeded starts (default 1)")
     p.add_argument("--no-collisions", action="store_true",
                    help="only joint limits and incidence (no capsule or beam constraints)")
     p.add_argument("--iterations", type=_positive_int, help="limit the SQP iterations")
+    p.add_argument("--time-limit", type=float, metavar="SECONDS",
+                   help="stop the SQP after this wall time (status time_limit)")
     p.add_argument("-o", "--output", metavar="DIR", help="write DIR/design.yaml and DIR/design.csv")
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.add_argument("--quiet", action="store_true", help="no progress bar")

@@ -223,6 +223,7 @@ steps of ~1e-3)."""
 _MESSAGES = {
     SQPStatus.CONVERGED: "KKT conditions satisfied to tolerance",
     SQPStatus.MAX_ITERATIONS: "iteration limit reached",
+    SQPStatus.TIME_LIMIT: "wall-clock limit reached",
 }
 
 
@@ -588,6 +589,9 @@ def solve_sqp(objective, x0, *, constraints=None, bounds=None, settings: SQPSett
         if callback is not None:
             callback(record)
         if run.status is not None:
+            break
+        if time.perf_counter() - t0 > s.time_limit:
+            run._stop(SQPStatus.TIME_LIMIT)
             break
     else:
         run._stop(SQPStatus.MAX_ITERATIONS)

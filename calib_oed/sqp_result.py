@@ -39,6 +39,8 @@ class SQPStatus(str, Enum):
     """KKT residuals below tolerance at a feasible point."""
     MAX_ITERATIONS = "max_iterations"
     """The iteration limit was reached first."""
+    TIME_LIMIT = "time_limit"
+    """The wall-clock limit (``SQPSettings.time_limit``) was reached first."""
     STALLED = "stalled"
     """The trust region or the step fell below its minimum without convergence."""
     INFEASIBLE = "infeasible"
@@ -61,6 +63,8 @@ class SQPSettings:
 
     Attributes:
         max_iterations: Largest number of QP subproblems.
+        time_limit: Stop after the iteration that exceeds this wall time [s]
+            (default: no limit).
         tol_optimality: Scaled KKT stationarity and complementarity tolerance.
         tol_feasibility: Largest violation of :math:`c \ge 0` and of the bounds.
         tol_step: Stop (stalled) when :math:`\|d\|_\infty` falls below it.
@@ -88,6 +92,7 @@ class SQPSettings:
     """
 
     max_iterations: int = 300
+    time_limit: float = float("inf")
     tol_optimality: float = 1e-6
     tol_feasibility: float = 1e-7
     tol_step: float = 1e-9
@@ -126,6 +131,7 @@ class SQPSettings:
                      "max_step_bound", "initial_hessian_scale", "qp_eps_abs", "penalty_margin",
                      "restoration_penalty"):
             need(name, positive, "must be a finite number > 0")
+        need("time_limit", lambda v: isinstance(v, (int, float)) and v > 0, "must be > 0 (inf: no limit)")
         need("step_bound_ratio", lambda v: isinstance(v, (int, float)) and v >= 1,
              "must be >= 1 (inf disables)")
         need("active_margin", lambda v: isinstance(v, (int, float)) and 0 <= v < np.inf,

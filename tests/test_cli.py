@@ -135,7 +135,7 @@ def test_design_command_writes_both_files(capsys, tmp_path):
     import yaml
 
     argv = ["design", "fms_kr16", "-n", "12", "--seed", "4", "--iterations", "10", "--quiet",
-            "-o", str(tmp_path)]
+            "--time-limit", "60", "-o", str(tmp_path)]
     assert main(argv) == EXIT_OK
     out = capsys.readouterr().out
     assert "sqp design of 12 poses" in out and "feasible: True" in out
@@ -157,3 +157,10 @@ def test_design_command_json_and_errors(capsys, tmp_path):
     assert main(["design", "fms_kr16", "-n", "3"]) == EXIT_BAD_INPUT
     assert "measure more configurations" in capsys.readouterr().err
     assert main(["design", "fms_kr16", "--start", str(tmp_path / "missing.csv")]) == EXIT_BAD_INPUT
+
+
+def test_design_command_from_the_exchange_start(capsys):
+    argv = ["design", "fms_kr16", "-n", "12", "--start", "exchange", "--iterations", "2", "--json"]
+    assert main(argv) == EXIT_OK
+    data = json.loads(capsys.readouterr().out)
+    assert data["feasible"] and data["value"] <= data["start_value"]

@@ -485,3 +485,19 @@ def test_structured_hessian_with_block_remainder():
     assert structured.iterations < plain.iterations
     with pytest.raises(ShapeError):
         solve_sqp(objective, x0, constraints=constraints, hessian_model=lambda x: q_known, block_size=5)
+
+
+def test_time_limit_stops_with_its_status():
+    def slow_rosenbrock(x):
+        import time
+
+        time.sleep(0.02)
+        a, b = x
+        f = (1 - a) ** 2 + 100 * (b - a**2) ** 2
+        return f, np.array([-2 * (1 - a) - 400 * a * (b - a**2), 200 * (b - a**2)])
+
+    res = solve_sqp(slow_rosenbrock, np.array([-1.2, 1.0]), settings=SQPSettings(time_limit=0.1))
+    assert res.status == SQPStatus.TIME_LIMIT and res.iterations < 10
+    assert "wall-clock" in res.message
+    with pytest.raises(SQPSettingsError):
+        SQPSettings(time_limit=0)
