@@ -119,16 +119,17 @@ def _ad_apply(twist: np.ndarray, mat: np.ndarray) -> np.ndarray:
     = \begin{bmatrix} \omega \times a + v \times b \\ \omega \times b \end{bmatrix}`
     (Pinocchio's order, linear part first), as skew-matrix products.
     """
-    sv = _skew(twist[:, :3])
-    sw = _skew(twist[:, 3:])
+    sv = skew(twist[:, :3])
+    sw = skew(twist[:, 3:])
     out = np.empty_like(mat)
     out[:, :3] = sw @ mat[:, :3] + sv @ mat[:, 3:]
     out[:, 3:] = sw @ mat[:, 3:]
     return out
 
 
-def _skew(v: np.ndarray) -> np.ndarray:
-    """Batched cross-product matrices of (n, 3) vectors, (n, 3, 3)."""
+def skew(v: np.ndarray) -> np.ndarray:
+    r"""Batched :math:`[v]_\times`: (..., 3) -> (..., 3, 3)."""
+    v = np.asarray(v, dtype=float)
     out = np.zeros(v.shape[:-1] + (3, 3))
     out[..., 0, 1], out[..., 0, 2] = -v[..., 2], v[..., 1]
     out[..., 1, 0], out[..., 1, 2] = v[..., 2], -v[..., 0]

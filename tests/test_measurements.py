@@ -53,15 +53,7 @@ def test_param_config_jacobian(space, params, kind):
     model = MODELS[kind]()
     q = space.robot.random_configurations(3, 13)
     analytic = model.compute_param_config_jacobian(evaluate_setup(space, params, q))
-    numeric = np.stack([
-        central_difference(
-            lambda qk, k=k: model.compute_param_jacobian(
-                evaluate_setup(space, params, np.vstack([q[:k], qk, q[k + 1:]]))
-            )[k],
-            q[k],
-        )
-        for k in range(len(q))
-    ])
+    numeric = _mixed_differences(model, space, params, q)
     assert analytic.shape == (3, model.dim, space.size, space.robot.nq)
     assert relative_error(analytic, numeric) < TOL
 
@@ -74,7 +66,12 @@ def test_pose_probe_rotation_mixed_derivative(space):
     p = space.random(7, 5e-3, 5e-3)
     q = space.robot.random_configurations(2, 14)
     analytic = model.compute_param_config_jacobian(evaluate_setup(space, p, q))
-    numeric = np.stack([
+    assert relative_error(analytic, _mixed_differences(model, space, p, q)) < TOL
+
+
+def _mixed_differences(model, space, p, q):
+    """Central differences of pose k's dh/dp along q_k, stacked over poses: (n, d, n_p, nv)."""
+    return np.stack([
         central_difference(
             lambda qk, k=k: model.compute_param_jacobian(
                 evaluate_setup(space, p, np.vstack([q[:k], qk, q[k + 1:]]))
@@ -83,7 +80,6 @@ def test_pose_probe_rotation_mixed_derivative(space):
         )
         for k in range(len(q))
     ])
-    assert relative_error(analytic, numeric) < TOL
 
 
 def test_position_value_matches_frame_placement(space):

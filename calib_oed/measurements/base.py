@@ -27,6 +27,7 @@ from calib_oed.kinematics import (
     ToolKinematics,
     compute_tool_kinematics,
     regressor_config_derivative,
+    skew,
 )
 from calib_oed.parameters import ParameterSpace
 
@@ -189,16 +190,6 @@ class SetupState:
         r""":math:`\partial x/\partial q` of :meth:`tool_point`, (n, 3, nv)."""
         d_q = self.kin.point_sensitivity(offset, "jacobian")
         return self.tracker.rotation.T @ d_q if frame == "tracker" else d_q
-
-
-def skew(v: np.ndarray) -> np.ndarray:
-    r"""Batched :math:`[v]_\times`: (..., 3) -> (..., 3, 3)."""
-    v = np.asarray(v, dtype=float)
-    out = np.zeros(v.shape[:-1] + (3, 3))
-    out[..., 0, 1], out[..., 0, 2] = -v[..., 2], v[..., 1]
-    out[..., 1, 0], out[..., 1, 2] = v[..., 2], -v[..., 0]
-    out[..., 2, 0], out[..., 2, 1] = -v[..., 1], v[..., 0]
-    return out
 
 
 def evaluate_setup(
