@@ -70,8 +70,9 @@ def criterion_values(objective: DesignObjective, q: np.ndarray) -> dict[str, flo
     info = objective.information(blocks)
     n_rows = blocks.shape[0] * blocks.shape[1]
     out = {}
+    g = objective.kpi_jacobian()
     for name in CRITERIA:
-        crit = make_criterion(name, kpi_jacobian=objective.kpi_jacobian(), n_params=objective.n_free)
+        crit = make_criterion(name, kpi_jacobian=g, n_params=objective.n_free)
         out[name] = float(crit.compute_index(info, n_rows))
     return out
 

@@ -94,6 +94,9 @@ class DesignObjective:
             if prior.shape != (nf, nf):
                 raise ShapeError("prior information", f"({nf}, {nf})", prior.shape)
         self.prior = prior
+        # first-order pieces of the last few designs: the SQP asks for value, gradient
+        # and curvature at the same point
+        self._cache: dict[bytes, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
 
     @property
     def n_free(self) -> int:
@@ -181,7 +184,7 @@ class DesignObjective:
         """Rows, their q-derivatives and M at ``q`` (the last few cached by value)."""
         q = np.asarray(q, dtype=float)
         key = q.tobytes()
-        cache = self.__dict__.setdefault("_cache", {})
+        cache = self._cache
         if key not in cache:
             state = self._state(q, second_order=True)
             rows = self._rows(state)

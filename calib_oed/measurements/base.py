@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import abc
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 import pinocchio as pin
@@ -56,6 +57,12 @@ class SetupState:
     @property
     def n(self) -> int:
         return self.kin.n
+
+    @cached_property
+    def regressor_q(self) -> np.ndarray:
+        r""":math:`\partial K/\partial q` (n, 6, 6 n_j, nv), computed once per state for all models
+        (:func:`calib_oed.kinematics.regressor_config_derivative`)."""
+        return regressor_config_derivative(self.kin)
 
     def joint_param_sensitivity(self, d_eps: np.ndarray) -> np.ndarray:
         r"""Chain rule from right perturbations :math:`\epsilon_i` to parameters :math:`\delta_i`.
@@ -159,7 +166,7 @@ class SetupState:
         space = self.space
         kin = self.kin
         c = np.asarray(offset, dtype=float)
-        reg_q = regressor_config_derivative(kin)  # (n, 6, 6nj, nv)
+        reg_q = self.regressor_q  # (n, 6, 6nj, nv)
         omega = kin.jacobian[:, 3:, :]  # (n, 3, nv) local
         n, nv = self.n, omega.shape[2]
         out = np.zeros((n, 3, space.size, nv))

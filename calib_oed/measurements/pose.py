@@ -32,7 +32,6 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
-from calib_oed.kinematics import regressor_config_derivative
 from calib_oed.measurements.base import MeasurementModel, SetupState, skew
 from calib_oed.measurements.position import DEFAULT_SIGMA, TrackerPosition
 
@@ -138,7 +137,7 @@ class PoseMeasurement(MeasurementModel):
         hlog = np.array([[pin.Hlog3(rot[i], w[i, :, k]) for k in range(nv)] for i in range(n)])
         omega = self.probe_rotation.T @ state.kin.regressor[:, 3:, :]  # (n, 3, 6nj)
         omega_q = np.einsum("ab,nbcq->nacq", self.probe_rotation.T,
-                            regressor_config_derivative(state.kin)[:, 3:])
+                            state.regressor_q[:, 3:])
         joints = np.einsum("nqab,nbc->nacq", hlog, omega) + np.einsum("nab,nbcq->nacq", jlog, omega_q)
         out[:, 3:, space.joints_slice] = state.joint_param_config_sensitivity(joints)
         rot_t = np.transpose(rot, (0, 2, 1))
