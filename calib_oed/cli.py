@@ -62,12 +62,13 @@ def _setup(scene_ref: str):
 
 
 def _design(s, args):
-    """The design of a command: a design CSV, or n heuristic feasible poses."""
-    from calib_oed.design_file import read_design_csv
+    """The design of a command: a design file (YAML or CSV), or n heuristic feasible poses."""
+    from calib_oed.design_result import read_design_file
     from calib_oed.workflow import heuristic_design
 
-    if getattr(args, "design", None):
-        return read_design_csv(args.design, s.problem.robot), f"design file {args.design}"
+    path = getattr(args, "design", None) or getattr(args, "design_option", None)
+    if path:
+        return read_design_file(path, s.problem.robot), f"design file {path}"
     q = heuristic_design(s, args.n, args.seed)
     return q, f"{args.n} random feasible poses (seed {args.seed})"
 
@@ -200,12 +201,137 @@ def cmd_design(args) -> int:
     return EXIT_OK
 
 
+def _mesh_check(s, q):
+    """The independent check of design ``q`` against the URDF collision meshes."""
+    from calib_oed.feasibility.mesh_check import check_design_meshes
+
+    scene = s.scene
+    return check_design_meshes(
+        scene.robot, q, scene.cell,
+        tracker_position=scene.tracker.placement().translation,
+        reflector_offsets=np.array([r.offset for r in scene.reflectors]),
+        beam_radius=scene.feasibility.beam_radius,
+        excluded_pairs=scene.feasibility.excluded_pairs,
+    )
+
+
+def cmd_evaluate(args) -> int:
+    from calib_oed.design import evaluate_design
+    from calib_oed.report import format_kpi_sigma
+
+    s = _setup(args.scene)
+    q, what = _design(s, args)
+    result = evaluate_design(s, q, args.criterion, method="given")
+    problem = s.problem
+    estimable = problem.kpi_estimability()
+    mesh = None if args.no_mesh_check else _mesh_check(s, q)
+    plots = _evaluate_plots(s, q, args) if args.plot else {}
+    if args.json:
+        data = result.to_dict()
+        data.update(design_file=what, kpi_estimability=[e.to_dict() for e in estimable],
+                    mesh_feasible=None if mesh is None else int(mesh.feasible.sum()),
+                    mesh_min_distance_mm=None if mesh is None else float(mesh.min_distance.min() * 1e3),
+                    plots={k: str(v) for k, v in plots.items()})
+        print(json.dumps(data, indent=2))
+        return EXIT_OK
+    print(f"scene {s.scene.name!r}: {what}, {result.n} poses")
+    print(format_kpi_sigma(problem, result.kpi_sigma_mm * 1e-3, what))
+    for e in estimable:
+        if not e.estimable:
+            print(f"  note: {e.label} is not estimable: its value depends on the gauge parameters "
+                  f"{', '.join(e.gauge[:6])}{' ...' if len(e.gauge) > 6 else ''} "
+                  "(`calib-oed identifiability`); C_s is relative to that gauge")
+    print("criterion values (kpi, params: average variance [mm², params in mm and mrad]; D: log det C; "
+          "E: largest eigenvalue [mm²]; O1..O5: observability indices, larger is better):")
+    print("  " + ", ".join(f"{k} {v:.5g}" for k, v in result.criteria.items()))
+    print(f"feasible (every constraint of the capsule model, margins included): {result.feasible}")
+    from calib_oed.feasibility.margins import format_margins
+
+    print(format_margins(list(result.margins)))
+    if mesh is not None:
+        print("independent check against the URDF collision meshes:")
+        print(mesh.summary())
+    for k, v in plots.items():
+        print(f"wrote {k} plot {v}")
+    return EXIT_OK
+
+
+def _evaluate_plots(s, q, args) -> dict[str, Path]:
+    from calib_oed.plots import plot_kpi_ellipsoids, plot_pose_contributions, save_figure
+
+    folder = Path(args.plot)
+    folder.mkdir(parents=True, exist_ok=True)
+    return {
+        "ellipsoid": save_figure(plot_kpi_ellipsoids(s.problem, {"design": q}), folder / "kpi_ellipsoid.png"),
+        "contributions": save_figure(plot_pose_contributions(s.problem, q, args.criterion),
+                                     folder / "pose_contributions.png"),
+    }
+
+
+def cmd_compare(args) -> int:
+    from calib_oed.design import evaluate_design
+    from calib_oed.design_result import (
+        design_label,
+        format_criteria_table,
+        format_design_table,
+        read_design_file,
+    )
+
+    s = _setup(args.scene)
+    labels = [design_label(p) for p in args.designs]
+    if len(set(labels)) != len(labels):
+        labels = [str(p) for p in args.designs]
+    designs = {}
+    for label, path in _iterate(args, list(zip(labels, args.designs, strict=True)), "designs"):
+        designs[label] = evaluate_design(s, read_design_file(path, s.problem.robot), "kpi", method="given")
+    if args.plot:
+        from calib_oed.plots import plot_kpi_ellipsoids, save_figure
+
+        save_figure(plot_kpi_ellipsoids(s.problem, {k: d.q for k, d in designs.items()}), args.plot)
+    if args.json:
+        print(json.dumps({"scene": s.scene.name,
+                          "designs": {k: {**d.to_dict(), "file": str(p)}
+                                      for (k, d), p in zip(designs.items(), args.designs, strict=True)},
+                          "plot": args.plot}, indent=2))
+        return EXIT_OK
+    print(f"scene {s.scene.name!r}: {len(designs)} designs (ratios relative to the first)")
+    print(format_design_table(designs))
+    print()
+    print(format_criteria_table(designs))
+    if args.plot:
+        print(f"wrote {args.plot}")
+    return EXIT_OK
+
+
+def _iterate(args, items, what: str):
+    """``items`` with a progress bar unless quiet or JSON."""
+    if getattr(args, "quiet", False) or getattr(args, "json", False) or len(items) < 2:
+        return items
+    from tqdm import tqdm
+
+    return tqdm(items, desc=what, leave=False, file=sys.stderr)
+
+
+def cmd_validate(args) -> int:
+    from calib_oed.validation import validate_calibration
+    from calib_oed.workflow import read_scene_measurements
+
+    s = _setup(args.scene)
+    units = {k: v for k, v in (("length_unit", args.length_unit), ("angle_unit", args.angle_unit)) if v}
+    mset = read_scene_measurements(s, args.measurements, **units)
+    result = validate_calibration(s.scene, args.calibrated, mset)
+    if args.json:
+        print(json.dumps(result.to_dict(), indent=2))
+    else:
+        print(result.summary())
+    return EXIT_OK
+
+
 def cmd_feasibility(args) -> int:
     import time
 
     from calib_oed.design_file import write_design_csv
     from calib_oed.feasibility.margins import format_margins, margin_report
-    from calib_oed.feasibility.mesh_check import check_design_meshes
 
     s = _setup(args.scene)
     t0 = time.perf_counter()
@@ -213,15 +339,7 @@ def cmd_feasibility(args) -> int:
     elapsed = time.perf_counter() - t0
     res = s.feasibility.compute(q, jacobian=False)
     scene = s.scene
-    mesh = None
-    if not args.no_mesh_check:
-        mesh = check_design_meshes(
-            scene.robot, q, scene.cell,
-            tracker_position=scene.tracker.placement().translation,
-            reflector_offsets=np.array([r.offset for r in scene.reflectors]),
-            beam_radius=scene.feasibility.beam_radius,
-            excluded_pairs=scene.feasibility.excluded_pairs,
-        )
+    mesh = None if args.no_mesh_check else _mesh_check(s, q)
     margins = margin_report(s.feasibility, res.values)
     if args.output:
         write_design_csv(args.output, scene.robot, q, comment=f"scene {scene.name}: {what}")
@@ -361,16 +479,20 @@ def build_parser() -> argparse.ArgumentParser:
     def scene_arg(p):
         p.add_argument("scene", help="shipped scene name or scene file path")
 
-    def design_args(p):
-        p.add_argument("--design", metavar="CSV", help="design file (header = joint names, rad); "
-                       "default: -n random feasible poses")
+    def design_args(p, positional=True):
+        if positional:
+            p.add_argument("design", nargs="?", metavar="DESIGN", help="design file: DIR/design.yaml or "
+                           "a CSV (header = joint names, rad); default: -n random feasible poses")
+        p.add_argument("--design", dest="design_option", metavar="FILE",
+                       help="design file (same as DESIGN)" if positional else
+                       "design file: design.yaml or CSV; default: -n random feasible poses")
         p.add_argument("-n", type=_positive_int, default=60, help="random feasible poses (default 60)")
         p.add_argument("--seed", type=int, default=0, help="seed of the random design (default 0)")
 
     p = sub.add_parser("demo", help="the whole job on a scene: design, simulated calibration, "
                        "export, Monte Carlo")
     p.add_argument("scene", nargs="?", default=DEFAULT_SCENE, help=f"default {DEFAULT_SCENE}")
-    design_args(p)
+    design_args(p, positional=False)
     p.add_argument("--truth-seed", type=int, default=1, help="seed of the simulated robot (default 1)")
     p.add_argument("-N", "--runs", type=_positive_int, default=200, help="Monte Carlo runs (default 200)")
     p.add_argument("--mc-seed", type=int, default=0, help="Monte Carlo seed (default 0)")
@@ -406,6 +528,36 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_design)
+
+    p = sub.add_parser("evaluate", help="KPI sigma, criterion values, margins and mesh check of a design")
+    scene_arg(p)
+    p.add_argument("design", metavar="DESIGN", help="design file: DIR/design.yaml or a CSV")
+    p.add_argument("--criterion", default="kpi", choices=CRITERIA, help="criterion of the "
+                   "contribution plot (default kpi); all criterion values are always reported")
+    p.add_argument("--no-mesh-check", action="store_true", help="skip the URDF mesh check")
+    p.add_argument("--plot", metavar="DIR", help="write DIR/kpi_ellipsoid.png and DIR/pose_contributions.png")
+    p.add_argument("--json", action="store_true", help="machine-readable output")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(func=cmd_evaluate)
+
+    p = sub.add_parser("compare", help="designs side by side: KPI variance, criteria, feasibility")
+    scene_arg(p)
+    p.add_argument("designs", nargs="+", metavar="DESIGN", help="design files (design.yaml or CSV)")
+    p.add_argument("--plot", metavar="FILE", help="write the 95 %% KPI ellipsoid projections "
+                   "(.png, .svg or .pdf)")
+    p.add_argument("--json", action="store_true", help="machine-readable output")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_compare)
+
+    p = sub.add_parser("validate", help="residuals of a calibration on separate validation measurements")
+    scene_arg(p)
+    p.add_argument("calibrated", metavar="CALIBRATED", help="the folder `identify -o DIR` wrote "
+                   "(calibrated URDF and sensor YAML), or its URDF")
+    p.add_argument("measurements", help="validation measurement CSV (docs/data_format.md)")
+    p.add_argument("--length-unit", choices=("m", "mm"), help="if the file states no units")
+    p.add_argument("--angle-unit", choices=("rad", "deg"), help="if the file states no units")
+    p.add_argument("--json", action="store_true", help="machine-readable output")
+    p.set_defaults(func=cmd_validate)
 
     p = sub.add_parser("feasibility", help="constraint pairs, a feasible design, margins, mesh check")
     scene_arg(p)

@@ -17,7 +17,8 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from calib_oed.design_file import write_design_csv
+from calib_oed.design_file import read_design_csv, write_design_csv
+from calib_oed.exceptions import MeasurementFileError
 from calib_oed.feasibility.margins import KindMargin, format_margins
 from calib_oed.io_utils import atomic_write_text
 from calib_oed.robot import Robot
@@ -145,6 +146,64 @@ def write_design(folder: str | os.PathLike, design: Design, robot: Robot) -> dic
     return {"yaml": yaml_path, "csv": csv_path}
 
 
+def read_design_file(path: str | os.PathLike, robot: Robot, check_limits: bool = True) -> np.ndarray:
+    """Configurations (n, nq) [rad] of a design file, in ``robot``'s joint order.
+
+    Accepts what :func:`write_design` writes: ``design.yaml`` (its
+    ``joint_names`` and ``configurations_rad``) or a design CSV (header = joint
+    names, rad), recognised by the suffix (``.yaml``/``.yml``, else CSV).
+
+    Raises:
+        MeasurementFileError: unreadable file, not a calib_oed design, joint
+            names that are not the robot's, bad or out-of-limit values.
+    """
+    path = Path(path)
+    if path.is_dir():
+        raise MeasurementFileError(str(path), [(None, "is a folder; give its design.yaml or design.csv")],
+                                   kind="design file")
+    if path.suffix.lower() not in (".yaml", ".yml"):
+        return read_design_csv(path, robot, check_limits=check_limits)
+    source = str(path)
+
+    def fail(message: str) -> MeasurementFileError:
+        return MeasurementFileError(source, [(None, message)], kind="design file")
+
+    try:
+        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
+        raise fail(f"cannot read the design YAML ({exc})") from exc
+    if not isinstance(data, dict) or not str(data.get("format", "")).startswith("calib_oed design"):
+        raise fail("not a calib_oed design YAML (expected 'format: calib_oed design v1', "
+                   "'joint_names' and 'configurations_rad', as `calib-oed design -o DIR` writes)")
+    names = data.get("joint_names")
+    rows = data.get("configurations_rad")
+    if not isinstance(names, list) or sorted(map(str, names)) != sorted(robot.joint_names):
+        raise fail(f"joint_names {names} are not the robot's joints {list(robot.joint_names)}")
+    try:
+        q = np.array(rows, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise fail(f"configurations_rad is not a table of numbers ({exc})") from exc
+    if q.ndim != 2 or q.shape[0] < 1 or q.shape[1] != len(names):
+        raise fail(f"configurations_rad must be n >= 1 rows of {len(names)} values, got shape {q.shape}")
+    if not np.all(np.isfinite(q)):
+        raise fail("configurations_rad holds NaN or infinite values")
+    q = q[:, [list(map(str, names)).index(j) for j in robot.joint_names]]
+    if check_limits:
+        bad = np.argwhere((q < robot.lower - 1e-9) | (q > robot.upper + 1e-9))
+        if bad.size:
+            raise MeasurementFileError(source, [
+                (None, f"pose {k}: {robot.joint_names[i]} = {q[k, i]:.6g} outside the limits "
+                       f"[{robot.lower[i]:.6g}, {robot.upper[i]:.6g}] (rad, or m if prismatic)")
+                for k, i in bad], kind="design file")
+    return q
+
+
+def design_label(path: str | os.PathLike) -> str:
+    """A short name of a design file for tables: its folder for ``DIR/design.*``, else its stem."""
+    path = Path(path)
+    return path.parent.name or path.stem if path.stem == "design" else path.stem
+
+
 def format_design_table(designs: dict[str, Design]) -> str:
     """Designs side by side: KPI average variance [mm²], KPI σ [mm], ratio to the first, time."""
     names = list(designs)
@@ -156,4 +215,22 @@ def format_design_table(designs: dict[str, Design]) -> str:
         d = designs[name]
         lines.append(f"{name:14s} {d.kpi_variance:12.4e} {np.sqrt(d.kpi_variance):10.5f} "
                      f"{d.kpi_variance / ref:13.1%} {str(d.feasible):>8s} {d.seconds:8.2f}")
+    return "\n".join(lines)
+
+
+def format_criteria_table(designs: dict[str, Design]) -> str:
+    """Every criterion value of each design, one column per design.
+
+    ``kpi`` and ``params`` are average variances [mm², parameters in mm and
+    mrad], ``D`` log det C, ``E`` the largest eigenvalue [mm²], ``O1..O5`` the
+    observability indices (larger is better).
+    """
+    names = list(designs)
+    keys = list(designs[names[0]].criteria)
+    width = max(12, *(len(n) for n in names))
+    lines = [f"{'criterion':10s} " + " ".join(f"{n:>{width}s}" for n in names)]
+    for key in keys:
+        lines.append(f"{key:10s} " + " ".join(f"{designs[n].criteria.get(key, float('nan')):>{width}.5g}"
+                                              for n in names))
+    lines.append(f"{'n poses':10s} " + " ".join(f"{designs[n].n:>{width}d}" for n in names))
     return "\n".join(lines)

@@ -1,0 +1,142 @@
+"""The inspection commands: evaluate, compare, validate (and the positional DESIGN argument)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from calib_oed.cli import EXIT_BAD_INPUT, EXIT_OK, main
+from calib_oed.design import evaluate_design
+from calib_oed.design_result import read_design_file, write_design
+from calib_oed.scene import load_scene
+from calib_oed.workflow import heuristic_design, setup
+
+
+@pytest.fixture(scope="module")
+def kr16():
+    return setup(load_scene("fms_kr16"))
+
+
+@pytest.fixture(scope="module")
+def designs(kr16, tmp_path_factory):
+    """Two heuristic designs of 25 poses: one as design.yaml in a folder, one as a CSV."""
+    root = tmp_path_factory.mktemp("designs")
+    a = evaluate_design(kr16, heuristic_design(kr16, 25, 0), "kpi", method="heuristic", seed=0)
+    b = evaluate_design(kr16, heuristic_design(kr16, 25, 7), "kpi", method="heuristic", seed=7)
+    files_a = write_design(root / "seed0", a, kr16.problem.robot)
+    files_b = write_design(root / "seed7", b, kr16.problem.robot)
+    return {"a": a, "b": b, "yaml": files_a["yaml"], "csv": files_b["csv"], "root": root}
+
+
+def test_design_yaml_and_csv_read_back(kr16, designs):
+    robot = kr16.problem.robot
+    np.testing.assert_array_equal(read_design_file(designs["yaml"], robot), designs["a"].q)
+    np.testing.assert_array_equal(read_design_file(designs["csv"], robot), designs["b"].q)
+
+
+def test_evaluate_reports_sigma_criteria_margins_and_meshes(capsys, kr16, designs):
+    assert main(["evaluate", "fms_kr16", str(designs["yaml"])]) == EXIT_OK
+    out = capsys.readouterr().out
+    sigma = designs["a"].kpi_sigma_mm[0]
+    assert f"car_side: {sigma:.4f} mm" in out
+    assert "not estimable" in out and "joint1.tx" in out  # the world TCP depends on the gauge
+    assert f"kpi {designs['a'].criteria['kpi']:.5g}" in out
+    assert "feasible (every constraint" in out and "incidence" in out
+    assert "mesh check: 25 poses" in out
+
+
+def test_evaluate_json_matches_the_api(capsys, kr16, designs):
+    assert main(["evaluate", "fms_kr16", str(designs["csv"]), "--json", "--no-mesh-check"]) == EXIT_OK
+    data = json.loads(capsys.readouterr().out)
+    expect = designs["b"]
+    assert data["n"] == 25 and data["feasible"] is True and data["mesh_feasible"] is None
+    assert data["criteria"]["kpi"] == pytest.approx(expect.criteria["kpi"], rel=1e-12)
+    assert data["kpi_sigma_mm"]["car_side"] == pytest.approx(expect.kpi_sigma_mm[0], rel=1e-12)
+    assert data["kpi_estimability"][0]["estimable"] is False
+
+
+def test_compare_puts_designs_side_by_side(capsys, designs):
+    assert main(["compare", "fms_kr16", str(designs["yaml"]), str(designs["csv"]), "--quiet"]) == EXIT_OK
+    out = capsys.readouterr().out
+    ratio = designs["b"].kpi_variance / designs["a"].kpi_variance
+    assert "seed0" in out and "seed7" in out  # labelled by their folders
+    assert f"{ratio:.1%}" in out and "100.0%" in out
+    assert "O5" in out and "n poses" in out
+    assert main(["compare", "fms_kr16", str(designs["yaml"]), str(designs["csv"]), "--json"]) == EXIT_OK
+    data = json.loads(capsys.readouterr().out)
+    assert data["designs"]["seed7"]["criteria"]["kpi"] == pytest.approx(designs["b"].kpi_variance, rel=1e-12)
+
+
+@pytest.mark.parametrize("argv, fragment", [
+    (["evaluate", "fms_kr16", "missing.yaml"], "cannot read the design YAML"),
+    (["compare", "fms_kr16", "missing.csv"], "cannot read the design file"),
+])
+def test_missing_design_files_are_one_clear_line(capsys, argv, fragment):
+    assert main(argv) == EXIT_BAD_INPUT
+    err = capsys.readouterr().err
+    assert fragment in err and "Traceback" not in err
+
+
+def test_a_yaml_that_is_not_a_design_is_refused(capsys, tmp_path):
+    bad = tmp_path / "scene.yaml"
+    bad.write_text("version: 1\nname: x\n")
+    assert main(["evaluate", "fms_kr16", str(bad)]) == EXIT_BAD_INPUT
+    assert "not a calib_oed design YAML" in capsys.readouterr().err
+
+
+def test_a_design_of_another_robot_is_refused(capsys, tmp_path, designs):
+    text = designs["yaml"].read_text().replace("joint_a6", "wrist_3")
+    (tmp_path / "design.yaml").write_text(text)
+    assert main(["evaluate", "ur5_table", str(tmp_path / "design.yaml")]) == EXIT_BAD_INPUT
+    assert "are not the robot's joints" in capsys.readouterr().err
+
+
+def test_positional_design_for_simulate_and_montecarlo(capsys, tmp_path, designs):
+    meas = tmp_path / "m.csv"
+    assert main(["simulate", "fms_kr16", str(designs["yaml"]), "-o", str(meas), "--quiet"]) == EXIT_OK
+    assert len([ln for ln in meas.read_text().splitlines() if ln and not ln.startswith("#")]) == 26
+    assert main(["montecarlo", "fms_kr16", str(designs["csv"]), "-N", "4", "--jobs", "1", "--json"]) == EXIT_OK
+    data = json.loads(capsys.readouterr().out)
+    assert data["design"] == f"design file {designs['csv']}"
+
+
+def test_validate_a_calibration_on_separate_data(capsys, tmp_path):
+    """Identify on one simulated session, validate on another of the same robot
+    (same truth seed): the calibrated model's errors drop to the noise floor."""
+    cal, val, out = tmp_path / "cal.csv", tmp_path / "val.csv", tmp_path / "cal"
+    assert main(["simulate", "fms_kr16", "-n", "40", "--seed", "0", "--truth-seed", "4",
+                 "-o", str(cal), "--quiet"]) == EXIT_OK
+    assert main(["simulate", "fms_kr16", "-n", "30", "--seed", "9", "--truth-seed", "4",
+                 "-o", str(val), "--quiet"]) == EXIT_OK
+    assert main(["identify", "fms_kr16", str(cal), "-o", str(out), "--json"]) == EXIT_OK
+    capsys.readouterr()
+    assert main(["validate", "fms_kr16", str(out), str(val), "--json"]) == EXIT_OK
+    data = json.loads(capsys.readouterr().out)
+    assert data["n"] == 30
+    assert data["nominal"]["rms_mm"] > 0.3  # millimetre-level geometric errors before
+    # calibrated: measurement noise plus a little estimation error, nothing more
+    assert 0.7 < data["rms_over_noise_floor"] < 1.3
+    assert data["calibrated"]["max_mm"] < 5 * data["noise_floor_mm"]
+    assert main(["validate", "fms_kr16", str(out), str(val)]) == EXIT_OK
+    assert "noise floor" in capsys.readouterr().out
+    # a different robot (truth seed) is caught: the calibration does not transfer
+    other = tmp_path / "other.csv"
+    assert main(["simulate", "fms_kr16", "-n", "30", "--seed", "9", "--truth-seed", "5",
+                 "-o", str(other), "--quiet"]) == EXIT_OK
+    assert main(["validate", "fms_kr16", str(out), str(other), "--json"]) == EXIT_OK
+    assert json.loads(capsys.readouterr().out)["rms_over_noise_floor"] > 5
+
+
+@pytest.mark.parametrize("target, fragment", [
+    ("missing_dir", "does not exist"),
+    ("empty", "no unique calibrated URDF"),
+])
+def test_validate_errors(capsys, tmp_path, target, fragment):
+    (tmp_path / "empty").mkdir()
+    meas = tmp_path / "m.csv"
+    assert main(["simulate", "fms_kr16", "-n", "10", "-o", str(meas), "--quiet"]) == EXIT_OK
+    assert main(["validate", "fms_kr16", str(tmp_path / target), str(meas)]) == EXIT_BAD_INPUT
+    err = capsys.readouterr().err
+    assert fragment in err and "Traceback" not in err
