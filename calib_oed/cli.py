@@ -416,6 +416,10 @@ def cmd_identify(args) -> int:
         from calib_oed.io_utils import atomic_write_text
 
         atomic_write_text(Path(args.output) / "identification.json", json.dumps(data, indent=2))
+    if args.plot:
+        from calib_oed.plots import plot_residuals, save_figure
+
+        data["plot"] = str(save_figure(plot_residuals(result), args.plot))
     if args.json:
         print(json.dumps(data, indent=2))
         return EXIT_OK
@@ -427,6 +431,8 @@ def cmd_identify(args) -> int:
     if args.output:
         print(f"wrote {data['files']['urdf']}, {data['files']['sensor']} and identification.json; "
               f"round trip of the URDF: {data['round_trip_m'] * 1e9:.3g} nm")
+    if args.plot:
+        print(f"wrote the residual plot {data['plot']}")
     return EXIT_OK
 
 
@@ -586,6 +592,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--length-unit", choices=("m", "mm"), help="if the file states no units")
     p.add_argument("--angle-unit", choices=("rad", "deg"), help="if the file states no units")
     p.add_argument("--truth", metavar="YAML", help="true parameters of a simulation: report TCP errors")
+    p.add_argument("--plot", metavar="FILE", help="write the residual plot (.png, .svg or .pdf)")
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.set_defaults(func=cmd_identify)
 

@@ -140,3 +140,21 @@ def test_validate_errors(capsys, tmp_path, target, fragment):
     assert main(["validate", "fms_kr16", str(tmp_path / target), str(meas)]) == EXIT_BAD_INPUT
     err = capsys.readouterr().err
     assert fragment in err and "Traceback" not in err
+
+
+def test_plots_from_evaluate_compare_and_identify(capsys, tmp_path, designs):
+    assert main(["evaluate", "fms_kr16", str(designs["yaml"]), "--no-mesh-check",
+                 "--plot", str(tmp_path / "ev")]) == EXIT_OK
+    for name in ("kpi_ellipsoid.png", "pose_contributions.png"):
+        assert (tmp_path / "ev" / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert main(["compare", "fms_kr16", str(designs["yaml"]), str(designs["csv"]), "--quiet",
+                 "--plot", str(tmp_path / "cmp.svg")]) == EXIT_OK
+    assert b"<svg" in (tmp_path / "cmp.svg").read_bytes()[:500]
+    meas = tmp_path / "m.csv"
+    assert main(["simulate", "fms_kr16", str(designs["csv"]), "-o", str(meas), "--quiet"]) == EXIT_OK
+    assert main(["identify", "fms_kr16", str(meas), "--plot", str(tmp_path / "res.pdf")]) == EXIT_OK
+    assert (tmp_path / "res.pdf").read_bytes()[:5] == b"%PDF-"
+    capsys.readouterr()
+    assert main(["compare", "fms_kr16", str(designs["csv"]), "--plot", str(tmp_path / "x.jpg")]) == EXIT_BAD_INPUT
+    err = capsys.readouterr().err
+    assert "'.png', '.svg', '.pdf'" in err and not (tmp_path / "x.jpg").exists()

@@ -1,0 +1,301 @@
+"""Plots: what is drawn equals what is computed independently here; atomic figure files."""
+
+from __future__ import annotations
+
+import dataclasses
+import types
+
+import numpy as np
+import pytest
+import scipy.stats
+
+from calib_oed import plots
+from calib_oed.confidence import NotPositiveDefiniteError
+from calib_oed.design_objective import DesignObjective
+from calib_oed.exceptions import ExportError, NonFiniteError, ShapeError, UnknownCriterionError
+from calib_oed.scene import load_scene
+from calib_oed.workflow import (
+    heuristic_design,
+    identify_measurements,
+    setup,
+    simulated_measurements,
+)
+
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+
+
+@pytest.fixture(scope="module")
+def kr16():
+    """The fms_kr16 scene (one reflector, one working configuration) and a 30-pose design."""
+    s = setup(load_scene("fms_kr16"))
+    return s, heuristic_design(s, 30, 0)
+
+
+@pytest.fixture(scope="module")
+def identified(kr16):
+    s, q = kr16
+    mset, _ = simulated_measurements(s, q, 1)
+    return s, mset, identify_measurements(s, mset)
+
+
+def _line(ax, gid):
+    lines = [ln for ln in ax.get_lines() if ln.get_gid() == gid]
+    assert len(lines) == 1, f"expected one line {gid!r}, found {len(lines)}"
+    return lines[0]
+
+
+def _direct_f1(s, q):
+    """Unit-scaled weighted sensitivity on the free parameters per pose, (n, 3, n_f), from F_1."""
+    problem = s.problem
+    assert len(problem.models) == 1  # rows of F_1 are then pose-major, 3 per pose
+    free = problem.identifiability.free_indices
+    f1 = problem.weighted_jacobian(q)[:, free] * problem.space.unit_scale[free]
+    return f1.reshape(len(q), 3, -1)
+
+
+# ------------------------------------------------------------- ellipses
+def test_kpi_ellipse_extents_are_the_marginal_95_percent_intervals(kr16):
+    """Half-extent along axis k of a plane = sqrt(chi2_2(0.95) C_kk) [mm], centred at 0."""
+    s, q = kr16
+    designs = {"30 poses": q, "15 poses": q[:15]}
+    fig = plots.plot_kpi_ellipsoids(s.problem, designs)
+    r2 = scipy.stats.chi2.ppf(0.95, 2)
+    assert [ax.get_title() for ax in fig.axes] == [
+        f"{p} plane: marginal 95% region" for p in ("xy", "xz", "yz")]
+    legend = [t.get_text() for t in fig.legends[0].get_texts()]
+    for name, qd in designs.items():
+        c = s.problem.kpi_covariance(qd)[:3, :3]  # [m^2]
+        sigma_mm = np.sqrt(np.trace(c) / 3) * 1e3
+        assert f"{name}: \u03c3 = {sigma_mm:#.3g} mm" in legend
+        for ax, (i, j) in zip(fig.axes, [(0, 1), (0, 2), (1, 2)], strict=True):
+            line = _line(ax, name)
+            x, y = line.get_xdata(), line.get_ydata()
+            for data, k in ((x, i), (y, j)):
+                half = np.sqrt(r2 * c[k, k]) * 1e3
+                assert (data.max() - data.min()) / 2 == pytest.approx(half, rel=1e-4)
+                assert abs(data.max() + data.min()) < 1e-9 * half
+    # fewer poses, larger region
+    xy = fig.axes[0]
+    assert np.ptp(_line(xy, "15 poses").get_xdata()) > np.ptp(_line(xy, "30 poses").get_xdata())
+    # a Design-like record with .q and another level: the same covariance, scaled radius
+    fig90 = plots.plot_kpi_ellipsoids(s, {"30 poses": types.SimpleNamespace(q=q)}, level=0.9)
+    ratio = np.sqrt(scipy.stats.chi2.ppf(0.9, 2) / r2)
+    assert np.allclose(_line(fig90.axes[0], "30 poses").get_xdata(),
+                       ratio * _line(xy, "30 poses").get_xdata(), rtol=1e-10, atol=1e-15)
+
+
+def test_covariance_ellipses_validate_their_input(kr16):
+    s, q = kr16
+    with pytest.raises(ShapeError, match=r"\(3, 3\)"):
+        plots.plot_covariance_ellipses({"a": np.eye(2) * 1e-8})
+    with pytest.raises(NotPositiveDefiniteError):
+        plots.plot_covariance_ellipses({"a": np.diag([1e-8, 1e-8, 0.0])})
+    with pytest.raises(ValueError, match="at least one"):
+        plots.plot_covariance_ellipses({})
+    with pytest.raises(ValueError, match=r"0 \(car_side\)"):
+        plots.plot_kpi_ellipsoids(s.problem, {"h": q}, kpi_index=1)
+
+
+# --------------------------------------------------- pose contributions
+def test_leave_one_out_matches_a_direct_recomputation(kr16):
+    """phi(M without pose i)/phi(M) - 1 from F_1 and numpy's inverse, for kpi and params."""
+    s, q = kr16
+    f = _direct_f1(s, q)
+    free = s.problem.identifiability.free_indices
+    g = s.problem.kpi_jacobian()[:, free] * s.problem.space.unit_scale[free] * 1e3  # [mm/mm, mm/mrad]
+
+    def kpi(rows):
+        c = np.linalg.inv(rows.T @ rows)
+        return np.trace(g @ c @ g.T) / g.shape[0]
+
+    def params(rows):
+        return np.trace(np.linalg.inv(rows.T @ rows)) / rows.shape[1]
+
+    full = f.reshape(-1, f.shape[-1])
+    for name, phi in (("kpi", kpi), ("params", params)):
+        loo = plots.pose_contributions(s.problem, q, name)
+        assert loo.shape == (len(q),)
+        assert np.all(loo >= 0.0)  # removing a pose never helps an A-criterion
+        for i in (0, 7, 29):
+            rest = np.delete(f, i, axis=0).reshape(-1, f.shape[-1])
+            assert loo[i] == pytest.approx(phi(rest) / phi(full) - 1.0, rel=1e-8)
+    # a DesignObjective's own criterion is used when none is given
+    obj = DesignObjective(s.problem, "params")
+    assert np.allclose(plots.pose_contributions(obj, q), plots.pose_contributions(s, q, "params"),
+                       rtol=1e-12)
+
+
+def test_sensitivities_obey_the_equivalence_theorem(kr16):
+    """Sum of -dlogQ/dw_i is 1 for A and n_f for D; leave-one-out >= sensitivity >= 0 (convexity)."""
+    s, q = kr16
+    n_f = len(s.problem.identifiability.free_indices)
+    f = _direct_f1(s, q)
+    c = np.linalg.inv(np.einsum("jdf,jdg->fg", f, f))
+    leverage = np.einsum("jdf,fg,jdg->j", f, c, f)  # tr(F_i C F_i^T)
+    for name, total in (("kpi", 1.0), ("params", 1.0), ("D", n_f)):
+        sens = plots.pose_contributions(s.problem, q, name, kind="sensitivity")
+        loo = plots.pose_contributions(s.problem, q, name)
+        assert sens.sum() == pytest.approx(total, rel=1e-8)
+        assert np.all(sens >= 0.0)
+        assert np.all(loo >= sens * (1 - 1e-10))
+        if name == "D":  # det C ratio 1/det(I - F_i C F_i^T); first order: the leverage
+            assert np.allclose(sens, leverage, rtol=1e-8)
+            i = 3
+            ratio = 1.0 / np.linalg.det(np.eye(3) - f[i] @ c @ f[i].T)
+            assert loo[i] == pytest.approx(ratio - 1.0, rel=1e-7)
+    with pytest.raises(ValueError, match="'leave_one_out', 'sensitivity'"):
+        plots.pose_contributions(s.problem, q, kind="gradient")
+    with pytest.raises(UnknownCriterionError, match="'kpi'"):
+        plots.pose_contributions(s.problem, q, "A-optimal")
+
+
+def test_pose_contribution_bars_show_the_values(kr16):
+    s, q = kr16
+    loo = plots.pose_contributions(s.problem, q)
+    sens = plots.pose_contributions(s.problem, q, kind="sensitivity")
+    ax = plots.plot_pose_contributions(s.problem, q).axes[0]
+    bars = [p for p in ax.patches if (p.get_gid() or "").startswith("pose ")]
+    assert [b.get_gid() for b in bars] == [f"pose {i}" for i in range(len(q))]
+    assert np.allclose([b.get_height() for b in bars], 100.0 * loo, rtol=1e-12)
+    assert np.allclose(_line(ax, "sensitivity").get_ydata(), 100.0 * sens, rtol=1e-12)
+    assert "[%]" in ax.get_ylabel()
+    ax = plots.plot_pose_contributions(s.problem, q, sort=True, sensitivity=False).axes[0]
+    bars = [p for p in ax.patches if (p.get_gid() or "").startswith("pose ")]
+    order = np.argsort(-loo, kind="stable")
+    assert [b.get_gid() for b in bars] == [f"pose {i}" for i in order]
+    assert [t.get_text() for t in ax.get_xticklabels()] == [str(i) for i in order]
+    assert all(ln.get_gid() != "sensitivity" for ln in ax.get_lines())
+
+
+def test_an_indispensable_pose_contributes_infinity(kr16):
+    """9 poses give 27 rows for 25 free parameters: without any one of them M is singular."""
+    s, q = kr16
+    q9 = q[:9]
+    assert np.isfinite(DesignObjective(s.problem).compute_value(q9))
+    assert np.all(np.isinf(plots.pose_contributions(s.problem, q9)))
+    sens = plots.pose_contributions(s.problem, q9, kind="sensitivity")
+    ax = plots.plot_pose_contributions(s.problem, q9).axes[0]
+    bars = [p for p in ax.patches if (p.get_gid() or "").startswith("pose ")]
+    heights = {b.get_height() for b in bars}
+    assert len(heights) == 1 and heights.pop() > 100.0 * sens.max()  # drawn above every finite value
+    assert sum(t.get_text() == "\u221e" for t in ax.texts) == 9
+
+
+# ------------------------------------------------------------ residuals
+def test_residual_plot_counts_every_component(identified):
+    s, mset, res = identified
+    fig = plots.plot_residuals(res)
+    scatter, hist = fig.axes[0], fig.axes[-1]
+    assert len(fig.axes) == 2  # position data: no rotation panel
+    counts = [p.get_height() for p in hist.patches]
+    assert sum(counts) == res.residuals.size == 90
+    width = hist.patches[0].get_width()
+    normal = _line(hist, "normal")
+    peak = normal.get_ydata()[np.argmin(np.abs(normal.get_xdata()))]
+    assert peak == pytest.approx(90 * width * scipy.stats.norm.pdf(0.0), rel=1e-4)
+    pos_mm = res.block_residuals[0] * 1e3
+    xs = [ln for ln in scatter.get_lines() if ln.get_label() in ("x", "y", "z")]
+    for c, ln in enumerate(xs):
+        assert np.array_equal(ln.get_xdata(), np.arange(30))
+        assert np.allclose(ln.get_ydata(), pos_mm[:, c], rtol=1e-12)
+    assert all(ln.get_gid() != "outliers" for ln in scatter.get_lines())
+
+
+def test_pose_residuals_get_a_rotation_panel(kr16):
+    s, q = kr16
+    s6 = setup(dataclasses.replace(s.scene, measurement="pose"))
+    mset, _ = simulated_measurements(s6, q[:20], 2)
+    res = identify_measurements(s6, mset)
+    fig = plots.plot_residuals(res)
+    assert len(fig.axes) == 3 and "[mrad]" in fig.axes[1].get_ylabel()
+    rot = [ln for ln in fig.axes[1].get_lines() if ln.get_label() in ("x", "y", "z")]
+    assert np.allclose(np.stack([ln.get_ydata() for ln in rot], axis=1),
+                       res.block_residuals[0][:, 3:] * 1e3, rtol=1e-12)
+    assert sum(p.get_height() for p in fig.axes[-1].patches) == res.residuals.size == 120
+
+
+def test_residual_plot_marks_outliers(identified):
+    """2 mm added to measurements 4 and 17: circled there; clipped values still counted."""
+    s, mset, _ = identified
+    pos = np.array(mset.positions)
+    pos[[4, 17]] += 2e-3 / np.sqrt(3)
+    res = identify_measurements(s, dataclasses.replace(mset, positions=pos), loss="soft_l1")
+    assert [(o.block, o.row) for o in res.outliers] == [(0, 4), (0, 17)]
+    fig = plots.plot_residuals(res)
+    marks = _line(fig.axes[0], "outliers")
+    assert sorted(set(marks.get_xdata())) == [4, 17]
+    assert np.allclose(sorted(marks.get_ydata()),
+                       np.sort(res.block_residuals[0][[4, 17]].ravel() * 1e3))
+    hist = fig.axes[-1]
+    assert sum(p.get_height() for p in hist.patches) == res.residuals.size
+    assert np.abs(res.residuals).max() > plots.HISTOGRAM_LIMIT  # some were clipped into the edge bins
+
+
+# ------------------------------------------------------- study figure
+def test_improvement_plot_marks_mean_and_median():
+    rng = np.random.default_rng(5)
+    data = {"vs heuristic": rng.normal(68.0, 6.0, 200), "vs C_p-optimal": rng.gamma(9.0, 5.0, 150)}
+    fig = plots.plot_improvement_distribution(data, xlabel="improvement [%]")
+    ax = fig.axes[0]
+    for name, v in data.items():
+        assert np.allclose(_line(ax, f"{name}: mean").get_xdata(), np.mean(v), rtol=1e-14)
+        assert np.allclose(_line(ax, f"{name}: median").get_xdata(), np.median(v), rtol=1e-14)
+    labels = [t.get_text() for t in ax.get_legend().get_texts()]
+    assert f"vs heuristic (N = 200): mean {np.mean(data['vs heuristic']):.1f} %, " \
+           f"median {np.median(data['vs heuristic']):.1f} %" in labels
+    assert ax.get_xlabel() == "improvement [%]"
+    with pytest.raises(ShapeError):
+        plots.plot_improvement_distribution({"a": []})
+    with pytest.raises(NonFiniteError):
+        plots.plot_improvement_distribution({"a": [1.0, np.nan]})
+
+
+# ----------------------------------------------------------- save_figure
+@pytest.fixture(scope="module")
+def small_figure():
+    return plots.plot_improvement_distribution({"vs heuristic": [10.0, 20.0, 25.0, 40.0]})
+
+
+def test_save_figure_writes_png_svg_pdf(tmp_path, small_figure):
+    out = plots.save_figure(small_figure, tmp_path / "fig.png")
+    assert out == tmp_path / "fig.png" and out.read_bytes()[:8] == PNG_MAGIC
+    assert b"<svg" in plots.save_figure(small_figure, tmp_path / "fig.svg").read_bytes()[:500]
+    assert plots.save_figure(small_figure, str(tmp_path / "FIG.PDF")).read_bytes()[:5] == b"%PDF-"
+    # the figure stays usable, and overwriting replaces the file
+    assert plots.save_figure(small_figure, tmp_path / "fig.png").read_bytes()[:8] == PNG_MAGIC
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["FIG.PDF", "fig.png", "fig.svg"]
+
+
+def test_save_figure_refuses_unknown_suffix_and_leaves_nothing(tmp_path, small_figure):
+    with pytest.raises(ExportError, match=r"'\.jpg'.*'\.png', '\.svg', '\.pdf'"):
+        plots.save_figure(small_figure, tmp_path / "fig.jpg")
+    with pytest.raises(ExportError, match="no suffix"):
+        plots.save_figure(small_figure, tmp_path / "fig")
+    with pytest.raises(ExportError, match="does not exist"):
+        plots.save_figure(small_figure, tmp_path / "missing" / "fig.png")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_failed_render_leaves_no_partial_file(tmp_path, small_figure, monkeypatch):
+    target = tmp_path / "fig.png"
+    target.write_bytes(b"old")
+
+    def broken(fh, **kwargs):
+        fh.write(PNG_MAGIC + b"half a picture")
+        raise RuntimeError("renderer crashed")
+
+    monkeypatch.setattr(small_figure, "savefig", broken)
+    with pytest.raises(RuntimeError, match="renderer crashed"):
+        plots.save_figure(small_figure, target)
+    assert target.read_bytes() == b"old"
+    assert [p.name for p in tmp_path.iterdir()] == ["fig.png"]
+
+
+def test_no_pyplot_figures_are_left_open(kr16):
+    import matplotlib.pyplot as plt
+
+    s, q = kr16
+    before = plt.get_fignums()
+    plots.plot_kpi_ellipsoids(s.problem, {"h": q})
+    plots.plot_pose_contributions(s.problem, q[:12], sensitivity=False)
+    assert plt.get_fignums() == before
