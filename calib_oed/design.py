@@ -24,6 +24,7 @@ from calib_oed.design_problem import DesignProblem
 from calib_oed.design_result import Design
 from calib_oed.exceptions import ShapeError
 from calib_oed.exchange import exchange_design
+from calib_oed.feasibility.constraints import FEASIBILITY_TOL
 from calib_oed.feasibility.margins import margin_report
 from calib_oed.feasibility.sampling import sample_feasible
 from calib_oed.scene import Scene
@@ -32,10 +33,6 @@ from calib_oed.workflow import Setup
 
 #: SQP settings of the design problem (objective scaled to 1 at the start, x in rad).
 DESIGN_SQP = SQPSettings()
-
-#: Largest constraint violation a design may have and still count as feasible
-#: [m for distances, cosine units for incidence]: 1 µm against 10 mm margins.
-FEASIBILITY_TOL = 1e-6
 
 
 def project_feasible(nlp: DesignProblem, x: np.ndarray, max_iterations: int = 50) -> np.ndarray:
@@ -163,7 +160,9 @@ def design(
             ``n`` of ``pool`` random feasible poses for the same criterion:
             a better basin, see docs/oed.md) or a design (n, nq) [rad].
         seed: Seed of the heuristic start; start ``k`` of a multi-start uses
-            ``seed + k``. Same seed, same design.
+            ``seed + k``. Same seed, same design up to rounding: ProxQP's
+            results are not bitwise reproducible, so designs of one seed agree to
+            about 1e-6 rad, not bit for bit.
         n_starts: Run from this many heuristic starts and keep the best.
         collisions: Impose the capsule and beam constraints (default), or only
             joint limits and incidence.

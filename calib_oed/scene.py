@@ -376,7 +376,7 @@ class _Reader:
 
     def robot(self, value) -> Robot:
         spec = self.mapping(value, "robot", (), ("name", "urdf", "tool_frame", "joint_limits",
-                                                 "lock_joints"))
+                                                 "lock_joints", "package_dirs"))
         if ("name" in spec) == ("urdf" in spec):
             given = [k for k in ("name", "urdf") if k in spec]
             raise self.fail("robot", "expected exactly one of 'name' (a robot name) or 'urdf' "
@@ -391,10 +391,12 @@ class _Reader:
                 raise self.fail("robot.urdf", f"URDF file not found: {path}")
             source = str(path.resolve())
         tool = self.string(spec["tool_frame"], "robot.tool_frame") if "tool_frame" in spec else None
+        packages = self.package_dirs(spec.get("package_dirs", []))
         limits = self.free_mapping(spec.get("joint_limits", {}), "robot.joint_limits")
         locks = self.free_mapping(spec.get("lock_joints", {}), "robot.lock_joints")
         try:
-            robot = load_robot(source, tool_frame=tool, lock_joints={j: 0.0 for j in locks})
+            robot = load_robot(source, tool_frame=tool, lock_joints={j: 0.0 for j in locks},
+                               package_dirs=packages)
             if not (limits or locks):
                 return robot
             # Joint types are known only once the URDF is read: prismatic joints take lengths.
@@ -416,11 +418,28 @@ class _Reader:
                 joint_limits={j: b * scale[j] for j, b in bounds.items()},
                 lock_joints={j: self.number(v, f"robot.lock_joints.{j}", scale[j])
                              for j, v in locks.items()},
+                package_dirs=packages,
             )
         except SceneError:
             raise
         except CalibOedError as exc:
             raise self.fail("robot", str(exc)) from exc
+
+    def package_dirs(self, value) -> list[str] | None:
+        """``robot.package_dirs``: folders searched for ``package://`` meshes, relative to the file."""
+        if isinstance(value, str):
+            value = [value]
+        if not isinstance(value, list):
+            raise self.fail("robot.package_dirs", f"expected a list of folders, got {value!r}")
+        out = []
+        for k, entry in enumerate(value):
+            path = Path(self.string(entry, f"robot.package_dirs[{k}]")).expanduser()
+            if not path.is_absolute():
+                path = (Path(self.source).parent if self.source else Path.cwd()) / path
+            if not path.is_dir():
+                raise self.fail(f"robot.package_dirs[{k}]", f"folder not found: {path}")
+            out.append(str(path.resolve()))
+        return out or None
 
     def tracker(self, value) -> TrackerSpec:
         spec = self.mapping(value, "tracker", ("position", "rpy", "sigma"), ("sigma_angle",))

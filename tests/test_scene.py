@@ -13,7 +13,7 @@ import pytest
 import yaml
 
 from calib_oed import kuka
-from calib_oed.exceptions import SceneError, UnknownSceneError
+from calib_oed.exceptions import CalibOedError, SceneError, UnknownSceneError
 from calib_oed.feasibility.shapes import Capsule, FeasibilitySettings, Margins
 from calib_oed.scene import load_scene, scene_from_dict, scene_names
 
@@ -648,3 +648,32 @@ def test_halfspace_shorthands(entry, normal, offset):
         point = np.zeros(3)
         point["xyz".index(key[0])] = value * 1e-3
         assert plane.signed_distance(point) == pytest.approx(0.0, abs=1e-12)
+
+
+def test_package_dirs_find_meshes_of_a_urdf_elsewhere(tmp_path):
+    """A URDF whose package:// meshes live in another folder loads once
+    robot.package_dirs names it; without it the capsule fit says what to set."""
+    from calib_oed.robot_registry import example_robot_data_share
+    from calib_oed.workflow import setup
+
+    share = example_robot_data_share()
+    if share is None:
+        pytest.skip("example-robot-data is not installed")
+    urdf = share / "example-robot-data" / "robots" / "ur_description" / "urdf" / "ur5_robot.urdf"
+    copy = tmp_path / "ur5.urdf"
+    copy.write_text(urdf.read_text())
+    from importlib import resources
+
+    base = yaml.safe_load(resources.files("calib_oed.scenes").joinpath("ur5_table.yaml").read_text())
+    base["robot"] = {"urdf": "ur5.urdf", "tool_frame": "tool0"}
+    (tmp_path / "no_packages.yaml").write_text(yaml.safe_dump(base))
+    with pytest.raises(CalibOedError, match="robot.package_dirs"):
+        setup(load_scene(tmp_path / "no_packages.yaml")).feasibility  # noqa: B018
+    base["robot"]["package_dirs"] = [str(share)]
+    (tmp_path / "packages.yaml").write_text(yaml.safe_dump(base))
+    s = setup(load_scene(tmp_path / "packages.yaml"))
+    assert s.feasibility.n_constraints > 0
+    base["robot"]["package_dirs"] = ["no/such/folder"]
+    (tmp_path / "bad.yaml").write_text(yaml.safe_dump(base))
+    with pytest.raises(SceneError, match=r"robot.package_dirs\[0\].*folder not found"):
+        load_scene(tmp_path / "bad.yaml")

@@ -82,8 +82,9 @@ def load_collision_model(robot: Robot) -> pin.GeometryModel:
     except (ValueError, RuntimeError) as exc:
         raise RobotLoadError(
             f"{where}: cannot load the collision geometry ({exc}); package:// and relative "
-            f"mesh paths were searched in {list(robot.package_dirs)}; pass the folders with "
-            "load_robot(..., package_dirs=[...])"
+            f"mesh paths were searched in {list(robot.package_dirs)}; give the folders holding "
+            "the mesh packages as robot.package_dirs in the scene file, or "
+            "load_robot(..., package_dirs=[...]) in Python"
         ) from exc
     for go in geom.geometryObjects:
         frame = robot.model.frames[go.parentFrame] if go.parentFrame < robot.model.nframes else None

@@ -73,12 +73,18 @@ class SegmentTable:
         return len(self.names)
 
 
+#: Feasible means every row :math:`g \\ge -10^{-6}` (m or rad): an optimised design sits
+#: on its active constraints, up to the solver's rounding.
+FEASIBILITY_TOL = 1e-6
+
+
 @dataclass(frozen=True, eq=False)
 class ConstraintValues:
     """Constraint values of a design (and their Jacobian).
 
     Attributes:
-        values: :math:`g(q)`, (n, m); feasible where every entry is >= 0.
+        values: :math:`g(q)`, (n, m); feasible where every entry is
+            >= -:data:`FEASIBILITY_TOL`.
         jacobian: :math:`\\partial g_k/\\partial q_k` per pose, (n, m, nq), or ``None``.
         kinds: Kind of each of the m rows (see :data:`KINDS`).
         labels: Label of each row.
@@ -91,8 +97,8 @@ class ConstraintValues:
 
     @property
     def feasible(self) -> np.ndarray:
-        """Boolean (n,): every constraint of the pose holds."""
-        return np.all(self.values >= 0.0, axis=1)
+        """Boolean (n,): every constraint of the pose holds (to :data:`FEASIBILITY_TOL`)."""
+        return np.all(self.values >= -FEASIBILITY_TOL, axis=1)
 
 
 def build_segments(
