@@ -327,6 +327,70 @@ def cmd_validate(args) -> int:
     return EXIT_OK
 
 
+def cmd_view(args) -> int:
+    import time
+
+    from calib_oed.viewer import open_viewer, write_static_html
+
+    s = _setup(args.scene)
+    q = None
+    if args.design:
+        from calib_oed.design_result import read_design_file
+
+        q = read_design_file(args.design, s.problem.robot)
+    options = {"ellipsoid_scale": args.scale, "level": args.level, "robot_drawing": args.drawing}
+    if args.html:
+        view = write_static_html(args.html, s, q, **options)
+        if args.json:
+            print(json.dumps({"html": str(view.path), "poses": view.info.n_poses,
+                              "ellipsoid_scale": view.info.ellipsoid_scale,
+                              "ellipsoid_half_axes_mm": np.asarray(view.info.half_axes_mm).tolist(),
+                              "notes": list(view.info.notes)}, indent=2))
+            return EXIT_OK
+        print(view.info.summary())
+        print(f"wrote {view.path} (self-contained: opens offline in a browser)")
+        return EXIT_OK
+    with open_viewer(s, q, **options) as live:
+        print(live.info.summary())
+        print(f"meshcat viewer at {live.url} (open it in a browser); "
+              + ("Ctrl-C stops it" if args.seconds is None else f"stopping in {args.seconds:g} s"),
+              flush=True)
+        try:
+            if args.seconds is None:
+                while True:
+                    time.sleep(3600)
+            time.sleep(args.seconds)
+        except KeyboardInterrupt:
+            pass
+    return EXIT_OK
+
+
+def cmd_study(args) -> int:
+    from calib_oed.study import run_study
+    from calib_oed.study_config import load_study_config
+    from calib_oed.study_report import write_report
+
+    config = load_study_config(args.config)
+    command = "calib-oed " + " ".join(args.argv)
+    result = run_study(config, args.output, n_jobs=args.jobs, scheduler=args.scheduler,
+                       progress=not (args.quiet or args.json), command=command)
+    paths = {} if args.no_report else write_report(result, figures=not args.no_figures)
+    if args.json:
+        data = result.summary()
+        data["files"] = {k: str(v) for k, v in paths.items()}
+        print(json.dumps(data, indent=2))
+    else:
+        print(f"study {config.name!r}: {len(result.cases)} of {len(config.specs)} cases done "
+              f"({len(result.computed)} computed now, {len(result.loaded)} loaded from {args.output}) "
+              f"in {result.wall_seconds:.0f} s")
+        for k, v in paths.items():
+            print(f"wrote {k}: {v}")
+    for failure in result.failures:
+        print(f"calib-oed: case {failure.case_id} failed: {failure.error} (a rerun retries it; "
+              "--debug shows nothing more: the traceback is in summary.json)", file=sys.stderr)
+    return EXIT_INTERNAL if result.failures else EXIT_OK
+
+
 def cmd_feasibility(args) -> int:
     import time
 
@@ -565,6 +629,22 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.set_defaults(func=cmd_validate)
 
+    p = sub.add_parser("view", help="the scene and a design in the browser (meshcat), or a static HTML")
+    scene_arg(p)
+    p.add_argument("design", nargs="?", metavar="DESIGN", help="design file (design.yaml or CSV); "
+                   "default: the scene alone")
+    p.add_argument("--html", metavar="FILE", help="write a self-contained HTML page instead of serving")
+    p.add_argument("--scale", type=float, metavar="F", help="drawing scale of the KPI ellipsoid "
+                   "(default: a 1-2-5 number that makes it about 50 mm)")
+    p.add_argument("--level", type=float, default=0.95, help="confidence level (default 0.95)")
+    p.add_argument("--drawing", default="auto", choices=("auto", "visual", "capsules"),
+                   help="robot drawn by its URDF geometry, its capsules, or auto (capsules when the "
+                   "meshes of all poses would make the page too large)")
+    p.add_argument("--for", dest="seconds", type=float, metavar="SECONDS",
+                   help="serve for this long, then stop (default: until Ctrl-C)")
+    p.add_argument("--json", action="store_true", help="machine-readable output (with --html)")
+    p.set_defaults(func=cmd_view)
+
     p = sub.add_parser("feasibility", help="constraint pairs, a feasible design, margins, mesh check")
     scene_arg(p)
     design_args(p)
@@ -606,6 +686,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_montecarlo)
 
+    p = sub.add_parser("study", help="a study over robots, scenes, criteria and seeds (the paper's tables)")
+    p.add_argument("config", metavar="CONFIG", help="study file (YAML), or a shipped study: "
+                   "kuka, notional90, smoke")
+    p.add_argument("-o", "--output", required=True, metavar="DIR",
+                   help="results folder; a rerun resumes it (finished cases are not recomputed)")
+    p.add_argument("--jobs", type=_positive_int, help="parallel local workers (default: all cores)")
+    p.add_argument("--scheduler", metavar="ADDRESS", help="run the cases on this Dask scheduler "
+                   "(needs the calib_oed[dask] extra)")
+    p.add_argument("--no-report", action="store_true", help="skip DIR/report.md and the figures")
+    p.add_argument("--no-figures", action="store_true", help="report without figures")
+    p.add_argument("--json", action="store_true", help="machine-readable output")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_study)
+
     p = sub.add_parser("scenes", help="list the shipped scenes")
     p.set_defaults(func=cmd_scenes)
     p = sub.add_parser("robots", help="list the robots loadable by name")
@@ -616,7 +710,9 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     """Run the command line; returns the exit code."""
     parser = build_parser()
+    argv = list(sys.argv[1:] if argv is None else argv)
     args = parser.parse_args(argv)
+    args.argv = argv
     try:
         return args.func(args)
     except BrokenPipeError:  # output piped into `head` and the like

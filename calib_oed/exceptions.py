@@ -267,3 +267,85 @@ class SQPProblemError(CalibOedError, ValueError):
     def __init__(self, message: str, indices=()):
         self.indices = list(indices)
         super().__init__(message)
+
+
+class ViewerSettingError(CalibOedError, ValueError):
+    """A setting of the meshcat view (:mod:`calib_oed.viewer`) is invalid.
+
+    Attributes:
+        name: The setting.
+        value: The value given.
+        valid: The valid choices, for settings that take one of a few names.
+    """
+
+    def __init__(self, name: str, value, requirement: str, valid=None):
+        self.name = name
+        self.value = value
+        self.valid = list(valid) if valid is not None else None
+        super().__init__(f"viewer setting {name} = {value!r}: {requirement}")
+
+
+class StudyConfigError(CalibOedError):
+    """A study configuration (:mod:`calib_oed.study_config`) is missing, malformed or inconsistent.
+
+    Attributes:
+        key: Dotted path of the offending key (``"sqp.max_iterations"``), or
+            ``None`` for problems with the file as a whole.
+        source: The file the configuration came from, if any.
+    """
+
+    def __init__(self, message: str, key: str | None = None, source: str | None = None):
+        self.key = key
+        self.source = source
+        where = f"{source}: " if source else ""
+        at = f"{key}: " if key else ""
+        super().__init__(f"{where}{at}{message}")
+
+
+class StudyResumeError(CalibOedError):
+    """A study output folder holds a case result computed with other settings.
+
+    Attributes:
+        path: The case file.
+        differences: The settings that differ, ``"key: stored -> configured"``.
+    """
+
+    def __init__(self, path, differences: Sequence[str]):
+        self.path = str(path)
+        self.differences = list(differences)
+        super().__init__(
+            f"{self.path} was computed with other settings ({'; '.join(self.differences) or 'unknown'}); "
+            "use another output folder, or delete the case files to recompute them"
+        )
+
+
+class OptionalDependencyError(CalibOedError, ImportError):
+    """A feature needs an optional dependency that is not installed.
+
+    Attributes:
+        package: The missing import.
+        extra: The calib_oed extra that installs it (``pip install 'calib_oed[<extra>]'``).
+    """
+
+    def __init__(self, feature: str, package: str, extra: str):
+        self.package = package
+        self.extra = extra
+        super().__init__(f"{feature} needs {package}, which is not installed: "
+                         f"pip install 'calib_oed[{extra}]'")
+
+
+class CertificateError(CalibOedError, ValueError):
+    """An optimality certificate (:mod:`calib_oed.certificate`) cannot be computed as asked.
+
+    Attributes:
+        what: The offending argument (``"criterion"``, ``"pool"``, ...).
+        value: The value given.
+        valid: The valid choices, where there are few.
+    """
+
+    def __init__(self, what: str, value, requirement: str, valid: Sequence[str] | None = None):
+        self.what = what
+        self.value = value
+        self.valid = list(valid) if valid is not None else None
+        choices = f"; valid choices are: {_choices(self.valid)}" if self.valid else ""
+        super().__init__(f"certificate: {what} = {value!r}: {requirement}{choices}")

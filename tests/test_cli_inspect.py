@@ -158,3 +158,48 @@ def test_plots_from_evaluate_compare_and_identify(capsys, tmp_path, designs):
     assert main(["compare", "fms_kr16", str(designs["csv"]), "--plot", str(tmp_path / "x.jpg")]) == EXIT_BAD_INPUT
     err = capsys.readouterr().err
     assert "'.png', '.svg', '.pdf'" in err and not (tmp_path / "x.jpg").exists()
+
+
+def test_view_writes_a_static_page_and_serves_live(capsys, tmp_path, designs):
+    html = tmp_path / "view.html"
+    assert main(["view", "fms_kr16", str(designs["yaml"]), "--html", str(html), "--json"]) == EXIT_OK
+    data = json.loads(capsys.readouterr().out)
+    assert data["poses"] == 25 and html.stat().st_size > 10_000
+    assert "<html" in html.read_text()[:2000].lower()
+    # the drawn scale brings the largest true half-axis to a visible size (1-2-5 number near 50 mm)
+    assert 20 <= data["ellipsoid_scale"] * data["ellipsoid_half_axes_mm"][0][0] <= 125
+    assert main(["view", "fms_kr16", "--for", "0"]) == EXIT_OK
+    assert "meshcat viewer at http://" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("extra, fragment", [
+    (["--scale", "-1"], "ellipsoid_scale"),
+    (["--level", "1.5"], "level"),
+])
+def test_view_errors(capsys, tmp_path, designs, extra, fragment):
+    html = tmp_path / "v.html"
+    assert main(["view", "fms_kr16", str(designs["csv"]), "--html", str(html), *extra]) == EXIT_BAD_INPUT
+    err = capsys.readouterr().err
+    assert fragment in err and "Traceback" not in err and not html.exists()
+
+
+def test_study_smoke_runs_resumes_and_reports(capsys, tmp_path):
+    out = tmp_path / "smoke"
+    assert main(["study", "smoke", "-o", str(out), "--jobs", "1", "--quiet", "--no-figures"]) == EXIT_OK
+    text = capsys.readouterr().out
+    assert "2 of 2 cases done (2 computed now, 0 loaded" in text
+    table = (out / "results.csv").read_text()
+    assert (out / "report.md").is_file() and "heuristic_median" in table
+    assert main(["study", "smoke", "-o", str(out), "--json", "--no-report"]) == EXIT_OK
+    data = json.loads(capsys.readouterr().out)
+    assert data["computed"] == [] and len(data["loaded"]) == 2 and data["n_done"] == 2
+    assert (out / "results.csv").read_text() == table
+
+
+def test_study_errors(capsys, tmp_path):
+    assert main(["study", "no_such_study", "-o", str(tmp_path)]) == EXIT_BAD_INPUT
+    assert "kuka" in capsys.readouterr().err  # names the shipped studies
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("name: x\ncases: {robots: [{robot: kr16, scene: fms_kr16}]}\nn: -3\n")
+    assert main(["study", str(bad), "-o", str(tmp_path / "o")]) == EXIT_BAD_INPUT
+    assert "Traceback" not in capsys.readouterr().err
