@@ -263,6 +263,22 @@ def figure7_case(result: StudyResult) -> CaseResult | None:
     return result.cases[0] if result.cases else None
 
 
+def export_designs(case: CaseResult, folder: str | os.PathLike) -> dict[str, Path]:
+    """The case's stored designs as design CSVs, ``folder/<label>.csv`` (joint names, rad).
+
+    They feed the other commands, e.g. the Monte Carlo check of docs/study.md:
+    ``calib-oed montecarlo fms_kr16 DIR/designs/<case>/kpi-collisions.csv -N 1000``.
+    """
+    from calib_oed.design_file import write_design_csv
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    robot = case.case.spec.load_scene().robot
+    return {label: write_design_csv(folder / f"{label}.csv", robot, d.q,
+                                    comment=f"study case {case.case_id}: {label} design")
+            for label, d in case.designs.items()}
+
+
 def _figures(result: StudyResult, folder: Path, tables: dict) -> dict[str, Path]:
     """Figure 7 and Figure 8 (needs calib_oed.plots and matplotlib)."""
     from calib_oed.plots import plot_improvement_distribution, plot_kpi_ellipsoids, save_figure
@@ -339,8 +355,18 @@ def write_report(
               "## Colliding poses (self, obstacle or beam rows violated)",
               _colliding_md(tables["colliding"]),
               "## Solver", _solver_md(result)]
+    case = figure7_case(result)
+    if case is not None:
+        exported = export_designs(case, folder / "designs" / case.case_id)
+        paths["designs"] = exported[next(iter(exported))].parent
+        spec = case.case.spec
+        example = ("" if spec.template is not None else
+                   f" (for example `calib-oed montecarlo {spec.scene} "
+                   f"designs/{case.case_id}/kpi-collisions.csv -N 1000`)")
+        parts += [f"## Designs of case `{case.case_id}`",
+                  f"As design CSVs in `designs/{case.case_id}/`: "
+                  + ", ".join(f"`{p.name}`" for p in exported.values()) + example + "."]
     if paths.get("figure7"):
-        case = figure7_case(result)
         parts += [f"## Figure 7: KPI confidence regions ({case.case.spec.robot})",
                   f"![Figure 7]({paths['figure7'].name})"]
     if paths.get("figure8"):
