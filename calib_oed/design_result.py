@@ -208,13 +208,15 @@ def format_design_table(designs: dict[str, Design]) -> str:
     """Designs side by side: KPI average variance [mm²], KPI σ [mm], ratio to the first, time."""
     names = list(designs)
     ref = designs[names[0]].kpi_variance
+    timed = any(d.seconds > 0 for d in designs.values())  # designs read from files have no time
     lines = [f"{'design':14s} {'KPI avg var':>12s} {'KPI sigma':>10s} {'vs ' + names[0]:>14s} "
-             f"{'feasible':>8s} {'time':>8s}",
-             f"{'':14s} {'[mm²]':>12s} {'[mm]':>10s} {'':>14s} {'':>8s} {'[s]':>8s}"]
+             f"{'feasible':>8s}" + (f" {'time':>8s}" if timed else ""),
+             f"{'':14s} {'[mm²]':>12s} {'[mm]':>10s} {'':>14s} {'':>8s}" + (f" {'[s]':>8s}" if timed else "")]
     for name in names:
         d = designs[name]
         lines.append(f"{name:14s} {d.kpi_variance:12.4e} {np.sqrt(d.kpi_variance):10.5f} "
-                     f"{d.kpi_variance / ref:13.1%} {str(d.feasible):>8s} {d.seconds:8.2f}")
+                     f"{d.kpi_variance / ref:13.1%} {str(d.feasible):>8s}"
+                     + (f" {d.seconds:8.2f}" if timed else ""))
     return "\n".join(lines)
 
 

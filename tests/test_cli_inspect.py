@@ -203,3 +203,15 @@ def test_study_errors(capsys, tmp_path):
     bad.write_text("name: x\ncases: {robots: [{robot: kr16, scene: fms_kr16}]}\nn: -3\n")
     assert main(["study", str(bad), "-o", str(tmp_path / "o")]) == EXIT_BAD_INPUT
     assert "Traceback" not in capsys.readouterr().err
+
+
+def test_every_command_is_documented():
+    from pathlib import Path
+
+    from calib_oed.cli import build_parser
+
+    text = (Path(__file__).parent.parent / "docs" / "cli.md").read_text()
+    parser = build_parser()
+    (sub,) = [a for a in parser._actions if a.dest == "command"]
+    missing = [name for name in sub.choices if f"`{name}" not in text]
+    assert not missing, f"docs/cli.md lacks {missing}"

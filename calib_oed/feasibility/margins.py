@@ -72,6 +72,7 @@ def format_margins(margins: list[KindMargin]) -> str:
     lines = [f"{'kind':10s} {'slack':>10s} {'actual':>10s} {'required':>10s}  tightest constraint (pose)"]
     for m in margins:
         req = f"<={m.required:.1f}" if m.kind == "incidence" else f">={m.required:.1f}"
-        lines.append(f"{m.kind:10s} {m.slack:7.2f} {m.unit:3s}{m.actual:7.2f} {m.unit:3s}{req:>8s} {m.unit:3s}"
+        slack = m.slack + 0.0 if round(m.slack, 2) != 0 else 0.0  # an active constraint: no "-0.00"
+        lines.append(f"{m.kind:10s} {slack:7.2f} {m.unit:3s}{m.actual:7.2f} {m.unit:3s}{req:>8s} {m.unit:3s}"
                      f" {m.label} ({m.pose})")
     return "\n".join(lines)

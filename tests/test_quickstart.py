@@ -1,0 +1,77 @@
+"""docs/quickstart.md runs as written: every `calib-oed` command of its shell blocks,
+in order, in one fresh folder, with the installed command; and the README's
+Python quick start prints what the README says it prints."""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import os
+import re
+import shlex
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).parent.parent
+QUICKSTART = ROOT / "docs" / "quickstart.md"
+BIN = Path(sys.executable).parent
+
+
+def shell_commands(text: str) -> list[str]:
+    """The `calib-oed ...` lines of the ```sh blocks, continuation lines joined."""
+    commands = []
+    for block in re.findall(r"```sh\n(.*?)```", text, flags=re.S):
+        joined = block.replace("\\\n", " ")
+        for line in joined.splitlines():
+            line = line.split("  #")[0].strip()
+            if line.startswith("calib-oed "):
+                commands.append(line)
+    return commands
+
+
+def output_paths(argv: list[str]) -> list[str]:
+    """Files and folders a command says it writes (-o, --html, --plot)."""
+    out = []
+    for flag in ("-o", "--output", "--html", "--plot"):
+        if flag in argv:
+            out.append(argv[argv.index(flag) + 1])
+    return out
+
+
+def test_the_quickstart_has_the_whole_workflow():
+    verbs = [shlex.split(c)[1] for c in shell_commands(QUICKSTART.read_text())]
+    for verb in ("identifiability", "design", "evaluate", "compare", "view", "simulate",
+                 "identify", "validate", "montecarlo"):
+        assert verb in verbs, f"docs/quickstart.md lacks a `calib-oed {verb}` command"
+
+
+def test_quickstart_runs_as_written(tmp_path):
+    env = dict(os.environ, PATH=f"{BIN}{os.pathsep}{os.environ.get('PATH', '')}")
+    for command in shell_commands(QUICKSTART.read_text()):
+        argv = shlex.split(command)
+        done = subprocess.run([str(BIN / argv[0]), *argv[1:]], cwd=tmp_path, env=env,
+                              capture_output=True, text=True, timeout=600)
+        assert done.returncode == 0, f"`{command}` failed ({done.returncode}):\n{done.stderr[-2000:]}"
+        for path in output_paths(argv):
+            assert (tmp_path / path).exists(), f"`{command}` did not write {path}"
+
+
+def readme_python_quickstart() -> tuple[str, str]:
+    """The README's Python quick start and the output printed under it."""
+    text = (ROOT / "README.md").read_text()
+    match = re.search(r"```python\n(.*?)```\s*\nprints\s*\n\s*```text\n(.*?)```", text, flags=re.S)
+    if match is None:
+        pytest.fail("README.md: expected a ```python block followed by 'prints' and a ```text block")
+    return match.group(1), match.group(2)
+
+
+def test_readme_quick_start_prints_what_it_says():
+    code, expected = readme_python_quickstart()
+    assert len(code.strip().splitlines()) <= 12, "the README quick start should stay about ten lines"
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf):
+        exec(compile(code, "README.md", "exec"), {"__name__": "__readme__"})  # noqa: S102
+    assert buf.getvalue().strip() == expected.strip()
