@@ -265,6 +265,10 @@ class StudyResult:
         scheduler: Dask scheduler address, or None (local joblib).
         machine: Platform, processor, CPU count, Python version.
         command: The command line that ran the study, for the report.
+        runs: Every run on this output folder, oldest first (``runs.json``): its
+            command, start time, wall time, cases computed and loaded, jobs and
+            the machine's load average before and after, so that a resumed
+            study keeps the timing of the runs that computed it.
     """
 
     config: StudyConfig
@@ -278,6 +282,7 @@ class StudyResult:
     scheduler: str | None = None
     machine: dict = dataclasses.field(default_factory=dict)
     command: str = ""
+    runs: tuple[dict, ...] = ()
 
     def rows(self) -> list[DesignRow]:
         return [r for c in self.cases for r in c.rows]
@@ -526,6 +531,8 @@ def run_study(
         OptionalDependencyError: ``scheduler`` given without dask.distributed installed.
     """
     t0 = time.perf_counter()
+    started = time.strftime("%Y-%m-%d %H:%M:%S %Z")
+    load_before = os.getloadavg()
     out = Path(out_dir)
     (out / "cases").mkdir(parents=True, exist_ok=True)
     cases = config.cases()
@@ -554,15 +561,31 @@ def run_study(
         command = (f"calib-oed study {config.source or config.name} -o {out}"
                    + (f" --jobs {n_jobs}" if n_jobs is not None else "")
                    + (f" --scheduler {scheduler}" if scheduler else ""))
+    wall = time.perf_counter() - t0
+    runs = read_runs(out) + ({
+        "command": command, "started": started, "wall_seconds": wall,
+        "computed": len(computed), "loaded": len(loaded), "failed": len(failures),
+        "n_jobs": n_jobs, "scheduler": scheduler,
+        "load_average_1min": {"before": load_before[0], "after": os.getloadavg()[0]},
+    },)
+    atomic_write_text(out / "runs.json", json.dumps(list(runs), indent=1) + "\n")
     result = StudyResult(
         config=config, out_dir=out,
         cases=tuple(done[c.case_id] for c in cases if c.case_id in done),
         failures=tuple(failures), computed=tuple(computed), loaded=loaded,
-        wall_seconds=time.perf_counter() - t0, n_jobs=n_jobs, scheduler=scheduler,
-        machine=machine_info(), command=command)
+        wall_seconds=wall, n_jobs=n_jobs, scheduler=scheduler,
+        machine=machine_info(), command=command, runs=runs)
     atomic_write_text(out / "results.csv", rows_csv(result.rows()))
     atomic_write_text(out / "summary.json", json.dumps(result.summary(), indent=1) + "\n")
     return result
+
+
+def read_runs(out_dir: str | os.PathLike) -> tuple[dict, ...]:
+    """The run log ``runs.json`` of a study folder (empty if there is none yet)."""
+    path = Path(out_dir) / "runs.json"
+    if not path.exists():
+        return ()
+    return tuple(json.loads(path.read_text(encoding="utf-8")))
 
 
 def read_study(out_dir: str | os.PathLike) -> StudyResult:
@@ -581,4 +604,4 @@ def read_study(out_dir: str | os.PathLike) -> StudyResult:
     return StudyResult(config, out, cases, failures, tuple(summary.get("computed", [])),
                        tuple(summary.get("loaded", [])), float(summary.get("wall_seconds", 0.0)),
                        summary.get("n_jobs"), summary.get("scheduler"),
-                       summary.get("machine", {}), summary.get("command", ""))
+                       summary.get("machine", {}), summary.get("command", ""), read_runs(out))

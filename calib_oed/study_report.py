@@ -237,10 +237,13 @@ def _provenance_md(result: StudyResult) -> str:
         f"- Machine: {m.get('platform', '?')}, {m.get('processor', '?')}, "
         f"{m.get('cpu_count', '?')} logical CPUs, Python {m.get('python', '?')}; "
         f"jobs {jobs}{dask}.",
-        f"- Wall time of the last run: {result.wall_seconds:.0f} s ({len(result.computed)} "
-        f"cases computed, {len(result.loaded)} loaded from earlier runs); sum of the case "
-        f"times {sum(c.seconds for c in result.cases):.0f} s over {len(result.cases)} of "
-        f"{len(config.specs)} cases.",
+        f"- Sum of the case times {sum(c.seconds for c in result.cases):.0f} s over "
+        f"{len(result.cases)} of {len(config.specs)} cases. Runs on this folder (wall time; "
+        "1-minute load average before and after, 2 = both cores busy):",
+        *(_run_md(r) for r in (result.runs or ({"command": result.command, "wall_seconds":
+                                                  result.wall_seconds,
+                                                  "computed": len(result.computed),
+                                                  "loaded": len(result.loaded)},))),
         f"- Plan per case: {plan.n} poses; heuristic designs of seeds "
         f"{', '.join(map(str, plan.heuristic_seeds))} (their median is the baseline); "
         f"optimised for {', '.join(plan.criteria)} with collision constraints "
@@ -253,6 +256,14 @@ def _provenance_md(result: StudyResult) -> str:
         "of the art), KPI-optimal = A-criterion on C_s. Heuristic designs satisfy every "
         "constraint, so their value is the same with and without collision avoidance.",
     ])
+
+
+def _run_md(run: dict) -> str:
+    load = run.get("load_average_1min") or {}
+    load_text = (f"; load {load['before']:.1f} / {load['after']:.1f}" if load else "")
+    return (f"  - {run.get('started', '?')}: `{run.get('command', '')}`, "
+            f"{run.get('wall_seconds', 0.0):.0f} s, {run.get('computed', 0)} cases computed, "
+            f"{run.get('loaded', 0)} loaded{load_text}")
 
 
 def figure7_case(result: StudyResult) -> CaseResult | None:

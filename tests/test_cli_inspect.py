@@ -194,6 +194,11 @@ def test_study_smoke_runs_resumes_and_reports(capsys, tmp_path):
     data = json.loads(capsys.readouterr().out)
     assert data["computed"] == [] and len(data["loaded"]) == 2 and data["n_done"] == 2
     assert (out / "results.csv").read_text() == table
+    runs = json.loads((out / "runs.json").read_text())  # the computing run's time is kept
+    assert [r["computed"] for r in runs] == [2, 0] and runs[0]["wall_seconds"] > runs[1]["wall_seconds"]
+    assert main(["study", "smoke", "-o", str(out), "--quiet", "--no-figures"]) == EXIT_OK
+    report = (out / "report.md").read_text()
+    assert report.count("cases computed") == 3 and "2 cases computed" in report
 
 
 def test_study_errors(capsys, tmp_path):
