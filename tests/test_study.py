@@ -367,3 +367,12 @@ def test_full_study(name, tmp_path):
         assert case.row("optimal", "params", True).feasible
     paths = write_report(result, tmp_path / name, figures=False)
     assert paths["report"].exists()
+
+
+def test_sigma_improvement_is_the_standard_deviation_ratio():
+    from calib_oed.study_report import sigma_improvement_pct
+
+    v0, v1 = 1.256e-05, 4.021e-06
+    from_variance = 100 * (1 - v1 / v0)
+    assert sigma_improvement_pct(from_variance) == pytest.approx(100 * (1 - np.sqrt(v1) / np.sqrt(v0)))
+    assert sigma_improvement_pct([0.0, 75.0]).tolist() == pytest.approx([0.0, 50.0])
