@@ -448,6 +448,11 @@ def cmd_simulate(args) -> int:
                            f"simulated by calib_oed: scene {s.scene.name}, {what}, truth seed {args.truth_seed}")
     truth = args.truth or str(Path(args.output).with_suffix("")) + "_truth.yaml"
     write_truth(truth, s, p_true, args.truth_seed)
+    if args.json:
+        print(json.dumps({"scene": s.scene.name, "design": what, "n": int(len(q)),
+                          "measurements": str(args.output), "truth": str(truth),
+                          "truth_seed": args.truth_seed}, indent=2))
+        return EXIT_OK
     _say(args, f"wrote {len(q)} simulated measurements per reflector to {args.output}; the truth to {truth}")
     return EXIT_OK
 
@@ -520,6 +525,9 @@ def cmd_montecarlo(args) -> int:
 def cmd_scenes(args) -> int:
     from calib_oed.scene import scene_names
 
+    if args.json:
+        print(json.dumps(scene_names()))
+        return EXIT_OK
     for name in scene_names():
         print(name)
     return EXIT_OK
@@ -528,6 +536,9 @@ def cmd_scenes(args) -> int:
 def cmd_robots(args) -> int:
     from calib_oed.robot_registry import robot_names
 
+    if args.json:
+        print(json.dumps(robot_names()))
+        return EXIT_OK
     for name in robot_names():
         print(name)
     return EXIT_OK
@@ -660,7 +671,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", required=True, metavar="CSV", help="measurement file to write")
     p.add_argument("--truth", metavar="YAML", help="where to write the true parameters "
                    "(default: <output>_truth.yaml)")
-    p.add_argument("--quiet", action="store_true")
+    p.add_argument("--json", action="store_true", help="machine-readable output")
+    p.add_argument("--quiet", action="store_true", help="print nothing")
     p.set_defaults(func=cmd_simulate)
 
     p = sub.add_parser("identify", help="identify the parameters from a measurement file")
@@ -701,8 +713,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_study)
 
     p = sub.add_parser("scenes", help="list the shipped scenes")
+    p.add_argument("--json", action="store_true", help="machine-readable output")
     p.set_defaults(func=cmd_scenes)
     p = sub.add_parser("robots", help="list the robots loadable by name")
+    p.add_argument("--json", action="store_true", help="machine-readable output")
     p.set_defaults(func=cmd_robots)
     return parser
 

@@ -220,3 +220,13 @@ def test_every_command_is_documented():
     (sub,) = [a for a in parser._actions if a.dest == "command"]
     missing = [name for name in sub.choices if f"`{name}" not in text]
     assert not missing, f"docs/cli.md lacks {missing}"
+
+
+def test_json_listings_and_simulate(capsys, tmp_path):
+    assert main(["scenes", "--json"]) == EXIT_OK
+    assert "fms_kr16" in json.loads(capsys.readouterr().out)
+    assert main(["robots", "--json"]) == EXIT_OK
+    assert "kr16" in json.loads(capsys.readouterr().out)
+    assert main(["simulate", "fms_kr16", "-n", "12", "-o", str(tmp_path / "m.csv"), "--json"]) == EXIT_OK
+    data = json.loads(capsys.readouterr().out)
+    assert data["n"] == 12 and (tmp_path / "m_truth.yaml").is_file()
