@@ -34,6 +34,7 @@ batched over poses. Derivation: ``docs/derivations.md`` §11.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -59,6 +60,23 @@ class DesignEvaluation:
     value: float
     gradient: np.ndarray
     information: np.ndarray
+
+
+class RowDerivatives(NamedTuple):
+    r"""Per-pose rows :math:`\tilde F_j` and their configuration derivatives (module docstring).
+
+    Attributes:
+        rows: :math:`\tilde F_j(q_j)`, (n, d, n_f), pose-major: the d rows of
+            every model for pose j; column f in 1/mm or 1/mrad (measured
+            values in units of their :math:`\sigma`, per mm or mrad of
+            free parameter f).
+        derivatives: :math:`\partial\tilde F_j/\partial q_{j,k}`, (n, d, n_f, nv),
+            along the nv velocity coordinates of pose j; the rows' unit per
+            rad (revolute joints).
+    """
+
+    rows: np.ndarray
+    derivatives: np.ndarray
 
 
 class DesignObjective:
@@ -135,6 +153,28 @@ class DesignObjective:
         r"""Per-pose rows :math:`\tilde F_j`, (n, d, n_f), all models stacked per pose."""
         return self._rows(self._state(q, second_order=False))
 
+    def compute_row_derivatives(self, q: np.ndarray) -> RowDerivatives:
+        r"""Per-pose rows :math:`\tilde F_j(q_j)` and :math:`\partial\tilde F_j/\partial q_{j,k}` at ``q``.
+
+        .. math::
+            \frac{\partial\tilde F_j}{\partial q_{j,k}}
+              = \Sigma^{-1}\,\frac{\partial^2 h}{\partial p_f\,\partial q_{j,k}}(p, q_j)\,D,
+
+        the mixed derivative of the measurement models
+        (``compute_param_config_jacobian``), weighted and unit-scaled as the
+        rows, all models stacked per pose as in :meth:`compute_blocks`. No
+        information matrix is formed, so any number of poses is accepted.
+
+        Args:
+            q: Configurations (n, nq) [rad].
+
+        Returns:
+            :class:`RowDerivatives`: ``rows`` (n, d, n_f) [1/mm, 1/mrad per
+            column] and ``derivatives`` (n, d, n_f, nv) [the same per rad].
+        """
+        state = self._state(q, second_order=True)
+        return RowDerivatives(self._rows(state), self._row_derivatives(state))
+
     def information(self, blocks: np.ndarray) -> np.ndarray:
         """:math:`M = M_0 + \\sum_j \\tilde F_j^\\top \\tilde F_j` from per-pose blocks (n, d, n_f).
 
@@ -186,12 +226,11 @@ class DesignObjective:
         key = q.tobytes()
         cache = self._cache
         if key not in cache:
-            state = self._state(q, second_order=True)
-            rows = self._rows(state)
+            rows, d_rows = self.compute_row_derivatives(q)
             info = self.information(rows)
             if len(cache) >= 4:
                 cache.pop(next(iter(cache)))
-            cache[key] = (rows, self._row_derivatives(state), info)
+            cache[key] = (rows, d_rows, info)
         return cache[key]
 
     def compute_curvature(self, q: np.ndarray) -> np.ndarray | None:

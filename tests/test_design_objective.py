@@ -96,6 +96,29 @@ def test_blocks_are_the_scaled_rows_of_f1(robot):
     assert np.allclose(info, f1.T @ f1, rtol=1e-10)
 
 
+@pytest.mark.parametrize("pose", [False, True], ids=["tracker", "pose"])
+def test_row_derivatives_match_differences_of_the_rows(robot, pose):
+    """compute_row_derivatives: the rows of compute_blocks and, per pose, their central differences.
+
+    eps = 1e-4 rad: kr16's pose-measurement rows carry rounding that a smaller
+    step amplifies (relative error 1.5e-6 at 1e-6, 3e-8 at 1e-4; truncation ~2e-9).
+    """
+    objective = DesignObjective(_problem(robot, pose), "kpi")
+    q = robot.random_configurations(3, 36)  # no M is formed: any number of poses
+    rows, derivatives = objective.compute_row_derivatives(q)
+    blocks = objective.compute_blocks(q)
+    assert rows.shape == blocks.shape and derivatives.shape == blocks.shape + (q.shape[1],)
+    assert np.allclose(rows, blocks, rtol=1e-12, atol=1e-12 * np.abs(blocks).max())
+    for j in range(len(q)):
+
+        def rows_of(x, j=j):
+            qq = q.copy()
+            qq[j] = x
+            return objective.compute_blocks(qq)[j]
+
+        assert relative_error(derivatives[j], central_difference(rows_of, q[j], 1e-4)) < 1e-6
+
+
 def test_too_few_poses_names_the_parameters(robot):
     from calib_oed.exceptions import NotIdentifiableError
 
