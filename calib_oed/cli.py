@@ -226,8 +226,14 @@ def cmd_evaluate(args) -> int:
     estimable = problem.kpi_estimability()
     mesh = None if args.no_mesh_check else _mesh_check(s, q)
     plots = _evaluate_plots(s, q, args) if args.plot else {}
+    certificate = None
+    if args.certificate:
+        from calib_oed.certificate import certify
+
+        certificate = certify(s, q, args.criterion, pool=args.pool, seed=args.seed)
     if args.json:
         data = result.to_dict()
+        data["certificate"] = None if certificate is None else certificate.to_dict()
         data.update(design_file=what, kpi_estimability=[e.to_dict() for e in estimable],
                     mesh_feasible=None if mesh is None else int(mesh.feasible.sum()),
                     mesh_min_distance_mm=None if mesh is None else float(mesh.min_distance.min() * 1e3),
@@ -251,6 +257,8 @@ def cmd_evaluate(args) -> int:
     if mesh is not None:
         print("independent check against the URDF collision meshes:")
         print(mesh.summary())
+    if certificate is not None:
+        print(certificate.summary())
     for k, v in plots.items():
         print(f"wrote {k} plot {v}")
     return EXIT_OK
@@ -617,6 +625,12 @@ def build_parser() -> argparse.ArgumentParser:
                    "contribution plot (default kpi); all criterion values are always reported")
     p.add_argument("--no-mesh-check", action="store_true", help="skip the URDF mesh check")
     p.add_argument("--plot", metavar="DIR", help="write DIR/kpi_ellipsoid.png and DIR/pose_contributions.png")
+    p.add_argument("--certificate", action="store_true", help="optimality certificate: a lower bound "
+                   "on the criterion of any design of this many poses, and this design's efficiency "
+                   "(criteria kpi, params, D; 10-60 s)")
+    p.add_argument("--pool", type=_positive_int, default=3000,
+                   help="feasible candidate poses of the certificate (default 3000)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the certificate's pool (default 0)")
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=cmd_evaluate)
