@@ -230,3 +230,14 @@ def test_json_listings_and_simulate(capsys, tmp_path):
     assert main(["simulate", "fms_kr16", "-n", "12", "-o", str(tmp_path / "m.csv"), "--json"]) == EXIT_OK
     data = json.loads(capsys.readouterr().out)
     assert data["n"] == 12 and (tmp_path / "m_truth.yaml").is_file()
+
+
+def test_evaluate_with_a_certificate(capsys, designs):
+    """The bound of the certificate lies below the design's own value (a small pool keeps it fast)."""
+    assert main(["evaluate", "fms_kr16", str(designs["csv"]), "--no-mesh-check", "--json",
+                 "--certificate", "--pool", "150"]) == EXIT_OK
+    data = json.loads(capsys.readouterr().out)
+    cert = data["certificate"]
+    assert cert["criterion"] == "kpi" and cert["n"] == 25
+    assert cert["bound"] <= data["criteria"]["kpi"]
+    assert 0 < cert["efficiency"] <= 1

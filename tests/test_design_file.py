@@ -210,7 +210,9 @@ def test_failed_write_keeps_the_old_file_and_no_temporary(kr16, tmp_path, monkey
         raise OSError("disk full")
 
     monkeypatch.setattr(io_utils.os, "replace", broken_replace)
-    with pytest.raises(OSError, match="disk full"):
+    from calib_oed.exceptions import ExportError
+
+    with pytest.raises(ExportError, match="disk full"):  # the OS error, named with the file
         write_design_csv(path, kr16, np.ones((3, 6)))
     assert path.read_bytes() == before
     assert [p.name for p in tmp_path.iterdir()] == ["design.csv"]  # the temporary file is gone
