@@ -75,7 +75,8 @@ import proxsuite
 import scipy.linalg
 
 from calib_oed.criteria import ACriterion, Criterion, DCriterion
-from calib_oed.exceptions import CertificateError, NonFiniteError, NotIdentifiableError, ShapeError
+from calib_oed.exceptions import CertificateError, NotIdentifiableError
+from calib_oed.exchange import check_blocks
 
 __all__ = ["CERTIFIABLE", "DROP_WEIGHT", "NEWTON_REGULARISATION", "ApproximateDesign",
            "criterion_kind", "efficiency", "information", "lower_bound", "mean_sensitivity",
@@ -99,15 +100,6 @@ def criterion_kind(criterion: Criterion) -> str:
     name = getattr(criterion, "name", criterion)
     raise CertificateError("criterion", name, "has no certificate (it is not A-type or D; "
                            "E and O2-O4 are not smooth, O1 and O5 not implemented)", CERTIFIABLE)
-
-
-def _check_blocks(blocks) -> np.ndarray:
-    b = np.asarray(blocks, dtype=float)
-    if b.ndim != 3 or 0 in b.shape:
-        raise ShapeError("candidate blocks", "(N, d, p) with N, d, p >= 1", b.shape)
-    if not np.all(np.isfinite(b)):
-        raise NonFiniteError("candidate blocks", np.flatnonzero(~np.isfinite(b)).tolist())
-    return b
 
 
 def information(blocks: np.ndarray, w: np.ndarray) -> np.ndarray:
@@ -334,7 +326,7 @@ def solve_approximate(
         NotIdentifiableError: no design on the candidates identifies the parameters.
     """
     t0 = time.perf_counter()
-    blocks = _check_blocks(blocks)
+    blocks = check_blocks(blocks, "candidate blocks")
     kind = criterion_kind(criterion)
     n, d, p = blocks.shape
     if not (np.isfinite(tol) and 0 < tol < 1):

@@ -113,7 +113,7 @@ class ExchangeResult:
         matrix or a value off by more than ``rtol`` relative; raises for
         blocks the indices do not fit.
         """
-        blocks = _check_blocks(blocks)
+        blocks = check_blocks(blocks)
         if self.indices.size and (self.indices.min() < 0 or self.indices.max() >= blocks.shape[0]):
             raise ValueError(f"indices out of range for {blocks.shape[0]} candidates")
         if np.unique(self.indices).size != self.indices.size:
@@ -141,12 +141,17 @@ class ExchangeResult:
 
 
 # -------------------------------------------------------------- validation
-def _check_blocks(blocks) -> np.ndarray:
+def check_blocks(blocks, what: str = "blocks") -> np.ndarray:
+    """Per-candidate information rows as a float array (N, d, n_p), finite, no empty axis.
+
+    Raises:
+        ShapeError, NonFiniteError: naming ``what``.
+    """
     b = np.asarray(blocks, dtype=float)
     if b.ndim != 3 or 0 in b.shape:
-        raise ShapeError("blocks", "(N, d, n_p) with N, d, n_p >= 1", b.shape)
+        raise ShapeError(what, "(N, d, n_p) with N, d, n_p >= 1", b.shape)
     if not np.all(np.isfinite(b)):
-        raise NonFiniteError("blocks", np.flatnonzero(~np.isfinite(b)).tolist())
+        raise NonFiniteError(what, np.flatnonzero(~np.isfinite(b)).tolist())
     return b
 
 
@@ -179,7 +184,7 @@ def _check_start(start, n: int, n_cand: int) -> np.ndarray:
 
 def information_matrix(blocks, indices, prior=None) -> np.ndarray:
     r""":math:`M = M_0 + \sum_{j} F_j^\top F_j` over ``indices`` of ``blocks`` (N, d, n_p)."""
-    blocks = _check_blocks(blocks)
+    blocks = check_blocks(blocks)
     n_p = blocks.shape[2]
     f = blocks[np.asarray(indices, dtype=np.intp)].reshape(-1, n_p)
     m = f.T @ f + _check_prior(prior, n_p)
@@ -317,7 +322,7 @@ def exchange_design(
         NotIdentifiableError: the start design (given, or every random try) is singular.
     """
     t0 = time.perf_counter()
-    blocks = _check_blocks(blocks)
+    blocks = check_blocks(blocks)
     n_cand, d, n_p = blocks.shape
     n = operator.index(n)
     if not 1 <= n <= n_cand:
