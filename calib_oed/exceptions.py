@@ -349,3 +349,17 @@ class CertificateError(CalibOedError, ValueError):
         self.valid = list(valid) if valid is not None else None
         choices = f"; valid choices are: {_choices(self.valid)}" if self.valid else ""
         super().__init__(f"certificate: {what} = {value!r}: {requirement}{choices}")
+
+
+class SequentialError(CalibOedError, ValueError):
+    """A sequential calibration (:mod:`calib_oed.sequential`) cannot run as asked.
+
+    Attributes:
+        what: The offending argument (``"target_sigma_mm"``, ``"batch"``, ...).
+        value: The value given.
+    """
+
+    def __init__(self, what: str, value, requirement: str):
+        self.what = what
+        self.value = value
+        super().__init__(f"sequential design: {what} = {value!r}: {requirement}")
