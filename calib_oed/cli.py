@@ -31,12 +31,35 @@ def _positive_int(text: str) -> int:
     return value
 
 
-def _problem(scene_ref: str):
+def _problem(scene_ref):
     from calib_oed.problem import CalibrationProblem
     from calib_oed.scene import load_scene
 
-    scene = load_scene(scene_ref)
+    scene = load_scene(scene_ref) if isinstance(scene_ref, (str, os.PathLike)) else scene_ref
     return scene, CalibrationProblem.from_scene(scene)
+
+
+#: Commands with --compliance / --payload-kg (joint compliance under gravity).
+COMPLIANCE_COMMANDS = ("identifiability", "demo", "design", "evaluate", "compare", "simulate",
+                       "identify", "montecarlo", "sequential")
+
+
+def _apply_compliance(args) -> None:
+    """``--compliance`` / ``--payload-kg``: replace ``args.scene`` by the scene with compliance on."""
+    if not (getattr(args, "compliance", False) or getattr(args, "payload_kg", None) is not None):
+        return
+    import dataclasses
+
+    from calib_oed.compliance import Compliance
+    from calib_oed.scene import ComplianceSpec, load_scene
+
+    scene = load_scene(args.scene)
+    payload = scene.compliance.payload if scene.compliance is not None else Compliance()
+    if args.payload_kg is not None:
+        if not args.payload_kg >= 0:
+            raise CalibOedError(f"--payload-kg: expected a mass >= 0 kg, got {args.payload_kg:g}")
+        payload = Compliance(args.payload_kg, payload.payload_com)
+    args.scene = dataclasses.replace(scene, compliance=ComplianceSpec(True, payload))
 
 
 def cmd_identifiability(args) -> int:
@@ -54,11 +77,11 @@ def cmd_identifiability(args) -> int:
     return EXIT_OK
 
 
-def _setup(scene_ref: str):
+def _setup(scene_ref):
     from calib_oed.scene import load_scene
     from calib_oed.workflow import setup
 
-    return setup(load_scene(scene_ref))
+    return setup(load_scene(scene_ref) if isinstance(scene_ref, (str, os.PathLike)) else scene_ref)
 
 
 def _design(s, args):
@@ -164,14 +187,15 @@ def _progress(args, what: str):
     return callback, bar
 
 
-def _optimise(s, args, criterion: str, start):
+def _optimise(s, args, criterion: str, start, aggregate: str = "mean"):
     from calib_oed.design import design
 
-    callback, bar = _progress(args, f"{criterion}-optimal design")
+    what = f"{criterion}{'-max' if aggregate == 'max' else ''}-optimal design"
+    callback, bar = _progress(args, what)
     try:
         return design(s, args.n, criterion, start=start, seed=args.seed,
                       n_starts=getattr(args, "starts", 1), collisions=not getattr(args, "no_collisions", False),
-                      settings=_sqp_settings(args), callback=callback)
+                      settings=_sqp_settings(args), callback=callback, aggregate=aggregate)
     finally:
         if bar is not None:
             bar.close()
@@ -186,7 +210,9 @@ def cmd_design(args) -> int:
     if args.start not in ("heuristic", "exchange"):
         start = read_design_csv(args.start, s.problem.robot)
         args.n = len(start)
-    result = _optimise(s, args, args.criterion, start)
+    # the KPI aggregate: --aggregate, else the scene's kpi.aggregate (for criterion kpi)
+    aggregate = args.aggregate or (s.scene.kpi.aggregate if args.criterion == "kpi" else "mean")
+    result = _optimise(s, args, args.criterion, start, aggregate)
     paths = write_design(args.output, result, s.problem.robot) if args.output else {}
     if args.json:
         data = result.to_dict()
@@ -231,9 +257,15 @@ def cmd_evaluate(args) -> int:
         from calib_oed.certificate import certify
 
         certificate = certify(s, q, args.criterion, pool=args.pool, seed=args.seed)
+    # the certificate is for A-type criteria: with a worst-case KPI it certifies the mean, and says so
+    certificate_note = (None if certificate is None or args.criterion != "kpi"
+                        or s.scene.kpi.aggregate != "max" else
+                        "the scene's KPI aggregate is max (worst case), which has no certificate: "
+                        "the certificate bounds the weighted mean KPI variance (criterion kpi)")
     if args.json:
         data = result.to_dict()
         data["certificate"] = None if certificate is None else certificate.to_dict()
+        data["certificate_note"] = certificate_note
         data.update(design_file=what, kpi_estimability=[e.to_dict() for e in estimable],
                     mesh_feasible=None if mesh is None else int(mesh.feasible.sum()),
                     mesh_min_distance_mm=None if mesh is None else float(mesh.min_distance.min() * 1e3),
@@ -242,6 +274,10 @@ def cmd_evaluate(args) -> int:
         return EXIT_OK
     print(f"scene {s.scene.name!r}: {what}, {result.n} poses")
     print(format_kpi_sigma(problem, result.kpi_sigma_mm * 1e-3, what))
+    if len(result.kpi_names) > 1:
+        print(f"{len(result.kpi_names)} KPI points: mean variance {result.kpi_variance:.5g} mm² "
+              f"(weighted as the scene says), max {result.kpi_max_variance:.5g} mm² "
+              f"(sigma {np.sqrt(result.kpi_max_variance):.5f} mm) at {result.kpi_worst}")
     for e in estimable:
         if not e.estimable:
             print(f"  note: {e.label} is not estimable: its value depends on the gauge parameters "
@@ -259,6 +295,8 @@ def cmd_evaluate(args) -> int:
         print(mesh.summary())
     if certificate is not None:
         print(certificate.summary())
+        if certificate_note:
+            print(f"note: {certificate_note}")
     for k, v in plots.items():
         print(f"wrote {k} plot {v}")
     return EXIT_OK
@@ -530,6 +568,72 @@ def cmd_montecarlo(args) -> int:
     return EXIT_OK
 
 
+_LENGTH_UNITS_MM = {"mm": 1.0, "um": 1e-3, "µm": 1e-3, "m": 1e3}
+
+
+def _length_mm(text: str) -> float:
+    """A length such as ``0.02mm``, ``20um`` or ``0.02`` (mm) in mm, > 0."""
+    raw = text.strip()
+    unit = next((u for u in sorted(_LENGTH_UNITS_MM, key=len, reverse=True) if raw.endswith(u)), None)
+    number = raw[: -len(unit)].strip() if unit else raw
+    try:
+        value = float(number) * _LENGTH_UNITS_MM[unit or "mm"]
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected a length like 0.02mm, 20um or 0.02 (mm); units {', '.join(_LENGTH_UNITS_MM)}; "
+            f"got {text!r}") from None
+    if not (np.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"expected a length > 0, got {text!r}")
+    return value
+
+
+def cmd_sequential(args) -> int:
+    from dataclasses import replace
+
+    from calib_oed.design_file import write_design_csv
+    from calib_oed.io_utils import atomic_write_text
+    from calib_oed.sequential import SEQUENTIAL_SQP, run_sequential
+
+    s = _setup(args.scene)
+    settings = SEQUENTIAL_SQP if not args.iterations else replace(SEQUENTIAL_SQP, max_iterations=args.iterations)
+
+    def progress(step):
+        _say(args, f"  {step.n_measurements:>4} measured ({step.method}): predicted KPI sigma max "
+                   f"{step.sigma_mm.max():.5f} mm, TCP error max {step.tcp_error_mm.max():.5f} mm")
+
+    _say(args, f"scene {s.scene.name!r}: sequential calibration of a simulated robot (truth seed "
+               f"{args.truth_seed}) to a KPI sigma of {args.target_sigma:g} mm")
+    d = sum(m.dim for m in s.problem.models)
+    n_min = -(-len(s.problem.identifiability.free_indices) // d)  # fewest poses that can identify
+    grid = [n for n in range(args.grid_step, args.max_measurements + 1, args.grid_step) if n >= n_min]
+    result = run_sequential(s, args.target_sigma, batch=args.batch, initial=args.initial, grid=grid,
+                            truth_seed=args.truth_seed, max_measurements=args.max_measurements,
+                            criterion=args.criterion, settings=settings, seed=args.seed,
+                            follow_pose=args.follow_pose, compare=not args.no_compare,
+                            compare_settings=_sqp_settings(args), callback=progress,
+                            initial_design=args.initial_design)
+    paths = {}
+    if args.output:
+        folder = Path(args.output)
+        folder.mkdir(parents=True, exist_ok=True)
+        paths["csv"] = write_design_csv(folder / "measured.csv", s.problem.robot, result.q,
+                                        comment=f"sequential calibration of {s.scene.name}, "
+                                        "configurations in measurement order")
+        paths["json"] = atomic_write_text(folder / "sequential.json",
+                                          json.dumps(result.to_dict(), indent=2) + "\n")
+    if args.json:
+        data = result.to_dict()
+        data["files"] = {k: str(v) for k, v in paths.items()}
+        print(json.dumps(data, indent=2))
+    else:
+        print(result.summary())
+        if paths:
+            print(f"wrote {paths['csv']} and {paths['json']}")
+    if result.check():
+        return EXIT_INTERNAL
+    return EXIT_OK
+
+
 def cmd_scenes(args) -> int:
     from calib_oed.scene import scene_names
 
@@ -613,6 +717,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--iterations", type=_positive_int, help="limit the SQP iterations")
     p.add_argument("--time-limit", type=float, metavar="SECONDS",
                    help="stop the SQP after this wall time (status time_limit)")
+    p.add_argument("--aggregate", choices=("mean", "max"),
+                   help="KPI of several points (criterion kpi): weighted mean variance, or the "
+                   "worst-case variance max_i (epigraph SQP); default: the scene's kpi.aggregate")
     p.add_argument("-o", "--output", metavar="DIR", help="write DIR/design.yaml and DIR/design.csv")
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -726,12 +833,51 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_study)
 
+    p = sub.add_parser("sequential", help="sequential calibration of a simulated robot to a KPI "
+                       "precision target, next to fixed and heuristic designs")
+    scene_arg(p)
+    p.add_argument("--target-sigma", required=True, type=_length_mm, metavar="LENGTH",
+                   help="stop when every working configuration's predicted KPI sigma is at most this: "
+                   "0.02mm, 20um or 0.02 (mm)")
+    p.add_argument("--batch", type=_positive_int, default=5, help="poses per proposal (default 5)")
+    p.add_argument("--initial", type=_positive_int, default=15,
+                   help="poses measured first (default 15)")
+    p.add_argument("--initial-design", default="heuristic", choices=("heuristic", "optimal"),
+                   help="the first poses: random feasible (default) or the KPI-optimal design of "
+                   "that size at nominal")
+    p.add_argument("--max-measurements", type=_positive_int, default=120,
+                   help="stop after this many measured poses (default 120)")
+    p.add_argument("--criterion", default="kpi", choices=CRITERIA, help="criterion of the proposals "
+                   "(default kpi)")
+    p.add_argument("--truth-seed", type=int, default=1, help="seed of the simulated robot and its "
+                   "noise (default 1)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the designs and candidate pools (default 0)")
+    p.add_argument("--follow-pose", action="store_true",
+                   help="draw each batch's candidates near the last measured pose")
+    p.add_argument("--no-compare", action="store_true", help="skip the fixed KPI-optimal and heuristic "
+                   "designs of the comparison")
+    p.add_argument("--grid-step", type=_positive_int, default=5, help="sizes of the fixed designs "
+                   "compared: the multiples of this from the fewest poses that identify the "
+                   "parameters up to --max-measurements (default 5)")
+    p.add_argument("--iterations", type=_positive_int, help="limit the SQP iterations of every design")
+    p.add_argument("-o", "--output", metavar="DIR", help="write DIR/measured.csv and DIR/sequential.json")
+    p.add_argument("--json", action="store_true", help="machine-readable output")
+    p.add_argument("--quiet", action="store_true", help="no progress lines")
+    p.set_defaults(func=cmd_sequential)
+
     p = sub.add_parser("scenes", help="list the shipped scenes")
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.set_defaults(func=cmd_scenes)
     p = sub.add_parser("robots", help="list the robots loadable by name")
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.set_defaults(func=cmd_robots)
+    for name in COMPLIANCE_COMMANDS:
+        p = sub.choices[name]
+        p.add_argument("--compliance", action="store_true", help="model joint compliance under "
+                       "gravity: one compliance parameter per joint, with the scene's "
+                       "robot.compliance payload (docs/scenes.md)")
+        p.add_argument("--payload-kg", type=float, metavar="KG", help="payload mass of the "
+                       "compliance model (implies --compliance; centre of mass from the scene)")
     return parser
 
 
@@ -742,6 +888,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     args.argv = argv
     try:
+        _apply_compliance(args)
         return args.func(args)
     except BrokenPipeError:  # output piped into `head` and the like
         sys.stdout = open(os.devnull, "w")  # noqa: SIM115 - silence the flush at exit

@@ -31,7 +31,7 @@ KPI-optimal design and the heuristic design (:func:`measurements_needed`).
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -54,6 +54,9 @@ from calib_oed.workflow import Setup, heuristic_design, tcp_errors
 
 #: SQP settings of one batch (a few poses on top of a prior: short runs suffice).
 SEQUENTIAL_SQP = SQPSettings(max_iterations=40)
+
+#: Designs of step 0 (:func:`run_sequential`).
+INITIAL_DESIGNS = ("heuristic", "optimal")
 
 #: Default grid of design sizes for :func:`measurements_needed`.
 DEFAULT_GRID = tuple(range(10, 125, 5))
@@ -295,7 +298,9 @@ class SequentialResult:
     Attributes:
         scene: Scene name.
         target_sigma_mm: The target [mm].
-        batch, initial: Batch size and initial heuristic design size.
+        batch, initial: Batch size and initial design size.
+        initial_design: ``"heuristic"`` (random feasible poses) or ``"optimal"``
+            (the fixed ``criterion``-optimal design of ``initial`` poses at nominal).
         criterion: The design criterion.
         truth_seed, seed: Seeds of the simulated robot and noise, and of the designs.
         steps: One :class:`SequentialStep` per identification.
@@ -316,6 +321,7 @@ class SequentialResult:
     p_true: np.ndarray
     p_estimate: np.ndarray
     comparison: tuple[MeasurementsNeeded, ...] = ()
+    initial_design: str = "heuristic"
 
     @property
     def n_measurements(self) -> int:
@@ -344,7 +350,7 @@ class SequentialResult:
     def to_dict(self) -> dict:
         return {
             "scene": self.scene, "target_sigma_mm": self.target_sigma_mm, "batch": self.batch,
-            "initial": self.initial, "criterion": self.criterion, "truth_seed": self.truth_seed,
+            "initial": self.initial, "initial_design": self.initial_design, "criterion": self.criterion, "truth_seed": self.truth_seed,
             "seed": self.seed, "reached": self.reached, "n_measurements": self.n_measurements,
             "steps": [s.to_dict() for s in self.steps],
             "measurements_needed": {"sequential": self.n_measurements if self.reached else None,
@@ -355,7 +361,7 @@ class SequentialResult:
 
     def summary(self) -> str:
         lines = [f"sequential calibration of {self.scene}: target KPI sigma {self.target_sigma_mm:g} mm, "
-                 f"initial heuristic design {self.initial}, batches of {self.batch} ({self.criterion})",
+                 f"initial {self.initial_design} design {self.initial}, batches of {self.batch} ({self.criterion})",
                  f"{'N':>5} {'sigma max [mm]':>15} {'TCP error max [mm]':>19} {'added by':>9}"]
         for s in self.steps:
             lines.append(f"{s.n_measurements:>5} {s.sigma_mm.max():>15.5f} {s.tcp_error_mm.max():>19.5f} "
@@ -402,7 +408,9 @@ def run_sequential(setup: Setup, target_sigma_mm: float, *, batch: int = 5, init
                    truth_seed: int = 0, max_measurements: int = 120, criterion: str = "kpi",
                    settings: SQPSettings | None = None, seed: int = 0, follow_pose: bool = False,
                    compare: bool = True, grid: Sequence[int] = DEFAULT_GRID,
-                   compare_settings: SQPSettings | None = None) -> SequentialResult:
+                   compare_settings: SQPSettings | None = None,
+                   callback: Callable[[SequentialStep], None] | None = None,
+                   initial_design: str = "heuristic") -> SequentialResult:
     """Sequential calibration of a simulated robot until the predicted KPI σ reaches the target.
 
     The true robot is the one of
@@ -419,6 +427,11 @@ def run_sequential(setup: Setup, target_sigma_mm: float, *, batch: int = 5, init
             design need (:func:`measurements_needed`, σ at the final
             estimate; the heuristic is the continuation of the initial design).
         compare_settings: SQP settings of the fixed KPI-optimal designs.
+        callback: Called with each :class:`SequentialStep` as it is made (progress).
+        initial_design: Step 0's design of ``initial`` poses: ``"heuristic"``
+            (random feasible poses of ``seed``) or ``"optimal"`` (the
+            ``criterion``-optimal design at nominal, SQP with ``compare_settings``
+            from the heuristic start of ``seed``).
     """
     designer = SequentialDesigner(setup, target_sigma_mm, batch=batch, criterion=criterion,
                                   settings=settings, seed=seed)
@@ -432,7 +445,10 @@ def run_sequential(setup: Setup, target_sigma_mm: float, *, batch: int = 5, init
         raise SequentialError("max_measurements", max_measurements, f"must be >= initial = {initial}")
     rng = np.random.default_rng(truth_seed)  # the truth of workflow.simulated_measurements
     p_true = draw_true_parameters(space, free, rng)
-    q_all = heuristic_design(setup, int(initial), seed)
+    if initial_design not in INITIAL_DESIGNS:
+        raise SequentialError("initial_design", initial_design, f"must be one of {', '.join(INITIAL_DESIGNS)}")
+    q_all = (heuristic_design(setup, int(initial), seed) if initial_design == "heuristic" else
+             np.array(optimal_design(setup, int(initial), criterion, seed=seed, settings=compare_settings).q))
     blocks = simulate_observations(space, problem.models, q_all, p_true, rng)
     added, method, feasible, seconds = len(q_all), "initial", True, 0.0
     steps = []
@@ -441,6 +457,8 @@ def run_sequential(setup: Setup, target_sigma_mm: float, *, batch: int = 5, init
         sigma = designer.predicted_sigma_mm(q_all, p_hat)
         error = np.linalg.norm(tcp_errors(setup, p_true, p_hat), axis=1) * 1e3
         steps.append(SequentialStep(len(q_all), sigma, error, added, method, feasible, seconds))
+        if callback is not None:
+            callback(steps[-1])
         if sigma.max() <= designer.target_sigma_mm or len(q_all) >= max_measurements:
             break
         prop = designer.plan(q_all, p_hat, q_all[-1] if follow_pose else None,
@@ -458,4 +476,4 @@ def run_sequential(setup: Setup, target_sigma_mm: float, *, batch: int = 5, init
     q_all.setflags(write=False)
     return SequentialResult(setup.scene.name, float(target_sigma_mm), int(batch), int(initial),
                             criterion, int(truth_seed), int(seed), tuple(steps), q_all, p_true,
-                            p_hat, comparison)
+                            p_hat, comparison, initial_design)

@@ -8,7 +8,12 @@ robot in one scene) and the plan every case runs (:func:`run_case`):
    variance;
 2. for each ``collisions`` flag and each criterion, the SQP design
    (:func:`calib_oed.design.design`) from the same start (the heuristic
-   design of ``seed``, or the exchange start).
+   design of ``seed``, or the exchange start);
+3. with a ``certificate`` in the plan, the optimality certificate of the
+   KPI criterion for ``n`` poses (:func:`calib_oed.certificate.certify`) on
+   a random feasible pool plus the poses of every feasible design of the
+   case, so that its lower bound holds for each of them (checked), and each
+   feasible design's efficiency ``bound / V``.
 
 Every design is evaluated on the KPI average variance
 :math:`V = \mathrm{tr}(C_s)/(3t)` [mm²] (``Design.criteria["kpi"]``) and on
@@ -108,6 +113,10 @@ class DesignRow:
         colliding_fraction: Fraction of poses with a collision row violated [1].
         iterations, status: SQP record (0 and ``""`` for heuristic rows).
         seconds: Wall time of the design [s].
+        kpi_bound_mm2: The case's certified lower bound on :math:`V` for n
+            feasible poses [mm²] (NaN without a certificate).
+        kpi_efficiency: ``kpi_bound_mm2 / kpi_avg_variance_mm2`` [1] of a
+            feasible design (NaN without a certificate or for an infeasible design).
     """
 
     case_id: str
@@ -130,6 +139,8 @@ class DesignRow:
     iterations: int
     status: str
     seconds: float
+    kpi_bound_mm2: float = math.nan
+    kpi_efficiency: float = math.nan
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -183,12 +194,15 @@ class CaseResult:
         rows: Table rows: every heuristic seed, the heuristic median, every optimised design.
         designs: Stored designs by label (the median-rank heuristic design, every optimised one).
         seconds: Wall time of the case [s].
+        certificate: :meth:`calib_oed.certificate.Certificate.to_dict` of the
+            KPI-optimal design, or None (no certificate in the plan).
     """
 
     case: StudyCase
     rows: tuple[DesignRow, ...]
     designs: dict[str, StoredDesign]
     seconds: float
+    certificate: dict | None = None
 
     @property
     def case_id(self) -> str:
@@ -218,6 +232,16 @@ class CaseResult:
         for coll in plan.collisions:
             for crit in plan.criteria:
                 self.row("optimal", crit, coll)
+        if plan.certificate is not None:
+            if self.certificate is None:
+                raise ValueError(f"case {self.case_id}: the plan asks for a certificate; it has none")
+            bound = self.certificate["bound"]
+            above = [r for r in self.rows if r.feasible and
+                     not r.kpi_avg_variance_mm2 >= bound * (1.0 - 1e-9)]
+            if above:
+                raise ValueError(f"case {self.case_id}: the certified bound {bound:.6g} mm² is above "
+                                 f"the feasible design {above[0].kind} {above[0].criterion} "
+                                 f"({above[0].kpi_avg_variance_mm2:.6g} mm²)")
         return self
 
     def to_dict(self) -> dict:
@@ -225,7 +249,8 @@ class CaseResult:
                        "config_hash": self.case.config_hash, "identity": self.case.identity(),
                        "spec": self.case.spec.to_dict(), "seconds": self.seconds,
                        "rows": [r.to_dict() for r in self.rows],
-                       "designs": {k: d.to_dict() for k, d in self.designs.items()}})
+                       "designs": {k: d.to_dict() for k, d in self.designs.items()},
+                       "certificate": self.certificate})
 
     @classmethod
     def from_dict(cls, data: dict, case: StudyCase) -> CaseResult:
@@ -234,7 +259,7 @@ class CaseResult:
         rows = tuple(DesignRow(**{k: math.nan if (v is None and k in floats) else v
                                   for k, v in r.items()}) for r in data["rows"])
         designs = {k: StoredDesign.from_dict(d) for k, d in data["designs"].items()}
-        return cls(case, rows, designs, float(data["seconds"])).check()
+        return cls(case, rows, designs, float(data["seconds"]), data.get("certificate")).check()
 
 
 @dataclass(frozen=True)
@@ -377,6 +402,7 @@ def run_case(case: StudyCase) -> CaseResult:
         mid = heur[int(np.argsort(values)[(len(values) - 1) // 2])]  # the lower median
         designs = {"heuristic_median": StoredDesign("heuristic_median", names, mid.q, mid.seed,
                                                     {})}
+        optimal: dict[str, Design] = {}
         start = plan.start
         if start == "heuristic" and plan.seed in plan.heuristic_seeds:
             start = heur[plan.heuristic_seeds.index(plan.seed)].q  # the same poses, not redrawn
@@ -389,7 +415,34 @@ def run_case(case: StudyCase) -> CaseResult:
                                  float(colliding_poses(fm, d.q).mean())))
                 label = design_label(crit, coll)
                 designs[label] = StoredDesign(label, names, d.q, plan.seed, d.solver)
-    return CaseResult(case, tuple(rows), designs, time.perf_counter() - t0).check()
+                optimal[label] = d
+        certificate = None
+        if plan.certificate is not None:
+            rows, certificate = _certified_rows(s, plan, rows, heur, optimal)
+    return CaseResult(case, tuple(rows), designs, time.perf_counter() - t0, certificate).check()
+
+
+def _certified_rows(s, plan, rows, heuristic, optimal):
+    """The case's certificate and its rows with the bound and the efficiencies.
+
+    The pool is ``plan.certificate.pool`` random feasible poses plus the poses
+    of every feasible design of the case, so the bound holds for each of them
+    (:meth:`CaseResult.check` verifies it); the certificate is that of the
+    KPI-optimal design (with collisions if planned, else the first).
+    """
+    from calib_oed.certificate import certify
+    from calib_oed.feasibility.sampling import sample_feasible
+
+    cp = plan.certificate
+    feasible = [d.q for d in (*heuristic, *optimal.values()) if d.feasible]
+    pool = np.vstack([sample_feasible(s.feasibility, cp.pool, cp.seed, max_draws=50_000_000), *feasible])
+    kpi = [optimal[k] for k in (design_label("kpi", True), design_label("kpi", False)) if k in optimal]
+    q = kpi[0].q if kpi else next(iter(optimal.values())).q if optimal else heuristic[0].q
+    cert = certify(s, q, "kpi", pool=pool, local_starts=cp.local_starts)
+    rows = [dataclasses.replace(r, kpi_bound_mm2=cert.bound,
+                                kpi_efficiency=cert.bound / r.kpi_avg_variance_mm2 if r.feasible
+                                else math.nan) for r in rows]
+    return rows, cert.to_dict()
 
 
 def _median_row(case: StudyCase, rows: Sequence[DesignRow]) -> DesignRow:

@@ -23,6 +23,7 @@ are YAML files (shipped ones in ``calib_oed/studies/``, see
     start: heuristic                         # heuristic | exchange
     seed: 0                                  # seed of the start design
     sqp: {max_iterations: 80, time_limit: 30}   # per SQP run; time_limit [s] or null
+    certificate: {pool: 3000, seed: 0, local_starts: 32}   # optional: KPI lower bound per case
 
 Errors raise :class:`~calib_oed.exceptions.StudyConfigError` naming the
 dotted key and the valid choices. Scaled scenes: :mod:`calib_oed.scene_scaling`.
@@ -53,7 +54,7 @@ from calib_oed.scene import Scene, load_scene, scene_names
 from calib_oed.scene_scaling import kuka_dimensions, scaled_scene
 from calib_oed.sqp import SQPSettings
 
-__all__ = ["CaseSpec", "DesignPlan", "StudyCase", "StudyConfig", "load_study_config",
+__all__ = ["CaseSpec", "CertificatePlan", "DesignPlan", "StudyCase", "StudyConfig", "load_study_config",
            "study_config_from_dict", "study_names"]
 
 SUPPORTED_VERSIONS = (1,)
@@ -64,7 +65,26 @@ DEFAULT_COLLISIONS = (True, False)
 DEFAULT_HEURISTIC_SEEDS = tuple(range(10))
 _TOP_REQUIRED = ("version", "name", "cases")
 _TOP_OPTIONAL = ("description", "n", "heuristic_seeds", "criteria", "collisions", "start", "seed",
-                 "sqp")
+                 "sqp", "certificate")
+
+
+@dataclass(frozen=True)
+class CertificatePlan:
+    """The optimality certificate of every case (:func:`calib_oed.certificate.certify`, criterion ``kpi``).
+
+    Attributes:
+        pool: Random feasible candidates (the study's feasible designs are added).
+        seed: Seed of the pool.
+        local_starts: Starts of the local maximisation of the sensitivity
+            off the pool (0: the bound is certified on the pool only).
+    """
+
+    pool: int = 3000
+    seed: int = 0
+    local_starts: int = 32
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
 
 
 @dataclass(frozen=True)
@@ -83,6 +103,7 @@ class DesignPlan:
         seed: Seed of the start design (the heuristic design of that seed).
         max_iterations: SQP iteration limit per design.
         time_limit: SQP wall-clock limit per design [s], or None.
+        certificate: Certificate of each case, or None (no certificate).
     """
 
     n: int = 60
@@ -93,6 +114,7 @@ class DesignPlan:
     seed: int = 0
     max_iterations: int = DESIGN_SQP.max_iterations
     time_limit: float | None = None
+    certificate: CertificatePlan | None = None
 
     def check(self) -> DesignPlan:
         """Raise :class:`StudyConfigError` on an invalid value; return self."""
@@ -126,10 +148,13 @@ class DesignPlan:
                                    time_limit=limit)
 
     def to_dict(self) -> dict:
-        return {"n": self.n, "heuristic_seeds": list(self.heuristic_seeds),
-                "criteria": list(self.criteria), "collisions": list(self.collisions),
-                "start": self.start, "seed": self.seed,
-                "sqp": {"max_iterations": self.max_iterations, "time_limit": self.time_limit}}
+        out = {"n": self.n, "heuristic_seeds": list(self.heuristic_seeds),
+               "criteria": list(self.criteria), "collisions": list(self.collisions),
+               "start": self.start, "seed": self.seed,
+               "sqp": {"max_iterations": self.max_iterations, "time_limit": self.time_limit}}
+        if self.certificate is not None:  # absent otherwise: the case hashes of older studies hold
+            out["certificate"] = self.certificate.to_dict()
+        return out
 
 
 @dataclass(frozen=True)
@@ -397,7 +422,22 @@ class _Reader:
             max_iterations=self.integer(sqp.get("max_iterations", DESIGN_SQP.max_iterations),
                                         "sqp.max_iterations", 1),
             time_limit=None if limit is None else float(limit),
+            certificate=self.certificate(top.get("certificate", False)),
         ).check()
+
+    def certificate(self, value) -> CertificatePlan | None:
+        if value is False or value is None:
+            return None
+        if value is True:
+            return CertificatePlan()
+        keys = tuple(f.name for f in dataclasses.fields(CertificatePlan))
+        spec = self.mapping(value, "certificate", (), keys)
+        default = CertificatePlan()
+        return CertificatePlan(
+            pool=self.integer(spec.get("pool", default.pool), "certificate.pool", 1),
+            seed=self.integer(spec.get("seed", default.seed), "certificate.seed"),
+            local_starts=self.integer(spec.get("local_starts", default.local_starts),
+                                      "certificate.local_starts"))
 
     def cases(self, value) -> tuple[tuple[CaseSpec, ...], dict]:
         spec = self.mapping(value, "cases", (), ("robots", "notional", "scene_template"))

@@ -154,3 +154,57 @@ def test_measurements_needed_heuristic_is_nested(kr16):
     assert set(res.sigma_mm) == {10, 15, 20}
     never = measurements_needed(kr16, 1e-6, "heuristic", grid=[10, 15])
     assert never.n is None and set(never.sigma_mm) == {10, 15}
+
+
+# ------------------------------------------------------------------ the CLI
+def test_cli_sequential_stops_at_the_target_and_writes_its_files(capsys, tmp_path):
+    from calib_oed.cli import EXIT_OK, main
+    from calib_oed.design_file import read_design_csv
+
+    argv = ["sequential", "fms_kr16", "--target-sigma", "5um", "--initial", "9", "--batch", "2",
+            "--no-compare", "--iterations", "10", "-o", str(tmp_path), "--json"]
+    assert main(argv) == EXIT_OK
+    data = json.loads(capsys.readouterr().out)
+    sig = [s["sigma_max_mm"] for s in data["steps"]]
+    assert data["target_sigma_mm"] == pytest.approx(0.005)
+    assert data["reached"] and sig[-1] <= 0.005 < min(sig[:-1])
+    assert data["check"] == []
+    assert data["n_measurements"] == 9 + 2 * (len(sig) - 1)
+    kr16 = setup(load_scene("fms_kr16"))
+    q = read_design_csv(tmp_path / "measured.csv", kr16.problem.robot)
+    np.testing.assert_allclose(q, np.array(data["q_rad"]), rtol=0, atol=1e-15)
+    assert json.loads((tmp_path / "sequential.json").read_text())["n_measurements"] == len(q)
+
+
+def test_cli_sequential_reports_the_fixed_designs(capsys):
+    from calib_oed.cli import EXIT_OK, main
+
+    assert main(["sequential", "fms_kr16", "--target-sigma", "0.02mm", "--iterations", "3",
+                 "--quiet"]) == EXIT_OK
+    out = capsys.readouterr().out
+    assert "measurements to reach sigma <= 0.02 mm" in out
+    lines = {ln.split()[0]: ln.split()[-1] for ln in out.splitlines() if ln.startswith("  ")}
+    assert lines["sequential"] == "15" and lines["fixed"].isdigit() and lines["heuristic"].isdigit()
+
+
+@pytest.mark.parametrize("target", ["0.02 furlong", "-1mm", "abc", "0"])
+def test_cli_sequential_bad_target_is_one_clear_line(capsys, target):
+    from calib_oed.cli import main
+
+    with pytest.raises(SystemExit) as exc:
+        main(["sequential", "fms_kr16", "--target-sigma", target])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert "--target-sigma" in err and "Traceback" not in err
+
+
+def test_optimal_initial_design_starts_lower(kr16):
+    kw = dict(batch=3, initial=9, truth_seed=1, max_measurements=9, settings=FAST, compare=False,
+              compare_settings=SQPSettings(max_iterations=10))
+    heur = run_sequential(kr16, 1e-6, **kw)
+    opt = run_sequential(kr16, 1e-6, initial_design="optimal", **kw)
+    assert opt.initial_design == "optimal" and opt.to_dict()["initial_design"] == "optimal"
+    assert len(opt.q) == len(heur.q) == 9
+    assert opt.steps[0].sigma_mm.max() < 0.5 * heur.steps[0].sigma_mm.max()
+    with pytest.raises(SequentialError, match="initial_design.*heuristic, optimal"):
+        run_sequential(kr16, 0.01, initial_design="best", **kw)

@@ -71,6 +71,8 @@ def smoke_study(tmp_path_factory):
     ({"sqp": {"iterations": 5}}, "sqp.iterations", "valid keys of 'sqp' are: max_iterations, "
                                                    "time_limit"),
     ({"sqp": {"time_limit": 0}}, "sqp.time_limit", "seconds > 0 or null"),
+    ({"certificate": {"pool": 0}}, "certificate.pool", "integer >= 1"),
+    ({"certificate": {"size": 3}}, "certificate.size", "valid keys of 'certificate' are: pool, seed"),
     ({"cases": {}}, "cases", "'robots'"),
     ({"cases": {"notional": "all"}}, "cases.notional", "expected 'grid'"),
     ({"cases": {"notional": {"lambdas": [650.5], "mus": [600]}}}, "cases.notional.lambdas[0]",
@@ -376,3 +378,38 @@ def test_sigma_improvement_is_the_standard_deviation_ratio():
     from_variance = 100 * (1 - v1 / v0)
     assert sigma_improvement_pct(from_variance) == pytest.approx(100 * (1 - np.sqrt(v1) / np.sqrt(v0)))
     assert sigma_improvement_pct([0.0, 75.0]).tolist() == pytest.approx([0.0, 50.0])
+
+
+# ---------------------------------------------------------------- certificate
+
+def test_certificate_bounds_every_feasible_design(tmp_path):
+    data = smoke(heuristic_seeds=[0, 1], criteria=["params", "kpi"], collisions=[True, False],
+                 certificate={"pool": 300, "seed": 0, "local_starts": 0})
+    data["cases"] = {"robots": [data["cases"]["robots"][0]]}
+    config = study_config_from_dict(data)
+    assert config.plan.certificate.pool == 300
+    assert "certificate" not in load_study_config("smoke").plan.to_dict()  # old hashes unchanged
+    result = run_study(config, tmp_path, n_jobs=1, progress=False)
+    (case,) = result.cases
+    cert = case.certificate
+    assert cert["residual"] <= cert["tol"] and cert["converged"]
+    assert cert["n"] == config.plan.n and cert["criterion"] == "kpi"
+    feasible = [r for r in case.rows if r.feasible]
+    assert len(feasible) >= 4  # the heuristic designs, their median and the designs with collisions
+    for r in case.rows:
+        assert r.kpi_bound_mm2 == cert["bound"]
+        if r.feasible:
+            assert cert["bound"] <= r.kpi_avg_variance_mm2
+            assert 0 < r.kpi_efficiency <= 1
+            assert r.kpi_efficiency == pytest.approx(cert["bound"] / r.kpi_avg_variance_mm2)
+        else:
+            assert np.isnan(r.kpi_efficiency)
+    kpi_opt = case.row("optimal", "kpi", True)
+    assert kpi_opt.kpi_efficiency > case.row("heuristic_median").kpi_efficiency
+    # stored and reloaded, the check still holds; the report shows the columns
+    again = read_study(tmp_path)
+    assert again.cases[0].certificate["bound"] == cert["bound"]
+    tables = study_tables(again)
+    assert tables["cases"][True][0]["efficiency"] == pytest.approx(kpi_opt.kpi_efficiency)
+    report = write_report(again, tmp_path, figures=False)["report"].read_text()
+    assert "lower bound [mm²]" in report and "## Optimality certificate" in report
