@@ -258,18 +258,43 @@ class ACriterion(Criterion):
         object.__setattr__(self, "root", root)
 
     @classmethod
-    def kpi(cls, g: np.ndarray) -> ACriterion:
-        r"""Mean KPI variance :math:`\mathrm{tr}(G C G^\top)/n_s` [mm²].
+    def kpi(cls, g: np.ndarray, weights=None) -> ACriterion:
+        r"""Mean KPI variance :math:`\mathrm{tr}(G C G^\top)/n_s` [mm²], optionally weighted.
+
+        With weights :math:`w_i \ge 0` of the :math:`t = n_s/3` KPI points
+        (rows :math:`3i..3i+2` of :math:`G` are point :math:`i`) the value is the
+        weighted mean of the per-point variances
+        :math:`v_i = \mathrm{tr}(G_i C G_i^\top)/3`,
+
+        .. math::
+            \phi = \frac{\sum_i w_i\,\mathrm{tr}(G_i C G_i^\top)}{3\sum_i w_i}
+                  = \tfrac{1}{n_s}\,\mathrm{tr}(R C R^\top),\qquad
+            R = \mathrm{diag}\big(\sqrt{w_i/\bar w}\big)\,G
+
+        (each factor repeated for x, y, z; :math:`\bar w` the mean weight).
+        Equal weights give exactly the unweighted criterion (same root).
 
         Args:
             g: Unit-scaled KPI Jacobian :math:`G`, (n_s, n_p) [mm/mm, mm/mrad].
+            weights: One weight >= 0 per KPI point (n_s/3,), not all zero; None: all 1.
         """
         g = np.atleast_2d(np.array(g, dtype=float))
         if g.ndim != 2:
             raise ShapeError("KPI Jacobian G", "(n_s, n_p)", g.shape)
         if not np.all(np.isfinite(g)):
             raise NonFiniteError("KPI Jacobian G", np.flatnonzero(~np.isfinite(g)).tolist())
-        return cls(g.T @ g, g.shape[0], "kpi", "A-criterion on the KPI covariance, tr(G C G^T)/n_s [mm^2]", g)
+        root = g
+        if weights is not None:
+            w = np.asarray(weights, dtype=float).reshape(-1)
+            if g.shape[0] % 3 or w.shape != (g.shape[0] // 3,):
+                raise ShapeError("KPI weights", f"({g.shape[0] // 3},), one per KPI point", w.shape)
+            if not np.all(np.isfinite(w)) or np.any(w < 0) or not np.any(w > 0):
+                raise ValueError(f"KPI weights must be finite, >= 0 and not all 0, got {w}")
+            if np.any(w != w[0]):  # equal weights: exactly the unweighted criterion
+                root = np.repeat(np.sqrt(w / w.mean()), 3)[:, None] * g
+        label = ("A-criterion on the KPI covariance, tr(G C G^T)/n_s [mm^2]" if root is g else
+                 "weighted A-criterion on the KPI covariance, sum_i w_i tr(C_s,ii)/(3 sum_i w_i) [mm^2]")
+        return cls(root.T @ root, g.shape[0], "kpi", label, root)
 
     @classmethod
     def parameters(cls, n_p: int) -> ACriterion:
@@ -479,7 +504,8 @@ class ObservabilityIndex(Criterion):
 
 
 # ----------------------------------------------------------------- factory
-def make_criterion(name: str, *, kpi_jacobian=None, n_params: int | None = None) -> Criterion:
+def make_criterion(name: str, *, kpi_jacobian=None, n_params: int | None = None,
+                   kpi_weights=None) -> Criterion:
     """The criterion called ``name`` (one of :data:`CRITERIA`).
 
     Args:
@@ -488,6 +514,8 @@ def make_criterion(name: str, *, kpi_jacobian=None, n_params: int | None = None)
             [mm/mm, mm/mrad]; needed by ``"kpi"``.
         n_params: Number of parameters :math:`n_p`; needed by ``"params"``
             (taken from ``kpi_jacobian`` when not given).
+        kpi_weights: Weights of the KPI points for ``"kpi"`` (:meth:`ACriterion.kpi`);
+            None: all 1.
 
     Raises:
         UnknownCriterionError: ``name`` is not in :data:`CRITERIA`.
@@ -502,7 +530,7 @@ def make_criterion(name: str, *, kpi_jacobian=None, n_params: int | None = None)
                 "criterion 'kpi' needs kpi_jacobian=G, the unit-scaled KPI Jacobian "
                 "(n_s, n_p) [mm/mm, mm/mrad]"
             )
-        return ACriterion.kpi(kpi_jacobian)
+        return ACriterion.kpi(kpi_jacobian, kpi_weights)
     if name == "params":
         if n_params is None and kpi_jacobian is not None:
             n_params = np.atleast_2d(kpi_jacobian).shape[1]

@@ -20,9 +20,9 @@ from threadpoolctl import threadpool_limits
 
 from calib_oed.criteria import CRITERIA, Criterion, make_criterion
 from calib_oed.design_objective import DesignObjective
-from calib_oed.design_problem import DesignProblem
+from calib_oed.design_problem import DesignProblem, WorstCaseDesignProblem
 from calib_oed.design_result import Design
-from calib_oed.exceptions import ShapeError
+from calib_oed.exceptions import AggregateError, ShapeError
 from calib_oed.exchange import exchange_design
 from calib_oed.feasibility.constraints import FEASIBILITY_TOL
 from calib_oed.feasibility.margins import margin_report
@@ -33,6 +33,22 @@ from calib_oed.workflow import Setup
 
 #: SQP settings of the design problem (objective scaled to 1 at the start, x in rad).
 DESIGN_SQP = SQPSettings()
+
+#: How a KPI of several points is aggregated: weighted mean variance, or worst-case variance.
+AGGREGATES = ("mean", "max")
+
+#: Name of the worst-case KPI criterion in a design record.
+KPI_MAX = "kpi_max"
+
+
+def _check_aggregate(aggregate: str, criterion) -> None:
+    if aggregate not in AGGREGATES:
+        raise AggregateError(aggregate, AGGREGATES)
+    if aggregate == "max" and criterion != "kpi":
+        name = criterion if isinstance(criterion, str) else criterion.name
+        raise AggregateError(aggregate, AGGREGATES, "the worst-case KPI aggregate 'max' applies to "
+                             f"the criterion 'kpi' only, got criterion {name!r}; use aggregate "
+                             "'mean' with it")
 
 
 def project_feasible(nlp: DesignProblem, x: np.ndarray, max_iterations: int = 50) -> np.ndarray:
@@ -69,7 +85,8 @@ def criterion_values(objective: DesignObjective, q: np.ndarray) -> dict[str, flo
     out = {}
     g = objective.kpi_jacobian()
     for name in CRITERIA:
-        crit = make_criterion(name, kpi_jacobian=g, n_params=objective.n_free)
+        crit = make_criterion(name, kpi_jacobian=g, n_params=objective.n_free,
+                              kpi_weights=objective.kpi_weights)
         out[name] = float(crit.compute_index(info, n_rows))
     return out
 
@@ -85,20 +102,29 @@ def evaluate_design(
     seconds: float = 0.0,
     seed: int | None = None,
     collisions: bool = True,
+    aggregate: str = "mean",
 ) -> Design:
-    """The :class:`~calib_oed.design_result.Design` record of configurations ``q`` (n, nq)."""
+    r"""The :class:`~calib_oed.design_result.Design` record of configurations ``q`` (n, nq).
+
+    ``aggregate="max"`` (criterion ``kpi`` only): the value is the worst-case
+    KPI variance :math:`\max_i v_i` [mm²] and the record's criterion ``kpi_max``.
+    """
     s = _setup(s)
+    _check_aggregate(aggregate, criterion)
     problem = s.problem
     q = problem.robot.check_configurations(q, "design")
     objective = DesignObjective(problem, criterion)
-    value = objective.compute_value(q)
+    if aggregate == "max":
+        value = float(objective.kpi_point_variances(q).max())
+    else:
+        value = objective.compute_value(q)
     res = s.feasibility.compute(q, jacobian=False)
     feasible = bool(res.values.min() >= -FEASIBILITY_TOL) if res.values.size else True
     return Design(
         scene=s.scene.name,
         joint_names=tuple(problem.robot.joint_names),
         q=q,
-        criterion=objective.criterion.name,
+        criterion=KPI_MAX if aggregate == "max" else objective.criterion.name,
         value=value,
         start_value=value if start_value is None else float(start_value),
         criteria=criterion_values(objective, q),
@@ -147,8 +173,9 @@ def design(
     callback=None,
     pool: int = 3000,
     structured_hessian: bool = False,
+    aggregate: str = "mean",
 ) -> Design:
-    """An optimal design of ``n`` measurement configurations.
+    r"""An optimal design of ``n`` measurement configurations.
 
     Args:
         scene: A scene, or a :class:`~calib_oed.workflow.Setup` (reuses its
@@ -173,6 +200,11 @@ def design(
             through M (A and D criteria) plus per-pose BFGS blocks instead of
             one dense BFGS matrix. Fewer iterations, but each QP is slower:
             measured slower overall on fms_kr16 (docs/oed.md), so off by default.
+        aggregate: ``"mean"`` (default: the criterion, for ``kpi`` the weighted
+            mean variance of the KPI points) or ``"max"`` (criterion ``kpi``
+            only: the worst-case variance :math:`\max_i v_i`, by the epigraph
+            problem :class:`~calib_oed.design_problem.WorstCaseDesignProblem`;
+            a dense BFGS Hessian, ``structured_hessian`` is ignored).
 
     Returns:
         The best design, with the SQP record of its run.
@@ -180,19 +212,45 @@ def design(
     s = _setup(scene)
     if n_starts < 1:
         raise ValueError(f"n_starts must be >= 1, got {n_starts}")
+    _check_aggregate(aggregate, criterion)
     best = None
     t0 = time.perf_counter()
     with threadpool_limits(limits=1, user_api="blas"):
-        best = _optimise_starts(s, int(n), criterion, start, seed, n_starts, collisions,
-                                settings, callback, pool, structured_hessian)
+        run = _optimise_worst_case if aggregate == "max" else _optimise_starts
+        best = run(s, int(n), criterion, start, seed, n_starts, collisions,
+                   settings, callback, pool, structured_hessian)
     value, q, phi0, result, start_seed = best
     record = result.to_dict()
     record.pop("x", None)
     record.pop("multipliers", None)
+    if aggregate == "max":  # the epigraph variable at the end, t s [mm²]: bounds every v_i up to the violation
+        record["epigraph_t_mm2"] = float(result.x[-1] * phi0)
     return evaluate_design(
         s, q, criterion, method="sqp", start_value=phi0, solver=record,
         seconds=time.perf_counter() - t0, seed=start_seed, collisions=collisions,
+        aggregate=aggregate,
     )
+
+
+def _optimise_worst_case(s, n, criterion, start, seed, n_starts, collisions, settings, callback,
+                         pool, structured_hessian):
+    """The epigraph SQP from every start; the best ``(max_i v_i, q, start max, result, seed)``."""
+    best = None
+    for start_seed, q0 in _start_designs(s, n, start, seed, n_starts, criterion, pool):
+        objective = DesignObjective(s.problem, criterion)
+        v0 = float(objective.kpi_point_variances(q0).max())
+        nlp = WorstCaseDesignProblem(objective, s.feasibility, len(q0), collisions=collisions,
+                                     scale=max(v0, 1e-300))
+        result = solve_sqp(nlp.compute_objective, nlp.start(q0), constraints=nlp.compute_constraints,
+                           bounds=nlp.bounds, settings=settings or DESIGN_SQP, callback=callback)
+        x = result.x
+        if nlp.max_violation(x) > FEASIBILITY_TOL:
+            x = np.append(project_feasible(nlp.base, x[:-1]), x[-1])
+        q = nlp.configurations(x)
+        value = float(objective.kpi_point_variances(q).max())
+        if best is None or value < best[0]:
+            best = (value, q, v0, result, start_seed)
+    return best
 
 
 def _optimise_starts(s, n, criterion, start, seed, n_starts, collisions, settings, callback, pool,

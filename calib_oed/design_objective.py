@@ -105,7 +105,8 @@ class DesignObjective:
         self.scale = problem.space.unit_scale[self.free]
         nf = len(self.free)
         if isinstance(criterion, str):
-            criterion = make_criterion(criterion, kpi_jacobian=self.kpi_jacobian(), n_params=nf)
+            criterion = make_criterion(criterion, kpi_jacobian=self.kpi_jacobian(), n_params=nf,
+                                       kpi_weights=self.kpi_weights)
         self.criterion = criterion
         if prior is not None:
             prior = np.asarray(prior, dtype=float)
@@ -124,9 +125,24 @@ class DesignObjective:
         """Unit-scaled KPI Jacobian on the free parameters, (3t, n_f) [mm/mm, mm/mrad]."""
         return self.problem.kpi_jacobian(self.p)[:, self.free] * self.scale * _MM
 
+    @property
+    def kpi_weights(self) -> np.ndarray | None:
+        """Weights of the KPI points (the scene's), or None (all 1)."""
+        return getattr(self.problem.kpi, "weights", None)
+
     def kpi_criterion(self) -> ACriterion:
-        """The paper's KPI criterion of this problem (whatever is optimised)."""
-        return ACriterion.kpi(self.kpi_jacobian())
+        """The paper's KPI criterion of this problem, weighted as the scene says (whatever is optimised)."""
+        return ACriterion.kpi(self.kpi_jacobian(), self.kpi_weights)
+
+    def kpi_point_variances(self, q: np.ndarray) -> np.ndarray:
+        r"""Per KPI point :math:`v_i = \mathrm{tr}(G_i C G_i^\top)/3` [mm²], (t,)."""
+        info = self.compute_information(q)
+        g = self.kpi_jacobian()
+        try:
+            return np.array([ACriterion.kpi(g[3 * i:3 * i + 3]).compute_value(info)
+                             for i in range(g.shape[0] // 3)])
+        except NotIdentifiableError as exc:
+            raise self._named(exc) from None
 
     # -------------------------------------------------------------- pieces
     def _state(self, q: np.ndarray, second_order: bool):

@@ -90,6 +90,16 @@ class Design:
         """The paper's KPI criterion: average variance of the KPI coordinates [mm²]."""
         return float(self.criteria["kpi"])
 
+    @property
+    def kpi_max_variance(self) -> float:
+        r"""Worst-case KPI variance :math:`\max_i \sigma_i^2` over the KPI points [mm²]."""
+        return float(np.max(self.kpi_sigma_mm) ** 2)
+
+    @property
+    def kpi_worst(self) -> str:
+        """Name of the KPI point with the largest variance."""
+        return self.kpi_names[int(np.argmax(self.kpi_sigma_mm))]
+
     def summary(self) -> str:
         """A short report for the terminal."""
         lines = [
@@ -103,6 +113,10 @@ class Design:
                                                           strict=True)),
             f"  feasible: {self.feasible}",
         ]
+        if len(self.kpi_names) > 1:
+            lines.insert(3, f"  {len(self.kpi_names)} KPI points: mean variance {self.kpi_variance:.4g} mm² "
+                         f"(weighted as the scene says), max {self.kpi_max_variance:.4g} mm² "
+                         f"(sigma {np.sqrt(self.kpi_max_variance):.5f} mm) at {self.kpi_worst}")
         if self.solver:
             lines.append(f"  solver: {self.solver.get('status')}, {self.solver.get('iterations')} "
                          f"iterations, {self.solver.get('message', '')}")
@@ -126,6 +140,8 @@ class Design:
             "start_value": self.start_value,
             "criteria": dict(self.criteria),
             "kpi_sigma_mm": dict(zip(self.kpi_names, self.kpi_sigma_mm.tolist(), strict=True)),
+            "kpi_max_variance_mm2": self.kpi_max_variance,
+            "kpi_worst": self.kpi_worst,
             "feasible": self.feasible,
             "margins": [vars(m) for m in self.margins],
             "seconds": self.seconds,

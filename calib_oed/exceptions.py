@@ -363,3 +363,18 @@ class SequentialError(CalibOedError, ValueError):
         self.what = what
         self.value = value
         super().__init__(f"sequential design: {what} = {value!r}: {requirement}")
+
+
+class AggregateError(CalibOedError, ValueError):
+    """A KPI aggregate that does not exist, or that does not apply to the criterion asked for.
+
+    Attributes:
+        aggregate: The aggregate asked for.
+        valid: The aggregates that apply (``mean``, ``max``).
+    """
+
+    def __init__(self, aggregate, valid: Sequence[str], why: str = ""):
+        self.aggregate = aggregate
+        self.valid = list(valid)
+        super().__init__(why or f"unknown KPI aggregate {aggregate!r}; valid aggregates are: "
+                         f"{_choices(self.valid)}")

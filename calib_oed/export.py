@@ -171,7 +171,9 @@ def _provenance(space: ParameterSpace, p: np.ndarray, where: str, changed, name:
         f"  Calibrated by calib_oed {calib_oed.__version__}: robot {name!r}, "
         f"calib_oed robot {space.robot.name!r}, from {where}.",
         f"  Parameter vector: {space.size} parameters (tracker pose 6, reflector offsets "
-        f"{3 * space.n_reflectors}, joints {n_joint}); applied here: the {n_joint} joint "
+        f"{3 * space.n_reflectors}, joints {n_joint}"
+        + (f", joint compliances {space.n_joints} (in the sensor YAML)" if space.compliance is not None else "")
+        + f"); applied here: the {n_joint} joint "
         f"parameters ({nonzero} non-zero), changing the <origin> of {len(changed)} of "
         f"{space.n_joints} joints.",
         "  Each changed origin is O * exp6(delta), delta = (tx, ty, tz, rx, ry, rz) in the "
@@ -236,6 +238,19 @@ def sensor_yaml_text(space: ParameterSpace, p: np.ndarray | None) -> str:
             for j, c in enumerate(offsets)
         ],
     }
+    if space.compliance is not None:  # a URDF has no place for joint stiffness either
+        comp = space.compliance
+        data["compliance"] = {
+            "payload_kg": comp.payload_mass,
+            "payload_com_m": _floatlist(comp.payload_com),
+            "joints": [
+                {"joint": name, "compliance_si": float(c) + 0.0,
+                 "unit": space.parameters[space.compliance_slice.start + i].unit,
+                 "stiffness_si": (1.0 / float(c)) if c > 0 else None}
+                for i, (name, c) in enumerate(zip(robot.joint_names, p[space.compliance_slice],
+                                                  strict=True))
+            ],
+        }
     header = (
         f"# Sensor set-up identified by calib_oed {calib_oed.__version__} for robot "
         f"{robot.name!r} ({space.size} parameters).\n"
@@ -246,6 +261,9 @@ def sensor_yaml_text(space: ParameterSpace, p: np.ndarray | None) -> str:
         f"# reflectors: centre of each reflector in the tool frame {robot.tool_frame!r}.\n"
         "# The SI values (position_m, rotation_matrix, offset_m) are exact and authoritative;\n"
         "# mm, degrees and the quaternion are copies for people and must agree with them.\n"
+        + ("# compliance: the identified joint compliances c = 1/k (rad/(N*m)) and stiffnesses\n"
+           "#   (N*m/rad; null where c <= 0), with the payload they were identified under.\n"
+           if space.compliance is not None else "")
     )
     body = yaml.safe_dump(data, sort_keys=False, default_flow_style=None, width=1000)
     return header + body

@@ -20,7 +20,7 @@ from typing import NamedTuple
 import numpy as np
 
 from calib_oed.exceptions import UnknownParameterError
-from calib_oed.parameters import ANGLE_SCALE, LENGTH_SCALE
+from calib_oed.parameters import report_scale_of, report_unit_of
 
 
 class IdentificationStatus(str, Enum):
@@ -55,11 +55,11 @@ class ParameterEstimate:
 
     @property
     def report_unit(self) -> str:
-        return "mm" if self.unit == "m" else "mrad"
+        return report_unit_of(self.unit)
 
     @property
     def report_scale(self) -> float:
-        return LENGTH_SCALE if self.unit == "m" else ANGLE_SCALE
+        return report_scale_of(self.unit)
 
 
 def _loss_weights(r: np.ndarray, loss: str, f_scale: float) -> np.ndarray:
@@ -206,7 +206,7 @@ class IdentificationResult:
         stationary point is about this divided by the square of the smallest
         singular value of :math:`F_1 D`.
         """
-        scale = np.where(np.array(self.units) == "m", LENGTH_SCALE, ANGLE_SCALE)
+        scale = np.array([report_scale_of(u) for u in self.units])
         w = _loss_weights(self.residuals, self.loss, self.f_scale)
         return float(np.linalg.norm(scale * (self.f1.T @ (w * self.residuals))))
 

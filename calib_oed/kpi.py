@@ -46,6 +46,8 @@ class TcpKpi:
             :math:`c_j(p)` (its offset parameters enter :math:`G`) and
             ``point`` is ignored. In the tracker frame this KPI is a predicted
             measurement, hence estimable.
+        weights: Weight >= 0 of each working configuration in the mean KPI
+            variance (:meth:`calib_oed.criteria.ACriterion.kpi`), (t,); None: all 1.
     """
 
     def __init__(
@@ -55,6 +57,7 @@ class TcpKpi:
         frame: str = "world",
         names: Sequence[str] | None = None,
         reflector: int | None = None,
+        weights: Sequence[float] | None = None,
     ):
         q = np.atleast_2d(np.asarray(configurations, dtype=float))
         if q.ndim != 2:
@@ -71,6 +74,13 @@ class TcpKpi:
         self.names = tuple(names) if names is not None else tuple(f"work{i}" for i in range(len(q)))
         if len(self.names) != len(q):
             raise ShapeError("names", f"({len(q)},)", (len(self.names),))
+        w = np.ones(len(q)) if weights is None else np.array(weights, dtype=float).reshape(-1)
+        if w.shape != (len(q),):
+            raise ShapeError("weights", f"({len(q)},)", w.shape)
+        if not np.all(np.isfinite(w)) or np.any(w < 0) or not np.any(w > 0):
+            raise ValueError(f"KPI weights must be finite, >= 0 and not all 0, got {w}")
+        w.setflags(write=False)
+        self.weights = w
 
     @property
     def dim(self) -> int:
@@ -97,3 +107,36 @@ class TcpKpi:
         state = evaluate_setup(space, p, self.configurations, regressor=True, jacobian=False)
         g = state.tool_point_param_jacobian(self._point(state), self.frame, self.reflector)
         return g.reshape(3 * state.n, space.size)
+
+
+def sample_joint_path(waypoints: np.ndarray, samples: int) -> np.ndarray:
+    r"""``samples`` configurations along a piecewise-linear joint-space path, endpoints included.
+
+    The path runs through the waypoints :math:`w_0..w_{K}` in order; the
+    samples are equally spaced in joint-space arc length
+    :math:`\ell = \sum_k \|w_{k+1} - w_k\|_2` [rad], so sample :math:`k`
+    lies at :math:`\ell\,k/(m-1)`; every sample is a convex combination of two
+    consecutive waypoints (inside the joint limits when they are).
+
+    Args:
+        waypoints: (K+1, nq), K+1 >= 2 [rad].
+        samples: Number m >= 2 of samples.
+
+    Returns:
+        (m, nq) configurations; row 0 is the first waypoint, row m-1 the last.
+    """
+    w = np.asarray(waypoints, dtype=float)
+    if w.ndim != 2 or w.shape[0] < 2:
+        raise ShapeError("path waypoints", "(K+1 >= 2, nq)", w.shape)
+    if int(samples) != samples or samples < 2:
+        raise ValueError(f"a path needs samples >= 2 (its two endpoints), got {samples!r}")
+    seg = np.linalg.norm(np.diff(w, axis=0), axis=1)
+    s = np.concatenate([[0.0], np.cumsum(seg)])
+    if s[-1] <= 0:
+        raise ValueError("the path's waypoints are all equal: it has zero length")
+    target = np.linspace(0.0, s[-1], int(samples))
+    out = np.empty((int(samples), w.shape[1]))
+    for j in range(w.shape[1]):
+        out[:, j] = np.interp(target, s, w[:, j])
+    out[0], out[-1] = w[0], w[-1]
+    return out

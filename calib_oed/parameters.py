@@ -10,7 +10,10 @@ Order (binding, see ``docs/conventions.md``):
    ``joint{i}.tx .. joint{i}.rz``: the joint placement in its parent
    :math:`M_i \leftarrow M_i \exp_6(\delta_i)`,
    :math:`\delta_i = (t_x, t_y, t_z, r_x, r_y, r_z)` in joint ``i``'s frame
-   ([m] then [rad]).
+   ([m] then [rad]);
+4. only when joint compliance is modelled (:mod:`calib_oed.compliance`), one
+   compliance per joint ``joint{i}.c`` [rad/(N·m)] ([m/N] for a prismatic
+   joint), base to tip: the kinematics run at :math:`q + c \circ \tau_g(q)`.
 
 The nominal value of every parameter is 0. Applying a parameter vector never
 mutates the nominal model.
@@ -24,6 +27,7 @@ from enum import Enum
 import numpy as np
 import pinocchio as pin
 
+from calib_oed.compliance import Compliance, GravityLoad
 from calib_oed.exceptions import NonFiniteError, ShapeError, UnknownParameterError
 from calib_oed.robot import Robot
 
@@ -33,6 +37,26 @@ _XYZ = ("x", "y", "z")
 #: Scale of one unit in reports and in the "unit-scaled" Jacobian: 1 mm, 1 mrad.
 LENGTH_SCALE = 1e-3
 ANGLE_SCALE = 1e-3
+#: Scale of one compliance unit: 1e-6 rad/(N·m) = 1 mrad/(kN·m) (1e-6 m/N = 1 mm/kN).
+COMPLIANCE_SCALE = 1e-6
+
+#: SI unit of a parameter -> (SI value of one report unit, report unit).
+REPORT_UNITS = {
+    "m": (LENGTH_SCALE, "mm"),
+    "rad": (ANGLE_SCALE, "mrad"),
+    "rad/(N*m)": (COMPLIANCE_SCALE, "mrad/kNm"),
+    "m/N": (COMPLIANCE_SCALE, "mm/kN"),
+}
+
+
+def report_scale_of(unit: str) -> float:
+    """SI value of one report unit of a parameter in SI ``unit`` (see :data:`REPORT_UNITS`)."""
+    return REPORT_UNITS[unit][0]
+
+
+def report_unit_of(unit: str) -> str:
+    """Report unit of a parameter in SI ``unit``: ``"mm"``, ``"mrad"``, ``"mrad/kNm"``, ``"mm/kN"``."""
+    return REPORT_UNITS[unit][1]
 
 
 class Group(str, Enum):
@@ -41,6 +65,7 @@ class Group(str, Enum):
     TRACKER = "tracker"
     REFLECTOR = "reflector"
     JOINT = "joint"
+    COMPLIANCE = "compliance"
 
 
 @dataclass(frozen=True)
@@ -50,8 +75,8 @@ class Parameter:
     Attributes:
         index: Position in the parameter vector.
         name: ``"tracker.tx"``, ``"reflector0.z"``, ``"joint3.rz"``.
-        unit: ``"m"`` or ``"rad"``.
-        group: Tracker, reflector or joint.
+        unit: ``"m"``, ``"rad"``, or for a compliance ``"rad/(N*m)"`` (``"m/N"``).
+        group: Tracker, reflector, joint or compliance.
         owner: Index of the reflector or joint (0 for the tracker).
         description: Human-readable meaning (with the URDF joint name).
     """
@@ -65,13 +90,13 @@ class Parameter:
 
     @property
     def report_scale(self) -> float:
-        """SI value of one report unit (1 mm or 1 mrad)."""
-        return LENGTH_SCALE if self.unit == "m" else ANGLE_SCALE
+        """SI value of one report unit (1 mm, 1 mrad, 1 mrad/(kN·m))."""
+        return report_scale_of(self.unit)
 
     @property
     def report_unit(self) -> str:
-        """Unit used in reports: ``"mm"`` or ``"mrad"``."""
-        return "mm" if self.unit == "m" else "mrad"
+        """Unit used in reports: ``"mm"``, ``"mrad"`` or ``"mrad/kNm"``."""
+        return report_unit_of(self.unit)
 
 
 class ParameterSpace:
@@ -82,9 +107,12 @@ class ParameterSpace:
         tracker_placement: Nominal :math:`T^0_{W,T}`, tracker frame in world.
         reflector_offsets: Nominal reflector positions :math:`c^0_j` in the
             tool frame, shape (k, 3) [m].
+        compliance: Model joint compliance with this payload (one parameter
+            per joint after the geometric ones); None: rigid joints (default).
     """
 
-    def __init__(self, robot: Robot, tracker_placement: pin.SE3, reflector_offsets: np.ndarray):
+    def __init__(self, robot: Robot, tracker_placement: pin.SE3, reflector_offsets: np.ndarray,
+                 compliance: Compliance | None = None):
         offsets = np.asarray(reflector_offsets, dtype=float)
         if offsets.ndim == 1:
             offsets = offsets[None, :]
@@ -100,6 +128,12 @@ class ParameterSpace:
         self.reflector_offsets0.setflags(write=False)
         self.n_reflectors = offsets.shape[0]
         self.n_joints = robot.nq
+        if compliance is not None and not isinstance(compliance, Compliance):
+            raise TypeError("compliance must be a calib_oed.compliance.Compliance or None")
+        self.compliance = compliance
+        #: Gravity torques of the nominal robot with the payload (None without compliance).
+        self.gravity = (GravityLoad(robot.model, robot.tool_frame_id, compliance)
+                        if compliance is not None else None)
         self.parameters = tuple(self._build())
         self.names = tuple(p.name for p in self.parameters)
         self._index = {n: i for i, n in enumerate(self.names)}
@@ -127,10 +161,19 @@ class ParameterSpace:
                 yield Parameter(idx, f"joint{i}.{c}", unit, Group.JOINT, i,
                                 f"placement of joint {i} ({jname}) in its parent, component {c}")
                 idx += 1
+        if self.compliance is None:
+            return
+        for i, jname in enumerate(self.robot.joint_names, start=1):
+            prismatic = self.robot.model.joints[i].shortname().startswith("JointModelP")
+            yield Parameter(idx, f"joint{i}.c", "m/N" if prismatic else "rad/(N*m)",
+                            Group.COMPLIANCE, i,
+                            f"compliance of joint {i} ({jname}): deflection per gravity "
+                            f"{'force' if prismatic else 'torque'}")
+            idx += 1
 
     @property
     def size(self) -> int:
-        """Number of parameters :math:`n_p = 6 + 3k + 6n`."""
+        """Number of parameters :math:`n_p = 6 + 3k + 6n` (+ n with compliance)."""
         return len(self.parameters)
 
     @property
@@ -147,6 +190,12 @@ class ParameterSpace:
         """Slice of all joint parameters, in the order of the kinematic regressor."""
         start = 6 + 3 * self.n_reflectors
         return slice(start, start + 6 * self.n_joints)
+
+    @property
+    def compliance_slice(self) -> slice:
+        """Slice of the joint compliances (empty when compliance is not modelled)."""
+        start = self.joints_slice.stop
+        return slice(start, self.size)
 
     def joint_slice(self, i: int) -> slice:
         """Slice of joint ``i``'s 6 parameters (1-based, Pinocchio joint index)."""
@@ -219,8 +268,9 @@ class ParameterSpace:
         )
 
     def random(self, rng: np.random.Generator | int, sigma_length: float = 0.5e-3,
-               sigma_angle: float = 0.5e-3) -> np.ndarray:
-        """Random parameters, normal with the given standard deviations [m], [rad]."""
+               sigma_angle: float = 0.5e-3, sigma_compliance: float = 1e-6) -> np.ndarray:
+        """Random parameters, normal with the given standard deviations [m], [rad], [rad/(N·m)]."""
         rng = np.random.default_rng(rng)
-        sd = np.array([sigma_length if p.unit == "m" else sigma_angle for p in self.parameters])
+        table = {"m": sigma_length, "rad": sigma_angle}
+        sd = np.array([table.get(p.unit, sigma_compliance) for p in self.parameters])
         return rng.normal(size=self.size) * sd

@@ -76,7 +76,9 @@ class CalibrationProblem:
     def from_scene(cls, scene) -> CalibrationProblem:
         """Assemble the problem of a :class:`calib_oed.scene.Scene`."""
         offsets = np.array([r.offset for r in scene.reflectors])
-        space = ParameterSpace(scene.robot, scene.tracker.placement(), offsets)
+        compliance = getattr(scene, "compliance", None)
+        space = ParameterSpace(scene.robot, scene.tracker.placement(), offsets,
+                               compliance=compliance.model() if compliance is not None else None)
         if scene.measurement == "pose":
             models = [
                 PoseMeasurement(j, scene.tracker.sigma, scene.tracker.sigma_angle)
@@ -90,6 +92,7 @@ class CalibrationProblem:
             frame=scene.kpi.frame,
             names=[w.name for w in scene.kpi.configurations],
             reflector=scene.kpi.reflector,
+            weights=[w.weight for w in scene.kpi.configurations],
         )
         generic = GenericDesign(scene.generic_design.n, scene.generic_design.seed)
         return cls(space, models, kpi, generic)

@@ -8,6 +8,7 @@ import numpy as np
 
 from calib_oed.identifiability import Estimability, IdentifiabilityReport
 from calib_oed.measurements import PoseMeasurement
+from calib_oed.parameters import Group
 from calib_oed.problem import CalibrationProblem
 
 
@@ -46,13 +47,13 @@ def classical_count(problem: CalibrationProblem) -> tuple[int, str] | None:
     parameters add the tracker pose (6) and the reflector offset (3), which
     play the roles of the base and tool parameters, so the rules compare
     with our rank directly. Returns None for set-ups the rule does not cover
-    (several reflectors).
+    (several reflectors, joint compliance modelled).
     """
     model = problem.robot.model
     kinds = [j.shortname() for j in model.joints[1:]]
     n_r = sum(k.startswith("JointModelR") for k in kinds)
     n_p = len(kinds) - n_r
-    if len(problem.models) != 1:
+    if len(problem.models) != 1 or problem.space.compliance is not None:
         return None
     if isinstance(problem.models[0], PoseMeasurement):
         return 4 * n_r + 2 * n_p + 6, f"4R + 2P + 6 = 4*{n_r} + 2*{n_p} + 6 (pose measurements)"
@@ -68,6 +69,12 @@ def identifiability_dict(
     out["robot"] = problem.robot.name
     out["tool_frame"] = problem.robot.tool_frame
     out["measurement_models"] = [m.name for m in problem.models]
+    comp = problem.space.compliance
+    out["compliance"] = None if comp is None else {
+        "payload_kg": comp.payload_mass, "payload_com_m": comp.payload_com.tolist(),
+        "parameters": [problem.space.names[i] for i in range(problem.space.compliance_slice.start,
+                                                              problem.space.size)],
+    }
     out["classical_count"] = None if classical is None else {
         "count": classical[0], "rule": classical[1]
     }
@@ -97,6 +104,8 @@ def format_identifiability(
         f"  generic design: {report.n_configurations} random configurations in the joint "
         f"limits (seed {report.seed}), {report.n_rows} rows"
     )
+    if space.compliance is not None:
+        lines.append(f"  {space.compliance.describe()}")
     lines.append(
         f"  parameters: {len(report.names)}; free (identifiable): {report.rank}; "
         f"fixed: {len(report.fixed)}; rank tolerance {report.tol:g}"
@@ -124,8 +133,11 @@ def format_identifiability(
     lines.append(f"Fixed parameters ({len(report.fixed)}), held at their nominal value:")
     width = max((len(f.name) for f in report.fixed), default=0)
     for f in report.fixed:
-        unit = space.parameters[space.index(f.name)].report_unit
-        lines.append(f"  {f.name:<{width}} [{unit:>4}]  {f.reason}  (residual {f.residual:.1e})")
+        par = space.parameters[space.index(f.name)]
+        why = f.reason
+        if par.group == Group.COMPLIANCE and not f.redundant_with:
+            why += " (no gravity torque about this joint in any pose, with this payload)"
+        lines.append(f"  {f.name:<{width}} [{par.report_unit:>4}]  {why}  (residual {f.residual:.1e})")
     lines.append("")
     where = "tracker frame" if problem.kpi.frame == "tracker" else "world frame"
     if problem.kpi.reflector is not None:

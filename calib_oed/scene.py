@@ -21,6 +21,7 @@ import numpy as np
 import pinocchio as pin
 import yaml
 
+from calib_oed.compliance import Compliance
 from calib_oed.exceptions import (
     CalibOedError,
     NonFiniteError,
@@ -29,6 +30,7 @@ from calib_oed.exceptions import (
     UnknownSceneError,
 )
 from calib_oed.feasibility.shapes import Cell, FeasibilitySettings
+from calib_oed.kpi import sample_joint_path
 from calib_oed.robot import Robot, load_robot
 from calib_oed.scene_cell import read_cell, read_feasibility
 
@@ -37,6 +39,7 @@ LENGTH_UNITS: dict[str, float] = {"m": 1.0, "mm": 1e-3}
 ANGLE_UNITS: dict[str, float] = {"rad": 1.0, "deg": math.pi / 180.0}
 MEASUREMENTS = ("position", "pose")
 KPI_FRAMES = ("world", "tracker")
+KPI_AGGREGATES = ("mean", "max")
 SUPPORTED_VERSIONS = (1,)
 DEFAULT_SIGMA_ANGLE = 1e-5  # [rad] = 0.01 mrad
 
@@ -107,13 +110,21 @@ class WorkingConfiguration:
     Attributes:
         name: Configuration name, unique in the scene.
         q: Joint configuration, shape (nq,) [rad] (prismatic joints [m]).
+        weight: Its weight >= 0 in the mean KPI variance (default 1; a path's
+            samples share the path's weight, ``weight/samples`` each).
+        path: Name of the path it samples (``<path>@k``), or None.
     """
 
     name: str
     q: np.ndarray
+    weight: float = 1.0
+    path: str | None = None
 
     def __post_init__(self):
         object.__setattr__(self, "q", _readonly(self.q, f"working configuration {self.name}"))
+        if not (math.isfinite(self.weight) and self.weight >= 0):
+            raise SceneError(f"expected a number >= 0, got {self.weight!r}",
+                             key=f"kpi working configuration {self.name}.weight")
 
 
 @dataclass(frozen=True, eq=False)
@@ -126,20 +137,30 @@ class KpiSpec:
         configurations: The working configurations (at least one).
         reflector: Index of the reflector whose (estimated) centre is the KPI
             point instead of ``point``, or None.
+        aggregate: How the design criterion combines the KPI points:
+            ``"mean"`` (weighted mean variance, the A-criterion) or ``"max"``
+            (worst-case variance, docs/oed.md).
     """
 
     point: np.ndarray
     frame: Literal["world", "tracker"]
     configurations: tuple[WorkingConfiguration, ...]
     reflector: int | None = None
+    aggregate: Literal["mean", "max"] = "mean"
 
     def __post_init__(self):
         object.__setattr__(self, "point", _readonly(self.point, "kpi.point", 3))
         object.__setattr__(self, "configurations", tuple(self.configurations))
         if self.frame not in KPI_FRAMES:
             raise SceneError(f"expected one of {KPI_FRAMES}, got {self.frame!r}", key="kpi.frame")
+        if self.aggregate not in KPI_AGGREGATES:
+            raise SceneError(f"expected one of {', '.join(KPI_AGGREGATES)}, got {self.aggregate!r}",
+                             key="kpi.aggregate")
         if not self.configurations:
             raise SceneError("expected at least one", key="kpi.working_configurations")
+        if not any(c.weight > 0 for c in self.configurations):
+            raise SceneError("expected at least one working configuration with weight > 0",
+                             key="kpi.working_configurations")
 
     @property
     def q(self) -> np.ndarray:
@@ -180,6 +201,8 @@ class Scene:
         cell: World-fixed obstacles (capsules, half-spaces) [m]; empty if the file has none.
         feasibility: What makes a measurement configuration executable [m, rad];
             the defaults of :class:`FeasibilitySettings` if the file has no ``feasibility:``.
+        compliance: ``robot.compliance``: whether joint compliance is modelled and
+            the payload; None if the file has no such block (rigid joints).
     """
 
     name: str
@@ -194,6 +217,25 @@ class Scene:
     units: dict[str, str]
     cell: Cell = field(default_factory=Cell)
     feasibility: FeasibilitySettings = field(default_factory=FeasibilitySettings)
+    compliance: ComplianceSpec | None = None
+
+
+@dataclass(frozen=True, eq=False)
+class ComplianceSpec:
+    """``robot.compliance``: joint compliance under gravity (:mod:`calib_oed.compliance`).
+
+    Attributes:
+        enabled: Model it (one compliance parameter per joint); ``calib-oed
+            --compliance`` turns it on for a scene that says ``enabled: false``.
+        payload: The payload on the tool (mass [kg], centre of mass in the tool frame [m]).
+    """
+
+    enabled: bool
+    payload: Compliance
+
+    def model(self) -> Compliance | None:
+        """The :class:`~calib_oed.compliance.Compliance` of the parameter space, or None if disabled."""
+        return self.payload if self.enabled else None
 
 
 def scene_names() -> list[str]:
@@ -318,12 +360,12 @@ class _Reader:
             raise self.fail(key, f"expected an integer >= {minimum}, got {value!r}")
         return value
 
-    def named_list(self, value, key, fields, what) -> list[dict]:
+    def named_list(self, value, key, fields, what, optional=()) -> list[dict]:
         if not isinstance(value, list) or not value:
             raise self.fail(key, f"expected a non-empty list of {what}s, got {value!r}")
         items, seen = [], set()
         for i, item in enumerate(value):
-            item = self.mapping(item, f"{key}[{i}]", fields)
+            item = self.mapping(item, f"{key}[{i}]", fields, optional)
             name = self.string(item["name"], f"{key}[{i}].name")
             if name in seen:
                 raise self.fail(f"{key}[{i}].name", f"duplicate {what} name {name!r}")
@@ -348,6 +390,8 @@ class _Reader:
         if not isinstance(description, str):
             raise self.fail("description", f"expected a string, got {description!r}")
         robot = self.robot(top["robot"])
+        compliance = (self.compliance(top["robot"]["compliance"])
+                      if "compliance" in top["robot"] else None)
         gd = self.mapping(top.get("generic_design", {}), "generic_design", (), ("n", "seed"))
         return Scene(
             name=self.string(top["name"], "name"),
@@ -372,11 +416,12 @@ class _Reader:
             cell=read_cell(self, top["cell"]) if "cell" in top else Cell(),
             feasibility=(read_feasibility(self, top["feasibility"], robot)
                          if "feasibility" in top else FeasibilitySettings()),
+            compliance=compliance,
         )
 
     def robot(self, value) -> Robot:
         spec = self.mapping(value, "robot", (), ("name", "urdf", "tool_frame", "joint_limits",
-                                                 "lock_joints", "package_dirs"))
+                                                 "lock_joints", "package_dirs", "compliance"))
         if ("name" in spec) == ("urdf" in spec):
             given = [k for k in ("name", "urdf") if k in spec]
             raise self.fail("robot", "expected exactly one of 'name' (a robot name) or 'urdf' "
@@ -425,6 +470,17 @@ class _Reader:
         except CalibOedError as exc:
             raise self.fail("robot", str(exc)) from exc
 
+    def compliance(self, value) -> ComplianceSpec:
+        """``robot.compliance: {enabled: true, payload: {mass: kg, com: [x, y, z]}}`` (com in length units)."""
+        spec = self.mapping(value, "robot.compliance", (), ("enabled", "payload"))
+        enabled = spec.get("enabled", True)
+        if not isinstance(enabled, bool):
+            raise self.fail("robot.compliance.enabled", f"expected true or false, got {enabled!r}")
+        load = self.mapping(spec.get("payload", {}), "robot.compliance.payload", (), ("mass", "com"))
+        mass = self.number(load.get("mass", 0.0), "robot.compliance.payload.mass", nonnegative=True)
+        com = self.vector(load.get("com", [0, 0, 0]), "robot.compliance.payload.com", 3, self.length)
+        return ComplianceSpec(enabled, Compliance(mass, com))
+
     def package_dirs(self, value) -> list[str] | None:
         """``robot.package_dirs``: folders searched for ``package://`` meshes, relative to the file."""
         if isinstance(value, str):
@@ -454,8 +510,12 @@ class _Reader:
         )
 
     def kpi(self, value, robot: Robot, reflector_names: list[str]) -> KpiSpec:
-        spec = self.mapping(value, "kpi", ("working_configurations",),
-                            ("point", "frame", "reflector"))
+        spec = self.mapping(value, "kpi", (),
+                            ("working_configurations", "paths", "aggregate", "point", "frame",
+                             "reflector"))
+        if "working_configurations" not in spec and "paths" not in spec:
+            raise self.fail("kpi.working_configurations", "missing required key; kpi requires "
+                            "working_configurations, paths or both")
         reflector = None
         if "reflector" in spec:
             if "point" in spec:
@@ -471,20 +531,48 @@ class _Reader:
         scale = np.where(prismatic, self.length, self.angle)
         units = [self.units["length" if p else "angle"] for p in prismatic]
         configurations = []
-        for i, wc in enumerate(self.named_list(spec["working_configurations"], key,
-                                               ("name", "q"), "working configuration")):
-            q = self.vector(wc["q"], f"{key}[{i}].q", len(joints), what=per_joint) * scale
+
+        def joint_vector(value, where):
+            q = self.vector(value, where, len(joints), what=per_joint) * scale
             for j, name in enumerate(joints):
                 lo, hi, s, unit = robot.lower[j], robot.upper[j], scale[j], units[j]
                 if not lo - 1e-9 <= q[j] <= hi + 1e-9:  # 1e-9: rounding of unit conversion
-                    raise self.fail(f"{key}[{i}].q", f"{name} = {q[j] / s:.6g} {unit} is "
+                    raise self.fail(where, f"{name} = {q[j] / s:.6g} {unit} is "
                                     f"outside its limits [{lo / s:.6g}, {hi / s:.6g}] {unit}")
-            configurations.append(WorkingConfiguration(wc["name"], q))
+            return q
+
+        for i, wc in enumerate(self.named_list(spec["working_configurations"], key,
+                                               ("name", "q"), "working configuration", ("weight",))
+                               if "working_configurations" in spec else []):
+            weight = self.number(wc.get("weight", 1.0), f"{key}[{i}].weight", nonnegative=True)
+            configurations.append(WorkingConfiguration(wc["name"], joint_vector(wc["q"], f"{key}[{i}].q"),
+                                                       weight))
+        names = {c.name for c in configurations}
+        for i, path in enumerate(self.named_list(spec["paths"], "kpi.paths",
+                                                 ("name", "waypoints", "samples"), "path",
+                                                 ("weight",)) if "paths" in spec else []):
+            pkey = f"kpi.paths[{i}]"
+            if path["name"] in names or "@" in path["name"]:
+                raise self.fail(f"{pkey}.name", f"path name {path['name']!r} must differ from the "
+                                "working configurations' names and contain no '@'")
+            points = path["waypoints"]
+            if not isinstance(points, list) or len(points) < 2:
+                raise self.fail(f"{pkey}.waypoints", "expected a list of at least 2 joint "
+                                f"configurations ({per_joint}), got {points!r}")
+            way = np.array([joint_vector(v, f"{pkey}.waypoints[{k}]") for k, v in enumerate(points)])
+            m = self.integer(path["samples"], f"{pkey}.samples", 2)
+            if not np.any(np.abs(np.diff(way, axis=0)) > 0):
+                raise self.fail(f"{pkey}.waypoints", "all waypoints are equal: the path has zero length")
+            weight = self.number(path.get("weight", 1.0), f"{pkey}.weight", nonnegative=True)
+            for k, q in enumerate(sample_joint_path(way, m)):
+                configurations.append(WorkingConfiguration(f"{path['name']}@{k}", q, weight / m,
+                                                           path["name"]))
         return KpiSpec(
             point=self.vector(spec.get("point", [0, 0, 0]), "kpi.point", 3, self.length),
             frame=self.string(spec.get("frame", "world"), "kpi.frame", KPI_FRAMES),
             configurations=tuple(configurations),
             reflector=reflector,
+            aggregate=self.string(spec.get("aggregate", "mean"), "kpi.aggregate", KPI_AGGREGATES),
         )
 
 

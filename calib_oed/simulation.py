@@ -5,7 +5,10 @@ One trial (paper §1.1, the experiment the covariance predicts):
 1. draw a true parameter vector :math:`p^\star`: the free parameters of the
    gauge normal with standard deviations ``sigma_length`` [m] and
    ``sigma_angle`` [rad] (default 0.5 mm, 0.5 mrad), the fixed ones at zero,
-   so the truth lies in the gauge the estimate is expressed in;
+   so the truth lies in the gauge the estimate is expressed in; free joint
+   compliances (when modelled) are :math:`1/k` with the stiffness :math:`k`
+   log-uniform in :data:`calib_oed.compliance.STIFFNESS_RANGE` (positive,
+   1e6..1e7 N·m/rad);
 2. simulate :math:`\eta = h(p^\star, q) + \varepsilon`,
    :math:`\varepsilon \sim N(0, \Sigma^2)` at the design :math:`q`;
 3. identify :math:`\hat p` from nominal (:func:`calib_oed.identification.identify`);
@@ -24,6 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from calib_oed.compliance import draw_compliance
 from calib_oed.identification import identify
 from calib_oed.measurements.base import MeasurementModel, evaluate_setup
 from calib_oed.observations import ObservationBlock
@@ -37,12 +41,20 @@ def draw_true_parameters(
     sigma_length: float = 0.5e-3,
     sigma_angle: float = 0.5e-3,
 ) -> np.ndarray:
-    """A true robot and sensor: free parameters perturbed, fixed ones zero, (n_p,) SI."""
+    """A true robot and sensor: free parameters perturbed, fixed ones zero, (n_p,) SI.
+
+    Geometric parameters normal (``sigma_length`` [m], ``sigma_angle`` [rad]);
+    free compliances from :func:`calib_oed.compliance.draw_compliance`.
+    """
     rng = np.random.default_rng(rng)
     free = np.asarray(free, dtype=int)
-    sd = np.array([sigma_length if space.parameters[i].unit == "m" else sigma_angle for i in free])
+    geo = free[free < space.compliance_slice.start]
+    sd = np.array([sigma_length if space.parameters[i].unit == "m" else sigma_angle for i in geo])
     p = np.zeros(space.size)
-    p[free] = rng.normal(size=free.size) * sd
+    p[geo] = rng.normal(size=geo.size) * sd
+    comp = free[free >= space.compliance_slice.start]
+    if comp.size:  # drawn after the geometric ones: the rigid case's draws are unchanged
+        p[comp] = draw_compliance(rng, comp.size)
     return p
 
 

@@ -208,3 +208,30 @@ def test_invalid_construction():
         crit.dim = 3
     with pytest.raises(ValueError):
         crit.weight[0, 0] = 2.0
+
+
+# ------------------------------------------------------ weighted KPI criterion
+def test_weighted_kpi_is_the_weighted_mean_of_point_variances():
+    """sum_i w_i tr(G_i C G_i^T) / (3 sum_i w_i), by hand; unit (or equal) weights: the old criterion."""
+    n_p, t = 5, 4
+    g = np.random.default_rng(3).standard_normal((3 * t, n_p))
+    info = random_spd(n_p, 4)
+    c = np.linalg.inv(info)
+    v = np.array([np.trace(g[3 * i:3 * i + 3] @ c @ g[3 * i:3 * i + 3].T) / 3 for i in range(t)])
+    w = np.array([1.0, 0.0, 2.5, 0.5])
+    crit = ACriterion.kpi(g, w)
+    assert np.isclose(crit.compute_value(info), (w * v).sum() / w.sum(), rtol=1e-12)
+    assert relative_error(crit.compute_gradient(info),
+                          central_difference(lambda m: crit.compute_value(0.5 * (m + m.T)), info)
+                          .reshape(n_p, n_p)) < 1e-6
+    plain = ACriterion.kpi(g)
+    for same in (None, np.ones(t), np.full(t, 3.0)):
+        eq = ACriterion.kpi(g, same)
+        assert np.array_equal(eq.root, plain.root) and eq.compute_value(info) == plain.compute_value(info)
+    assert np.isclose(plain.compute_value(info), v.mean(), rtol=1e-12)
+    assert make_criterion("kpi", kpi_jacobian=g, kpi_weights=w).compute_value(info) == crit.compute_value(info)
+    with pytest.raises(ShapeError):
+        ACriterion.kpi(g, np.ones(t + 1))
+    for bad in (np.zeros(t), np.array([1.0, -1.0, 1.0, 1.0]), np.array([1.0, np.nan, 1.0, 1.0])):
+        with pytest.raises(ValueError, match="weights"):
+            ACriterion.kpi(g, bad)

@@ -47,3 +47,32 @@ def test_bad_kpi_input():
         TcpKpi(np.zeros((1, 6)), frame="base")
     with pytest.raises(ShapeError):
         TcpKpi(np.zeros((2, 6)), names=["only_one"])
+
+
+def test_joint_path_sampling():
+    from calib_oed.kpi import sample_joint_path
+
+    way = np.array([[0.0, 0.0], [3.0, 0.0], [3.0, 1.0]])  # joint-space length 4
+    q = sample_joint_path(way, 5)
+    assert q.shape == (5, 2)
+    assert np.array_equal(q[0], way[0]) and np.array_equal(q[-1], way[-1])  # endpoints, exactly
+    np.testing.assert_allclose(q, [[0, 0], [1, 0], [2, 0], [3, 0], [3, 1]], atol=1e-15)  # equal arc length
+    np.testing.assert_allclose(sample_joint_path(way[:2], 2), way[:2])
+    mid = sample_joint_path(way, 9)[7]  # 3.5 along: halfway up the second segment
+    np.testing.assert_allclose(mid, [3.0, 0.5], atol=1e-15)
+    with pytest.raises(ValueError, match="samples"):
+        sample_joint_path(way, 1)
+    with pytest.raises(ShapeError):
+        sample_joint_path(way[:1], 3)
+    with pytest.raises(ValueError, match="zero length"):
+        sample_joint_path(np.zeros((3, 2)), 3)
+
+
+def test_kpi_weights_are_checked():
+    q = np.zeros((2, 6))
+    assert np.array_equal(TcpKpi(q).weights, [1.0, 1.0])
+    assert np.array_equal(TcpKpi(q, weights=[0.5, 2]).weights, [0.5, 2.0])
+    with pytest.raises(ShapeError):
+        TcpKpi(q, weights=[1.0])
+    with pytest.raises(ValueError, match="weights"):
+        TcpKpi(q, weights=[0.0, 0.0])

@@ -12,6 +12,15 @@ configurations of a :class:`SetupState`:
 
 Stacking several models into :math:`F_1 = \Sigma^{-1}\,\partial h/\partial p`
 is done by :mod:`calib_oed.sensitivity`.
+
+With joint compliance modelled (:mod:`calib_oed.compliance`) the kinematics
+of the state run at :math:`q_{eff} = q + c\circ\tau_g(q)`; a model computes its
+derivatives along :math:`q_{eff}` and in the right perturbations
+:math:`\epsilon` as before, and hands them to the state's chain helpers
+(:meth:`SetupState.fill_joint_columns`, :meth:`SetupState.chain_config`,
+:meth:`SetupState.finish_param_config`), which add the compliance columns and
+the factor :math:`D = \partial q_{eff}/\partial q`. Without compliance they
+change nothing.
 """
 
 from __future__ import annotations
@@ -35,7 +44,7 @@ from calib_oed.parameters import ParameterSpace
 
 @dataclass(frozen=True, eq=False)
 class SetupState:
-    """Robot and sensor at parameters ``p``, evaluated at configurations ``q``.
+    r"""Robot and sensor at parameters ``p``, evaluated at configurations ``q``.
 
     Attributes:
         space: The parameter layout.
@@ -45,6 +54,11 @@ class SetupState:
         reflectors: Reflector offsets in the tool frame, (k, 3) [m].
         joint_jr: Right Jacobians of the joint perturbations (n_j, 6, 6), or
             None when all joint perturbations are zero.
+        torque: Gravity torques :math:`\tau_g(q)` at the commanded
+            configurations (n, nv) [N·m] when compliance is modelled, else None;
+            ``kin`` is then evaluated at :math:`q_{eff} = q + c\circ\tau_g`.
+        torque_q: :math:`\partial\tau_g/\partial q` (n, nv, nv), with
+            compliance and ``jacobian=True``, else None.
     """
 
     space: ParameterSpace
@@ -53,6 +67,8 @@ class SetupState:
     tracker: pin.SE3
     reflectors: np.ndarray
     joint_jr: np.ndarray | None
+    torque: np.ndarray | None = None
+    torque_q: np.ndarray | None = None
 
     @property
     def n(self) -> int:
@@ -74,6 +90,67 @@ class SetupState:
         n, d, _ = d_eps.shape
         blocks = d_eps.reshape(n, d, -1, 6)
         return np.einsum("ndjk,jkl->ndjl", blocks, self.joint_jr).reshape(n, d, -1)
+
+    # ------------------------------------------------------------ compliance
+    @cached_property
+    def config_chain(self) -> np.ndarray | None:
+        r""":math:`D = \partial q_{eff}/\partial q = I + \mathrm{diag}(c)\,\partial\tau_g/\partial q`,
+        (n, nv, nv), or None without compliance (:math:`D = I`)."""
+        if self.torque is None:
+            return None
+        if self.torque_q is None:
+            raise ValueError("configuration derivatives with compliance need the gravity torque "
+                             "derivatives: evaluate the set-up with jacobian=True")
+        c = self.p[self.space.compliance_slice]
+        return np.eye(self.torque.shape[1])[None] + c[None, :, None] * self.torque_q
+
+    def chain_config(self, d_qeff: np.ndarray) -> np.ndarray:
+        r"""A derivative along :math:`q_{eff}` (last axis nv) to one along :math:`q`: times :math:`D`."""
+        d = self.config_chain
+        if d is None:
+            return d_qeff
+        return np.einsum("n...l,nlk->n...k", d_qeff, d)
+
+    def _along_axes(self, d_eps: np.ndarray) -> np.ndarray:
+        r""":math:`(\partial h/\partial\epsilon_i)\,S_i` per joint: (n, d, 6 n_j, ...) -> (n, d, n_j, ...)."""
+        n, d = d_eps.shape[:2]
+        blocks = d_eps.reshape(n, d, -1, 6, *d_eps.shape[3:])
+        return np.einsum("ndjk...,jk->ndj...", blocks, self.space.gravity.axes)
+
+    def fill_joint_columns(self, out: np.ndarray, d_eps: np.ndarray) -> None:
+        r"""Write the joint (and compliance) columns of :math:`\partial h/\partial p` into ``out``.
+
+        ``d_eps`` (n, d, 6 n_j) is :math:`\partial h/\partial\epsilon`; joint
+        columns :meth:`joint_param_sensitivity`, compliance columns
+        :math:`(\partial h/\partial\epsilon_i)\,S_i\,\tau_i = (\partial h/\partial q_{eff,i})\,\tau_i`.
+        """
+        space = self.space
+        out[..., space.joints_slice] = self.joint_param_sensitivity(d_eps)
+        if self.torque is not None:
+            out[..., space.compliance_slice] = self._along_axes(d_eps) * self.torque[:, None, :]
+
+    def finish_param_config(self, mixed: np.ndarray, d_eps: np.ndarray,
+                            d_eps_q: np.ndarray) -> np.ndarray:
+        r"""Mixed derivative along :math:`q_{eff}` -> along :math:`q`, with the compliance columns.
+
+        ``mixed`` (n, d, n_p, nv) holds the geometric columns differentiated
+        along :math:`q_{eff}`; ``d_eps`` (n, d, 6 n_j) is
+        :math:`\partial h/\partial\epsilon` and ``d_eps_q`` (n, d, 6 n_j, nv)
+        its derivative along :math:`q_{eff}`. Geometric columns times :math:`D`;
+        compliance column ``i`` along :math:`q_k`:
+        :math:`\sum_l H_{il} D_{lk}\,\tau_i + (\partial h/\partial q_{eff,i})\,\partial\tau_i/\partial q_k`
+        with :math:`H_{il} = (\partial^2 h/\partial\epsilon_i\,\partial q_{eff,l})\,S_i`.
+        """
+        if self.torque is None:
+            return mixed
+        d = self.config_chain
+        out = np.einsum("ndpl,nlk->ndpk", mixed, d)
+        hess = np.einsum("ndil,nlk->ndik", self._along_axes(d_eps_q), d)
+        first = self._along_axes(d_eps)  # (n, d, nj)
+        out[:, :, self.space.compliance_slice, :] = (
+            hess * self.torque[:, None, :, None] + first[:, :, :, None] * self.torque_q[:, None]
+        )
+        return out
 
     def tracker_point_sensitivity(self, y: np.ndarray) -> np.ndarray:
         r"""Derivative of :math:`y = T_{W,T}(\delta_T)^{-1} x` w.r.t. :math:`\delta_T`.
@@ -131,7 +208,7 @@ class SetupState:
             )
         if reflector is not None:
             out[:, :, space.reflector_slice(reflector)] = d_refl
-        out[:, :, space.joints_slice] = self.joint_param_sensitivity(d_eps)
+        self.fill_joint_columns(out, d_eps)
         return out
 
     def joint_param_config_sensitivity(self, d_eps_q: np.ndarray) -> np.ndarray:
@@ -179,24 +256,32 @@ class SetupState:
             rot = self.tracker.rotation.T @ rot
         d_eps = np.einsum("nab,nbcq->nacq", rot, d_eps)
         out[:, :, space.joints_slice, :] = self.joint_param_config_sensitivity(d_eps)
+        first = None
+        if self.torque is not None:  # dh/d(eps) before the J_r chain, for the compliance columns
+            first = np.einsum("nab,nbc->nac", rot, lk)
         if reflector is not None:
             # R [w_k]x e_m = R (w_k x e_m)
             refl = np.einsum("nab,nbmq->namq", rot, skew(np.moveaxis(omega, 1, 2)).transpose(0, 2, 3, 1))
             out[:, :, space.reflector_slice(reflector), :] = refl
         if frame == "tracker":
-            dy = self.tool_point_config_jacobian(c, frame)  # (n, 3, nv)
+            dy = self._tool_point_qeff_jacobian(c, frame)  # (n, 3, nv) along q_eff
             trk = np.zeros((n, nv, 3, 6))
             trk[:, :, :, 3:] = skew(np.moveaxis(dy, 1, 2))
             delta = self.p[space.tracker_slice]
             if np.any(delta):
                 trk = trk @ pin.Jexp6(delta)
             out[:, :, space.tracker_slice, :] = np.moveaxis(trk, 1, 3)
-        return out
+        if first is None:
+            return out
+        return self.finish_param_config(out, first, d_eps)
 
-    def tool_point_config_jacobian(self, offset: np.ndarray, frame: str) -> np.ndarray:
-        r""":math:`\partial x/\partial q` of :meth:`tool_point`, (n, 3, nv)."""
+    def _tool_point_qeff_jacobian(self, offset: np.ndarray, frame: str) -> np.ndarray:
         d_q = self.kin.point_sensitivity(offset, "jacobian")
         return self.tracker.rotation.T @ d_q if frame == "tracker" else d_q
+
+    def tool_point_config_jacobian(self, offset: np.ndarray, frame: str) -> np.ndarray:
+        r""":math:`\partial x/\partial q` of :meth:`tool_point`, (n, 3, nv) (times :math:`D` with compliance)."""
+        return self.chain_config(self._tool_point_qeff_jacobian(offset, frame))
 
 
 def evaluate_setup(
@@ -207,10 +292,19 @@ def evaluate_setup(
     regressor: bool = True,
     jacobian: bool = True,
 ) -> SetupState:
-    """Perturb the robot and the sensor by ``p`` and run the kinematics at ``q`` (n, nq)."""
+    r"""Perturb the robot and the sensor by ``p`` and run the kinematics at ``q`` (n, nq).
+
+    With compliance modelled the kinematics run at :math:`q + c\circ\tau_g(q)`,
+    and the state carries :math:`\tau_g` (and its derivative when ``jacobian``).
+    """
     p = space.check(p)
     q = space.robot.check_configurations(q)
     model = space.perturbed_model(p)
+    torque = torque_q = None
+    if space.gravity is not None:
+        torque = space.gravity.torques(q)
+        torque_q = space.gravity.torque_derivatives(q) if jacobian else None
+        q = q + p[space.compliance_slice] * torque
     kin = compute_tool_kinematics(
         model, space.robot.tool_frame_id, q, regressor=regressor, jacobian=jacobian
     )
@@ -221,6 +315,8 @@ def evaluate_setup(
         tracker=space.tracker_placement(p),
         reflectors=space.reflector_offsets(p),
         joint_jr=space.joint_exp_jacobians(p),
+        torque=torque,
+        torque_q=torque_q,
     )
 
 

@@ -99,14 +99,15 @@ class PoseMeasurement(MeasurementModel):
             tracker = tracker @ pin.Jexp6(delta_t)
         out[:, 3:, space.tracker_slice] = jlog @ tracker
         omega = self.probe_rotation.T @ state.kin.regressor[:, 3:, :]
-        out[:, 3:, space.joints_slice] = state.joint_param_sensitivity(jlog @ omega)
+        rows = out[:, 3:]  # a view: the state writes the joint and compliance columns into it
+        state.fill_joint_columns(rows, jlog @ omega)
         return out
 
     def compute_config_jacobian(self, state: SetupState) -> np.ndarray:
         out = np.empty((state.n, 6, state.kin.jacobian.shape[2]))
         out[:, :3, :] = self._position.compute_config_jacobian(state)
         jlog = self._jlog(self._rotations(state))
-        out[:, 3:, :] = jlog @ (self.probe_rotation.T @ state.kin.jacobian[:, 3:, :])
+        out[:, 3:, :] = state.chain_config(jlog @ (self.probe_rotation.T @ state.kin.jacobian[:, 3:, :]))
         return out
 
     def compute_param_config_jacobian(self, state: SetupState) -> np.ndarray:
@@ -124,7 +125,9 @@ class PoseMeasurement(MeasurementModel):
             \partial_k\big(J_{\log} [\,0\;\; -R_{T,P}^\top]\big)
                 &= H_k [\,0\;\; -R_{T,P}^\top] + J_{\log} [\,0\;\; [w_k]_\times R_{T,P}^\top],
 
-        each times the right Jacobians :math:`J_r` of the perturbations.
+        each times the right Jacobians :math:`J_r` of the perturbations (all
+        along :math:`q_{eff}`; with compliance the state adds :math:`D` and the
+        compliance columns, :meth:`SetupState.finish_param_config`).
         """
         space = state.space
         n = state.n
@@ -139,7 +142,8 @@ class PoseMeasurement(MeasurementModel):
         omega_q = np.einsum("ab,nbcq->nacq", self.probe_rotation.T,
                             state.regressor_q[:, 3:])
         joints = np.einsum("nqab,nbc->nacq", hlog, omega) + np.einsum("nab,nbcq->nacq", jlog, omega_q)
-        out[:, 3:, space.joints_slice] = state.joint_param_config_sensitivity(joints)
+        rows = np.zeros((n, 3, space.size, nv))
+        rows[:, :, space.joints_slice] = state.joint_param_config_sensitivity(joints)
         rot_t = np.transpose(rot, (0, 2, 1))
         trk = np.zeros((n, nv, 3, 6))
         trk[:, :, :, 3:] = (-np.einsum("nqab,nbc->nqac", hlog, rot_t)
@@ -147,5 +151,6 @@ class PoseMeasurement(MeasurementModel):
         delta_t = state.p[space.tracker_slice]
         if np.any(delta_t):
             trk = trk @ pin.Jexp6(delta_t)
-        out[:, 3:, space.tracker_slice] = np.moveaxis(trk, 1, 3)
+        rows[:, :, space.tracker_slice] = np.moveaxis(trk, 1, 3)
+        out[:, 3:] = state.finish_param_config(rows, jlog @ omega, joints)
         return out

@@ -1,0 +1,265 @@
+"""Joint compliance: gravity torques, the compliance columns and every derivative with compliance."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import numpy as np
+import pinocchio as pin
+import pytest
+from conftest import central_difference, relative_error
+
+from calib_oed.cli import EXIT_OK, main
+from calib_oed.compliance import STIFFNESS_RANGE, Compliance, GravityLoad
+from calib_oed.exceptions import SceneError
+from calib_oed.identification import identify
+from calib_oed.kpi import TcpKpi
+from calib_oed.measurements import PoseMeasurement, TrackerPosition, evaluate_setup
+from calib_oed.parameters import Group, ParameterSpace
+from calib_oed.problem import CalibrationProblem
+from calib_oed.scene import ComplianceSpec, load_scene, scene_from_dict
+from calib_oed.simulation import draw_true_parameters, simulate_observations
+
+MODELS = {
+    "position": lambda: TrackerPosition(1, sigma=1e-5),
+    "pose": lambda: PoseMeasurement(0, sigma=1e-5, sigma_angle=2e-5),
+}
+PAYLOAD = Compliance(12.0, [0.02, -0.03, 0.15])
+REFLECTORS = np.array(((0.03, -0.01, 0.05), (0.0, 0.04, 0.02)))
+TOL = 1e-6
+
+
+def _tracker():
+    return pin.SE3(pin.rpy.rpyToMatrix(0.02, -0.03, 2.4), np.array([1.8, 1.6, 0.4]))
+
+
+@pytest.fixture(scope="module")
+def cspace(robot):
+    return ParameterSpace(robot, _tracker(), REFLECTORS, compliance=PAYLOAD)
+
+
+@pytest.fixture(scope="module")
+def cparams(cspace):
+    """Geometric parameters of a few mm / mrad and compliances of about 1 mrad/(N m) per N m of torque.
+
+    The compliances are scaled so that the largest deflection is tens of mrad: every term of
+    D = I + diag(c) dtau/dq is then visible in the differences.
+    """
+    p = cspace.random(4, 5e-3, 5e-3)
+    q = cspace.robot.random_configurations(50, 0)
+    tau = np.abs(cspace.gravity.torques(q)).max(axis=0)
+    c = np.random.default_rng(5).uniform(0.5, 1.0, cspace.n_joints) * 0.02 / np.maximum(tau, 1.0)
+    p[cspace.compliance_slice] = c
+    return p
+
+
+def _scaled_difference(fun, space, p):
+    """Central differences along unit-scaled parameters (1 mm, 1 mrad, 1 mrad/(kN m)), unscaled back."""
+    scale = space.unit_scale
+    return central_difference(lambda x: fun(p + scale * x), np.zeros(space.size), eps=1e-3) / scale
+
+
+def _compare_scaled(analytic, numeric, scale, axis=-1):
+    shape = [1] * analytic.ndim
+    shape[axis] = -1
+    s = scale.reshape(shape)
+    return relative_error(analytic * s, numeric * s)
+
+
+def test_layout_appends_one_compliance_per_joint(robot):
+    rigid = ParameterSpace(robot, _tracker(), REFLECTORS)
+    space = ParameterSpace(robot, _tracker(), REFLECTORS, compliance=PAYLOAD)
+    n = robot.nq
+    assert space.size == rigid.size + n and rigid.compliance_slice == slice(rigid.size, rigid.size)
+    assert space.names[: rigid.size] == rigid.names
+    assert space.names[rigid.size:] == tuple(f"joint{i}.c" for i in range(1, n + 1))
+    comp = space.parameters[space.compliance_slice.start]
+    assert comp.group == Group.COMPLIANCE and comp.report_unit == "mrad/kNm"
+    assert comp.report_scale == 1e-6
+    # the rigid space draws the same random vector as before compliance existed
+    np.testing.assert_array_equal(rigid.random(3), np.random.default_rng(3).normal(size=rigid.size)
+                                  * np.where([p.unit == "m" for p in rigid.parameters], 0.5e-3, 0.5e-3))
+
+
+def test_gravity_torque_against_pinocchio_with_the_payload(robot):
+    """tau_g = -g(q) of the model with the payload appended as a body at the tool frame."""
+    load = GravityLoad(robot.model, robot.tool_frame_id, PAYLOAD)
+    q = robot.random_configurations(4, 3)
+    model = robot.model.copy()
+    frame = model.frames[robot.tool_frame_id]
+    model.appendBodyToJoint(frame.parentJoint,
+                            pin.Inertia(PAYLOAD.payload_mass, np.array(PAYLOAD.payload_com),
+                                        np.zeros((3, 3))),
+                            frame.placement)
+    data = model.createData()
+    expected = np.array([-pin.computeGeneralizedGravity(model, data, qk) for qk in q])
+    np.testing.assert_allclose(load.torques(q), expected, rtol=1e-12, atol=1e-9)
+    # the payload adds torque: its own contribution is m g along the lever arms
+    bare = GravityLoad(robot.model, robot.tool_frame_id, Compliance())
+    assert np.abs(load.torques(q) - bare.torques(q)).max() > 1.0
+    numeric = np.stack([central_difference(lambda x: load.torques(x[None])[0], qk) for qk in q])
+    assert relative_error(load.torque_derivatives(q), numeric) < 1e-7
+
+
+def test_deflection_lowers_the_potential_energy(cspace, cparams):
+    """With c > 0 the arm sags: the effective configuration has less potential energy."""
+    load = cspace.gravity
+    q = cspace.robot.random_configurations(5, 8)
+    state = evaluate_setup(cspace, cparams, q, regressor=False, jacobian=False)
+    data = load.model.createData()
+    for qk, qe in zip(q, state.kin.q, strict=True):
+        assert pin.computePotentialEnergy(load.model, data, qe) < pin.computePotentialEnergy(
+            load.model, data, qk)
+
+
+@pytest.mark.parametrize("kind", MODELS)
+def test_param_jacobian(cspace, cparams, kind):
+    model = MODELS[kind]()
+    q = cspace.robot.random_configurations(3, 11)
+    analytic = model.compute_param_jacobian(evaluate_setup(cspace, cparams, q))
+    numeric = _scaled_difference(lambda p: model.compute_values(evaluate_setup(cspace, p, q)),
+                                 cspace, cparams)
+    assert _compare_scaled(analytic, numeric, cspace.unit_scale) < TOL
+    assert np.abs(analytic[:, :, cspace.compliance_slice]).max() > 0
+
+
+@pytest.mark.parametrize("kind", MODELS)
+def test_config_jacobian(cspace, cparams, kind):
+    model = MODELS[kind]()
+    q = cspace.robot.random_configurations(3, 12)
+    analytic = model.compute_config_jacobian(evaluate_setup(cspace, cparams, q))
+    numeric = np.stack([
+        central_difference(lambda qk: model.compute_values(evaluate_setup(cspace, cparams, qk))[0], q[k])
+        for k in range(len(q))
+    ])
+    assert relative_error(analytic, numeric) < TOL
+    # D = I + diag(c) dtau/dq is far from I here: the rigid formula at q_eff would fail
+    d = evaluate_setup(cspace, cparams, q).config_chain
+    assert np.abs(d - np.eye(cspace.robot.nq)).max() > 1e-3
+
+
+@pytest.mark.parametrize("kind", MODELS)
+def test_param_config_jacobian(cspace, cparams, kind):
+    """d2h/dp dq over all columns (geometric and compliance) against differences of dh/dp."""
+    model = MODELS[kind]()
+    q = cspace.robot.random_configurations(2, 13)
+    analytic = model.compute_param_config_jacobian(evaluate_setup(cspace, cparams, q))
+    numeric = np.stack([
+        central_difference(
+            lambda qk, k=k: model.compute_param_jacobian(
+                evaluate_setup(cspace, cparams, np.vstack([q[:k], qk, q[k + 1:]])))[k],
+            q[k])
+        for k in range(len(q))
+    ])
+    assert _compare_scaled(analytic, numeric, cspace.unit_scale, axis=2) < TOL
+    comp = cspace.compliance_slice
+    assert _compare_scaled(analytic[:, :, comp], numeric[:, :, comp], cspace.unit_scale[comp],
+                           axis=2) < TOL
+
+
+@pytest.mark.parametrize("frame", ["world", "tracker"])
+def test_kpi_jacobian(cspace, cparams, frame):
+    q = cspace.robot.random_configurations(2, 21)
+    kpi = TcpKpi(q, point=np.array([0.01, -0.02, 0.1]), frame=frame)
+    g = kpi.compute_param_jacobian(cspace, cparams)
+    numeric = _scaled_difference(lambda x: kpi.compute_values(cspace, x).ravel(), cspace, cparams)
+    assert _compare_scaled(g, numeric, cspace.unit_scale) < TOL
+    assert np.abs(g[:, cspace.compliance_slice]).max() > 0
+
+
+@pytest.mark.parametrize("kind", MODELS)
+def test_zero_compliance_gives_the_rigid_values_exactly(robot, kind):
+    rigid = ParameterSpace(robot, _tracker(), REFLECTORS)
+    space = ParameterSpace(robot, _tracker(), REFLECTORS, compliance=PAYLOAD)
+    p = rigid.random(2, 5e-3, 5e-3)
+    pc = np.concatenate([p, np.zeros(robot.nq)])
+    q = robot.random_configurations(3, 4)
+    model = MODELS[kind]()
+    a, b = evaluate_setup(rigid, p, q), evaluate_setup(space, pc, q)
+    n = rigid.size
+    np.testing.assert_array_equal(model.compute_values(a), model.compute_values(b))
+    np.testing.assert_array_equal(model.compute_param_jacobian(a),
+                                  model.compute_param_jacobian(b)[:, :, :n])
+    np.testing.assert_array_equal(model.compute_config_jacobian(a), model.compute_config_jacobian(b))
+    np.testing.assert_array_equal(model.compute_param_config_jacobian(a),
+                                  model.compute_param_config_jacobian(b)[:, :, :n])
+
+
+def test_scene_block_units_and_errors():
+    data = load_scene("fms_kr300").compliance
+    assert data is not None and data.enabled is False and data.model() is None
+    assert data.payload.payload_mass == 300.0
+    np.testing.assert_allclose(data.payload.payload_com, [0, 0, 0.2])
+    from importlib import resources
+
+    import yaml
+
+    text = (resources.files("calib_oed") / "scenes" / "fms_kr300.yaml").read_text()
+    raw = yaml.safe_load(text)
+    raw["robot"]["compliance"] = {"payload": {"mass": 10, "com": [0, 0, 100]}}
+    scene = scene_from_dict(raw)
+    assert scene.compliance.enabled and scene.compliance.model().payload_mass == 10.0
+    space = CalibrationProblem.from_scene(scene).space
+    assert space.compliance is not None and space.names[-1] == "joint6.c"
+    raw["robot"]["compliance"] = {"payload": {"weight": 10}}
+    with pytest.raises(SceneError, match=r"robot\.compliance\.payload\.weight.*mass, com"):
+        scene_from_dict(raw)
+    raw["robot"]["compliance"] = {"enabled": "yes"}
+    with pytest.raises(SceneError, match="true or false"):
+        scene_from_dict(raw)
+
+
+def test_identification_recovers_the_compliance_within_its_confidence():
+    """kr16, 10 kg payload: simulated truth (stiffness 1e6..1e7 N m/rad), 40 random poses."""
+    scene = load_scene("fms_kr16")
+    scene = dataclasses.replace(scene, compliance=ComplianceSpec(True, Compliance(10.0, [0, 0, 0.1])))
+    problem = CalibrationProblem.from_scene(scene)
+    space = problem.space
+    report = problem.identifiability
+    comp_free = [i for i in report.free_indices if i >= space.compliance_slice.start]
+    assert {space.names[i] for i in comp_free} >= {"joint2.c", "joint3.c"}
+    assert "joint1.c" in {f.name for f in report.fixed}  # vertical axis: no gravity torque
+    rng = np.random.default_rng(3)
+    p_true = draw_true_parameters(space, report.free_indices, rng)
+    c = p_true[comp_free]
+    assert np.all((c >= 1 / STIFFNESS_RANGE[1]) & (c <= 1 / STIFFNESS_RANGE[0]))
+    q = problem.robot.random_configurations(40, 1)
+    blocks = simulate_observations(space, problem.models, q, p_true, rng)
+    result = identify(space, blocks, report)
+    for i in comp_free:
+        est = result.estimate(space.names[i])
+        assert abs(est.value - p_true[i]) < 4 * est.std, space.names[i]
+        if space.names[i] in ("joint2.c", "joint3.c"):  # the main axes carry the load
+            assert est.std < 0.2 * p_true[i]  # determined to better than 20 %
+
+
+def test_cli_identifiability_with_compliance(capsys):
+    assert main(["identifiability", "fms_kr300", "--compliance", "--json"]) == EXIT_OK
+    data = json.loads(capsys.readouterr().out)
+    comp = data["compliance"]
+    assert comp["payload_kg"] == 300.0 and comp["parameters"] == [f"joint{i}.c" for i in range(1, 7)]
+    assert data["n_parameters"] == 51
+    fixed = {f["name"] for f in data["fixed"]}
+    assert {"joint1.c", "joint6.c"} <= fixed  # vertical A1; A6 carries the payload on its axis
+    assert {"joint2.c", "joint3.c", "joint4.c", "joint5.c"} <= set(data["free"])
+    assert main(["identifiability", "fms_kr300", "--payload-kg", "0"]) == EXIT_OK
+    out = capsys.readouterr().out
+    assert "payload 0 kg" in out and "joint1.c" in out and "no gravity torque" in out
+
+
+def test_sensor_yaml_carries_the_compliances(tmp_path):
+    import yaml
+
+    from calib_oed.export import read_sensor_yaml, write_sensor_yaml
+    from calib_oed.robot import load_robot
+
+    space = ParameterSpace(load_robot("kr16"), _tracker(), REFLECTORS, compliance=PAYLOAD)
+    p = space.zeros()
+    p[space.index("joint2.c")] = 2e-7
+    path = write_sensor_yaml(space, p, tmp_path / "s.yaml")
+    joints = yaml.safe_load(path.read_text())["compliance"]["joints"]
+    assert joints[1]["compliance_si"] == 2e-7 and joints[1]["stiffness_si"] == pytest.approx(5e6)
+    assert joints[0]["stiffness_si"] is None
+    _, offsets = read_sensor_yaml(path)
+    np.testing.assert_allclose(offsets, REFLECTORS)
