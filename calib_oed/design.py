@@ -28,7 +28,7 @@ from calib_oed.feasibility.constraints import FEASIBILITY_TOL
 from calib_oed.feasibility.margins import margin_report
 from calib_oed.feasibility.sampling import sample_feasible
 from calib_oed.scene import Scene
-from calib_oed.sqp import SQPSettings, solve_sqp
+from calib_oed.sqp import SQPResult, SQPSettings, solve_sqp
 from calib_oed.workflow import Setup
 
 #: SQP settings of the design problem (objective scaled to 1 at the start, x in rad).
@@ -259,23 +259,39 @@ def _optimise_starts(s, n, criterion, start, seed, n_starts, collisions, setting
     best = None
     for start_seed, q0 in _start_designs(s, n, start, seed, n_starts, criterion, pool):
         objective = DesignObjective(s.problem, criterion)
-        phi0 = objective.compute_value(q0)
-        # |phi0| (log-type criteria can be negative): the solver sees O(1) numbers
-        nlp = DesignProblem(objective, s.feasibility, len(q0), collisions=collisions,
-                            scale=max(abs(phi0), 1e-300))
-        structured = structured_hessian and nlp.compute_curvature(q0.ravel()) is not None
-        result = solve_sqp(nlp.compute_objective, q0.ravel(), constraints=nlp.compute_constraints,
-                           bounds=nlp.bounds, settings=settings or DESIGN_SQP, callback=callback,
-                           hessian_model=nlp.compute_curvature if structured else None,
-                           block_size=nlp.nq)
-        x = result.x
-        if nlp.max_violation(x) > FEASIBILITY_TOL:
-            x = project_feasible(nlp, x)
-        q = nlp.configurations(x)
-        value = objective.compute_value(q)
+        value, q, phi0, result = optimise_from(objective, s.feasibility, q0, collisions=collisions,
+                                               settings=settings, callback=callback,
+                                               structured_hessian=structured_hessian)
         if best is None or value < best[0]:
             best = (value, q, phi0, result, start_seed)
     return best
+
+
+def optimise_from(objective: DesignObjective, feasibility, q0: np.ndarray, *, collisions: bool = True,
+                  settings: SQPSettings | None = None, callback=None,
+                  structured_hessian: bool = False) -> tuple[float, np.ndarray, float, SQPResult]:
+    r"""One SQP run of ``objective`` (its prior and parameters included) from the design ``q0``.
+
+    The objective is divided by :math:`|\phi(q^0)|` (log-type criteria can be
+    negative) so the solver sees O(1) numbers; a last iterate that violates a
+    constraint is projected back onto the feasible set.
+
+    Returns:
+        ``(value, q, start value, SQP result)``: the criterion at the final design ``q`` (n, nq).
+    """
+    phi0 = objective.compute_value(q0)
+    nlp = DesignProblem(objective, feasibility, len(q0), collisions=collisions,
+                        scale=max(abs(phi0), 1e-300))
+    structured = structured_hessian and nlp.compute_curvature(q0.ravel()) is not None
+    result = solve_sqp(nlp.compute_objective, q0.ravel(), constraints=nlp.compute_constraints,
+                       bounds=nlp.bounds, settings=settings or DESIGN_SQP, callback=callback,
+                       hessian_model=nlp.compute_curvature if structured else None,
+                       block_size=nlp.nq)
+    x = result.x
+    if nlp.max_violation(x) > FEASIBILITY_TOL:
+        x = project_feasible(nlp, x)
+    q = nlp.configurations(x).copy()
+    return float(objective.compute_value(q)), q, float(phi0), result
 
 
 def exchange_baseline(

@@ -39,17 +39,15 @@ from threadpoolctl import threadpool_limits
 
 from calib_oed.criteria import CRITERIA
 from calib_oed.design import design as optimal_design
-from calib_oed.design import project_feasible
+from calib_oed.design import optimise_from
 from calib_oed.design_objective import DesignObjective
-from calib_oed.design_problem import DesignProblem
 from calib_oed.exceptions import SequentialError
 from calib_oed.exchange import exchange_design
 from calib_oed.feasibility.bodies import compute_body_states
-from calib_oed.feasibility.constraints import FEASIBILITY_TOL
 from calib_oed.feasibility.sampling import sample_feasible
 from calib_oed.identification import identify
 from calib_oed.simulation import draw_true_parameters, simulate_observations
-from calib_oed.sqp import SQPSettings, solve_sqp
+from calib_oed.sqp import SQPSettings
 from calib_oed.workflow import Setup, heuristic_design, tcp_errors
 
 #: SQP settings of one batch (a few poses on top of a prior: short runs suffice).
@@ -207,15 +205,8 @@ class SequentialDesigner:
             start = exchange_design(objective.compute_blocks(pool), k, objective.criterion,
                                     rng=seed, prior=objective.prior)
             q0 = pool[np.asarray(start.indices)]
-            phi0 = objective.compute_value(q0)
-            nlp = DesignProblem(objective, self.setup.feasibility, k, scale=max(abs(phi0), 1e-300))
-            result = solve_sqp(nlp.compute_objective, q0.ravel(), constraints=nlp.compute_constraints,
-                               bounds=nlp.bounds, settings=self.settings, block_size=nlp.nq)
-            x = result.x
-            if nlp.max_violation(x) > FEASIBILITY_TOL:
-                x = project_feasible(nlp, x)
-            q = nlp.configurations(x).copy()
-            value = objective.compute_value(q)
+            value, q, phi0, result = optimise_from(objective, self.setup.feasibility, q0,
+                                                   settings=self.settings)
         feasible = bool(self.setup.feasibility.compute(q, jacobian=False).feasible.all())
         method = "sqp"
         if not feasible or not value <= phi0:
