@@ -53,7 +53,8 @@ from lxml import etree
 
 import calib_oed
 from calib_oed import io_utils
-from calib_oed.exceptions import ExportError
+from calib_oed.compliance import Compliance
+from calib_oed.exceptions import CalibOedError, ExportError
 from calib_oed.parameters import ParameterSpace
 
 #: Version tag of the sensor YAML layout.
@@ -332,6 +333,48 @@ def read_sensor_yaml(path: str | os.PathLike) -> tuple[pin.SE3, np.ndarray]:
     return pin.SE3(rot, t), np.array(offsets)
 
 
+def read_sensor_compliance(path: str | os.PathLike, joint_names) -> tuple[Compliance, np.ndarray] | None:
+    """The joint compliances of a sensor file written with compliance modelled, or None.
+
+    Args:
+        path: The sensor file.
+        joint_names: The robot's joints; the file's must be these, in this order.
+
+    Returns:
+        The payload they were identified under and the compliances (n_joints,)
+        [rad/(N m); m/N for a prismatic joint], or None if the file has no
+        ``compliance`` section.
+
+    Raises:
+        ExportError: a malformed section or joints that are not the robot's.
+    """
+    path = Path(path)
+    try:
+        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
+        raise ExportError(f"cannot read sensor file {path}: {exc}") from exc
+    section = data.get("compliance") if isinstance(data, dict) else None
+    if section is None:
+        return None
+    joints = section.get("joints") if isinstance(section, dict) else None
+    if not isinstance(joints, list) or not all(isinstance(j, dict) for j in joints):
+        raise ExportError(f"{path}: compliance.joints must be a list of mappings")
+    names = [j.get("joint") for j in joints]
+    if names != list(joint_names):
+        raise ExportError(f"{path}: compliance.joints are {names}, the robot's joints are {list(joint_names)}")
+    try:
+        mass = float(section["payload_kg"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ExportError(f"{path}: compliance.payload_kg is missing or not numeric") from exc
+    com = _array(path, section, "payload_com_m", (3,), "compliance.")
+    c = np.array([_array(path, j, "compliance_si", (), f"compliance.joints[{i}].")
+                  for i, j in enumerate(joints)], dtype=float)
+    try:
+        return Compliance(mass, com), c
+    except CalibOedError as exc:
+        raise ExportError(f"{path}: compliance: {exc}") from exc
+
+
 def _array(path: Path, data: dict, key: str, shape: tuple[int, ...], prefix: str) -> np.ndarray:
     try:
         arr = np.asarray(data[key], dtype=float)
@@ -412,6 +455,7 @@ __all__ = [
     "calibrated_urdf_text",
     "export_calibrated_urdf",
     "export_calibration",
+    "read_sensor_compliance",
     "read_sensor_yaml",
     "sensor_yaml_text",
     "write_sensor_yaml",

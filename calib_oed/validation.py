@@ -17,6 +17,12 @@ reports]; 6-D probe rows also have a rotation residual
 model the errors are measurement noise alone: their RMS is then the *noise
 floor* :math:`\sqrt{\sum_a \sigma_a^2}` per row (3 axes), which the report
 shows next to the measured RMS.
+
+A calibration identified with joint compliance modelled keeps the
+compliances in the sensor YAML (a URDF has no place for them); the
+calibrated prediction then evaluates the calibrated URDF at the deflected
+configuration :math:`q + c \circ \tau_g(q)` under the payload written there
+(:mod:`calib_oed.compliance`).
 """
 
 from __future__ import annotations
@@ -30,7 +36,7 @@ import pinocchio as pin
 
 from calib_oed.data import MeasurementSet
 from calib_oed.exceptions import ExportError, MeasurementFileError
-from calib_oed.export import read_sensor_yaml
+from calib_oed.export import read_sensor_compliance, read_sensor_yaml
 from calib_oed.measurements.base import evaluate_setup
 from calib_oed.parameters import ParameterSpace
 from calib_oed.robot import load_robot
@@ -148,12 +154,12 @@ def find_calibration_files(path: str | os.PathLike, robot_name: str) -> dict[str
     return {"urdf": urdf, "sensor": sensor}
 
 
-def _errors(space: ParameterSpace, mset: MeasurementSet, blocks, model: str) -> ErrorStatistics:
+def _errors(space: ParameterSpace, mset: MeasurementSet, blocks, model: str, p=None) -> ErrorStatistics:
     position = np.empty(mset.n)
     rotation = None if mset.rotations is None else np.empty(mset.n)
     for j, block in zip(mset.reflectors, blocks, strict=True):
         rows = np.flatnonzero(mset.reflector == j)
-        state = evaluate_setup(space, None, block.q, regressor=False, jacobian=False)
+        state = evaluate_setup(space, p, block.q, regressor=False, jacobian=False)
         predicted = block.model.compute_values(state)
         position[rows] = np.linalg.norm(block.values[:, :3] - predicted[:, :3], axis=1) * MM_PER_M
         if rotation is not None:
@@ -182,6 +188,7 @@ def validate_calibration(scene: Scene, calibration: str | os.PathLike, mset: Mea
         raise ExportError(f"{files['urdf']}: joints {list(calibrated.joint_names)} are not the scene "
                           f"robot's {list(robot.joint_names)}")
     tracker, offsets = read_sensor_yaml(files["sensor"])
+    compliance = read_sensor_compliance(files["sensor"], robot.joint_names)
     if len(offsets) != len(scene.reflectors) or max(mset.reflectors) >= len(offsets):
         raise MeasurementFileError(mset.source, [(None, f"the data use reflectors {list(mset.reflectors)}, "
                                                         f"the calibration has {len(offsets)}")],
@@ -190,11 +197,16 @@ def validate_calibration(scene: Scene, calibration: str | os.PathLike, mset: Mea
     blocks = mset.blocks(sigma=sigma, sigma_angle=sigma_angle)
     nominal_space = ParameterSpace(robot, scene.tracker.placement(),
                                    np.array([r.offset for r in scene.reflectors]))
-    calibrated_space = ParameterSpace(calibrated, tracker, offsets)
+    calibrated_space = ParameterSpace(calibrated, tracker, offsets,
+                                      compliance=None if compliance is None else compliance[0])
+    p_calibrated = None
+    if compliance is not None:  # the deflection under gravity on top of the calibrated URDF
+        p_calibrated = calibrated_space.zeros()
+        p_calibrated[calibrated_space.compliance_slice] = compliance[1]
     floor = float(np.sqrt(np.mean(np.concatenate([(b.sigma[:, :3] ** 2).sum(axis=1) for b in blocks]))))
     return ValidationResult(
         nominal=_errors(nominal_space, mset, blocks, "nominal"),
-        calibrated=_errors(calibrated_space, mset, blocks, "calibrated"),
+        calibrated=_errors(calibrated_space, mset, blocks, "calibrated", p_calibrated),
         noise_floor_mm=floor * MM_PER_M,
         source=mset.source,
         files={k: str(v) for k, v in files.items()},

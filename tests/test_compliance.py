@@ -263,3 +263,47 @@ def test_sensor_yaml_carries_the_compliances(tmp_path):
     assert joints[0]["stiffness_si"] is None
     _, offsets = read_sensor_yaml(path)
     np.testing.assert_allclose(offsets, REFLECTORS)
+
+
+def test_validation_applies_the_exported_compliances(capsys, tmp_path):
+    """simulate -> identify -> validate with compliance: the sensor YAML's compliances are used."""
+    run = [("simulate", "fms_kr16", "-n", "40", "--seed", "0", "--truth-seed", "3", "--payload-kg", "10",
+            "-o", str(tmp_path / "m.csv"), "--quiet"),
+           ("simulate", "fms_kr16", "-n", "20", "--seed", "5", "--truth-seed", "3", "--payload-kg", "10",
+            "-o", str(tmp_path / "v.csv"), "--quiet"),
+           ("identify", "fms_kr16", str(tmp_path / "m.csv"), "--payload-kg", "10", "-o", str(tmp_path / "c"),
+            "--json"),
+           ("identify", "fms_kr16", str(tmp_path / "m.csv"), "-o", str(tmp_path / "r"), "--json")]
+    for argv in run:
+        assert main(list(argv)) == EXIT_OK
+    capsys.readouterr()
+    rms = {}
+    for name in ("c", "r"):
+        assert main(["validate", "fms_kr16", str(tmp_path / name), str(tmp_path / "v.csv"), "--json"]) == EXIT_OK
+        data = json.loads(capsys.readouterr().out)
+        rms[name] = data["calibrated"]["rms_mm"] / data["noise_floor_mm"]
+    # the compliance calibration predicts new poses to near the noise floor, the rigid one does not
+    assert rms["c"] < 1.6 < 2.5 < rms["r"]
+
+
+def test_sensor_compliance_section_errors(tmp_path):
+    import yaml
+
+    from calib_oed.exceptions import ExportError
+    from calib_oed.export import read_sensor_compliance, write_sensor_yaml
+
+    scene = dataclasses.replace(load_scene("fms_kr16"), compliance=ComplianceSpec(True, Compliance(10.0)))
+    space = CalibrationProblem.from_scene(scene).space
+    p = space.zeros()
+    p[space.compliance_slice] = 2e-6
+    path = write_sensor_yaml(space, p, tmp_path / "s.yaml")
+    names = space.robot.joint_names
+    payload, c = read_sensor_compliance(path, names)
+    assert payload.payload_mass == 10.0 and np.allclose(c, 2e-6)
+    with pytest.raises(ExportError, match="the robot's joints are"):
+        read_sensor_compliance(path, list(reversed(names)))
+    data = yaml.safe_load(path.read_text())
+    data["compliance"]["joints"][0]["compliance_si"] = "stiff"
+    path.write_text(yaml.safe_dump(data))
+    with pytest.raises(ExportError, match=r"compliance.joints\[0\].compliance_si"):
+        read_sensor_compliance(path, names)
