@@ -611,7 +611,7 @@ def cmd_sequential(args) -> int:
                             criterion=args.criterion, settings=settings, seed=args.seed,
                             follow_pose=args.follow_pose, compare=not args.no_compare,
                             compare_settings=_sqp_settings(args), callback=progress,
-                            initial_design=args.initial_design)
+                            initial_design=args.initial_design, reference_n=args.reference or None)
     paths = {}
     if args.output:
         folder = Path(args.output)
@@ -856,6 +856,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="draw each batch's candidates near the last measured pose")
     p.add_argument("--no-compare", action="store_true", help="skip the fixed KPI-optimal and heuristic "
                    "designs of the comparison")
+    p.add_argument("--reference", type=int, default=60, metavar="N",
+                   help="also report the predicted sigma of a fixed KPI-optimal and a heuristic "
+                   "design of N poses at the final estimate (default 60; 0: skip)")
     p.add_argument("--grid-step", type=_positive_int, default=5, help="sizes of the fixed designs "
                    "compared: the multiples of this from the fewest poses that identify the "
                    "parameters up to --max-measurements (default 5)")

@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from threadpoolctl import threadpool_limits
@@ -298,6 +298,10 @@ class SequentialResult:
         q: All measured configurations, (N, nq) [rad], in measurement order.
         p_true, p_estimate: Simulated truth and final estimate, (n_p,) [SI].
         comparison: Fixed designs' :class:`MeasurementsNeeded` (empty if not asked).
+        reference: Predicted KPI σ [mm] at the final estimate of the fixed
+            ``reference_n``-pose designs, ``{"fixed KPI-optimal": σ, "heuristic": σ}``
+            (empty if not asked).
+        reference_n: Their size (the paper's 60).
     """
 
     scene: str
@@ -313,6 +317,8 @@ class SequentialResult:
     p_estimate: np.ndarray
     comparison: tuple[MeasurementsNeeded, ...] = ()
     initial_design: str = "heuristic"
+    reference: dict = field(default_factory=dict)
+    reference_n: int | None = None
 
     @property
     def n_measurements(self) -> int:
@@ -347,6 +353,7 @@ class SequentialResult:
             "measurements_needed": {"sequential": self.n_measurements if self.reached else None,
                                     **{c.method: c.n for c in self.comparison}},
             "comparison": [c.to_dict() for c in self.comparison],
+            "reference": {"n": self.reference_n, "sigma_mm": dict(self.reference)},
             "q_rad": self.q.tolist(), "check": self.check(),
         }
 
@@ -361,6 +368,9 @@ class SequentialResult:
         lines.append(f"  sequential          {_needed(self.n_measurements if self.reached else None)}")
         for c in self.comparison:
             lines.append(f"  {c.method:<19} {_needed(c.n)}")
+        if self.reference:
+            lines.append(f"fixed {self.reference_n}-pose designs at the final estimate: "
+                         + ", ".join(f"{k} sigma {v:.5f} mm" for k, v in self.reference.items()))
         problems = self.check()
         if problems:
             lines.append("CHECK FAILED: " + "; ".join(problems))
@@ -401,7 +411,7 @@ def run_sequential(setup: Setup, target_sigma_mm: float, *, batch: int = 5, init
                    compare: bool = True, grid: Sequence[int] = DEFAULT_GRID,
                    compare_settings: SQPSettings | None = None,
                    callback: Callable[[SequentialStep], None] | None = None,
-                   initial_design: str = "heuristic") -> SequentialResult:
+                   initial_design: str = "heuristic", reference_n: int | None = 60) -> SequentialResult:
     """Sequential calibration of a simulated robot until the predicted KPI σ reaches the target.
 
     The true robot is the one of
@@ -423,6 +433,9 @@ def run_sequential(setup: Setup, target_sigma_mm: float, *, batch: int = 5, init
             (random feasible poses of ``seed``) or ``"optimal"`` (the
             ``criterion``-optimal design at nominal, SQP with ``compare_settings``
             from the heuristic start of ``seed``).
+        reference_n: With ``compare``, also the predicted σ at the final
+            estimate of a fixed KPI-optimal and a heuristic design of this
+            many poses (None: not computed).
     """
     designer = SequentialDesigner(setup, target_sigma_mm, batch=batch, criterion=criterion,
                                   settings=settings, seed=seed)
@@ -464,7 +477,14 @@ def run_sequential(setup: Setup, target_sigma_mm: float, *, batch: int = 5, init
             measurements_needed(setup, target_sigma_mm, m, grid=grid, p=p_hat, seed=seed,
                                 settings=compare_settings)
             for m in ("fixed KPI-optimal", "heuristic"))
+    reference = {}
+    if compare and reference_n:
+        fixed = {"fixed KPI-optimal": optimal_design(setup, int(reference_n), "kpi", seed=seed,
+                                                     settings=compare_settings).q,
+                 "heuristic": heuristic_design(setup, int(reference_n), seed)}
+        reference = {k: float(problem.kpi_sigma(q, p_hat).max() * 1e3) for k, q in fixed.items()}
     q_all.setflags(write=False)
     return SequentialResult(setup.scene.name, float(target_sigma_mm), int(batch), int(initial),
                             criterion, int(truth_seed), int(seed), tuple(steps), q_all, p_true,
-                            p_hat, comparison, initial_design)
+                            p_hat, comparison, initial_design, reference,
+                            int(reference_n) if reference else None)

@@ -79,6 +79,16 @@ def test_comparison_consistent(run):
     assert d["measurements_needed"]["heuristic"] == heur.n
     text = run.summary()
     assert "sequential" in text and "heuristic" in text and "CHECK FAILED" not in text
+    # the fixed 60-pose references at the final estimate: the heuristic one is the seed-0 design
+    assert run.reference_n == 60 and d["reference"]["n"] == 60
+    heur60 = kr16_sigma_mm(run, heuristic_design(setup(load_scene("fms_kr16")), 60, 0))
+    assert run.reference["heuristic"] == pytest.approx(heur60, rel=1e-9)
+    assert run.reference["fixed KPI-optimal"] < run.reference["heuristic"]
+    assert "fixed 60-pose designs at the final estimate" in text
+
+
+def kr16_sigma_mm(run, q):
+    return float(setup(load_scene("fms_kr16")).problem.kpi_sigma(q, run.p_estimate).max() * 1e3)
 
 
 def test_propose_beats_random_batch(kr16):
