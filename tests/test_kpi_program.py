@@ -109,7 +109,16 @@ def test_shipped_program_scene_is_feasible_and_inside_the_limits():
     assert len(s.kpi.configurations) == 30 and s.kpi.configurations[0].name == "car_side"
     np.testing.assert_array_equal(s.kpi.q[0], kr16.kpi.q[0])
     assert np.isclose(sum(c.weight for c in s.kpi.configurations), 23.0)
-    # the same cell as fms_kr16
+    # the same cell as fms_kr16: every block but name, description and kpi is a copy
+    from importlib import resources
+
+    import yaml
+
+    raw = {n: yaml.safe_load((resources.files("calib_oed") / "scenes" / f"{n}.yaml").read_text())
+           for n in ("fms_kr16", "fms_kr16_program")}
+    assert set(raw["fms_kr16"]) == set(raw["fms_kr16_program"])
+    for key in set(raw["fms_kr16"]) - {"name", "description", "kpi"}:
+        assert raw["fms_kr16_program"][key] == raw["fms_kr16"][key], f"block {key!r} differs"
     assert s.tracker.position.tolist() == kr16.tracker.position.tolist()
     assert [c.name for c in s.cell.capsules] == [c.name for c in kr16.cell.capsules]
     st = setup(s)
