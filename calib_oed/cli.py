@@ -24,6 +24,13 @@ EXIT_BAD_INPUT = 2
 DEFAULT_SCENE = "fms_kr16"
 
 
+def _non_negative_int(text: str) -> int:
+    value = int(text)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text}")
+    return value
+
+
 def _positive_int(text: str) -> int:
     value = int(text)
     if value < 1:
@@ -856,7 +863,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="draw each batch's candidates near the last measured pose")
     p.add_argument("--no-compare", action="store_true", help="skip the fixed KPI-optimal and heuristic "
                    "designs of the comparison")
-    p.add_argument("--reference", type=int, default=60, metavar="N",
+    p.add_argument("--reference", type=_non_negative_int, default=60, metavar="N",
                    help="also report the predicted sigma of a fixed KPI-optimal and a heuristic "
                    "design of N poses at the final estimate (default 60; 0: skip)")
     p.add_argument("--grid-step", type=_positive_int, default=5, help="sizes of the fixed designs "

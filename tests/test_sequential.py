@@ -197,6 +197,14 @@ def test_cli_sequential_reports_the_fixed_designs(capsys):
     assert lines["sequential"] == "15" and lines["fixed"].isdigit() and lines["heuristic"].isdigit()
 
 
+def test_cli_sequential_bad_reference_is_one_clear_line(capsys):
+    from calib_oed.cli import main
+
+    with pytest.raises(SystemExit) as exc:
+        main(["sequential", "fms_kr16", "--target-sigma", "0.02mm", "--reference", "-5"])
+    assert exc.value.code == 2 and "--reference" in capsys.readouterr().err
+
+
 @pytest.mark.parametrize("target", ["0.02 furlong", "-1mm", "abc", "0"])
 def test_cli_sequential_bad_target_is_one_clear_line(capsys, target):
     from calib_oed.cli import main
