@@ -594,6 +594,62 @@ def _length_mm(text: str) -> float:
     return value
 
 
+def _sequential_step(s, args, settings) -> int:
+    """One step of a real sequential calibration: identify from the file, then stop or propose."""
+    from calib_oed.design_file import write_design_csv
+    from calib_oed.io_utils import atomic_write_text
+    from calib_oed.sequential import SequentialDesigner
+    from calib_oed.workflow import identify_measurements, read_scene_measurements
+
+    units = {k: v for k, v in (("length_unit", args.length_unit), ("angle_unit", args.angle_unit)) if v}
+    mset = read_scene_measurements(s, args.measured, **units)
+    _, first = np.unique(mset.q, axis=0, return_index=True)
+    q = mset.q[np.sort(first)]  # the measured configurations, in measurement order
+    result = identify_measurements(s, mset)
+    p_hat = np.asarray(result.p)
+    designer = SequentialDesigner(s, args.target_sigma, batch=args.batch, criterion=args.criterion,
+                                  settings=settings, seed=args.seed + len(q))
+    sigma = designer.predicted_sigma_mm(q, p_hat)
+    done = bool(sigma.max() <= args.target_sigma)
+    data = {"scene": s.scene.name, "measurements": str(args.measured), "rows": int(mset.n),
+            "configurations": len(q), "identification_converged": bool(result.converged),
+            "target_sigma_mm": args.target_sigma, "kpi_names": list(s.problem.kpi.names),
+            "sigma_mm": sigma.tolist(), "done": done, "next_q_rad": None, "files": {}}
+    if not done:
+        prop = designer.plan(q, p_hat, current_pose=q[-1] if args.follow_pose else None)
+        after = designer.predicted_sigma_mm(np.vstack([q, prop.q]), p_hat)
+        data.update(next_q_rad=prop.q.tolist(), sigma_after_mm=after.tolist(), method=prop.method)
+        if args.output:
+            folder = Path(args.output)
+            folder.mkdir(parents=True, exist_ok=True)
+            data["files"]["csv"] = str(write_design_csv(
+                folder / "next.csv", s.problem.robot, prop.q,
+                comment=f"next {len(prop.q)} poses after {len(q)} measured of {args.measured}"))
+    if args.output:
+        folder = Path(args.output)
+        folder.mkdir(parents=True, exist_ok=True)
+        data["files"]["json"] = str(atomic_write_text(folder / "sequential_step.json",
+                                                      json.dumps(data, indent=2) + "\n"))
+    if args.json:
+        print(json.dumps(data, indent=2))
+        return EXIT_OK
+    print(f"scene {s.scene.name!r}: {len(q)} configurations measured ({mset.n} rows of {args.measured}); "
+          f"identification {'converged' if result.converged else 'NOT converged'}")
+    for name, sg in zip(s.problem.kpi.names, sigma, strict=True):
+        print(f"  predicted KPI sigma at {name}: {sg:.5f} mm")
+    if done:
+        print(f"target {args.target_sigma:g} mm reached: stop measuring")
+        return EXIT_OK
+    print(f"target {args.target_sigma:g} mm not reached: measure {len(prop.q)} more poses "
+          f"(predicted sigma after them: {after.max():.5f} mm)")
+    if data["files"].get("csv"):
+        print(f"wrote {data['files']['csv']}; append their measurements to {args.measured} and rerun")
+    else:
+        for row in np.degrees(prop.q):
+            print("  " + " ".join(f"{v:9.3f}" for v in row) + "  [deg]")
+    return EXIT_OK
+
+
 def cmd_sequential(args) -> int:
     from dataclasses import replace
 
@@ -603,6 +659,8 @@ def cmd_sequential(args) -> int:
 
     s = _setup(args.scene)
     settings = SEQUENTIAL_SQP if not args.iterations else replace(SEQUENTIAL_SQP, max_iterations=args.iterations)
+    if args.measured:
+        return _sequential_step(s, args, settings)
 
     def progress(step):
         _say(args, f"  {step.n_measurements:>4} measured ({step.method}): predicted KPI sigma max "
@@ -847,6 +905,11 @@ def build_parser() -> argparse.ArgumentParser:
                    help="stop when every working configuration's predicted KPI sigma is at most this: "
                    "0.02mm, 20um or 0.02 (mm)")
     p.add_argument("--batch", type=_positive_int, default=5, help="poses per proposal (default 5)")
+    p.add_argument("--measured", metavar="MEASUREMENTS", help="a real calibration, one step: identify "
+                   "from this measurement file, then say whether the target is reached or write the "
+                   "next --batch poses to DIR/next.csv (no simulation)")
+    p.add_argument("--length-unit", choices=("m", "mm"), help="with --measured: if the file states no units")
+    p.add_argument("--angle-unit", choices=("rad", "deg"), help="with --measured: if the file states no units")
     p.add_argument("--initial", type=_positive_int, default=15,
                    help="poses measured first (default 15)")
     p.add_argument("--initial-design", default="heuristic", choices=("heuristic", "optimal"),

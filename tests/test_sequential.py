@@ -226,3 +226,30 @@ def test_optimal_initial_design_starts_lower(kr16):
     assert opt.steps[0].sigma_mm.max() < 0.5 * heur.steps[0].sigma_mm.max()
     with pytest.raises(SequentialError, match="initial_design.*heuristic, optimal"):
         run_sequential(kr16, 0.01, initial_design="best", **kw)
+
+
+def test_cli_sequential_step_on_measured_data(capsys, tmp_path, kr16):
+    """--measured: identify from a real (here simulated) file, then propose the next batch or stop."""
+    from calib_oed.cli import EXIT_OK, main
+    from calib_oed.design_file import read_design_csv
+
+    meas = tmp_path / "m.csv"
+    assert main(["simulate", "fms_kr16", "-n", "12", "--seed", "0", "--truth-seed", "2", "-o", str(meas),
+                 "--quiet"]) == EXIT_OK
+    out = tmp_path / "step"
+    assert main(["sequential", "fms_kr16", "--target-sigma", "0.005mm", "--measured", str(meas),
+                 "--batch", "4", "--iterations", "10", "-o", str(out), "--json"]) == EXIT_OK
+    data = json.loads(capsys.readouterr().out)
+    assert data["configurations"] == 12 and not data["done"]
+    assert max(data["sigma_mm"]) > 0.005
+    q_next = read_design_csv(out / "next.csv", kr16.problem.robot)
+    np.testing.assert_allclose(q_next, np.array(data["next_q_rad"]), rtol=0, atol=1e-15)
+    assert q_next.shape == (4, 6)
+    assert kr16.feasibility.compute(q_next, jacobian=False).feasible.all()
+    assert max(data["sigma_after_mm"]) < max(data["sigma_mm"])
+    assert json.loads((out / "sequential_step.json").read_text())["done"] is False
+    # a target already met: stop, no next batch
+    assert main(["sequential", "fms_kr16", "--target-sigma", "1mm", "--measured", str(meas),
+                 "-o", str(tmp_path / "done")]) == EXIT_OK
+    assert "reached: stop measuring" in capsys.readouterr().out
+    assert not (tmp_path / "done" / "next.csv").exists()
