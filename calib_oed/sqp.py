@@ -60,7 +60,9 @@ far from active; :math:`f` scaled by the caller to O(1). One iteration at
    only shrinks the feasible set), then take a restoration step from the
    elastic QP (:func:`calib_oed.sqp_qp.solve_elastic_qp`) with backtracking on
    the violation (:meth:`_Run._restore`); if that cannot reduce the violation,
-   stop with :attr:`SQPStatus.INFEASIBLE`. A QP that fails at a feasible
+   stop with :attr:`SQPStatus.INFEASIBLE` (:attr:`SQPStatus.STALLED` if the
+   violation is already within ``tol_feasibility``: then the linearisation is
+   inconsistent, e.g. degenerate active rows, not the problem). A QP that fails at a feasible
    :math:`x_k` (numerical trouble) is retried with :math:`\Delta / 10`, then
    :attr:`SQPStatus.FAILED`.
 6. **Stop**: :attr:`SQPStatus.CONVERGED` when :math:`r_p \le` ``tol_feasibility``
@@ -521,8 +523,13 @@ class _Run:
             delta = 0.5 * alpha * float(np.max(np.abs(d)))
             if delta < s.min_step_bound:
                 break
-        self._stop(SQPStatus.INFEASIBLE, "the linearised constraints are infeasible and restoration "
-                   f"cannot reduce the violation ({pt.violation_max:.2e}): locally infeasible")
+        if pt.violation_max <= s.tol_feasibility:  # feasible to tolerance: not an infeasibility
+            self._stop(SQPStatus.STALLED, "the linearised constraints are inconsistent at a point "
+                       f"feasible to tolerance (violation {pt.violation_max:.2e} <= tol_feasibility "
+                       f"{s.tol_feasibility:.0e}) and restoration cannot reduce it further")
+        else:
+            self._stop(SQPStatus.INFEASIBLE, "the linearised constraints are infeasible and restoration "
+                       f"cannot reduce the violation ({pt.violation_max:.2e}): locally infeasible")
         return self._record(k, np.nan, 0.0, delta, n_rows, qp_status, qp_iter, 0, True)
 
     def _restored(self, k, trial, delta, n_rows, qp_status, qp_iter, backtracks):

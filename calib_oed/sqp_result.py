@@ -42,9 +42,10 @@ class SQPStatus(str, Enum):
     TIME_LIMIT = "time_limit"
     """The wall-clock limit (``SQPSettings.time_limit``) was reached first."""
     STALLED = "stalled"
-    """The trust region or the step fell below its minimum without convergence."""
+    """The trust region or the step fell below its minimum without convergence, or the
+    linearised constraints are inconsistent at a point feasible to tolerance."""
     INFEASIBLE = "infeasible"
-    """Feasibility restoration could not reduce the constraint violation."""
+    """Feasibility restoration could not reduce a violation above ``tol_feasibility``."""
     FAILED = "failed"
     """The QP subproblem could not be solved at a feasible point."""
 

@@ -286,6 +286,17 @@ def test_infeasible_problem_is_reported_infeasible(case):
     assert res.history[-1].restoration
 
 
+def test_inconsistent_linearisation_within_tolerance_is_stalled_not_infeasible():
+    """x >= 0 and x <= -5e-8: infeasible by 5e-8 only, below tol_feasibility 1e-7 (above the QP tolerance)."""
+    def constraints(x):
+        return np.array([x[0], -x[0] - 5e-8]), np.array([[1.0], [-1.0]])
+
+    res = solve_sqp(lambda x: (float(x @ x), 2 * x), np.array([0.0]), constraints=constraints)
+    assert res.status is SQPStatus.STALLED, res.summary()
+    assert "feasible to tolerance" in res.message
+    assert res.max_violation <= 1e-7
+
+
 @pytest.mark.parametrize("bounds, x_star, nu", [
     ((-np.inf, [np.inf, np.inf]), [1.0, 1.0], [0.0, 0.0]),  # interior optimum
     (([-np.inf, -1.5], [0.5, np.inf]), [0.5, 0.25], [-1.0, 0.0]),  # upper bound on x1 active
