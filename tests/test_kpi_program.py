@@ -186,3 +186,19 @@ def test_worst_case_design_lowers_the_max(program, start):
         design(program, N, "D", aggregate="max")
     with pytest.raises(AggregateError, match="'mean', 'max'"):
         design(program, N, "kpi", aggregate="median")
+
+
+def test_predicted_covariance_of_every_program_point_matches_monte_carlo():
+    """400 simulated calibrations: the predicted C_s of all 30 KPI points against the simulated errors.
+
+    Ratio s.e. ~0.04 and coverage s.e. ~0.011 per point at N = 400; the bands are 4 s.e. or more wide
+    on each side (the points are strongly correlated, so the 30 checks are far from independent).
+    """
+    from calib_oed.montecarlo import monte_carlo
+    from calib_oed.workflow import heuristic_design
+
+    s = setup(load_scene("fms_kr16_program"))
+    mc = monte_carlo(s.problem, heuristic_design(s, 30, 4), n_runs=400, seed=7, n_jobs=2)
+    assert len(mc.ratio) == 30 and mc.converged.all()
+    assert np.all((mc.ratio > 0.83) & (mc.ratio < 1.17))
+    assert np.all((mc.coverage > 0.90) & (mc.coverage < 0.99))
