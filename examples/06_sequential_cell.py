@@ -66,7 +66,7 @@ def main() -> None:
     sigmas = [h[1] for h in history]
     if not (sigmas[-1] <= TARGET_MM < min(sigmas[:-1])):
         raise SystemExit(f"the loop did not stop at the target: {sigmas}")
-    if any(b > a for a, b in zip(sigmas, sigmas[1:])):
+    if any(b > a for a, b in zip(sigmas[:-1], sigmas[1:], strict=True)):
         raise SystemExit(f"the predicted sigma rose: {sigmas}")
     error_mm = float(np.linalg.norm(tcp_errors(s, p_true, p_hat), axis=1).max() * 1e3)
     # |e|^2 / sigma^2 is about chi-square with 3 degrees of freedom (sigma per axis): 4 sigma is generous

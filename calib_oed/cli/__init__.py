@@ -1,0 +1,314 @@
+"""The ``calib-oed`` command.
+
+Exit codes: 0 success; 1 internal error (a bug: please report it with
+``--debug`` output); 2 bad input (the message says what to fix).
+
+The parser and ``main`` are here; the commands live in
+:mod:`calib_oed.cli.design_commands` and :mod:`calib_oed.cli.calibration_commands`,
+what they share in :mod:`calib_oed.cli._common`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import traceback
+
+from calib_oed.cli._common import (
+    COMPLIANCE_COMMANDS,
+    DEFAULT_SCENE,
+    EXIT_BAD_INPUT,
+    EXIT_INTERNAL,
+    EXIT_OK,
+    _apply_compliance,
+    _length_mm,
+    _non_negative_int,
+    _positive_int,
+)
+from calib_oed.cli.calibration_commands import (
+    cmd_demo,
+    cmd_identify,
+    cmd_montecarlo,
+    cmd_robots,
+    cmd_scenes,
+    cmd_simulate,
+    cmd_study,
+    cmd_validate,
+)
+from calib_oed.cli.design_commands import (
+    cmd_compare,
+    cmd_design,
+    cmd_evaluate,
+    cmd_feasibility,
+    cmd_identifiability,
+    cmd_sequential,
+    cmd_view,
+)
+from calib_oed.exceptions import CalibOedError
+
+__all__ = ["EXIT_BAD_INPUT", "EXIT_INTERNAL", "EXIT_OK", "build_parser", "main"]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="calib-oed",
+        description="Optimum experimental design for robot kinematic calibration.",
+    )
+    parser.add_argument("--debug", action="store_true", help="show tracebacks on errors")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("identifiability", help="which parameters are identifiable; KPI estimability")
+    p.add_argument("scene", help="shipped scene name or scene file path")
+    p.add_argument("--json", action="store_true", help="machine-readable output")
+    p.set_defaults(func=cmd_identifiability)
+
+    def scene_arg(p):
+        p.add_argument("scene", help="shipped scene name or scene file path")
+
+    def design_args(p, positional=True):
+        if positional:
+            p.add_argument("design", nargs="?", metavar="DESIGN", help="design file: DIR/design.yaml or "
+                           "a CSV (header = joint names, rad); default: -n random feasible poses")
+        p.add_argument("--design", dest="design_option", metavar="FILE",
+                       help="design file (same as DESIGN)" if positional else
+                       "design file: design.yaml or CSV; default: -n random feasible poses")
+        p.add_argument("-n", type=_positive_int, default=60, help="random feasible poses (default 60)")
+        p.add_argument("--seed", type=int, default=0, help="seed of the random design (default 0)")
+
+    p = sub.add_parser("demo", help="the whole job on a scene: design, simulated calibration, "
+                       "export, Monte Carlo")
+    p.add_argument("scene", nargs="?", default=DEFAULT_SCENE, help=f"default {DEFAULT_SCENE}")
+    design_args(p, positional=False)
+    p.add_argument("--truth-seed", type=int, default=1, help="seed of the simulated robot (default 1)")
+    p.add_argument("-N", "--runs", type=_positive_int, default=200, help="Monte Carlo runs (default 200)")
+    p.add_argument("--mc-seed", type=int, default=0, help="Monte Carlo seed (default 0)")
+    p.add_argument("--jobs", type=_positive_int, default=2, help="parallel workers (default 2)")
+    p.add_argument("-o", "--output", help="folder for the design and the calibrated URDF "
+                   "(default: a temporary folder)")
+    p.add_argument("--no-optimise", action="store_true", help="skip the design optimisation "
+                   "(use the heuristic design)")
+    p.add_argument("--iterations", type=_positive_int, help="limit the SQP iterations")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(func=cmd_demo)
+
+    from calib_oed.criteria import CRITERIA
+
+    p = sub.add_parser("design", help="optimal measurement configurations (SQP from a heuristic start)")
+    scene_arg(p)
+    p.add_argument("-n", type=_positive_int, default=60, help="number of poses (default 60)")
+    p.add_argument("--criterion", default="kpi", choices=CRITERIA,
+                   help="kpi (default: the paper's KPI A-criterion), params (A on the parameter "
+                   "covariance, mm and mrad), D, E, or an observability index O1..O5")
+    p.add_argument("--start", default="heuristic", metavar="heuristic|exchange|CSV",
+                   help="start design: random feasible poses (default), the exchange algorithm's "
+                   "best poses of a 3000-pose feasible pool (better designs), or a design CSV")
+    p.add_argument("--seed", type=int, default=0, help="seed of the heuristic start (default 0)")
+    p.add_argument("--starts", type=_positive_int, default=1,
+                   help="multi-start: keep the best of this many seeded starts (default 1)")
+    p.add_argument("--no-collisions", action="store_true",
+                   help="only joint limits and incidence (no capsule or beam constraints)")
+    p.add_argument("--iterations", type=_positive_int, help="limit the SQP iterations")
+    p.add_argument("--time-limit", type=float, metavar="SECONDS",
+                   help="stop the SQP after this wall time (status time_limit)")
+    p.add_argument("--aggregate", choices=("mean", "max"),
+                   help="KPI of several points (criterion kpi): weighted mean variance, or the "
+                   "worst-case variance max_i (epigraph SQP); default: the scene's kpi.aggregate")
+    p.add_argument("-o", "--output", metavar="DIR", help="write DIR/design.yaml and DIR/design.csv")
+    p.add_argument("--json", action="store_true", help="machine-readable output")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_design)
+
+    p = sub.add_parser("evaluate", help="KPI sigma, criterion values, margins and mesh check of a design")
+    scene_arg(p)
+    p.add_argument("design", metavar="DESIGN", help="design file: DIR/design.yaml or a CSV")
+    p.add_argument("--criterion", default="kpi", choices=CRITERIA, help="criterion of the "
+                   "contribution plot (default kpi); all criterion values are always reported")
+    p.add_argument("--no-mesh-check", action="store_true", help="skip the URDF mesh check")
+    p.add_argument("--plot", metavar="DIR", help="write DIR/kpi_ellipsoid.png and DIR/pose_contributions.png")
+    p.add_argument("--certificate", action="store_true", help="optimality certificate: a lower bound "
+                   "on the criterion of any design of this many poses, and this design's efficiency "
+                   "(criteria kpi, params, D; 10-60 s)")
+    p.add_argument("--pool", type=_positive_int, default=3000,
+                   help="feasible candidate poses of the certificate (default 3000)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the certificate's pool (default 0)")
+    p.add_argument("--json", action="store_true", help="machine-readable output")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(func=cmd_evaluate)
+
+    p = sub.add_parser("compare", help="designs side by side: KPI variance, criteria, feasibility")
+    scene_arg(p)
+    p.add_argument("designs", nargs="+", metavar="DESIGN", help="design files (design.yaml or CSV)")
+    p.add_argument("--plot", metavar="FILE", help="write the 95 %% KPI ellipsoid projections "
+                   "(.png, .svg or .pdf)")
+    p.add_argument("--json", action="store_true", help="machine-readable output")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_compare)
+
+    p = sub.add_parser("validate", help="residuals of a calibration on separate validation measurements")
+    scene_arg(p)
+    p.add_argument("calibrated", metavar="CALIBRATED", help="the folder `identify -o DIR` wrote "
+                   "(calibrated URDF and sensor YAML), or its URDF")
+    p.add_argument("measurements", help="validation measurement CSV (docs/data_format.md)")
+    p.add_argument("--length-unit", choices=("m", "mm"), help="if the file states no units")
+    p.add_argument("--angle-unit", choices=("rad", "deg"), help="if the file states no units")
+    p.add_argument("--json", action="store_true", help="machine-readable output")
+    p.set_defaults(func=cmd_validate)
+
+    p = sub.add_parser("view", help="the scene and a design in the browser (meshcat), or a static HTML")
+    scene_arg(p)
+    p.add_argument("design", nargs="?", metavar="DESIGN", help="design file (design.yaml or CSV); "
+                   "default: the scene alone")
+    p.add_argument("--html", metavar="FILE", help="write a self-contained HTML page instead of serving")
+    p.add_argument("--scale", type=float, metavar="F", help="drawing scale of the KPI ellipsoid "
+                   "(default: a 1-2-5 number that makes it about 50 mm)")
+    p.add_argument("--level", type=float, default=0.95, help="confidence level (default 0.95)")
+    p.add_argument("--drawing", default="auto", choices=("auto", "visual", "capsules"),
+                   help="robot drawn by its URDF geometry, its capsules, or auto (capsules when the "
+                   "meshes of all poses would make the page too large)")
+    p.add_argument("--for", dest="seconds", type=float, metavar="SECONDS",
+                   help="serve for this long, then stop (default: until Ctrl-C)")
+    p.add_argument("--json", action="store_true", help="machine-readable output (with --html)")
+    p.set_defaults(func=cmd_view)
+
+    p = sub.add_parser("feasibility", help="constraint pairs, a feasible design, margins, mesh check")
+    scene_arg(p)
+    design_args(p)
+    p.add_argument("-o", "--output", metavar="CSV", help="write the design (joint names, rad)")
+    p.add_argument("--no-mesh-check", action="store_true", help="skip the URDF mesh check")
+    p.add_argument("--json", action="store_true", help="machine-readable output")
+    p.set_defaults(func=cmd_feasibility)
+
+    p = sub.add_parser("simulate", help="simulated tracker measurements of a random true robot")
+    scene_arg(p)
+    design_args(p)
+    p.add_argument("--truth-seed", type=int, default=1, help="seed of the simulated robot (default 1)")
+    p.add_argument("-o", "--output", required=True, metavar="CSV", help="measurement file to write")
+    p.add_argument("--truth", metavar="YAML", help="where to write the true parameters "
+                   "(default: <output>_truth.yaml)")
+    p.add_argument("--json", action="store_true", help="machine-readable output")
+    p.add_argument("--quiet", action="store_true", help="print nothing")
+    p.set_defaults(func=cmd_simulate)
+
+    p = sub.add_parser("identify", help="identify the parameters from a measurement file")
+    scene_arg(p)
+    p.add_argument("measurements", help="measurement CSV (docs/data_format.md)")
+    p.add_argument("-o", "--output", metavar="DIR", help="write calibrated URDF, sensor YAML, report")
+    p.add_argument("--loss", default="linear", choices=("linear", "huber", "soft_l1"),
+                   help="linear (default; Levenberg-Marquardt), or a robust loss")
+    p.add_argument("--length-unit", choices=("m", "mm"), help="if the file states no units")
+    p.add_argument("--angle-unit", choices=("rad", "deg"), help="if the file states no units")
+    p.add_argument("--truth", metavar="YAML", help="true parameters of a simulation: report TCP errors")
+    p.add_argument("--plot", metavar="FILE", help="write the residual plot (.png, .svg or .pdf)")
+    p.add_argument("--json", action="store_true", help="machine-readable output")
+    p.set_defaults(func=cmd_identify)
+
+    p = sub.add_parser("montecarlo", help="simulated calibrations against the predicted KPI covariance")
+    scene_arg(p)
+    design_args(p)
+    p.add_argument("-N", "--runs", type=_positive_int, default=500, help="runs (default 500)")
+    p.add_argument("--mc-seed", type=int, default=0, help="Monte Carlo seed (default 0)")
+    p.add_argument("--jobs", type=_positive_int, default=2, help="parallel workers (default 2)")
+    p.add_argument("--json", action="store_true", help="machine-readable output")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_montecarlo)
+
+    p = sub.add_parser("study", help="a study over robots, scenes, criteria and seeds (the paper's tables)")
+    p.add_argument("config", metavar="CONFIG", help="study file (YAML), or a shipped study: "
+                   "kuka, notional90, smoke")
+    p.add_argument("-o", "--output", required=True, metavar="DIR",
+                   help="results folder; a rerun resumes it (finished cases are not recomputed)")
+    p.add_argument("--jobs", type=_positive_int, help="parallel local workers (default: all cores)")
+    p.add_argument("--scheduler", metavar="ADDRESS", help="run the cases on this Dask scheduler "
+                   "(needs the calib_oed[dask] extra)")
+    p.add_argument("--no-report", action="store_true", help="skip DIR/report.md and the figures")
+    p.add_argument("--no-figures", action="store_true", help="report without figures")
+    p.add_argument("--json", action="store_true", help="machine-readable output")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_study)
+
+    p = sub.add_parser("sequential", help="sequential calibration of a simulated robot to a KPI "
+                       "precision target, next to fixed and heuristic designs")
+    scene_arg(p)
+    p.add_argument("--target-sigma", required=True, type=_length_mm, metavar="LENGTH",
+                   help="stop when every working configuration's predicted KPI sigma is at most this: "
+                   "0.02mm, 20um or 0.02 (mm)")
+    p.add_argument("--batch", type=_positive_int, default=5, help="poses per proposal (default 5)")
+    p.add_argument("--measured", metavar="MEASUREMENTS", help="a real calibration, one step: identify "
+                   "from this measurement file, then say whether the target is reached or write the "
+                   "next --batch poses to DIR/next.csv (no simulation)")
+    p.add_argument("--length-unit", choices=("m", "mm"), help="with --measured: if the file states no units")
+    p.add_argument("--angle-unit", choices=("rad", "deg"), help="with --measured: if the file states no units")
+    p.add_argument("--initial", type=_positive_int, default=15,
+                   help="poses measured first (default 15)")
+    p.add_argument("--initial-design", default="heuristic", choices=("heuristic", "optimal"),
+                   help="the first poses: random feasible (default) or the KPI-optimal design of "
+                   "that size at nominal")
+    p.add_argument("--max-measurements", type=_positive_int, default=120,
+                   help="stop after this many measured poses (default 120)")
+    p.add_argument("--criterion", default="kpi", choices=CRITERIA, help="criterion of the proposals "
+                   "(default kpi)")
+    p.add_argument("--truth-seed", type=int, default=1, help="seed of the simulated robot and its "
+                   "noise (default 1)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the designs and candidate pools (default 0)")
+    p.add_argument("--follow-pose", action="store_true",
+                   help="draw each batch's candidates near the last measured pose")
+    p.add_argument("--no-compare", action="store_true", help="skip the fixed KPI-optimal and heuristic "
+                   "designs of the comparison")
+    p.add_argument("--reference", type=_non_negative_int, default=60, metavar="N",
+                   help="also report the predicted sigma of a fixed KPI-optimal and a heuristic "
+                   "design of N poses at the final estimate (default 60; 0: skip)")
+    p.add_argument("--grid-step", type=_positive_int, default=5, help="sizes of the fixed designs "
+                   "compared: the multiples of this from the fewest poses that identify the "
+                   "parameters up to --max-measurements (default 5)")
+    p.add_argument("--iterations", type=_positive_int, help="limit the SQP iterations of every design")
+    p.add_argument("-o", "--output", metavar="DIR", help="write DIR/measured.csv and DIR/sequential.json")
+    p.add_argument("--json", action="store_true", help="machine-readable output")
+    p.add_argument("--quiet", action="store_true", help="no progress lines")
+    p.set_defaults(func=cmd_sequential)
+
+    p = sub.add_parser("scenes", help="list the shipped scenes")
+    p.add_argument("--json", action="store_true", help="machine-readable output")
+    p.set_defaults(func=cmd_scenes)
+    p = sub.add_parser("robots", help="list the robots loadable by name")
+    p.add_argument("--json", action="store_true", help="machine-readable output")
+    p.set_defaults(func=cmd_robots)
+    for name in COMPLIANCE_COMMANDS:
+        p = sub.choices[name]
+        p.add_argument("--compliance", action="store_true", help="model joint compliance under "
+                       "gravity: one compliance parameter per joint, with the scene's "
+                       "robot.compliance payload (docs/scenes.md)")
+        p.add_argument("--payload-kg", type=float, metavar="KG", help="payload mass of the "
+                       "compliance model (implies --compliance; centre of mass from the scene)")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the command line; returns the exit code."""
+    parser = build_parser()
+    argv = list(sys.argv[1:] if argv is None else argv)
+    args = parser.parse_args(argv)
+    args.argv = argv
+    try:
+        _apply_compliance(args)
+        return args.func(args)
+    except BrokenPipeError:  # output piped into `head` and the like
+        sys.stdout = open(os.devnull, "w")  # noqa: SIM115 - silence the flush at exit
+        return EXIT_OK
+    except CalibOedError as exc:
+        if args.debug:
+            traceback.print_exc()
+        print(f"calib-oed: error: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except Exception as exc:  # noqa: BLE001 - last-resort message, traceback on --debug
+        if args.debug:
+            traceback.print_exc()
+        print(
+            f"calib-oed: internal error: {type(exc).__name__}: {exc} (rerun with --debug)",
+            file=sys.stderr,
+        )
+        return EXIT_INTERNAL
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,223 @@
+"""The calibration commands: demo, simulate, identify, validate, montecarlo, study, scenes, robots."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from calib_oed.cli._common import (
+    EXIT_INTERNAL,
+    EXIT_OK,
+    _design,
+    _optimise,
+    _say,
+    _setup,
+)
+
+
+def cmd_demo(args) -> int:
+    """The whole job on one scene: feasible design, simulated data, identification,
+    export with round trip, Monte Carlo validation."""
+    import tempfile
+    import time
+
+    from calib_oed.design import evaluate_design
+    from calib_oed.design_result import format_design_table, write_design
+    from calib_oed.montecarlo import monte_carlo
+    from calib_oed.report import format_identifiability, format_kpi_sigma
+    from calib_oed.workflow import (
+        export_result,
+        identify_measurements,
+        round_trip_error,
+        simulated_measurements,
+        tcp_errors,
+    )
+
+    s = _setup(args.scene)
+    problem = s.problem
+    print(format_identifiability(problem, problem.identifiability, problem.kpi_estimability(),
+                                 title=f"scene {s.scene.name!r}"))
+    print()
+    t0 = time.perf_counter()
+    q_start, what = _design(s, args)
+    print(f"start: {what}, sampled in {time.perf_counter() - t0:.2f} s; feasible: "
+          f"{bool(s.feasibility.compute(q_start, jacobian=False).feasible.all())}")
+    designs = {"heuristic": evaluate_design(s, q_start, "kpi", method="heuristic", seed=args.seed)}
+    if not args.no_optimise:
+        designs["C_p-optimal"] = _optimise(s, args, "params", q_start)
+        designs["KPI-optimal"] = _optimise(s, args, "kpi", q_start)
+    print(format_design_table(designs))
+    final = designs["KPI-optimal" if not args.no_optimise else "heuristic"]
+    q = final.q
+    what = f"{final.method} {final.criterion} design of {final.n} poses"
+    print(format_kpi_sigma(problem, problem.kpi_sigma(q), what))
+    out = args.output or tempfile.mkdtemp(prefix="calib_oed_demo_")
+    files = write_design(out, final, problem.robot)
+    print(f"wrote {files['yaml']} and {files['csv']}")
+    print()
+    mset, p_true = simulated_measurements(s, q, args.truth_seed)
+    result = identify_measurements(s, mset)
+    before = np.linalg.norm(tcp_errors(s, p_true, None), axis=1)
+    after = np.linalg.norm(tcp_errors(s, p_true, result.p), axis=1)
+    print(f"one simulated calibration (truth seed {args.truth_seed}): {result.status.value}, "
+          f"{result.nfev} evaluations, residual RMS {result.rms_mm:.4f} mm")
+    for name, b, a in zip(problem.kpi.names, before, after, strict=True):
+        print(f"  {name}: TCP error before {b * 1e3:.4f} mm, after {a * 1e3:.4f} mm")
+    paths = export_result(s, result, out)
+    err = round_trip_error(s, result.p, paths["urdf"])
+    print(f"exported {paths['urdf']} and {paths['sensor']}; round trip: "
+          f"largest tool difference {err * 1e9:.3g} nm")
+    print()
+    mc = monte_carlo(problem, q, args.runs, args.mc_seed, n_jobs=args.jobs, progress=not args.quiet)
+    print(mc.summary())
+    return EXIT_OK
+
+
+def cmd_simulate(args) -> int:
+    from calib_oed.workflow import simulated_measurements, write_measurement_file, write_truth
+
+    s = _setup(args.scene)
+    q, what = _design(s, args)
+    mset, p_true = simulated_measurements(s, q, args.truth_seed)
+    write_measurement_file(s, args.output, mset,
+                           f"simulated by calib_oed: scene {s.scene.name}, {what}, truth seed {args.truth_seed}")
+    truth = args.truth or str(Path(args.output).with_suffix("")) + "_truth.yaml"
+    write_truth(truth, s, p_true, args.truth_seed)
+    if args.json:
+        print(json.dumps({"scene": s.scene.name, "design": what, "n": int(len(q)),
+                          "measurements": str(args.output), "truth": str(truth),
+                          "truth_seed": args.truth_seed}, indent=2))
+        return EXIT_OK
+    _say(args, f"wrote {len(q)} simulated measurements per reflector to {args.output}; the truth to {truth}")
+    return EXIT_OK
+
+
+def cmd_identify(args) -> int:
+    from calib_oed.workflow import (
+        export_result,
+        identify_measurements,
+        read_scene_measurements,
+        read_truth,
+        round_trip_error,
+        tcp_errors,
+    )
+
+    s = _setup(args.scene)
+    units = {k: v for k, v in (("length_unit", args.length_unit), ("angle_unit", args.angle_unit)) if v}
+    mset = read_scene_measurements(s, args.measurements, **units)
+    result = identify_measurements(s, mset, loss=args.loss)
+    data = result.to_dict()
+    if args.truth:
+        p_true = read_truth(args.truth, s)
+        data["tcp_error_mm"] = {
+            "before": (np.linalg.norm(tcp_errors(s, p_true, None), axis=1) * 1e3).tolist(),
+            "after": (np.linalg.norm(tcp_errors(s, p_true, result.p), axis=1) * 1e3).tolist(),
+        }
+    if args.output:
+        paths = export_result(s, result, args.output)
+        data["files"] = {k: str(v) for k, v in paths.items()}
+        data["round_trip_m"] = round_trip_error(s, result.p, paths["urdf"])
+        from calib_oed.io_utils import atomic_write_text
+
+        atomic_write_text(Path(args.output) / "identification.json", json.dumps(data, indent=2))
+    if args.plot:
+        from calib_oed.plots import plot_residuals, save_figure
+
+        data["plot"] = str(save_figure(plot_residuals(result), args.plot))
+    if args.json:
+        print(json.dumps(data, indent=2))
+        return EXIT_OK
+    print(result.summary())
+    if args.truth:
+        for name, b, a in zip(s.problem.kpi.names, data["tcp_error_mm"]["before"],
+                              data["tcp_error_mm"]["after"], strict=True):
+            print(f"TCP error at {name} against the truth: before {b:.4f} mm, after {a:.4f} mm")
+    if args.output:
+        print(f"wrote {data['files']['urdf']}, {data['files']['sensor']} and identification.json; "
+              f"round trip of the URDF: {data['round_trip_m'] * 1e9:.3g} nm")
+    if args.plot:
+        print(f"wrote the residual plot {data['plot']}")
+    return EXIT_OK
+
+
+def cmd_validate(args) -> int:
+    from calib_oed.validation import validate_calibration
+    from calib_oed.workflow import read_scene_measurements
+
+    s = _setup(args.scene)
+    units = {k: v for k, v in (("length_unit", args.length_unit), ("angle_unit", args.angle_unit)) if v}
+    mset = read_scene_measurements(s, args.measurements, **units)
+    result = validate_calibration(s.scene, args.calibrated, mset)
+    if args.json:
+        print(json.dumps(result.to_dict(), indent=2))
+    else:
+        print(result.summary())
+    return EXIT_OK
+
+
+def cmd_montecarlo(args) -> int:
+    from calib_oed.montecarlo import monte_carlo
+
+    s = _setup(args.scene)
+    q, what = _design(s, args)
+    mc = monte_carlo(s.problem, q, args.runs, args.mc_seed, n_jobs=args.jobs,
+                     progress=not (args.quiet or args.json))
+    if args.json:
+        data = mc.to_dict()
+        data.update(scene=s.scene.name, design=what)
+        print(json.dumps(data, indent=2))
+    else:
+        print(f"scene {s.scene.name!r}, {what}")
+        print(mc.summary())
+    return EXIT_OK
+
+
+def cmd_study(args) -> int:
+    from calib_oed.study import run_study
+    from calib_oed.study_config import load_study_config
+    from calib_oed.study_report import write_report
+
+    config = load_study_config(args.config)
+    command = "calib-oed " + " ".join(args.argv)
+    result = run_study(config, args.output, n_jobs=args.jobs, scheduler=args.scheduler,
+                       progress=not (args.quiet or args.json), command=command)
+    paths = {} if args.no_report else write_report(result, figures=not args.no_figures)
+    if args.json:
+        data = result.summary()
+        data["files"] = {k: str(v) for k, v in paths.items()}
+        print(json.dumps(data, indent=2))
+    else:
+        print(f"study {config.name!r}: {len(result.cases)} of {len(config.specs)} cases done "
+              f"({len(result.computed)} computed now, {len(result.loaded)} loaded from {args.output}) "
+              f"in {result.wall_seconds:.0f} s")
+        for k, v in paths.items():
+            print(f"wrote {k}: {v}")
+    for failure in result.failures:
+        print(f"calib-oed: case {failure.case_id} failed: {failure.error} (a rerun retries it; "
+              "--debug shows nothing more: the traceback is in summary.json)", file=sys.stderr)
+    return EXIT_INTERNAL if result.failures else EXIT_OK
+
+
+def cmd_scenes(args) -> int:
+    from calib_oed.scene import scene_names
+
+    if args.json:
+        print(json.dumps(scene_names()))
+        return EXIT_OK
+    for name in scene_names():
+        print(name)
+    return EXIT_OK
+
+
+def cmd_robots(args) -> int:
+    from calib_oed.robot_registry import robot_names
+
+    if args.json:
+        print(json.dumps(robot_names()))
+        return EXIT_OK
+    for name in robot_names():
+        print(name)
+    return EXIT_OK
