@@ -37,6 +37,7 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
+import scipy.linalg
 
 from calib_oed.criteria import ACriterion, Criterion, DCriterion, make_criterion
 from calib_oed.exceptions import NotIdentifiableError, ShapeError
@@ -138,11 +139,16 @@ class DesignObjective:
         r"""Per KPI point :math:`v_i = \mathrm{tr}(G_i C G_i^\top)/3` [mm²], (t,)."""
         info = self.compute_information(q)
         g = self.kpi_jacobian()
-        try:
-            return np.array([ACriterion.kpi(g[3 * i:3 * i + 3]).compute_value(info)
-                             for i in range(g.shape[0] // 3)])
-        except NotIdentifiableError as exc:
-            raise self._named(exc) from None
+        try:  # one factorisation for all points: v_i = sum over the point's rows of g C g^T / 3
+            factor = scipy.linalg.cho_factor(info, lower=True, check_finite=False)
+        except np.linalg.LinAlgError:
+            try:  # the criterion names the columns of the null space
+                ACriterion.kpi(g).compute_value(info)
+            except NotIdentifiableError as exc:
+                raise self._named(exc) from None
+            raise
+        y = scipy.linalg.cho_solve(factor, g.T, check_finite=False)  # C G^T
+        return np.sum(g.T * y, axis=0).reshape(-1, 3).sum(axis=1) / 3.0
 
     # -------------------------------------------------------------- pieces
     def _state(self, q: np.ndarray, second_order: bool):
