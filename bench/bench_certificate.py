@@ -8,7 +8,7 @@ Run from the repository root:
 For each criterion: the heuristic design (random feasible poses, seed 0), the
 exchange algorithm's best design of the pool, and (unless ``--no-sqp``) the
 SQP design from the exchange start, each certified against the same random
-feasible pool (:func:`calib_oed.certificate.certify`, defaults: tol 1e-4,
+feasible pool (:func:`calib_oed.oed.certificate.certify`, defaults: tol 1e-4,
 local_tol 1e-3, 32 local starts, 128 for verification). The bound of every
 certificate is printed with its time, and the efficiency bound/value.
 """
@@ -24,12 +24,12 @@ import time
 
 import numpy as np
 
-from calib_oed.certificate import certify
-from calib_oed.design import design, exchange_baseline, heuristic_designs
+from calib_oed.calibration.workflow import setup
 from calib_oed.feasibility.sampling import sample_feasible
-from calib_oed.scene import load_scene
-from calib_oed.sqp import SQPSettings
-from calib_oed.workflow import setup
+from calib_oed.oed.certificate import certify
+from calib_oed.oed.design import design, exchange_baseline, heuristic_designs
+from calib_oed.scene.reader import load_scene
+from calib_oed.solver.sqp import SQPSettings
 
 
 def main(argv=None) -> int:

@@ -21,8 +21,8 @@ import sys
 
 import numpy as np
 
-from calib_oed.criteria import ACriterion
-from calib_oed.exchange import exchange_design
+from calib_oed.oed.criteria import ACriterion
+from calib_oed.oed.exchange import exchange_design
 
 
 def main(argv=None) -> int:

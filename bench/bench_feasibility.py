@@ -29,7 +29,7 @@ from _timing import timed  # bench/ is the script folder, first on sys.path
 from calib_oed.feasibility.bodies import compute_body_states
 from calib_oed.feasibility.pairs import feasibility_from_scene
 from calib_oed.feasibility.sampling import sample_feasible
-from calib_oed.scene import load_scene
+from calib_oed.scene.reader import load_scene
 
 
 def coal_pair_distances(fm, q):

@@ -20,9 +20,9 @@ import pinocchio as pin
 from _timing import timed  # bench/ is the script folder, first on sys.path
 
 from calib_oed import load_robot
-from calib_oed.measurements import TrackerPosition, evaluate_setup
-from calib_oed.parameters import ParameterSpace
-from calib_oed.sensitivity import stacked_values, weighted_jacobian
+from calib_oed.measurement import TrackerPosition, evaluate_setup
+from calib_oed.measurement.sensitivity import stacked_values, weighted_jacobian
+from calib_oed.model.parameters import ParameterSpace
 
 
 def finite_difference_f1(space, models, q, eps=1e-6):

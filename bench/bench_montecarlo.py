@@ -19,9 +19,9 @@ import time
 
 import numpy as np
 
-from calib_oed.montecarlo import monte_carlo
-from calib_oed.scene import load_scene
-from calib_oed.workflow import heuristic_design, setup
+from calib_oed.calibration.montecarlo import monte_carlo
+from calib_oed.calibration.workflow import heuristic_design, setup
+from calib_oed.scene.reader import load_scene
 
 
 def main(argv=None) -> int:

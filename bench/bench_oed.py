@@ -7,7 +7,7 @@ Run from the repository root:
         [--solvers sqp,slsqp,trust-constr,ipopt] [--time-limit 300] [--heuristics 10] [--pool 3000]
         [--max-iterations 300] [--no-quality]
 
-Every solver gets the same NLP (:class:`calib_oed.design_problem.DesignProblem`:
+Every solver gets the same NLP (:class:`calib_oed.oed.problem.DesignProblem`:
 objective scaled to 1 at the start, exact gradient, the same constraint rows
 with their sparse exact Jacobian, joint limits as bounds) from the same
 heuristic start. For each solver the run prints its final objective, whether
@@ -37,12 +37,12 @@ import scipy
 import scipy.optimize
 from threadpoolctl import threadpool_limits
 
-from calib_oed.design import design, evaluate_design, exchange_baseline
-from calib_oed.design_objective import DesignObjective
-from calib_oed.design_problem import DesignProblem
-from calib_oed.scene import load_scene
-from calib_oed.sqp import SQPSettings, solve_sqp
-from calib_oed.workflow import heuristic_design, setup
+from calib_oed.calibration.workflow import heuristic_design, setup
+from calib_oed.oed.design import design, evaluate_design, exchange_baseline
+from calib_oed.oed.objective import DesignObjective
+from calib_oed.oed.problem import DesignProblem
+from calib_oed.scene.reader import load_scene
+from calib_oed.solver.sqp import SQPSettings, solve_sqp
 
 
 class Trace:
@@ -280,6 +280,6 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    # every solver with single-threaded BLAS, as calib_oed.design runs ours
+    # every solver with single-threaded BLAS, as calib_oed.oed.design runs ours
     with threadpool_limits(limits=1, user_api="blas"):
         raise SystemExit(main())

@@ -8,7 +8,7 @@ A representative subproblem of the design optimisation: n = 360 variables
 (60 poses x 6 joints), a dense SPD B from a few damped-BFGS updates of the
 identity, ~400 kept rows with 6 nonzeros each in the block-diagonal pattern
 (each row touches the 6 joints of one pose), and a box (trust region
-0.3 rad inside joint limits). Both workspaces of calib_oed.sqp_qp solve the
+0.3 rad inside joint limits). Both workspaces of calib_oed.solver.qp solve the
 same sequence of QPs, as consecutive SQP iterations would produce them: B
 updated, g shrinking, c drifting, and a few rows swapped per iteration.
 
@@ -37,8 +37,8 @@ import proxsuite
 import scipy.sparse as sp
 from _timing import timed  # bench/ is the script folder, first on sys.path
 
-from calib_oed.sqp import damped_bfgs_update
-from calib_oed.sqp_qp import DenseQPWorkspace, QPSubproblem, SparseQPWorkspace
+from calib_oed.solver.qp import DenseQPWorkspace, QPSubproblem, SparseQPWorkspace
+from calib_oed.solver.sqp import damped_bfgs_update
 
 
 def make_sequence(n, n_rows, n_qps, swap, rng):

@@ -258,7 +258,7 @@ class SQPSettingsError(CalibOedError, ValueError):
 
 
 class SQPProblemError(CalibOedError, ValueError):
-    """The problem given to :func:`~calib_oed.sqp.solve_sqp` is inconsistent (``lb > ub``).
+    """The problem given to :func:`~calib_oed.solver.sqp.solve_sqp` is inconsistent (``lb > ub``).
 
     Attributes:
         indices: The offending variable indices.
@@ -270,7 +270,7 @@ class SQPProblemError(CalibOedError, ValueError):
 
 
 class ViewerSettingError(CalibOedError, ValueError):
-    """A setting of the meshcat view (:mod:`calib_oed.viewer`) is invalid.
+    """A setting of the meshcat view (:mod:`calib_oed.viz.viewer`) is invalid.
 
     Attributes:
         name: The setting.
@@ -286,7 +286,7 @@ class ViewerSettingError(CalibOedError, ValueError):
 
 
 class StudyConfigError(CalibOedError):
-    """A study configuration (:mod:`calib_oed.study_config`) is missing, malformed or inconsistent.
+    """A study configuration (:mod:`calib_oed.study.config`) is missing, malformed or inconsistent.
 
     Attributes:
         key: Dotted path of the offending key (``"sqp.max_iterations"``), or
@@ -335,7 +335,7 @@ class OptionalDependencyError(CalibOedError, ImportError):
 
 
 class CertificateError(CalibOedError, ValueError):
-    """An optimality certificate (:mod:`calib_oed.certificate`) cannot be computed as asked.
+    """An optimality certificate (:mod:`calib_oed.oed.certificate`) cannot be computed as asked.
 
     Attributes:
         what: The offending argument (``"criterion"``, ``"pool"``, ...).
@@ -352,7 +352,7 @@ class CertificateError(CalibOedError, ValueError):
 
 
 class SequentialError(CalibOedError, ValueError):
-    """A sequential calibration (:mod:`calib_oed.sequential`) cannot run as asked.
+    """A sequential calibration (:mod:`calib_oed.oed.sequential`) cannot run as asked.
 
     Attributes:
         what: The offending argument (``"target_sigma_mm"``, ``"batch"``, ...).

@@ -18,8 +18,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from calib_oed.problem import CalibrationProblem
-from calib_oed.scene import load_scene
+from calib_oed.calibration.problem import CalibrationProblem
+from calib_oed.scene.reader import load_scene
 
 scene = load_scene("fms_kr16")                       # or load_scene("path/to/my_cell.yaml")
 problem = CalibrationProblem.from_scene(scene)

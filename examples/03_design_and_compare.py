@@ -24,10 +24,10 @@ from __future__ import annotations
 
 import dataclasses
 
-from calib_oed.design import DESIGN_SQP, design, heuristic_designs
-from calib_oed.design_result import format_criteria_table, format_design_table
-from calib_oed.scene import load_scene
-from calib_oed.workflow import setup
+from calib_oed.calibration.workflow import setup
+from calib_oed.oed.design import DESIGN_SQP, design, heuristic_designs
+from calib_oed.oed.result import format_criteria_table, format_design_table
+from calib_oed.scene.reader import load_scene
 
 N_POSES = 30
 settings = dataclasses.replace(DESIGN_SQP, max_iterations=60)   # a short run; default 300

@@ -7,7 +7,7 @@ import pinocchio as pin
 import pytest
 
 from calib_oed import load_robot
-from calib_oed.parameters import ParameterSpace
+from calib_oed.model.parameters import ParameterSpace
 
 ROBOTS = ("ur5", "panda", "kr16")
 

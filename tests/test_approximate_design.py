@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 import scipy.optimize
 
-from calib_oed import approximate_design as ad
-from calib_oed.criteria import ACriterion, DCriterion, ECriterion
 from calib_oed.exceptions import CertificateError, NonFiniteError, NotIdentifiableError, ShapeError
-from calib_oed.exchange import exchange_design, information_matrix
+from calib_oed.oed import approximate as ad
+from calib_oed.oed.criteria import ACriterion, DCriterion, ECriterion
+from calib_oed.oed.exchange import exchange_design, information_matrix
 
 N_CAND, D, P = 40, 2, 6
 

@@ -9,15 +9,15 @@ import numpy as np
 import pytest
 from conftest import central_difference, relative_error
 
-from calib_oed import approximate_design
-from calib_oed import certificate as cert
-from calib_oed.design import design, exchange_baseline
-from calib_oed.design_objective import DesignObjective
+from calib_oed.calibration.workflow import setup
 from calib_oed.exceptions import CertificateError, ShapeError
 from calib_oed.feasibility.sampling import sample_feasible
-from calib_oed.scene import load_scene
-from calib_oed.sqp import SQPSettings
-from calib_oed.workflow import setup
+from calib_oed.oed import approximate as approximate_design
+from calib_oed.oed import certificate as cert
+from calib_oed.oed.design import design, exchange_baseline
+from calib_oed.oed.objective import DesignObjective
+from calib_oed.scene.reader import load_scene
+from calib_oed.solver.sqp import SQPSettings
 
 
 # ------------------------------------------------ the certificate of a design
@@ -100,7 +100,7 @@ def test_certify_errors(kr16, kr16_pool):
 
 
 def test_approximate_design_names_are_re_exported():
-    """Code importing the approximate design from calib_oed.certificate keeps working."""
+    """Code importing the approximate design from calib_oed.oed.certificate keeps working."""
     assert set(approximate_design.__all__) <= set(cert.__all__)
     for name in approximate_design.__all__:
         assert getattr(cert, name) is getattr(approximate_design, name)

@@ -78,8 +78,8 @@ def test_feasibility_command(capsys, tmp_path):
     out = capsys.readouterr().out
     assert "paper formula" in out and "10 of 10 feasible" in out
     assert "incidence" in out and "all 10 poses" in out.lower() or "feasible" in out
-    from calib_oed.design_file import read_design_csv
-    from calib_oed.scene import load_scene
+    from calib_oed.io.design_file import read_design_csv
+    from calib_oed.scene.reader import load_scene
 
     q = read_design_csv(design, load_scene("fms_kr16").robot)
     assert q.shape == (10, 6)

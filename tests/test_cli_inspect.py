@@ -7,11 +7,11 @@ import json
 import numpy as np
 import pytest
 
+from calib_oed.calibration.workflow import heuristic_design, setup
 from calib_oed.cli import EXIT_BAD_INPUT, EXIT_OK, main
-from calib_oed.design import evaluate_design
-from calib_oed.design_result import read_design_file, write_design
-from calib_oed.scene import load_scene
-from calib_oed.workflow import heuristic_design, setup
+from calib_oed.oed.design import evaluate_design
+from calib_oed.oed.result import read_design_file, write_design
+from calib_oed.scene.reader import load_scene
 
 
 @pytest.fixture(scope="module")

@@ -37,7 +37,7 @@ def test_aggregate_max_needs_the_kpi_criterion(capsys):
 def test_the_scene_aggregate_is_the_default(capsys, tmp_path):
     from importlib import resources
 
-    text = resources.files("calib_oed.scenes").joinpath("fms_kr16_program.yaml").read_text()
+    text = resources.files("calib_oed.scene.shipped").joinpath("fms_kr16_program.yaml").read_text()
     scene = tmp_path / "worst.yaml"
     scene.write_text(text.replace("\n  aggregate: mean ", "\n  aggregate: max "))
     argv = ["design", str(scene), "-n", "12", "--iterations", "2", "--json"]

@@ -10,16 +10,17 @@ import pinocchio as pin
 import pytest
 from conftest import central_difference, relative_error
 
+from calib_oed.calibration.identification import identify
+from calib_oed.calibration.kpi import TcpKpi
+from calib_oed.calibration.problem import CalibrationProblem
+from calib_oed.calibration.simulation import draw_true_parameters, simulate_observations
 from calib_oed.cli import EXIT_OK, main
-from calib_oed.compliance import STIFFNESS_RANGE, Compliance, GravityLoad
 from calib_oed.exceptions import SceneError
-from calib_oed.identification import identify
-from calib_oed.kpi import TcpKpi
-from calib_oed.measurements import PoseMeasurement, TrackerPosition, evaluate_setup
-from calib_oed.parameters import Group, ParameterSpace
-from calib_oed.problem import CalibrationProblem
-from calib_oed.scene import ComplianceSpec, load_scene, scene_from_dict
-from calib_oed.simulation import draw_true_parameters, simulate_observations
+from calib_oed.measurement import PoseMeasurement, TrackerPosition, evaluate_setup
+from calib_oed.model.compliance import STIFFNESS_RANGE, Compliance, GravityLoad
+from calib_oed.model.parameters import Group, ParameterSpace
+from calib_oed.scene.reader import load_scene, scene_from_dict
+from calib_oed.scene.records import ComplianceSpec
 
 MODELS = {
     "position": lambda: TrackerPosition(1, sigma=1e-5),
@@ -195,7 +196,7 @@ def test_scene_block_units_and_errors():
 
     import yaml
 
-    text = (resources.files("calib_oed") / "scenes" / "fms_kr300.yaml").read_text()
+    text = (resources.files("calib_oed.scene.shipped") / "fms_kr300.yaml").read_text()
     raw = yaml.safe_load(text)
     raw["robot"]["compliance"] = {"payload": {"mass": 10, "com": [0, 0, 100]}}
     scene = scene_from_dict(raw)
@@ -251,8 +252,8 @@ def test_cli_identifiability_with_compliance(capsys):
 def test_sensor_yaml_carries_the_compliances(tmp_path):
     import yaml
 
-    from calib_oed.export import read_sensor_yaml, write_sensor_yaml
-    from calib_oed.robot import load_robot
+    from calib_oed.calibration.export import read_sensor_yaml, write_sensor_yaml
+    from calib_oed.model.robot import load_robot
 
     space = ParameterSpace(load_robot("kr16"), _tracker(), REFLECTORS, compliance=PAYLOAD)
     p = space.zeros()
@@ -289,8 +290,8 @@ def test_validation_applies_the_exported_compliances(capsys, tmp_path):
 def test_sensor_compliance_section_errors(tmp_path):
     import yaml
 
+    from calib_oed.calibration.export import read_sensor_compliance, write_sensor_yaml
     from calib_oed.exceptions import ExportError
-    from calib_oed.export import read_sensor_compliance, write_sensor_yaml
 
     scene = dataclasses.replace(load_scene("fms_kr16"), compliance=ComplianceSpec(True, Compliance(10.0)))
     space = CalibrationProblem.from_scene(scene).space
@@ -315,8 +316,8 @@ def test_predicted_kpi_covariance_with_compliance_matches_monte_carlo():
     The truth draws the compliances too (stiffness log-uniform 1e6..1e7 N m/rad); the bands are those
     of tests/test_montecarlo.py (ratio s.e. ~0.033, coverage s.e. ~0.009 at N = 600).
     """
-    from calib_oed.montecarlo import monte_carlo
-    from calib_oed.workflow import heuristic_design, setup
+    from calib_oed.calibration.montecarlo import monte_carlo
+    from calib_oed.calibration.workflow import heuristic_design, setup
 
     scene = dataclasses.replace(load_scene("fms_kr16"),
                                 compliance=ComplianceSpec(True, Compliance(10.0, [0, 0, 0.1])))

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import scipy.stats
 
-from calib_oed.confidence import (
+from calib_oed.calibration.confidence import (
     ConfidenceEllipsoid,
     ConfidenceLevelError,
     NotPositiveDefiniteError,

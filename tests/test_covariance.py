@@ -9,19 +9,19 @@ import scipy.stats
 from conftest import make_space, relative_error
 
 from calib_oed import load_robot
-from calib_oed.covariance import (
+from calib_oed.calibration.covariance import (
     Projection,
     covariance_blocks,
     kkt_covariance,
     kpi_covariance,
     parameter_covariance,
 )
+from calib_oed.calibration.kpi import TcpKpi
+from calib_oed.calibration.problem import CalibrationProblem
 from calib_oed.exceptions import NotIdentifiableError, ShapeError
-from calib_oed.kpi import TcpKpi
-from calib_oed.measurements import TrackerPosition, evaluate_setup
-from calib_oed.problem import CalibrationProblem
-from calib_oed.scene import load_scene
-from calib_oed.sensitivity import stacked_values
+from calib_oed.measurement import TrackerPosition, evaluate_setup
+from calib_oed.measurement.sensitivity import stacked_values
+from calib_oed.scene.reader import load_scene
 
 
 @pytest.fixture(scope="module")

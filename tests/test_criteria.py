@@ -6,19 +6,19 @@ import numpy as np
 import pytest
 from conftest import central_difference, relative_error
 
-from calib_oed.criteria import (
+from calib_oed.exceptions import (
+    NonFiniteError,
+    NotIdentifiableError,
+    ShapeError,
+    UnknownCriterionError,
+)
+from calib_oed.oed.criteria import (
     CRITERIA,
     ACriterion,
     DCriterion,
     ECriterion,
     ObservabilityIndex,
     make_criterion,
-)
-from calib_oed.exceptions import (
-    NonFiniteError,
-    NotIdentifiableError,
-    ShapeError,
-    UnknownCriterionError,
 )
 
 G_HAND = np.array([[1.0, 1.0], [1.0, -1.0]])

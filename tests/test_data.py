@@ -10,7 +10,6 @@ import pytest
 from conftest import make_space
 
 from calib_oed import load_robot
-from calib_oed.data import MeasurementSet, read_measurements, write_measurements
 from calib_oed.exceptions import (
     ExportError,
     MeasurementFileError,
@@ -18,7 +17,10 @@ from calib_oed.exceptions import (
     ShapeError,
     UnknownJointError,
 )
-from calib_oed.measurements import PoseMeasurement, TrackerPosition, evaluate_setup
+from calib_oed.io.measurement_reader import read_measurements
+from calib_oed.io.measurement_writer import write_measurements
+from calib_oed.measurement import PoseMeasurement, TrackerPosition, evaluate_setup
+from calib_oed.measurement.dataset import MeasurementSet
 
 KR16_JOINTS = ",".join(f"joint_a{i}" for i in range(1, 7))
 UNITS = "# units: length=mm angle=deg"

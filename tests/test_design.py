@@ -6,13 +6,13 @@ import numpy as np
 import pytest
 import yaml
 
-from calib_oed.design import design, evaluate_design, exchange_baseline, heuristic_designs
-from calib_oed.design_file import read_design_csv
-from calib_oed.design_result import format_design_table, write_design
+from calib_oed.calibration.workflow import setup
 from calib_oed.exceptions import ShapeError
-from calib_oed.scene import load_scene
-from calib_oed.sqp import SQPSettings
-from calib_oed.workflow import setup
+from calib_oed.io.design_file import read_design_csv
+from calib_oed.oed.design import design, evaluate_design, exchange_baseline, heuristic_designs
+from calib_oed.oed.result import format_design_table, write_design
+from calib_oed.scene.reader import load_scene
+from calib_oed.solver.sqp import SQPSettings
 
 N = 14
 SETTINGS = SQPSettings(max_iterations=40)

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from calib_oed import load_robot
-from calib_oed.design_file import read_design_csv, write_design_csv
 from calib_oed.exceptions import ExportError, MeasurementFileError
+from calib_oed.io.design_file import read_design_csv, write_design_csv
 
 JOINTS = [f"joint_a{i}" for i in range(1, 7)]
 ROW = "0.1,-1.2,1.5,0.0,0.3,-0.4"  # inside kr16's limits [rad]
@@ -201,7 +201,7 @@ def test_write_to_a_missing_folder_leaves_nothing(kr16, tmp_path):
 
 
 def test_failed_write_keeps_the_old_file_and_no_temporary(kr16, tmp_path, monkeypatch):
-    import calib_oed.io_utils as io_utils
+    import calib_oed.io.atomic as io_utils
 
     path = write_design_csv(tmp_path / "design.csv", kr16, np.zeros((1, 6)))
     before = path.read_bytes()

@@ -6,12 +6,12 @@ import numpy as np
 import pytest
 from conftest import central_difference, make_space, relative_error
 
-from calib_oed.criteria import CRITERIA, ACriterion
-from calib_oed.design_objective import DesignObjective
-from calib_oed.kpi import TcpKpi
-from calib_oed.measurements import PoseMeasurement, TrackerPosition
-from calib_oed.problem import CalibrationProblem, GenericDesign
-from calib_oed.sensitivity import weighted_jacobian
+from calib_oed.calibration.kpi import TcpKpi
+from calib_oed.calibration.problem import CalibrationProblem, GenericDesign
+from calib_oed.measurement import PoseMeasurement, TrackerPosition
+from calib_oed.measurement.sensitivity import weighted_jacobian
+from calib_oed.oed.criteria import CRITERIA, ACriterion
+from calib_oed.oed.objective import DesignObjective
 
 
 def _partial_differences(objective, q, poses, eps=1e-5):

@@ -9,7 +9,8 @@ import json
 import numpy as np
 import pytest
 
-from calib_oed.criteria import (
+from calib_oed.exceptions import NonFiniteError, NotIdentifiableError, ShapeError
+from calib_oed.oed.criteria import (
     ACriterion,
     Criterion,
     DCriterion,
@@ -17,8 +18,7 @@ from calib_oed.criteria import (
     ObservabilityIndex,
     make_criterion,
 )
-from calib_oed.exceptions import NonFiniteError, NotIdentifiableError, ShapeError
-from calib_oed.exchange import ExchangeResult, exchange_design, information_matrix
+from calib_oed.oed.exchange import ExchangeResult, exchange_design, information_matrix
 
 N_CAND, N_DESIGN = 12, 4
 SHAPES = [(1, 3), (2, 3), (2, 2)]  # (d, n_p)

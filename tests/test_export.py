@@ -11,9 +11,9 @@ import pytest
 import yaml
 from conftest import ROBOTS, make_space
 
-from calib_oed import export, load_robot
-from calib_oed.exceptions import ExportError, ShapeError
-from calib_oed.export import (
+from calib_oed import load_robot
+from calib_oed.calibration import export
+from calib_oed.calibration.export import (
     SENSOR_FORMAT,
     calibrated_urdf_text,
     export_calibrated_urdf,
@@ -21,6 +21,7 @@ from calib_oed.export import (
     read_sensor_yaml,
     write_sensor_yaml,
 )
+from calib_oed.exceptions import ExportError, ShapeError
 
 TOL = 1e-9  # [m], [rad]
 

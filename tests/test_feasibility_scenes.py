@@ -9,7 +9,7 @@ from calib_oed.feasibility.margins import margin_report
 from calib_oed.feasibility.mesh_check import check_design_meshes
 from calib_oed.feasibility.pairs import feasibility_from_scene
 from calib_oed.feasibility.sampling import sample_feasible
-from calib_oed.scene import load_scene
+from calib_oed.scene.reader import load_scene
 
 
 @pytest.fixture(scope="module", params=["fms_kr16", "fms_kr300", "fms_kr500"])

@@ -9,10 +9,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from calib_oed import load_robot
-from calib_oed.identifiability import check_estimability, select_gauge
-from calib_oed.kpi import TcpKpi
-from calib_oed.measurements import PoseMeasurement, TrackerPosition
-from calib_oed.problem import CalibrationProblem
+from calib_oed.calibration.kpi import TcpKpi
+from calib_oed.calibration.problem import CalibrationProblem
+from calib_oed.measurement import PoseMeasurement, TrackerPosition
+from calib_oed.model.identifiability import check_estimability, select_gauge
 
 
 def test_greedy_selection_on_a_known_matrix():
@@ -114,7 +114,7 @@ def test_gauge_rank_and_null_space_on_planted_dependencies(n_independent, n_depe
 
 
 def test_report_explains_the_on_axis_reflector():
-    from calib_oed.report import reflectors_on_last_axis
+    from calib_oed.calibration.report import reflectors_on_last_axis
 
     robot = load_robot("kr16")
     kpi = TcpKpi(robot.random_configurations(1, 1))

@@ -9,20 +9,20 @@ import pytest
 from conftest import central_difference, make_space, relative_error
 
 from calib_oed import load_robot
-from calib_oed.exceptions import NotIdentifiableError, ParameterError, UnknownParameterError
-from calib_oed.identification import (
+from calib_oed.calibration.identification import (
     LOSSES,
     IdentificationStatus,
     identify,
     residual_function,
 )
-from calib_oed.kpi import TcpKpi
-from calib_oed.measurements import PoseMeasurement, TrackerPosition, evaluate_setup
-from calib_oed.observations import ObservationBlock
-from calib_oed.parameters import ANGLE_SCALE, LENGTH_SCALE
-from calib_oed.problem import CalibrationProblem
-from calib_oed.scene import load_scene
-from calib_oed.sensitivity import weighted_jacobian
+from calib_oed.calibration.kpi import TcpKpi
+from calib_oed.calibration.problem import CalibrationProblem
+from calib_oed.exceptions import NotIdentifiableError, ParameterError, UnknownParameterError
+from calib_oed.measurement import PoseMeasurement, TrackerPosition, evaluate_setup
+from calib_oed.measurement.observations import ObservationBlock
+from calib_oed.measurement.sensitivity import weighted_jacobian
+from calib_oed.model.parameters import ANGLE_SCALE, LENGTH_SCALE
+from calib_oed.scene.reader import load_scene
 
 
 def _problem(robot_name, reflectors, models):

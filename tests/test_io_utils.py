@@ -8,7 +8,7 @@ import stat
 import pytest
 
 from calib_oed.exceptions import ExportError
-from calib_oed.io_utils import atomic_write, atomic_write_text
+from calib_oed.io.atomic import atomic_write, atomic_write_text
 
 
 def test_written_files_get_the_permissions_of_a_plain_open(tmp_path):

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 from conftest import central_difference, relative_error
 
-from calib_oed.kinematics import (
+from calib_oed.model.kinematics import (
     compute_tool_kinematics,
     jacobian_config_derivative,
     regressor_config_derivative,

@@ -7,9 +7,9 @@ import pinocchio as pin
 import pytest
 from conftest import central_difference, relative_error
 
+from calib_oed.calibration.kpi import TcpKpi
 from calib_oed.exceptions import ShapeError
-from calib_oed.kinematics import compute_tool_kinematics
-from calib_oed.kpi import TcpKpi
+from calib_oed.model.kinematics import compute_tool_kinematics
 
 
 @pytest.mark.parametrize("frame", ["world", "tracker"])
@@ -50,7 +50,7 @@ def test_bad_kpi_input():
 
 
 def test_joint_path_sampling():
-    from calib_oed.kpi import sample_joint_path
+    from calib_oed.model.joint_path import sample_joint_path
 
     way = np.array([[0.0, 0.0], [3.0, 0.0], [3.0, 1.0]])  # joint-space length 4
     q = sample_joint_path(way, 5)

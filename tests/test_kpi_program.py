@@ -14,23 +14,23 @@ import pytest
 import yaml
 from conftest import central_difference, relative_error
 
-from calib_oed.criteria import ACriterion
-from calib_oed.design import design, evaluate_design
-from calib_oed.design_objective import DesignObjective
-from calib_oed.design_problem import WorstCaseDesignProblem
+from calib_oed.calibration.workflow import setup
 from calib_oed.exceptions import AggregateError, SceneError
 from calib_oed.feasibility.sampling import sample_feasible
-from calib_oed.kpi import sample_joint_path
-from calib_oed.scene import load_scene, scene_from_dict
-from calib_oed.sqp import SQPSettings
-from calib_oed.workflow import setup
+from calib_oed.model.joint_path import sample_joint_path
+from calib_oed.oed.criteria import ACriterion
+from calib_oed.oed.design import design, evaluate_design
+from calib_oed.oed.objective import DesignObjective
+from calib_oed.oed.problem import WorstCaseDesignProblem
+from calib_oed.scene.reader import load_scene, scene_from_dict
+from calib_oed.solver.sqp import SQPSettings
 
 CAR_SIDE = [-9, -73, 104, -38, -13, 0]
 N = 12
 
 
 def kr16_dict():
-    path = str(resources.files("calib_oed.scenes").joinpath("fms_kr16.yaml"))
+    path = str(resources.files("calib_oed.scene.shipped").joinpath("fms_kr16.yaml"))
     with open(path) as f:
         return yaml.safe_load(f), path
 
@@ -114,7 +114,7 @@ def test_shipped_program_scene_is_feasible_and_inside_the_limits():
 
     import yaml
 
-    raw = {n: yaml.safe_load((resources.files("calib_oed") / "scenes" / f"{n}.yaml").read_text())
+    raw = {n: yaml.safe_load((resources.files("calib_oed.scene.shipped") / f"{n}.yaml").read_text())
            for n in ("fms_kr16", "fms_kr16_program")}
     assert set(raw["fms_kr16"]) == set(raw["fms_kr16_program"])
     for key in set(raw["fms_kr16"]) - {"name", "description", "kpi"}:
@@ -194,8 +194,8 @@ def test_predicted_covariance_of_every_program_point_matches_monte_carlo():
     Ratio s.e. ~0.04 and coverage s.e. ~0.011 per point at N = 400; the bands are 4 s.e. or more wide
     on each side (the points are strongly correlated, so the 30 checks are far from independent).
     """
-    from calib_oed.montecarlo import monte_carlo
-    from calib_oed.workflow import heuristic_design
+    from calib_oed.calibration.montecarlo import monte_carlo
+    from calib_oed.calibration.workflow import heuristic_design
 
     s = setup(load_scene("fms_kr16_program"))
     mc = monte_carlo(s.problem, heuristic_design(s, 30, 4), n_runs=400, seed=7, n_jobs=2)

@@ -7,8 +7,8 @@ import pytest
 from conftest import central_difference, relative_error
 
 from calib_oed.exceptions import NonFiniteError, ShapeError
-from calib_oed.measurements import PoseMeasurement, TrackerPosition, evaluate_setup
-from calib_oed.sensitivity import stacked_sigma, weighted_jacobian
+from calib_oed.measurement import PoseMeasurement, TrackerPosition, evaluate_setup
+from calib_oed.measurement.sensitivity import stacked_sigma, weighted_jacobian
 
 MODELS = {
     "position": lambda: TrackerPosition(1, sigma=(1e-5, 2e-5, 1.5e-5)),

@@ -7,9 +7,9 @@ import json
 import numpy as np
 import pytest
 
-from calib_oed.montecarlo import monte_carlo
-from calib_oed.scene import load_scene
-from calib_oed.workflow import heuristic_design, setup
+from calib_oed.calibration.montecarlo import monte_carlo
+from calib_oed.calibration.workflow import heuristic_design, setup
+from calib_oed.scene.reader import load_scene
 
 
 @pytest.fixture(scope="module")

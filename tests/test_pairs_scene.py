@@ -12,7 +12,7 @@ import yaml
 
 from calib_oed.feasibility.bodies import compute_body_states
 from calib_oed.feasibility.pairs import feasibility_from_scene
-from calib_oed.scene import scene_from_dict
+from calib_oed.scene.reader import scene_from_dict
 
 # A capsule table for the kr16 in its link frames [mm] (the file's unit): rough, but enough
 # to tell it from the fitted capsules, whose names are "<link>#0" and radii differ.
@@ -29,7 +29,7 @@ TABLE_NAMES = ["turret", "upper_arm", "link_3#0", "link_3#1", "wrist"]
 @pytest.fixture(scope="module")
 def kr16_data():
     """The shipped fms_kr16 scene as parsed YAML (mm, deg), with a cheaper pruning pass."""
-    text = resources.files("calib_oed.scenes").joinpath("fms_kr16.yaml").read_text()
+    text = resources.files("calib_oed.scene.shipped").joinpath("fms_kr16.yaml").read_text()
     data = yaml.safe_load(text)
     data["feasibility"]["prune"] = {"samples": 500, "seed": 0, "distance": 100}
     return data

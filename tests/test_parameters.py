@@ -8,7 +8,7 @@ import pytest
 from conftest import central_difference, make_space, relative_error
 
 from calib_oed.exceptions import NonFiniteError, ShapeError, UnknownParameterError
-from calib_oed.kinematics import compute_tool_kinematics
+from calib_oed.model.kinematics import compute_tool_kinematics
 
 
 def test_order_names_and_units(space):
@@ -88,7 +88,7 @@ def test_unknown_parameter_name(space):
 
 
 def test_bad_reflector_offsets(robot):
-    from calib_oed.parameters import ParameterSpace
+    from calib_oed.model.parameters import ParameterSpace
 
     with pytest.raises(ShapeError):
         ParameterSpace(robot, pin.SE3.Identity(), np.zeros((2, 2)))

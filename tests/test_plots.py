@@ -9,17 +9,17 @@ import numpy as np
 import pytest
 import scipy.stats
 
-from calib_oed import plots
-from calib_oed.confidence import NotPositiveDefiniteError
-from calib_oed.design_objective import DesignObjective
-from calib_oed.exceptions import ExportError, NonFiniteError, ShapeError, UnknownCriterionError
-from calib_oed.scene import load_scene
-from calib_oed.workflow import (
+from calib_oed.calibration.confidence import NotPositiveDefiniteError
+from calib_oed.calibration.workflow import (
     heuristic_design,
     identify_measurements,
     setup,
     simulated_measurements,
 )
+from calib_oed.exceptions import ExportError, NonFiniteError, ShapeError, UnknownCriterionError
+from calib_oed.oed.objective import DesignObjective
+from calib_oed.scene.reader import load_scene
+from calib_oed.viz import plots
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 

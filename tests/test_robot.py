@@ -16,7 +16,7 @@ from calib_oed.exceptions import (
     UnknownRobotError,
     UnsupportedModelError,
 )
-from calib_oed.robot_registry import EXAMPLE_ROBOTS, own_urdf_path
+from calib_oed.model.registry import EXAMPLE_ROBOTS, own_urdf_path
 
 CHAIN = """<robot name="r">
   <link name="base"/><link name="l1"/><link name="l2"/>

@@ -1,4 +1,4 @@
-"""Tests of calib_oed.scene: shipped scenes, unit conversion, one test per validation failure."""
+"""Tests of calib_oed.scene.reader: shipped scenes, unit conversion, one test per validation failure."""
 
 from __future__ import annotations
 
@@ -12,10 +12,10 @@ import pinocchio as pin
 import pytest
 import yaml
 
-from calib_oed import kuka
 from calib_oed.exceptions import CalibOedError, SceneError, UnknownSceneError
 from calib_oed.feasibility.shapes import Capsule, FeasibilitySettings, Margins
-from calib_oed.scene import load_scene, scene_from_dict, scene_names
+from calib_oed.model import kuka
+from calib_oed.scene.reader import load_scene, scene_from_dict, scene_names
 
 # A 2-joint arm, revolute then prismatic, to check that prismatic joints take length units.
 RP_URDF = """<robot name="rp">
@@ -653,8 +653,8 @@ def test_halfspace_shorthands(entry, normal, offset):
 def test_package_dirs_find_meshes_of_a_urdf_elsewhere(tmp_path):
     """A URDF whose package:// meshes live in another folder loads once
     robot.package_dirs names it; without it the capsule fit says what to set."""
-    from calib_oed.robot_registry import example_robot_data_share
-    from calib_oed.workflow import setup
+    from calib_oed.calibration.workflow import setup
+    from calib_oed.model.registry import example_robot_data_share
 
     share = example_robot_data_share()
     if share is None:
@@ -664,7 +664,7 @@ def test_package_dirs_find_meshes_of_a_urdf_elsewhere(tmp_path):
     copy.write_text(urdf.read_text())
     from importlib import resources
 
-    base = yaml.safe_load(resources.files("calib_oed.scenes").joinpath("ur5_table.yaml").read_text())
+    base = yaml.safe_load(resources.files("calib_oed.scene.shipped").joinpath("ur5_table.yaml").read_text())
     base["robot"] = {"urdf": "ur5.urdf", "tool_frame": "tool0"}
     (tmp_path / "no_packages.yaml").write_text(yaml.safe_dump(base))
     with pytest.raises(CalibOedError, match="robot.package_dirs"):

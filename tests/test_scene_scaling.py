@@ -1,4 +1,4 @@
-"""Tests of calib_oed.scene_scaling: the fms_kr16 cell scaled by the reach ratio."""
+"""Tests of calib_oed.scene.scaling: the fms_kr16 cell scaled by the reach ratio."""
 
 from __future__ import annotations
 
@@ -9,11 +9,11 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from calib_oed import kuka
+from calib_oed.calibration.workflow import setup
 from calib_oed.exceptions import SceneError, UnknownRobotError
-from calib_oed.scene import load_scene, scene_from_dict
-from calib_oed.scene_scaling import scale_factor, scaled_scene, scaled_scene_dict
-from calib_oed.workflow import setup
+from calib_oed.model import kuka
+from calib_oed.scene.reader import load_scene, scene_from_dict
+from calib_oed.scene.scaling import scale_factor, scaled_scene, scaled_scene_dict
 
 # The smallest and the largest arm of the paper's grid, and the KR 16-2's own
 # dimensions as a notional arm (a2 = 680 mm, d4 = 670 mm: s = 1).

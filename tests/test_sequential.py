@@ -7,12 +7,12 @@ import json
 import numpy as np
 import pytest
 
+from calib_oed.calibration.workflow import heuristic_design, setup, simulated_measurements
 from calib_oed.exceptions import SequentialError
 from calib_oed.feasibility.sampling import sample_feasible
-from calib_oed.scene import load_scene
-from calib_oed.sequential import SequentialDesigner, measurements_needed, run_sequential
-from calib_oed.sqp import SQPSettings
-from calib_oed.workflow import heuristic_design, setup, simulated_measurements
+from calib_oed.oed.sequential import SequentialDesigner, measurements_needed, run_sequential
+from calib_oed.scene.reader import load_scene
+from calib_oed.solver.sqp import SQPSettings
 
 #: The heuristic 60-pose design of fms_kr16 (seed 0) predicts 0.0036 mm; 0.004 is reachable.
 TARGET = 0.004
@@ -169,7 +169,7 @@ def test_measurements_needed_heuristic_is_nested(kr16):
 # ------------------------------------------------------------------ the CLI
 def test_cli_sequential_stops_at_the_target_and_writes_its_files(capsys, tmp_path):
     from calib_oed.cli import EXIT_OK, main
-    from calib_oed.design_file import read_design_csv
+    from calib_oed.io.design_file import read_design_csv
 
     argv = ["sequential", "fms_kr16", "--target-sigma", "5um", "--initial", "9", "--batch", "2",
             "--no-compare", "--iterations", "10", "-o", str(tmp_path), "--json"]
@@ -231,7 +231,7 @@ def test_optimal_initial_design_starts_lower(kr16):
 def test_cli_sequential_step_on_measured_data(capsys, tmp_path, kr16):
     """--measured: identify from a real (here simulated) file, then propose the next batch or stop."""
     from calib_oed.cli import EXIT_OK, main
-    from calib_oed.design_file import read_design_csv
+    from calib_oed.io.design_file import read_design_csv
 
     meas = tmp_path / "m.csv"
     assert main(["simulate", "fms_kr16", "-n", "12", "--seed", "0", "--truth-seed", "2", "-o", str(meas),

@@ -5,10 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from calib_oed.measurements import TrackerPosition
-from calib_oed.problem import CalibrationProblem
-from calib_oed.scene import load_scene
-from calib_oed.simulation import draw_true_parameters, simulate_calibration, simulate_observations
+from calib_oed.calibration.problem import CalibrationProblem
+from calib_oed.calibration.simulation import (
+    draw_true_parameters,
+    simulate_calibration,
+    simulate_observations,
+)
+from calib_oed.measurement import TrackerPosition
+from calib_oed.scene.reader import load_scene
 
 
 @pytest.fixture(scope="module")

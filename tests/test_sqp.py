@@ -1,4 +1,4 @@
-"""Behaviour tests of the SQP solver (calib_oed.sqp, sqp_qp, sqp_result).
+"""Behaviour tests of the SQP solver (calib_oed.solver.sqp, sqp_qp, sqp_result).
 
 Known answers come from Hock & Schittkowski, *Test Examples for Nonlinear
 Programming Codes* (Springer, 1981), problems 21, 35, 43 (Rosen–Suzuki), 76
@@ -17,20 +17,20 @@ import scipy.optimize
 import scipy.sparse as sp
 
 from calib_oed.exceptions import NonFiniteError, ShapeError
-from calib_oed.sqp import (
+from calib_oed.solver.qp import (
+    DenseQPWorkspace,
+    QPSubproblem,
+    SparseQPWorkspace,
+    polish,
+    unreachable_rows,
+)
+from calib_oed.solver.sqp import (
     SQPProblemError,
     SQPSettings,
     SQPSettingsError,
     SQPStatus,
     damped_bfgs_update,
     solve_sqp,
-)
-from calib_oed.sqp_qp import (
-    DenseQPWorkspace,
-    QPSubproblem,
-    SparseQPWorkspace,
-    polish,
-    unreachable_rows,
 )
 
 

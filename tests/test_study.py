@@ -1,4 +1,4 @@
-"""Tests of the study runner, its configuration and its report (calib_oed.study*)."""
+"""Tests of the study runner, its configuration and its report (calib_oed.study.runner*)."""
 
 from __future__ import annotations
 
@@ -12,10 +12,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import calib_oed.study as study_module
+import calib_oed.study.runner as study_module
+from calib_oed.calibration.workflow import setup
 from calib_oed.exceptions import OptionalDependencyError, StudyConfigError, StudyResumeError
-from calib_oed.kuka import notional_grid
-from calib_oed.study import (
+from calib_oed.model.kuka import notional_grid
+from calib_oed.study.config import load_study_config, study_config_from_dict, study_names
+from calib_oed.study.report import study_tables, write_report
+from calib_oed.study.runner import (
     CaseFailure,
     DesignRow,
     colliding_poses,
@@ -23,9 +26,6 @@ from calib_oed.study import (
     read_study,
     run_study,
 )
-from calib_oed.study_config import load_study_config, study_config_from_dict, study_names
-from calib_oed.study_report import study_tables, write_report
-from calib_oed.workflow import setup
 
 # CI's study: the shipped 2-arm smoke configuration (20 poses, 3 heuristic
 # seeds, 10 SQP iterations; about 1 s a case), as a dict to vary.
@@ -331,8 +331,8 @@ def test_report_tables_match_the_table(smoke_study, tmp_path):
 
 
 def test_report_exports_the_figure7_case_designs(smoke_study, tmp_path):
-    from calib_oed.design_file import read_design_csv
-    from calib_oed.study_report import figure7_case
+    from calib_oed.io.design_file import read_design_csv
+    from calib_oed.study.report import figure7_case
 
     paths = write_report(smoke_study, tmp_path, figures=False)
     case = figure7_case(smoke_study)
@@ -372,7 +372,7 @@ def test_full_study(name, tmp_path):
 
 
 def test_sigma_improvement_is_the_standard_deviation_ratio():
-    from calib_oed.study_report import sigma_improvement_pct
+    from calib_oed.study.report import sigma_improvement_pct
 
     v0, v1 = 1.256e-05, 4.021e-06
     from_variance = 100 * (1 - v1 / v0)

@@ -1,4 +1,4 @@
-"""The meshcat inspection view (calib_oed.viewer).
+"""The meshcat inspection view (calib_oed.viz.viewer).
 
 What the page contains is read back from the written static HTML itself: each
 drawing command is a base64 msgpack blob there, decoded here with umsgpack
@@ -27,7 +27,7 @@ import scipy.stats
 import umsgpack
 import yaml
 
-from calib_oed import viewer
+from calib_oed.calibration.workflow import heuristic_design, setup
 from calib_oed.exceptions import (
     ConfidenceLevelError,
     ExportError,
@@ -35,8 +35,8 @@ from calib_oed.exceptions import (
     ShapeError,
     ViewerSettingError,
 )
-from calib_oed.scene import load_scene, scene_from_dict
-from calib_oed.workflow import heuristic_design, setup
+from calib_oed.scene.reader import load_scene, scene_from_dict
+from calib_oed.viz import viewer
 
 N_POSES = 10  # the fewest round numbers of poses that determine fms_kr16's KPI (25 free parameters)
 CHROMIUM_FLAGS = (
@@ -344,7 +344,7 @@ def test_page_is_written_atomically(s, design, tmp_path, monkeypatch):
     def fail(src, dst):
         raise OSError("disk full")
 
-    monkeypatch.setattr("calib_oed.io_utils.os.replace", fail)
+    monkeypatch.setattr("calib_oed.io.atomic.os.replace", fail)
     with pytest.raises((OSError, ExportError), match="disk full"):
         viewer.write_static_html(target, s, design[:2], animate=False)
     assert target.read_text() == "previous page"  # untouched, no temporary left behind

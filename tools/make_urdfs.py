@@ -16,7 +16,7 @@ REPO_ROOT = Path(__file__).resolve().parents[1]
 if str(REPO_ROOT) not in sys.path:  # run from a checkout that is not installed
     sys.path.insert(0, str(REPO_ROOT))
 
-from calib_oed.kuka import KUKA_ROBOTS, kuka_urdf, write_kuka_urdf  # noqa: E402
+from calib_oed.model.kuka import KUKA_ROBOTS, kuka_urdf, write_kuka_urdf  # noqa: E402
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -92,7 +92,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=cmd_demo)
 
-    from calib_oed.criteria import CRITERIA
+    from calib_oed.oed.criteria import CRITERIA
 
     p = sub.add_parser("design", help="optimal measurement configurations (SQP from a heuristic start)")
     scene_arg(p)

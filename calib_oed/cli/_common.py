@@ -38,8 +38,8 @@ def _positive_int(text: str) -> int:
 
 
 def _problem(scene_ref):
-    from calib_oed.problem import CalibrationProblem
-    from calib_oed.scene import load_scene
+    from calib_oed.calibration.problem import CalibrationProblem
+    from calib_oed.scene.reader import load_scene
 
     scene = load_scene(scene_ref) if isinstance(scene_ref, (str, os.PathLike)) else scene_ref
     return scene, CalibrationProblem.from_scene(scene)
@@ -56,8 +56,9 @@ def _apply_compliance(args) -> None:
         return
     import dataclasses
 
-    from calib_oed.compliance import Compliance
-    from calib_oed.scene import ComplianceSpec, load_scene
+    from calib_oed.model.compliance import Compliance
+    from calib_oed.scene.reader import load_scene
+    from calib_oed.scene.records import ComplianceSpec
 
     scene = load_scene(args.scene)
     payload = scene.compliance.payload if scene.compliance is not None else Compliance()
@@ -69,16 +70,16 @@ def _apply_compliance(args) -> None:
 
 
 def _setup(scene_ref):
-    from calib_oed.scene import load_scene
-    from calib_oed.workflow import setup
+    from calib_oed.calibration.workflow import setup
+    from calib_oed.scene.reader import load_scene
 
     return setup(load_scene(scene_ref) if isinstance(scene_ref, (str, os.PathLike)) else scene_ref)
 
 
 def _design(s, args):
     """The design of a command: a design file (YAML or CSV), or n heuristic feasible poses."""
-    from calib_oed.design_result import read_design_file
-    from calib_oed.workflow import heuristic_design
+    from calib_oed.calibration.workflow import heuristic_design
+    from calib_oed.oed.result import read_design_file
 
     path = getattr(args, "design", None) or getattr(args, "design_option", None)
     if path:
@@ -95,7 +96,7 @@ def _say(args, text: str = "") -> None:
 def _sqp_settings(args):
     from dataclasses import replace
 
-    from calib_oed.design import DESIGN_SQP
+    from calib_oed.oed.design import DESIGN_SQP
 
     settings = DESIGN_SQP
     if getattr(args, "iterations", None):
@@ -121,7 +122,7 @@ def _progress(args, what: str):
 
 
 def _optimise(s, args, criterion: str, start, aggregate: str = "mean"):
-    from calib_oed.design import design
+    from calib_oed.oed.design import design
 
     what = f"{criterion}{'-max' if aggregate == 'max' else ''}-optimal design"
     callback, bar = _progress(args, what)

@@ -24,17 +24,17 @@ def cmd_demo(args) -> int:
     import tempfile
     import time
 
-    from calib_oed.design import evaluate_design
-    from calib_oed.design_result import format_design_table, write_design
-    from calib_oed.montecarlo import monte_carlo
-    from calib_oed.report import format_identifiability, format_kpi_sigma
-    from calib_oed.workflow import (
+    from calib_oed.calibration.montecarlo import monte_carlo
+    from calib_oed.calibration.report import format_identifiability, format_kpi_sigma
+    from calib_oed.calibration.workflow import (
         export_result,
         identify_measurements,
         round_trip_error,
         simulated_measurements,
         tcp_errors,
     )
+    from calib_oed.oed.design import evaluate_design
+    from calib_oed.oed.result import format_design_table, write_design
 
     s = _setup(args.scene)
     problem = s.problem
@@ -77,7 +77,11 @@ def cmd_demo(args) -> int:
 
 
 def cmd_simulate(args) -> int:
-    from calib_oed.workflow import simulated_measurements, write_measurement_file, write_truth
+    from calib_oed.calibration.workflow import (
+        simulated_measurements,
+        write_measurement_file,
+        write_truth,
+    )
 
     s = _setup(args.scene)
     q, what = _design(s, args)
@@ -96,7 +100,7 @@ def cmd_simulate(args) -> int:
 
 
 def cmd_identify(args) -> int:
-    from calib_oed.workflow import (
+    from calib_oed.calibration.workflow import (
         export_result,
         identify_measurements,
         read_scene_measurements,
@@ -120,11 +124,11 @@ def cmd_identify(args) -> int:
         paths = export_result(s, result, args.output)
         data["files"] = {k: str(v) for k, v in paths.items()}
         data["round_trip_m"] = round_trip_error(s, result.p, paths["urdf"])
-        from calib_oed.io_utils import atomic_write_text
+        from calib_oed.io.atomic import atomic_write_text
 
         atomic_write_text(Path(args.output) / "identification.json", json.dumps(data, indent=2))
     if args.plot:
-        from calib_oed.plots import plot_residuals, save_figure
+        from calib_oed.viz.plots import plot_residuals, save_figure
 
         data["plot"] = str(save_figure(plot_residuals(result), args.plot))
     if args.json:
@@ -144,8 +148,8 @@ def cmd_identify(args) -> int:
 
 
 def cmd_validate(args) -> int:
-    from calib_oed.validation import validate_calibration
-    from calib_oed.workflow import read_scene_measurements
+    from calib_oed.calibration.validation import validate_calibration
+    from calib_oed.calibration.workflow import read_scene_measurements
 
     s = _setup(args.scene)
     units = {k: v for k, v in (("length_unit", args.length_unit), ("angle_unit", args.angle_unit)) if v}
@@ -159,7 +163,7 @@ def cmd_validate(args) -> int:
 
 
 def cmd_montecarlo(args) -> int:
-    from calib_oed.montecarlo import monte_carlo
+    from calib_oed.calibration.montecarlo import monte_carlo
 
     s = _setup(args.scene)
     q, what = _design(s, args)
@@ -176,9 +180,9 @@ def cmd_montecarlo(args) -> int:
 
 
 def cmd_study(args) -> int:
-    from calib_oed.study import run_study
-    from calib_oed.study_config import load_study_config
-    from calib_oed.study_report import write_report
+    from calib_oed.study.config import load_study_config
+    from calib_oed.study.report import write_report
+    from calib_oed.study.runner import run_study
 
     config = load_study_config(args.config)
     command = "calib-oed " + " ".join(args.argv)
@@ -202,7 +206,7 @@ def cmd_study(args) -> int:
 
 
 def cmd_scenes(args) -> int:
-    from calib_oed.scene import scene_names
+    from calib_oed.scene.reader import scene_names
 
     if args.json:
         print(json.dumps(scene_names()))
@@ -213,7 +217,7 @@ def cmd_scenes(args) -> int:
 
 
 def cmd_robots(args) -> int:
-    from calib_oed.robot_registry import robot_names
+    from calib_oed.model.registry import robot_names
 
     if args.json:
         print(json.dumps(robot_names()))

@@ -22,7 +22,7 @@ from calib_oed.cli._common import (
 
 
 def cmd_identifiability(args) -> int:
-    from calib_oed.report import format_identifiability, identifiability_dict
+    from calib_oed.calibration.report import format_identifiability, identifiability_dict
 
     scene, problem = _problem(args.scene)
     report = problem.identifiability
@@ -37,8 +37,8 @@ def cmd_identifiability(args) -> int:
 
 
 def cmd_design(args) -> int:
-    from calib_oed.design_file import read_design_csv
-    from calib_oed.design_result import write_design
+    from calib_oed.io.design_file import read_design_csv
+    from calib_oed.oed.result import write_design
 
     s = _setup(args.scene)
     start = args.start
@@ -63,8 +63,8 @@ def cmd_design(args) -> int:
 
 
 def cmd_evaluate(args) -> int:
-    from calib_oed.design import evaluate_design
-    from calib_oed.report import format_kpi_sigma
+    from calib_oed.calibration.report import format_kpi_sigma
+    from calib_oed.oed.design import evaluate_design
 
     s = _setup(args.scene)
     q, what = _design(s, args)
@@ -75,7 +75,7 @@ def cmd_evaluate(args) -> int:
     plots = _evaluate_plots(s, q, args) if args.plot else {}
     certificate = None
     if args.certificate:
-        from calib_oed.certificate import certify
+        from calib_oed.oed.certificate import certify
 
         certificate = certify(s, q, args.criterion, pool=args.pool, seed=args.seed)
     # the certificate is for A-type criteria: with a worst-case KPI it certifies the mean, and says so
@@ -124,7 +124,7 @@ def cmd_evaluate(args) -> int:
 
 
 def _evaluate_plots(s, q, args) -> dict[str, Path]:
-    from calib_oed.plots import plot_kpi_ellipsoids, plot_pose_contributions, save_figure
+    from calib_oed.viz.plots import plot_kpi_ellipsoids, plot_pose_contributions, save_figure
 
     folder = Path(args.plot)
     folder.mkdir(parents=True, exist_ok=True)
@@ -136,8 +136,8 @@ def _evaluate_plots(s, q, args) -> dict[str, Path]:
 
 
 def cmd_compare(args) -> int:
-    from calib_oed.design import evaluate_design
-    from calib_oed.design_result import (
+    from calib_oed.oed.design import evaluate_design
+    from calib_oed.oed.result import (
         design_label,
         format_criteria_table,
         format_design_table,
@@ -152,7 +152,7 @@ def cmd_compare(args) -> int:
     for label, path in _iterate(args, list(zip(labels, args.designs, strict=True)), "designs"):
         designs[label] = evaluate_design(s, read_design_file(path, s.problem.robot), "kpi", method="given")
     if args.plot:
-        from calib_oed.plots import plot_kpi_ellipsoids, save_figure
+        from calib_oed.viz.plots import plot_kpi_ellipsoids, save_figure
 
         save_figure(plot_kpi_ellipsoids(s.problem, {k: d.q for k, d in designs.items()}), args.plot)
     if args.json:
@@ -173,12 +173,12 @@ def cmd_compare(args) -> int:
 def cmd_view(args) -> int:
     import time
 
-    from calib_oed.viewer import open_viewer, write_static_html
+    from calib_oed.viz.viewer import open_viewer, write_static_html
 
     s = _setup(args.scene)
     q = None
     if args.design:
-        from calib_oed.design_result import read_design_file
+        from calib_oed.oed.result import read_design_file
 
         q = read_design_file(args.design, s.problem.robot)
     options = {"ellipsoid_scale": args.scale, "level": args.level, "robot_drawing": args.drawing}
@@ -211,8 +211,8 @@ def cmd_view(args) -> int:
 def cmd_feasibility(args) -> int:
     import time
 
-    from calib_oed.design_file import write_design_csv
     from calib_oed.feasibility.margins import format_margins, margin_report
+    from calib_oed.io.design_file import write_design_csv
 
     s = _setup(args.scene)
     t0 = time.perf_counter()
@@ -257,10 +257,10 @@ def cmd_feasibility(args) -> int:
 
 def _sequential_step(s, args, settings) -> int:
     """One step of a real sequential calibration: identify from the file, then stop or propose."""
-    from calib_oed.design_file import write_design_csv
-    from calib_oed.io_utils import atomic_write_text
-    from calib_oed.sequential import SequentialDesigner
-    from calib_oed.workflow import identify_measurements, read_scene_measurements
+    from calib_oed.calibration.workflow import identify_measurements, read_scene_measurements
+    from calib_oed.io.atomic import atomic_write_text
+    from calib_oed.io.design_file import write_design_csv
+    from calib_oed.oed.sequential import SequentialDesigner
 
     units = {k: v for k, v in (("length_unit", args.length_unit), ("angle_unit", args.angle_unit)) if v}
     mset = read_scene_measurements(s, args.measured, **units)
@@ -314,9 +314,9 @@ def _sequential_step(s, args, settings) -> int:
 def cmd_sequential(args) -> int:
     from dataclasses import replace
 
-    from calib_oed.design_file import write_design_csv
-    from calib_oed.io_utils import atomic_write_text
-    from calib_oed.sequential import SEQUENTIAL_SQP, run_sequential
+    from calib_oed.io.atomic import atomic_write_text
+    from calib_oed.io.design_file import write_design_csv
+    from calib_oed.oed.sequential import SEQUENTIAL_SQP, run_sequential
 
     s = _setup(args.scene)
     settings = SEQUENTIAL_SQP if not args.iterations else replace(SEQUENTIAL_SQP, max_iterations=args.iterations)

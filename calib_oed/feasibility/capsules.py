@@ -50,7 +50,7 @@ from scipy.spatial import ConvexHull, QhullError
 
 from calib_oed.exceptions import RobotLoadError, UnknownLinkError
 from calib_oed.feasibility.shapes import Capsule, FeasibilitySettings
-from calib_oed.robot import Robot
+from calib_oed.model.robot import Robot
 
 __all__ = [
     "capsules_from_table", "fit_capsule", "fit_capsules", "link_geometry_points",

@@ -41,7 +41,7 @@ import scipy.sparse
 from calib_oed.feasibility.bodies import BodyStates, compute_body_states
 from calib_oed.feasibility.segments import closest_parameters
 from calib_oed.feasibility.shapes import Capsule, Cell, FeasibilitySettings
-from calib_oed.robot import Robot, frame_index
+from calib_oed.model.robot import Robot, frame_index
 
 #: Constraint kinds, in row order within a pose.
 KINDS = ("joint", "incidence", "self", "obstacle", "beam")

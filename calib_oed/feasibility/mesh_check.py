@@ -40,7 +40,7 @@ import pinocchio as pin
 from calib_oed.exceptions import NonFiniteError, ShapeError, UnknownLinkError
 from calib_oed.feasibility.capsules import link_names, load_collision_model
 from calib_oed.feasibility.shapes import Cell
-from calib_oed.robot import Robot
+from calib_oed.model.robot import Robot
 
 __all__ = ["MeshCheckReport", "check_design_meshes"]
 

@@ -27,7 +27,7 @@ import numpy as np
 from calib_oed.exceptions import UnknownLinkError
 from calib_oed.feasibility.constraints import FeasibilityModel, SegmentTable, build_segments
 from calib_oed.feasibility.shapes import Capsule, Cell, FeasibilitySettings
-from calib_oed.robot import Robot
+from calib_oed.model.robot import Robot
 
 
 @dataclass(frozen=True)
@@ -226,7 +226,7 @@ def build_feasibility_model(
 
 
 def feasibility_from_scene(scene, prune: bool = True) -> tuple[FeasibilityModel, PairReport]:
-    """The feasibility model of a :class:`calib_oed.scene.Scene` (its cell and settings)."""
+    """The feasibility model of a :class:`calib_oed.scene.records.Scene` (its cell and settings)."""
     return build_feasibility_model(
         scene.robot,
         scene.cell,

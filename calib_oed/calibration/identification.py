@@ -1,0 +1,354 @@
+r"""Weighted nonlinear least-squares identification of the calibration parameters.
+
+From observation blocks (configurations :math:`q`, measured values
+:math:`\eta`, standard deviations :math:`\sigma`), :func:`identify` estimates
+the free parameters :math:`p_f` (paper eq. 5–6), the fixed ones held at
+:math:`p_0`:
+
+.. math::
+    \hat p_f = \arg\min_{p_f}\ \tfrac12 \sum_{i=1}^{m} f_s^2\,\rho\big((r_i(p)/f_s)^2\big),
+    \qquad r(p) = \Sigma^{-1}\big(h(p, q) - \eta\big) \in \mathbb{R}^m,
+
+with :math:`\rho(z) = z` for ``loss="linear"`` (then the cost is
+:math:`\tfrac12\lVert r\rVert^2`) or a robust :math:`\rho` (``"huber"``,
+``"soft_l1"``, scipy's definitions) and :math:`f_s` = ``f_scale`` in units of
+:math:`\sigma`. :math:`r` is the paper's :math:`-f_1`. Rows: block order, then
+configuration, then component. The Jacobian is analytic,
+:math:`\partial r/\partial p_f = \Sigma^{-1}\,\partial h/\partial p_f = F_1[:, f]`
+(the measurement models' ``compute_param_jacobian``). Solver:
+``scipy.optimize.least_squares``. How to read the result: ``docs/identification.md``.
+
+This module owns the estimator: the residual :math:`r` and its Jacobian
+(:func:`residual_function`), the options and :func:`identify`. The record it
+returns, :class:`IdentificationResult` with :class:`IdentificationStatus`,
+:class:`Outlier` and :class:`ParameterEstimate`, lives in
+:mod:`calib_oed.calibration.identification_result` and is re-exported here.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from typing import NamedTuple
+
+import numpy as np
+import scipy.optimize
+
+from calib_oed.calibration.covariance import information_cholesky, parameter_covariance
+from calib_oed.calibration.identification_result import (
+    IdentificationResult,
+    IdentificationStatus,
+    Outlier,
+    ParameterEstimate,
+)
+from calib_oed.exceptions import NotIdentifiableError, ParameterError
+from calib_oed.measurement import evaluate_setup
+from calib_oed.measurement.observations import ObservationBlock
+from calib_oed.model.identifiability import IdentifiabilityReport
+from calib_oed.model.parameters import ANGLE_SCALE, LENGTH_SCALE, ParameterSpace
+
+__all__ = [
+    "LOSSES",
+    "METHODS",
+    "IdentificationResult",
+    "IdentificationStatus",
+    "Outlier",
+    "ParameterEstimate",
+    "ResidualFunction",
+    "identify",
+    "residual_function",
+]
+
+#: Loss functions :func:`identify` accepts (scipy's names).
+LOSSES = ("linear", "huber", "soft_l1")
+#: Solvers of ``scipy.optimize.least_squares``; ``"lm"`` needs the linear loss.
+METHODS = ("lm", "trf")
+
+
+class ResidualFunction(NamedTuple):
+    """Weighted residual :math:`r(p_f)` (m,) and its Jacobian (m, n_f), of the free vector."""
+
+    fun: Callable[[np.ndarray], np.ndarray]
+    jac: Callable[[np.ndarray], np.ndarray]
+
+
+# --------------------------------------------------------------------------- residuals
+def _free_indices(space: ParameterSpace, free) -> np.ndarray:
+    if isinstance(free, IdentifiabilityReport):
+        if tuple(free.names) != tuple(space.names):
+            raise ParameterError("the identifiability report is for a different parameter "
+                                 f"space ({len(free.names)} parameters, this one has {space.size})")
+        idx = [int(i) for i in free.free_indices]
+    else:
+        items = [free] if isinstance(free, (str, int, np.integer)) else list(free)
+        idx = []
+        for item in items:
+            if isinstance(item, str):
+                idx.append(space.index(item))
+            elif isinstance(item, (int, np.integer)) and not isinstance(item, bool):
+                if not 0 <= item < space.size:
+                    raise ParameterError(f"free parameter index {item} out of range 0..{space.size - 1}")
+                idx.append(int(item))
+            else:
+                raise ParameterError(f"free: expected an IdentifiabilityReport, parameter names "
+                                     f"or indices, got {item!r}")
+    if not idx:
+        raise ParameterError("free: no free parameters to identify")
+    if len(set(idx)) != len(idx):
+        dup = sorted({space.names[i] for i in idx if idx.count(i) > 1})
+        raise ParameterError(f"free: parameters given twice: {dup}")
+    out = np.array(sorted(idx), dtype=int)
+    out.setflags(write=False)
+    return out
+
+
+class _Residuals:
+    """Evaluates r and dr/dp_f; kinematics once per distinct q and per x (last x cached)."""
+
+    def __init__(self, space: ParameterSpace, blocks: Sequence[ObservationBlock],
+                 free: np.ndarray, p0: np.ndarray):
+        self.blocks = tuple(blocks)
+        if not self.blocks:
+            raise ValueError("identify: no observation blocks")
+        for b in self.blocks:
+            if not isinstance(b, ObservationBlock):
+                raise TypeError(f"expected ObservationBlock, got {type(b).__name__}")
+        self.space, self.free, self.p0 = space, free, p0
+        self.groups: list[tuple[np.ndarray, list[int]]] = []
+        for k, b in enumerate(self.blocks):
+            q = space.robot.check_configurations(b.q, f"q of block {k} ({b.model.name})")
+            for gq, members in self.groups:
+                if gq.shape == q.shape and np.array_equal(gq, q):
+                    members.append(k)
+                    break
+            else:
+                self.groups.append((q, [k]))
+        self.sigma = np.concatenate([b.sigma.ravel() for b in self.blocks])
+        self.eta = np.concatenate([b.values.ravel() for b in self.blocks])
+        sizes = np.cumsum([0] + [b.values.size for b in self.blocks])
+        self.slices = [slice(a, z) for a, z in zip(sizes[:-1], sizes[1:], strict=True)]
+        self._x: np.ndarray | None = None
+        self._states: list | None = None
+
+    def full(self, x: np.ndarray) -> np.ndarray:
+        p = self.p0.copy()
+        p[self.free] = x
+        return p
+
+    def _states_at(self, x: np.ndarray) -> list:
+        x = np.asarray(x, dtype=float)
+        if self._x is None or not np.array_equal(self._x, x):
+            p = self.full(x)
+            self._states = [evaluate_setup(self.space, p, q, regressor=True, jacobian=False)
+                            for q, _ in self.groups]
+            self._x = x.copy()
+        return self._states
+
+    def fun(self, x: np.ndarray) -> np.ndarray:
+        h = np.empty_like(self.eta)
+        for state, (_, members) in zip(self._states_at(x), self.groups, strict=True):
+            for k in members:
+                h[self.slices[k]] = self.blocks[k].model.compute_values(state).ravel()
+        return (h - self.eta) / self.sigma
+
+    def jac(self, x: np.ndarray) -> np.ndarray:
+        out = np.empty((self.eta.size, self.free.size))
+        for state, (_, members) in zip(self._states_at(x), self.groups, strict=True):
+            for k in members:
+                b = self.blocks[k]
+                dh = b.model.compute_param_jacobian(state)[:, :, self.free]
+                out[self.slices[k]] = (dh / b.sigma[:, :, None]).reshape(-1, self.free.size)
+        return out
+
+
+def residual_function(space: ParameterSpace, blocks: Sequence[ObservationBlock], free,
+                      p0: np.ndarray | None = None) -> ResidualFunction:
+    r"""The weighted residual :math:`r = \Sigma^{-1}(h - \eta)` and its Jacobian as functions of :math:`p_f`.
+
+    Args:
+        space: Parameter layout.
+        blocks: The measured data.
+        free: An :class:`~calib_oed.model.identifiability.IdentifiabilityReport`, or
+            parameter names or indices; taken in the declared parameter order.
+        p0: Values of the fixed parameters (SI); nominal (zeros) by default.
+    """
+    free_idx = _free_indices(space, free)
+    res = _Residuals(space, blocks, free_idx, space.check(p0, "p0").copy())
+    return ResidualFunction(res.fun, res.jac)
+
+
+# --------------------------------------------------------------------------- identify
+def _readonly(a) -> np.ndarray:
+    a = np.array(a, dtype=float)
+    a.setflags(write=False)
+    return a
+
+
+def _check_options(loss, method, f_scale, max_nfev, correlation_threshold, outlier_threshold):
+    if loss not in LOSSES:
+        raise ParameterError(f"unknown loss {loss!r}; valid losses are: {', '.join(LOSSES)}")
+    if method is None:
+        method = "lm" if loss == "linear" else "trf"
+    if method not in METHODS:
+        raise ParameterError(f"unknown method {method!r}; valid methods are: {', '.join(METHODS)}")
+    if method == "lm" and loss != "linear":
+        raise ParameterError(f"method 'lm' needs loss 'linear' (got {loss!r}); "
+                             "use method 'trf' with a robust loss")
+    if not (np.isfinite(f_scale) and f_scale > 0):
+        raise ParameterError(f"f_scale must be positive [sigma], got {f_scale}")
+    if max_nfev is not None and int(max_nfev) < 1:
+        raise ParameterError(f"max_nfev must be >= 1 or None, got {max_nfev}")
+    if not 0 < correlation_threshold <= 1:
+        raise ParameterError(f"correlation_threshold must be in (0, 1], got {correlation_threshold}")
+    if not outlier_threshold > 0:
+        raise ParameterError(f"outlier_threshold must be positive [sigma], got {outlier_threshold}")
+    return method
+
+
+def _status(code: int) -> IdentificationStatus:
+    if code > 0:
+        return IdentificationStatus.CONVERGED
+    return IdentificationStatus.MAX_ITERATIONS if code == 0 else IdentificationStatus.FAILED
+
+
+def _uncertainty(a: np.ndarray, scale: np.ndarray, names) -> tuple[np.ndarray, float, str]:
+    """:math:`C_p` (SI) and the condition number from :math:`A = F_1 D`; NaN and a note if singular."""
+    try:
+        cov = parameter_covariance(a, names) * np.outer(scale, scale)
+    except NotIdentifiableError as exc:  # singular at the estimate: report, do not raise
+        return np.full((a.shape[1],) * 2, np.nan), float("inf"), str(exc)
+    sv = np.linalg.svd(a, compute_uv=False)
+    return cov, float(sv[0] / sv[-1]), ""
+
+
+def _correlations(cov: np.ndarray, names, threshold: float):
+    std = np.sqrt(np.diag(cov))
+    corr = cov / np.outer(std, std)
+    corr = (corr + corr.T) / 2
+    np.fill_diagonal(corr, 1.0)
+    n = len(names)
+    strong = sorted(
+        ((names[i], names[j], float(corr[i, j]))
+         for i in range(n) for j in range(i + 1, n) if abs(corr[i, j]) > threshold),
+        key=lambda t: -abs(t[2]),
+    )
+    return corr, tuple(strong)
+
+
+def _block_diagnostics(res: _Residuals, r: np.ndarray, threshold: float):
+    """Per block: raw residuals, position [mm] and rotation [mrad] norms, row norms [sigma], outliers."""
+    raw, pos_mm, ang_mrad, norms, outliers = [], [], [], [], []
+    for k, b in enumerate(res.blocks):
+        rk = r[res.slices[k]].reshape(b.values.shape)
+        raw.append(_readonly(rk * b.sigma))
+        units = np.array(b.model.units)
+        pos_mm.append(_readonly(np.linalg.norm(raw[-1][:, units == "m"], axis=1) / LENGTH_SCALE))
+        ang_mrad.append(
+            _readonly(np.linalg.norm(raw[-1][:, units == "rad"], axis=1) / ANGLE_SCALE)
+            if np.any(units == "rad") else None
+        )
+        norms.append(_readonly(np.linalg.norm(rk, axis=1) / np.sqrt(b.model.dim)))
+        outliers += [Outlier(k, int(i), float(norms[-1][i]))
+                     for i in np.flatnonzero(norms[-1] > threshold)]
+    return tuple(raw), tuple(pos_mm), tuple(ang_mrad), tuple(norms), tuple(outliers)
+
+
+def identify(
+    space: ParameterSpace,
+    blocks: Sequence[ObservationBlock],
+    free,
+    *,
+    p0: np.ndarray | None = None,
+    loss: str = "linear",
+    f_scale: float = 3.0,
+    method: str | None = None,
+    max_nfev: int | None = None,
+    xtol: float = 1e-10,
+    ftol: float = 1e-10,
+    gtol: float = 1e-10,
+    correlation_threshold: float = 0.9,
+    outlier_threshold: float = 3.0,
+) -> IdentificationResult:
+    """Estimate the free parameters from measured data (weighted nonlinear least squares).
+
+    Args:
+        space: Parameter layout.
+        blocks: Measured data; blocks with equal ``q`` share one kinematics pass.
+        free: An :class:`~calib_oed.model.identifiability.IdentifiabilityReport`
+            (its free parameters), or parameter names or indices.
+        p0: Start and value of the fixed parameters (SI); nominal by default.
+        loss: ``"linear"``, ``"huber"`` or ``"soft_l1"``.
+        f_scale: Where a robust loss turns from quadratic to linear [sigma].
+        method: ``"lm"`` (default for the linear loss) or ``"trf"`` (default
+            for robust losses, and possible with the linear loss).
+        max_nfev: Maximum residual evaluations (scipy's default ``100 n_f`` if None).
+        xtol, ftol, gtol: scipy's stopping tolerances.
+        correlation_threshold: ``|rho|`` above which a pair is reported.
+        outlier_threshold: Measurements with :math:`\\lVert r\\rVert/\\sqrt d`
+            above this [sigma] are reported as outliers.
+
+    Raises:
+        NotIdentifiableError: :math:`F_1` at ``p0`` is rank-deficient on the free
+            parameters, or the data have fewer values than free parameters.
+        ParameterError: bad ``free``, ``loss``, ``method`` or thresholds.
+
+    Not converging within ``max_nfev`` is reported in ``status``, not raised.
+    """
+    method = _check_options(loss, method, f_scale, max_nfev, correlation_threshold,
+                            outlier_threshold)
+    free_idx = _free_indices(space, free)
+    res = _Residuals(space, blocks, free_idx, space.check(p0, "p0").copy())
+    free_names = tuple(space.names[i] for i in free_idx)
+    scale = space.unit_scale[free_idx]
+    x0 = res.p0[free_idx]
+    information_cholesky(res.jac(x0) * scale, free_names)  # raises NotIdentifiableError
+    sol = scipy.optimize.least_squares(
+        res.fun, x0, jac=res.jac, method=method, loss=loss, f_scale=f_scale, x_scale="jac",
+        xtol=xtol, ftol=ftol, gtol=gtol, max_nfev=max_nfev,
+    )
+    x = np.asarray(sol.x, dtype=float)
+    r, f1 = res.fun(x), res.jac(x)
+    message = str(sol.message)
+    cov, cond, note = _uncertainty(f1 * scale, scale, free_names)
+    if note:
+        message += f" (covariance not available: {note})"
+    corr, strong = _correlations(cov, free_names, correlation_threshold)
+    raw, pos_mm, ang_mrad, norms, outliers = _block_diagnostics(res, r, outlier_threshold)
+    all_mm = np.concatenate(pos_mm)
+    angles = [v for v in ang_mrad if v is not None]
+    all_mrad = np.concatenate(angles) if angles else None
+    dof = r.size - free_idx.size
+    return IdentificationResult(
+        names=tuple(space.names),
+        free_names=free_names,
+        free_indices=free_idx,
+        parameter_units=tuple(p.unit for p in space.parameters),
+        p=_readonly(res.full(x)),
+        status=_status(int(sol.status)),
+        message=message,
+        nfev=int(sol.nfev),
+        njev=None if sol.njev is None else int(sol.njev),
+        method=method,
+        loss=loss,
+        f_scale=float(f_scale),
+        cost=float(sol.cost),
+        residuals=_readonly(r),
+        block_names=tuple(b.model.name for b in res.blocks),
+        block_residuals=raw,
+        point_residuals_mm=pos_mm,
+        angle_residuals_mrad=ang_mrad,
+        measurement_norms=norms,
+        rms_mm=float(np.sqrt(np.mean(all_mm**2))) if all_mm.size else None,
+        max_mm=float(all_mm.max()) if all_mm.size else None,
+        rms_mrad=None if all_mrad is None else float(np.sqrt(np.mean(all_mrad**2))),
+        max_mrad=None if all_mrad is None else float(all_mrad.max()),
+        dof=int(dof),
+        noise_factor=float(r @ r / dof) if dof > 0 else float("nan"),
+        covariance=_readonly(cov),
+        correlation=_readonly(corr),
+        strong_correlations=strong,
+        correlation_threshold=float(correlation_threshold),
+        condition_number=cond,
+        outliers=outliers,
+        outlier_threshold=float(outlier_threshold),
+        f1=_readonly(f1),
+    )

@@ -1,0 +1,153 @@
+"""A calibration problem: robot, parameters, measurement models and KPI, assembled.
+
+:class:`CalibrationProblem` is the driver: it owns no mathematics of its
+own, it wires a scene's pieces together and caches the gauge selection.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+
+from calib_oed.calibration.covariance import kpi_covariance
+from calib_oed.calibration.kpi import TcpKpi
+from calib_oed.measurement import MeasurementModel, PoseMeasurement, TrackerPosition
+from calib_oed.measurement.sensitivity import weighted_jacobian
+from calib_oed.model.identifiability import (
+    DEFAULT_TOL,
+    Estimability,
+    IdentifiabilityReport,
+    check_estimability,
+    select_gauge,
+)
+from calib_oed.model.parameters import ParameterSpace
+from calib_oed.model.robot import Robot
+
+
+@dataclass(frozen=True)
+class GenericDesign:
+    """The fixed-seed random design of the gauge rule.
+
+    Attributes:
+        n: Number of configurations (uniform in the joint limits).
+        seed: Seed of ``numpy.random.default_rng``.
+    """
+
+    n: int = 200
+    seed: int = 0
+
+
+class CalibrationProblem:
+    """Everything needed to evaluate a calibration design.
+
+    Args:
+        space: Parameter layout (robot, tracker, reflectors).
+        models: Measurement models, each applied at every design configuration.
+        kpi: The key performance indicator.
+        generic: The generic design of the gauge rule.
+        tol: Tolerance of the gauge rule.
+    """
+
+    def __init__(
+        self,
+        space: ParameterSpace,
+        models: Sequence[MeasurementModel],
+        kpi: TcpKpi,
+        generic: GenericDesign = GenericDesign(),
+        tol: float = DEFAULT_TOL,
+    ):
+        if not models:
+            raise ValueError("a calibration problem needs at least one measurement model")
+        self.space = space
+        self.models = tuple(models)
+        self.kpi = kpi
+        self.generic = generic
+        self.tol = tol
+        space.robot.check_configurations(kpi.configurations, "kpi configurations")
+
+    @property
+    def robot(self) -> Robot:
+        return self.space.robot
+
+    @classmethod
+    def from_scene(cls, scene) -> CalibrationProblem:
+        """Assemble the problem of a :class:`calib_oed.scene.records.Scene`."""
+        offsets = np.array([r.offset for r in scene.reflectors])
+        compliance = getattr(scene, "compliance", None)
+        space = ParameterSpace(scene.robot, scene.tracker.placement(), offsets,
+                               compliance=compliance.model() if compliance is not None else None)
+        if scene.measurement == "pose":
+            models = [
+                PoseMeasurement(j, scene.tracker.sigma, scene.tracker.sigma_angle)
+                for j in range(len(offsets))
+            ]
+        else:
+            models = [TrackerPosition(j, scene.tracker.sigma) for j in range(len(offsets))]
+        kpi = TcpKpi(
+            np.array([w.q for w in scene.kpi.configurations]),
+            point=scene.kpi.point,
+            frame=scene.kpi.frame,
+            names=[w.name for w in scene.kpi.configurations],
+            reflector=scene.kpi.reflector,
+            weights=[w.weight for w in scene.kpi.configurations],
+        )
+        generic = GenericDesign(scene.generic_design.n, scene.generic_design.seed)
+        return cls(space, models, kpi, generic)
+
+    # ------------------------------------------------------------ jacobians
+    def weighted_jacobian(self, q: np.ndarray, p: np.ndarray | None = None) -> np.ndarray:
+        r""":math:`F_1` over all parameters at design ``q`` (n, nq), (m, n_p)."""
+        return weighted_jacobian(self.space, self.models, q, p)
+
+    def kpi_jacobian(self, p: np.ndarray | None = None) -> np.ndarray:
+        r""":math:`G = \partial s/\partial p` over all parameters, (3t, n_p)."""
+        return self.kpi.compute_param_jacobian(self.space, p)
+
+    def generic_configurations(self) -> np.ndarray:
+        """The generic design of the gauge rule, (n, nq)."""
+        return self.robot.random_configurations(self.generic.n, self.generic.seed)
+
+    # ------------------------------------------------------- identifiability
+    @cached_property
+    def _generic_scaled_jacobian(self) -> np.ndarray:
+        return self.weighted_jacobian(self.generic_configurations()) * self.space.unit_scale
+
+    @cached_property
+    def identifiability(self) -> IdentifiabilityReport:
+        """The gauge rule on the generic design (computed once)."""
+        return select_gauge(
+            self._generic_scaled_jacobian,
+            self.space.names,
+            tol=self.tol,
+            n_configurations=self.generic.n,
+            seed=self.generic.seed,
+        )
+
+    def kpi_estimability(self) -> list[Estimability]:
+        """Estimability of the KPI at each working configuration."""
+        g = self.kpi_jacobian() * self.space.unit_scale
+        return [
+            check_estimability(
+                self._generic_scaled_jacobian, g[3 * i : 3 * i + 3], self.identifiability, name
+            )
+            for i, name in enumerate(self.kpi.names)
+        ]
+
+    # ------------------------------------------------------------ covariance
+    def kpi_covariance(self, q: np.ndarray, p: np.ndarray | None = None) -> np.ndarray:
+        """KPI covariance :math:`C_s` (3t, 3t) [m²] of design ``q`` in the gauge."""
+        free = self.identifiability.free_indices
+        f1 = self.weighted_jacobian(q, p)[:, free]
+        g = self.kpi_jacobian(p)[:, free]
+        names = [self.space.names[i] for i in free]
+        return kpi_covariance(f1, g, names)
+
+    def kpi_sigma(self, q: np.ndarray, p: np.ndarray | None = None) -> np.ndarray:
+        r"""Per working configuration :math:`\sqrt{\mathrm{tr}(C_{s,i})/3}` [m], (t,)."""
+        cs = self.kpi_covariance(q, p)
+        t = len(self.kpi.names)
+        return np.sqrt(np.array([np.trace(cs[3 * i : 3 * i + 3, 3 * i : 3 * i + 3]) / 3
+                                 for i in range(t)]))

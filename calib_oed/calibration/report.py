@@ -1,0 +1,176 @@
+"""Human-readable and JSON reports. Reports speak mm, mrad and mm², and say so."""
+
+from __future__ import annotations
+
+import textwrap
+
+import numpy as np
+
+from calib_oed.calibration.problem import CalibrationProblem
+from calib_oed.measurement import PoseMeasurement
+from calib_oed.model.identifiability import Estimability, IdentifiabilityReport
+from calib_oed.model.parameters import Group
+
+
+def reflectors_on_last_axis(problem: CalibrationProblem, tol: float = 1e-9) -> list[int]:
+    """Reflectors whose nominal centre lies on the last joint's axis (revolute only).
+
+    Such a reflector traces no circle about that axis: the axis' two tilts
+    about the reflector are unobservable and the rank drops by 2.
+    """
+    model = problem.robot.model
+    joint = model.joints[model.njoints - 1]
+    kind = joint.shortname()
+    axes = {"JointModelRX": (1.0, 0, 0), "JointModelRY": (0, 1.0, 0), "JointModelRZ": (0, 0, 1.0)}
+    if kind in axes:
+        axis = np.array(axes[kind])
+    elif kind == "JointModelRevoluteUnaligned":
+        axis = np.asarray(joint.extract().axis, dtype=float)
+    else:
+        return []
+    frame = model.frames[problem.robot.tool_frame_id]
+    out = []
+    for j, c in enumerate(problem.space.reflector_offsets0):
+        x = frame.placement.act(c)  # in the last joint's frame
+        if np.linalg.norm(x - (x @ axis) * axis) < tol:
+            out.append(j)
+    return out
+
+
+def classical_count(problem: CalibrationProblem) -> tuple[int, str] | None:
+    """The classical count of identifiable parameters, where it applies.
+
+    Everett and Hollerbach's rule for a complete, minimal model of a serial
+    arm with R revolute and P prismatic joints is N = 4R + 2P + 6 with full
+    pose measurements and unknown base and tool; with position measurements
+    of one point the tool orientation is unobservable: N = 4R + 2P + 3. Our
+    parameters add the tracker pose (6) and the reflector offset (3), which
+    play the roles of the base and tool parameters, so the rules compare
+    with our rank directly. Returns None for set-ups the rule does not cover
+    (several reflectors, joint compliance modelled).
+    """
+    model = problem.robot.model
+    kinds = [j.shortname() for j in model.joints[1:]]
+    n_r = sum(k.startswith("JointModelR") for k in kinds)
+    n_p = len(kinds) - n_r
+    if len(problem.models) != 1 or problem.space.compliance is not None:
+        return None
+    if isinstance(problem.models[0], PoseMeasurement):
+        return 4 * n_r + 2 * n_p + 6, f"4R + 2P + 6 = 4*{n_r} + 2*{n_p} + 6 (pose measurements)"
+    return 4 * n_r + 2 * n_p + 3, f"4R + 2P + 6 - 3 = 4*{n_r} + 2*{n_p} + 3 (one measured point)"
+
+
+def identifiability_dict(
+    problem: CalibrationProblem, report: IdentifiabilityReport, estimability: list[Estimability]
+) -> dict:
+    """The identifiability report as JSON-serialisable data."""
+    out = report.to_dict()
+    classical = classical_count(problem)
+    out["robot"] = problem.robot.name
+    out["tool_frame"] = problem.robot.tool_frame
+    out["measurement_models"] = [m.name for m in problem.models]
+    comp = problem.space.compliance
+    out["compliance"] = None if comp is None else {
+        "payload_kg": comp.payload_mass, "payload_com_m": comp.payload_com.tolist(),
+        "parameters": [problem.space.names[i] for i in range(problem.space.compliance_slice.start,
+                                                              problem.space.size)],
+    }
+    out["classical_count"] = None if classical is None else {
+        "count": classical[0], "rule": classical[1]
+    }
+    out["kpi"] = {
+        "frame": problem.kpi.frame,
+        "point_m": problem.kpi.point.tolist(),
+        "estimability": [e.to_dict() for e in estimability],
+    }
+    return out
+
+
+def format_identifiability(
+    problem: CalibrationProblem,
+    report: IdentifiabilityReport,
+    estimability: list[Estimability],
+    title: str = "",
+) -> str:
+    """The identifiability report as text."""
+    space = problem.space
+    lines = [f"Identifiability{': ' + title if title else ''}"]
+    lines.append(
+        f"  robot {problem.robot.name} ({problem.robot.nq} joints), tool frame "
+        f"{problem.robot.tool_frame!r}, measurements: "
+        + ", ".join(m.name for m in problem.models)
+    )
+    lines.append(
+        f"  generic design: {report.n_configurations} random configurations in the joint "
+        f"limits (seed {report.seed}), {report.n_rows} rows"
+    )
+    if space.compliance is not None:
+        lines.append(f"  {space.compliance.describe()}")
+    lines.append(
+        f"  parameters: {len(report.names)}; free (identifiable): {report.rank}; "
+        f"fixed: {len(report.fixed)}; rank tolerance {report.tol:g}"
+    )
+    lines.append(
+        "  condition number of the weighted Jacobian on the free parameters "
+        f"(columns in mm, mrad): {report.condition_number:.4g}"
+    )
+    classical = classical_count(problem)
+    if classical is not None:
+        count, rule = classical
+        verdict = "agrees" if count == report.rank else f"differs by {report.rank - count:+d}"
+        lines.append(f"  classical rule {rule} = {count}: {verdict} (see docs/conventions.md)")
+        if isinstance(problem.models[0], PoseMeasurement):
+            lines.append("    the probe's two tilts on the tool are not parameters here: -2")
+        elif reflectors_on_last_axis(problem):
+            lines.append("    the reflector lies on the last joint's axis, so the axis' two tilts "
+                         "about it are unobservable: -2")
+    lines.append("")
+    lines.append(f"Free parameters ({report.rank}):")
+    lines += textwrap.wrap(
+        ", ".join(report.free_names), width=96, initial_indent="  ", subsequent_indent="  "
+    )
+    lines.append("")
+    lines.append(f"Fixed parameters ({len(report.fixed)}), held at their nominal value:")
+    width = max((len(f.name) for f in report.fixed), default=0)
+    for f in report.fixed:
+        par = space.parameters[space.index(f.name)]
+        why = f.reason
+        if par.group == Group.COMPLIANCE and not f.redundant_with:
+            why += " (no gravity torque about this joint in any pose, with this payload)"
+        lines.append(f"  {f.name:<{width}} [{par.report_unit:>4}]  {why}  (residual {f.residual:.1e})")
+    lines.append("")
+    where = "tracker frame" if problem.kpi.frame == "tracker" else "world frame"
+    if problem.kpi.reflector is not None:
+        what = f"centre of reflector{problem.kpi.reflector}"
+    else:
+        what = f"tool point {np.round(problem.kpi.point * 1e3, 3).tolist()} mm in the tool frame"
+    lines.append(f"KPI: {what}, in the {where}:")
+    for e in estimability:
+        if e.estimable:
+            lines.append(f"  {e.label}: estimable (residual {e.residual:.1e})")
+        else:
+            lines.append(
+                f"  {e.label}: NOT estimable (residual {e.residual:.2g}): its value depends on "
+                "the gauge through " + ", ".join(e.gauge)
+            )
+    if not all(e.estimable for e in estimability):
+        lines += textwrap.wrap(
+            "A non-estimable KPI's covariance is relative to the gauge: it is the uncertainty "
+            "with the fixed parameters held at their nominal values (base placement and tool "
+            "geometry as in the nominal model), as in the paper. Tracker data cannot place the "
+            "robot in its own base frame when the tracker pose is unknown, nor a tool point "
+            "other than a reflector. Estimable: a reflector centre in the tracker frame "
+            "(scene key kpi.reflector with kpi.frame: tracker).",
+            width=96,
+            initial_indent="  ",
+            subsequent_indent="  ",
+        )
+    return "\n".join(lines)
+
+
+def format_kpi_sigma(problem: CalibrationProblem, sigma: np.ndarray, design: str) -> str:
+    """KPI standard deviations per working configuration [mm]."""
+    lines = [f"KPI standard deviation sqrt(tr(C_s)/3) for {design}:"]
+    for name, s in zip(problem.kpi.names, sigma, strict=True):
+        lines.append(f"  {name}: {s * 1e3:.4f} mm  (average variance {(s * 1e3) ** 2:.3e} mm^2)")
+    return "\n".join(lines)

@@ -1,0 +1,168 @@
+"""The calibration workflow in a few calls, as the ``calib-oed`` command runs it.
+
+Each function assembles library pieces for one step a calibration engineer
+takes: a feasible design for a scene, simulated tracker data for it, the
+identification of measured data, and the export of the result. Nothing here
+has mathematics of its own.
+"""
+
+from __future__ import annotations
+
+import os
+from functools import cached_property
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+import yaml
+
+from calib_oed.calibration.export import export_calibration
+from calib_oed.calibration.identification import IdentificationResult, identify
+from calib_oed.calibration.problem import CalibrationProblem
+from calib_oed.calibration.simulation import draw_true_parameters, simulate_observations
+from calib_oed.exceptions import ExportError
+from calib_oed.feasibility.constraints import FeasibilityModel
+from calib_oed.feasibility.pairs import PairReport, feasibility_from_scene
+from calib_oed.feasibility.sampling import sample_feasible
+from calib_oed.io.atomic import atomic_write_text
+from calib_oed.io.measurement_reader import read_measurements
+from calib_oed.io.measurement_writer import write_measurements
+from calib_oed.measurement.dataset import MeasurementSet
+from calib_oed.model.robot import load_robot
+from calib_oed.scene.records import Scene
+
+
+class Setup:
+    """A scene with its calibration problem and (built on first use) its feasibility model.
+
+    Args:
+        scene: The scene.
+    """
+
+    def __init__(self, scene: Scene):
+        self.scene = scene
+        self.problem = CalibrationProblem.from_scene(scene)
+
+    @cached_property
+    def _feasibility(self) -> tuple[FeasibilityModel, PairReport]:
+        return feasibility_from_scene(self.scene)  # the pruning pass takes ~1 s: only when needed
+
+    @property
+    def feasibility(self) -> FeasibilityModel:
+        """The scene's constraints (capsules, cell, beam, incidence, joint limits)."""
+        return self._feasibility[0]
+
+    @property
+    def pairs(self) -> PairReport:
+        """Which capsule pairs are checked, and why the others are not."""
+        return self._feasibility[1]
+
+    @property
+    def reflector_names(self) -> list[str]:
+        return [r.name for r in self.scene.reflectors]
+
+
+def setup(scene: Scene) -> Setup:
+    """Assemble problem and feasibility model of a scene."""
+    return Setup(scene)
+
+
+def heuristic_design(s: Setup, n: int, seed: int) -> np.ndarray:
+    """The paper's heuristic design: n poses uniform in the joint ranges, kept if feasible."""
+    return sample_feasible(s.feasibility, n, seed)
+
+
+def simulated_measurements(s: Setup, q: np.ndarray, truth_seed: int) -> tuple[MeasurementSet, np.ndarray]:
+    """Tracker data of a random true robot (free parameters 0.5 mm / 0.5 mrad) at design ``q``.
+
+    Returns the measurements and the true parameter vector [SI].
+    """
+    problem = s.problem
+    rng = np.random.default_rng(truth_seed)
+    p_true = draw_true_parameters(problem.space, problem.identifiability.free_indices, rng)
+    blocks = simulate_observations(problem.space, problem.models, q, p_true, rng)
+    qs, pos, rot, refl = [], [], [], []
+    for b in blocks:
+        qs.append(b.q)
+        pos.append(b.values[:, :3])
+        refl.append(np.full(b.n, b.model.reflector))
+        if b.model.dim == 6:
+            rot.append(b.values[:, 3:])
+    mset = MeasurementSet.from_arrays(
+        problem.robot, np.vstack(qs), np.vstack(pos), reflector=np.concatenate(refl),
+        rotations=np.vstack(rot) if rot else None, source="<simulation>",
+    )
+    return mset, p_true
+
+
+def write_truth(path: str | os.PathLike, s: Setup, p_true: np.ndarray, truth_seed: int) -> Path:
+    """The true parameters of a simulation, by name [SI], as YAML (atomic)."""
+    data = {
+        "scene": s.scene.name,
+        "truth_seed": int(truth_seed),
+        "units": "SI (m, rad)",
+        "parameters": {n: float(v) for n, v in zip(s.problem.space.names, p_true, strict=True)},
+    }
+    return atomic_write_text(path, "# calib_oed simulated truth\n" + yaml.safe_dump(data, sort_keys=False))
+
+
+def read_truth(path: str | os.PathLike, s: Setup) -> np.ndarray:
+    """Read :func:`write_truth` output back into a parameter vector."""
+    data = yaml.safe_load(Path(path).read_text())
+    params = data.get("parameters", {}) if isinstance(data, dict) else {}
+    space = s.problem.space
+    p = np.zeros(space.size)
+    for name, value in params.items():
+        p[space.index(name)] = float(value)
+    return p
+
+
+def read_scene_measurements(s: Setup, path: str | os.PathLike, **units) -> MeasurementSet:
+    """A measurement file of this scene's robot and reflectors."""
+    return read_measurements(path, s.problem.robot, s.reflector_names, **units)
+
+
+def identify_measurements(s: Setup, mset: MeasurementSet, loss: str = "linear") -> IdentificationResult:
+    """Identify the scene's free parameters from measured data."""
+    tracker = s.scene.tracker
+    blocks = mset.blocks(sigma=tracker.sigma, sigma_angle=tracker.sigma_angle)
+    return identify(s.problem.space, blocks, s.problem.identifiability, loss=loss)
+
+
+def export_result(s: Setup, result: IdentificationResult, folder: str | os.PathLike) -> dict[str, Path]:
+    """Calibrated URDF and sensor YAML into ``folder`` (created if missing)."""
+    folder = Path(folder)
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ExportError(f"cannot create output folder {folder}: {exc}") from exc
+    return export_calibration(s.problem.space, result.p, folder, stem=s.problem.robot.name)
+
+
+def round_trip_error(s: Setup, p: np.ndarray, urdf_path: str | os.PathLike, n: int = 20, seed: int = 0) -> float:
+    """Largest tool-frame position difference [m] between the exported URDF and the
+    identified model, at ``n`` random configurations and the working configurations."""
+    robot = s.problem.robot
+    loaded = load_robot(urdf_path, tool_frame=robot.tool_frame, lock_joints=robot.locked_joints or None,
+                        package_dirs=robot.package_dirs)
+    ident = s.problem.space.perturbed_model(p)
+    q = np.vstack([robot.random_configurations(n, seed), s.problem.kpi.configurations])
+    d1, d2 = loaded.model.createData(), ident.createData()
+    worst = 0.0
+    for qk in q:
+        pin.framesForwardKinematics(loaded.model, d1, qk)
+        pin.framesForwardKinematics(ident, d2, qk)
+        a, b = d1.oMf[loaded.tool_frame_id], d2.oMf[robot.tool_frame_id]
+        worst = max(worst, float(np.linalg.norm(a.translation - b.translation)))
+        worst = max(worst, float(np.linalg.norm(pin.log3(a.rotation.T @ b.rotation))) * 0.1)
+    return worst
+
+
+def tcp_errors(s: Setup, p_true: np.ndarray, p_est: np.ndarray | None) -> np.ndarray:
+    """KPI error of the model ``p_est`` (None: nominal) against the truth, (t, 3) [m]."""
+    kpi, space = s.problem.kpi, s.problem.space
+    return kpi.compute_values(space, p_est) - kpi.compute_values(space, p_true)
+
+
+def write_measurement_file(s: Setup, path: str | os.PathLike, mset: MeasurementSet, comment: str) -> Path:
+    return write_measurements(path, mset, s.problem.robot, s.reflector_names, comment=comment)

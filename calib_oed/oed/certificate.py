@@ -1,0 +1,473 @@
+r"""Optimality certificate of a design: a lower bound on the criterion of any n-pose design.
+
+The bound is the approximate design's (:mod:`calib_oed.oed.approximate`:
+weights :math:`w` on candidates, the sensitivity :math:`d(x, w)`, the
+equivalence residual :math:`\rho = d^{\max}/\bar d - 1` and the normalised
+bound), scaled to n poses:
+
+.. math::
+    \text{A: } \Phi(M_n) \ge \frac{\Phi(M(w))}{(1+\rho)\,n}, \qquad
+    \text{D: } \Phi(M_n) \ge \Phi(M(w)) - p\log(1+\rho) - p\log n.
+
+**Scope.** The bound holds for every design on the set :math:`X` over which
+:math:`d^{\max}` is taken. :func:`certify` takes it over a random feasible
+pool, the design's own poses, and local maxima of :math:`d(x, w)` over the
+continuous feasible set (SQP from the best pool poses, exact gradient
+:math:`\partial d/\partial x_k = -2\,\mathrm{tr}(F\Gamma\,\partial_k F^\top)`,
+the mixed derivative of ``docs/derivations.md`` §11). It is *certified on the
+pool*; on the continuous feasible set it is as good as that maximisation. On
+``fms_kr16`` (60 poses, pool 3000) the maxima it misses lie on constraint
+boundaries far from every pool pose; certificates of different designs
+agreed to 0.2 % (``bench/bench_certificate.py``), so read the last digits
+of the continuous bound with that in mind.
+
+This module owns the certificate: the candidate pool (random feasible poses
+and the design's own), the off-pool maximisation of the sensitivity
+(:func:`sensitivity_field`, :func:`maximise_sensitivity`,
+:func:`spread_starts`), :func:`certify` and its :class:`Certificate`. The
+public names of :mod:`calib_oed.oed.approximate` are re-exported here.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from threadpoolctl import threadpool_limits
+
+from calib_oed.calibration.workflow import Setup
+from calib_oed.exceptions import CertificateError
+from calib_oed.feasibility.constraints import FEASIBILITY_TOL
+from calib_oed.feasibility.sampling import sample_feasible
+from calib_oed.oed.approximate import (
+    CERTIFIABLE,
+    DROP_WEIGHT,
+    NEWTON_REGULARISATION,
+    ApproximateDesign,
+    criterion_kind,
+    efficiency,
+    information,
+    lower_bound,
+    mean_sensitivity,
+    scale_to_poses,
+    sensitivities,
+    solve_approximate,
+)
+from calib_oed.oed.criteria import Criterion
+from calib_oed.oed.objective import DesignObjective
+from calib_oed.oed.problem import DesignProblem
+from calib_oed.solver.sqp import SQPSettings, solve_sqp
+
+__all__ = [
+    # this module
+    "LOCAL_CHUNK", "START_SEPARATION", "Certificate", "LocalMaxima", "certify",
+    "maximise_sensitivity", "sensitivity_field", "spread_starts",
+    # re-exported from calib_oed.oed.approximate
+    "CERTIFIABLE", "DROP_WEIGHT", "NEWTON_REGULARISATION", "ApproximateDesign", "criterion_kind",
+    "efficiency", "information", "lower_bound", "mean_sensitivity", "scale_to_poses",
+    "sensitivities", "solve_approximate",
+]
+
+#: Starts per SQP of the local maximisation (its dense QP grows with the square of the starts).
+LOCAL_CHUNK = 8
+#: Two local-maximisation starts closer than this in every joint [rad] count as one.
+START_SEPARATION = 1.0
+
+
+# ---------------------------------------------- the continuous feasible set
+def sensitivity_field(objective: DesignObjective, gamma: np.ndarray, q) -> tuple[np.ndarray, np.ndarray]:
+    r"""Sensitivity :math:`d(x) = -\mathrm{tr}(\Gamma F(x)^\top F(x))` of poses ``q`` (K, nq) and its gradient.
+
+    .. math::
+        \frac{\partial d}{\partial x_k} = -2\,\mathrm{tr}\Big(F\,\Gamma\,\frac{\partial F^\top}{\partial x_k}\Big)
+        \quad [\text{unit of } d/\mathrm{rad}],
+
+    the design gradient of ``docs/derivations.md`` §11 with :math:`\Gamma` held
+    fixed (the mixed derivatives of the measurement models, batched over poses:
+    :meth:`~calib_oed.oed.objective.DesignObjective.compute_row_derivatives`).
+
+    Returns:
+        ``d`` (K,) and ``grad`` (K, nv).
+    """
+    rows, d_rows = objective.compute_row_derivatives(q)  # (K, d, p), (K, d, p, nv)
+    fg = rows @ gamma
+    return -np.einsum("kdf,kdf->k", fg, rows), -2.0 * np.einsum("kdf,kdfv->kv", fg, d_rows)
+
+
+@dataclass(frozen=True, eq=False)
+class LocalMaxima:
+    """Local maxima of the sensitivity over the feasible set, one per start.
+
+    Attributes:
+        q: End points (K, nq) [rad].
+        values: :math:`d` at them (K,).
+        start_values: :math:`d` at the starts (K,).
+        violation: Largest constraint or bound violation per end point (K,) [m, rad, cos].
+        status: The SQP's status.
+        iterations: SQP iterations.
+        seconds: Wall time [s].
+    """
+
+    q: np.ndarray
+    values: np.ndarray
+    start_values: np.ndarray
+    violation: np.ndarray
+    status: str
+    iterations: int
+    seconds: float
+
+    @property
+    def feasible(self) -> np.ndarray:
+        return self.violation <= FEASIBILITY_TOL
+
+    @property
+    def max_value(self) -> float:
+        """Largest :math:`d` over the feasible end points and the starts."""
+        return float(max(np.max(self.values[self.feasible], initial=-np.inf), self.start_values.max()))
+
+    def to_dict(self) -> dict:
+        return {"q": self.q.tolist(), "values": self.values.tolist(),
+                "start_values": self.start_values.tolist(), "violation": self.violation.tolist(),
+                "max_value": self.max_value, "status": self.status, "iterations": self.iterations,
+                "seconds": self.seconds}
+
+
+def maximise_sensitivity(setup, objective: DesignObjective, gamma: np.ndarray, starts, scale: float, *,
+                         collisions: bool = True, max_iterations: int = 80,
+                         time_limit: float = np.inf) -> LocalMaxima:
+    r"""Local maxima of :math:`d(x)` s.t. the design constraints, from each start (one SQP, separable).
+
+    Maximises :math:`\sum_j d(x_j)/\text{scale}` over the K poses at once
+    (:func:`calib_oed.solver.sqp.solve_sqp`, per-pose BFGS blocks): the poses share
+    nothing, so this is K independent local maximisations.
+    """
+    t0 = time.perf_counter()
+    starts = np.atleast_2d(np.asarray(starts, dtype=float))
+    k, nq = starts.shape
+    nlp = DesignProblem(objective, setup.feasibility, k, collisions=collisions)
+    d0, _ = sensitivity_field(objective, gamma, starts)
+
+    def negative(x):
+        d, g = sensitivity_field(objective, gamma, x.reshape(k, nq))
+        return -float(d.sum()) / scale, -g.ravel() / scale
+
+    res = solve_sqp(negative, starts.ravel(), constraints=nlp.compute_constraints, bounds=nlp.bounds,
+                    settings=SQPSettings(max_iterations=max_iterations, time_limit=time_limit,
+                                         step_bound=0.2),
+                    block_size=nq)
+    q = res.x.reshape(k, nq)
+    values, _ = nlp.compute_constraint_rows(res.x, jacobian=False)
+    lo, hi = nlp.bounds
+    viol = np.maximum.reduce([np.zeros(k), -values.min(axis=1), (lo - res.x).reshape(k, nq).max(axis=1),
+                              (res.x - hi).reshape(k, nq).max(axis=1)])
+    d, _ = sensitivity_field(objective, gamma, q)
+    return LocalMaxima(q, d, d0, viol, str(getattr(res.status, "value", res.status)), res.iterations,
+                       time.perf_counter() - t0)
+
+
+def _maximise_in_chunks(setup, objective, gamma, starts, scale, chunk, **kwargs) -> LocalMaxima:
+    """:func:`maximise_sensitivity` on chunks of ``chunk`` starts (the dense QP grows as K²), concatenated."""
+    parts = [maximise_sensitivity(setup, objective, gamma, starts[i:i + chunk], scale, **kwargs)
+             for i in range(0, len(starts), chunk)]
+    worst = next((p.status for p in parts if p.status != "converged"), parts[0].status)
+    return LocalMaxima(*(np.concatenate([getattr(p, f) for p in parts])
+                         for f in ("q", "values", "start_values", "violation")),
+                       worst, sum(p.iterations for p in parts), sum(p.seconds for p in parts))
+
+
+def _distinct(q: np.ndarray, values: np.ndarray, tol: float = 1e-4) -> np.ndarray:
+    """Indices of ``q`` without near-duplicates (∞-distance < ``tol`` rad), the larger value kept."""
+    keep: list[int] = []
+    for i in np.argsort(-values):
+        if all(np.max(np.abs(q[i] - q[j])) >= tol for j in keep):
+            keep.append(int(i))
+    return np.array(sorted(keep), dtype=np.intp)
+
+
+def spread_starts(candidates: np.ndarray, values: np.ndarray, k: int,
+                  separation: float | None = None) -> np.ndarray:
+    """Indices of up to ``k`` candidates of largest ``values``, pairwise at least ``separation`` apart (∞-norm, rad).
+
+    ``separation`` defaults to :data:`START_SEPARATION`.
+    """
+    separation = START_SEPARATION if separation is None else separation
+    chosen: list[int] = []
+    for i in np.argsort(-values):
+        if len(chosen) == k:
+            break
+        if all(np.max(np.abs(candidates[i] - candidates[j])) >= separation for j in chosen):
+            chosen.append(int(i))
+    return np.array(chosen, dtype=np.intp)
+
+
+# ----------------------------------------------------------- the certificate
+@dataclass(frozen=True, eq=False)
+class Certificate:
+    r"""Lower bound on the criterion of any n-pose design, and where a given design stands.
+
+    Values in the criterion's unit (``kpi``: mm²; ``params``: mm², mrad²;
+    ``D``: log det C) for n poses unless called *normalised* (one pose's
+    worth of information, :math:`\Phi(M(w))`).
+
+    Attributes:
+        scene: Scene name.
+        criterion: Criterion name.
+        kind: ``"A"`` or ``"D"``.
+        n: Poses of the design.
+        n_params: Free parameters :math:`p`.
+        pool_size: Candidates of the approximate design: random feasible
+            pool, the design's poses, local maxima added.
+        n_local_added: Local maxima of the sensitivity added to the pool.
+        local_rounds: Re-solves after adding local maxima.
+        approximate_value: :math:`\Phi(M(w))` of the approximate design (normalised).
+        mean_sensitivity: :math:`\bar d` (:math:`\Phi` for A, :math:`p` for D).
+        max_sensitivity_pool: :math:`\max_i d_i` over the candidates.
+        max_sensitivity_local: Largest :math:`d` found by local maximisation
+            over the continuous feasible set (``nan`` without it).
+        gap_pool: :math:`\rho` over the candidates (the certified duality gap).
+        gap: :math:`\rho` with the local maxima too.
+        bound_pool: n-pose bound, certified for every design on the candidates.
+        bound: n-pose bound using the local maxima: on the continuous
+            feasible set as good as that maximisation (:attr:`scope`).
+        support_size: Candidates with positive weight.
+        support_residual: :math:`\max_{\mathrm{supp}}|d_i/\bar d - 1|`.
+        design_value: The design's criterion value (n poses).
+        efficiency: bound/value (A) or :math:`\exp((\text{bound}-\text{value})/p)` (D), :math:`\le 1`.
+        iterations: Newton steps of the approximate design(s).
+        local_iterations: SQP iterations of the local maximisations.
+        local_status: The last local maximisation's SQP status.
+        seconds: Wall time [s].
+        converged: The approximate design met ``tol`` on the candidates.
+        tol: The requested relative gap.
+        scope: In words, what :attr:`bound` covers.
+    """
+
+    scene: str
+    criterion: str
+    kind: str
+    n: int
+    n_params: int
+    pool_size: int
+    n_local_added: int
+    local_rounds: int
+    approximate_value: float
+    mean_sensitivity: float
+    max_sensitivity_pool: float
+    max_sensitivity_local: float
+    gap_pool: float
+    gap: float
+    bound_pool: float
+    bound: float
+    support_size: int
+    support_residual: float
+    design_value: float
+    efficiency: float
+    iterations: int
+    local_iterations: int
+    local_status: str
+    seconds: float
+    converged: bool
+    tol: float
+    scope: str
+
+    @property
+    def design_gap_pct(self) -> float:
+        """How far the design is above the bound, in % of the bound's efficiency: (1/efficiency - 1)·100."""
+        return 100.0 * (1.0 / self.efficiency - 1.0)
+
+    def check(self) -> float:
+        r"""Equivalence-theorem residual on the candidates, :math:`\rho = \max_i d_i/\bar d - 1` (≤ ``tol`` when converged)."""
+        return float(self.gap_pool)
+
+    def holds(self) -> bool:
+        """The equivalence check holds to ``tol`` and the bounds are below the design's value."""
+        return bool(self.gap_pool <= self.tol and self.bound <= self.bound_pool <= self.design_value)
+
+    def to_dict(self) -> dict:
+        out = {k: getattr(self, k) for k in self.__dataclass_fields__}
+        out = {k: (float(v) if isinstance(v, (float, np.floating)) else v) for k, v in out.items()}
+        out["design_gap_pct"] = self.design_gap_pct
+        out["residual"] = self.check()
+        return {k: (None if isinstance(v, float) and not np.isfinite(v) else v) for k, v in out.items()}
+
+    def row(self) -> dict:
+        """The columns a design table shows: bound, efficiency, gap."""
+        return {"bound": self.bound, "efficiency": self.efficiency, "gap_pct": self.design_gap_pct,
+                "bound_pool": self.bound_pool, "residual": self.check()}
+
+    def summary(self) -> str:
+        eff = "efficiency" if self.kind == "A" else "D-efficiency"
+        return "\n".join([
+            f"certificate for a {self.n}-pose {self.criterion} design of {self.scene}: value "
+            f"{self.design_value:.6g} >= bound {self.bound:.6g} ({eff} {self.efficiency:.1%}, "
+            f"{self.design_gap_pct:.1f} % above the bound)",
+            f"  approximate design on {self.pool_size} candidates ({self.n_local_added} local maxima "
+            f"added): support {self.support_size}, gap {self.gap_pool:.2e} (tol {self.tol:g}, "
+            f"{'converged' if self.converged else 'NOT converged'}), {self.iterations} Newton steps",
+            f"  sensitivity max / mean: pool {self.max_sensitivity_pool / self.mean_sensitivity:.6f}, "
+            f"local {self.max_sensitivity_local / self.mean_sensitivity:.6f} ({self.local_iterations} "
+            f"SQP iterations, {self.local_status}); pool-only bound {self.bound_pool:.6g}",
+            f"  {self.scope}; {self.seconds:.1f} s",
+        ])
+
+
+def _as_criterion(criterion: str | Criterion) -> str | Criterion:
+    if isinstance(criterion, str) and criterion not in CERTIFIABLE:
+        raise CertificateError("criterion", criterion, "has no certificate", CERTIFIABLE)
+    return criterion
+
+
+@dataclass
+class _Search:
+    """State of the column generation over the continuous feasible set (internal to :func:`certify`)."""
+
+    cand: np.ndarray
+    blocks: np.ndarray
+    approx: ApproximateDesign
+    iterations: int
+    added: int = 0
+    rounds: int = 0
+    local_iterations: int = 0
+    d_local: float = np.nan
+    status: str = "not run"
+    final_starts: int = 0
+
+
+def _local_search(s, objective, search: _Search, *, starts: int, verify_starts: int, rounds: int,
+                  iterations: int, collisions: bool, tol: float, local_tol: float,
+                  max_iterations: int) -> _Search:
+    r"""Add local maxima of :math:`d` with :math:`d > \bar d(1+\text{local\_tol})` and re-solve (to ``tol``) until none is found.
+
+    A round maximises from ``starts`` separated candidates; when it finds no
+    violation, a verification round uses ``verify_starts``; the search ends
+    when that finds none either, or after ``rounds`` re-solves.
+    """
+    crit, verifying = objective.criterion, False
+    while True:
+        k = verify_starts if verifying else starts
+        gamma = crit.compute_gradient(information(search.blocks, search.approx.weights))
+        dbar = search.approx.mean_sensitivity
+        idx = spread_starts(search.cand, search.approx.sensitivities, k)
+        loc = _maximise_in_chunks(s, objective, gamma, search.cand[idx], dbar, LOCAL_CHUNK,
+                                  collisions=collisions, max_iterations=iterations)
+        search.local_iterations += loc.iterations
+        search.d_local, search.status, search.final_starts = loc.max_value, loc.status, idx.size
+        new = np.flatnonzero(loc.feasible & (loc.values > dbar * (1.0 + local_tol)))
+        if new.size == 0 and not verifying and verify_starts > starts:
+            verifying = True
+            continue
+        if new.size == 0 or search.rounds == rounds:
+            return search
+        new = new[_distinct(loc.q[new], loc.values[new])]
+        search.cand = np.vstack([search.cand, loc.q[new]])
+        search.blocks = np.concatenate([search.blocks, objective.compute_blocks(loc.q[new])])
+        search.added += int(new.size)
+        search.rounds += 1
+        w0 = np.concatenate([search.approx.weights, np.zeros(new.size)])
+        search.approx = solve_approximate(search.blocks, crit, weights=w0, tol=tol,
+                                          max_iterations=max_iterations)
+        search.iterations += search.approx.iterations
+        verifying = False
+
+
+def certify(
+    scene,
+    q_design,
+    criterion: str | Criterion = "kpi",
+    pool: int | np.ndarray = 3000,
+    seed: int = 0,
+    *,
+    tol: float = 1e-4,
+    local_tol: float = 1e-3,
+    local_starts: int = 32,
+    verify_starts: int | None = None,
+    local_rounds: int = 30,
+    local_iterations: int = 80,
+    collisions: bool = True,
+    max_iterations: int = 500,
+) -> Certificate:
+    r"""Certificate of design ``q_design`` (n, nq) [rad]: the lower bound and the design's efficiency.
+
+    Steps (module docstring): (1) the approximate design on the pool plus
+    the design's poses, solved to :math:`\rho \le` ``tol``; (2) local
+    maximisation of :math:`d(x, w)` over the continuous feasible set from the
+    ``local_starts`` best separated candidates; while it finds
+    :math:`d > \bar d(1 + \text{local\_tol})`, add those poses and re-solve (at most
+    ``local_rounds`` times); when it finds none, check again from
+    ``verify_starts`` starts; (3) the bound from the largest sensitivity
+    found, scaled to n poses.
+
+    Args:
+        scene: A scene or a :class:`~calib_oed.calibration.workflow.Setup`.
+        q_design: The design.
+        criterion: ``"kpi"``, ``"params"``, ``"D"`` or an A-type/D criterion object.
+        pool: Random feasible candidates drawn from ``seed``, or the candidates (N, nq).
+        seed: Seed of the pool.
+        tol: Relative duality gap of the approximate design on the candidates.
+        local_tol: Stop adding local maxima when none has
+            :math:`d > \bar d(1 + \text{local\_tol})`; the bound then
+            loses at most this fraction (A) to the continuous optimum.
+        local_starts: Starts of the local maximisation (0: pool only).
+        verify_starts: Starts of the verification round (default ``4 * local_starts``).
+        local_rounds: Most re-solves with added local maxima.
+        local_iterations: SQP iterations per local maximisation.
+        collisions: Local maximisation under the collision constraints too
+            (as :func:`calib_oed.oed.design.design`).
+        max_iterations: Newton steps per approximate solve.
+
+    Raises:
+        CertificateError: criterion without certificate, bad pool or counts.
+        NotIdentifiableError: the design's information matrix is singular.
+    """
+    t0 = time.perf_counter()
+    s = scene if isinstance(scene, Setup) else Setup(scene)
+    robot = s.problem.robot
+    q = robot.check_configurations(q_design, "design")
+    objective = DesignObjective(s.problem, _as_criterion(criterion))
+    crit = objective.criterion
+    kind = criterion_kind(crit)
+    verify_starts = 4 * local_starts if verify_starts is None else verify_starts
+    for what, v, lo in (("local_starts", local_starts, 0), ("verify_starts", verify_starts, 0),
+                        ("local_rounds", local_rounds, 0), ("local_iterations", local_iterations, 1)):
+        if isinstance(v, bool) or int(v) != v or v < lo:
+            raise CertificateError(what, v, f"must be an integer >= {lo}")
+    if isinstance(pool, (int, np.integer)):
+        if pool < 0:
+            raise CertificateError("pool", pool, "must be a number of candidates >= 0 or an (N, nq) array")
+        candidates = sample_feasible(s.feasibility, int(pool), seed, max_draws=50_000_000)
+    else:
+        candidates = robot.check_configurations(pool, "candidate pool")
+    design_value = objective.compute_value(q)
+    n, p = q.shape[0], objective.n_free
+    cand = np.vstack([q, candidates])
+    blocks = objective.compute_blocks(cand)
+    with threadpool_limits(limits=1, user_api="blas"):
+        approx = solve_approximate(blocks, crit, start=np.arange(n), tol=tol, max_iterations=max_iterations)
+        search = _Search(cand, blocks, approx, approx.iterations)
+        if local_starts:
+            search = _local_search(s, objective, search, starts=int(local_starts),
+                                   verify_starts=int(verify_starts), rounds=int(local_rounds),
+                                   iterations=int(local_iterations), collisions=collisions, tol=tol,
+                                   local_tol=local_tol, max_iterations=max_iterations)
+    approx = search.approx
+    dbar = approx.mean_sensitivity
+    d_all = max(approx.max_sensitivity, search.d_local) if local_starts else approx.max_sensitivity
+    gap_all = max(d_all / dbar - 1.0, 0.0)
+    bound_pool = scale_to_poses(kind, approx.lower_bound, n, p)
+    bound = scale_to_poses(kind, lower_bound(kind, approx.value, gap_all, p), n, p)
+    scope = ("certified on the pool (random feasible poses, the design's poses"
+             + (f", {search.added} local maxima" if search.added else "") + ")"
+             + (f"; on the continuous feasible set it is as good as the local maximisation of the "
+                f"sensitivity ({search.final_starts} starts)" if local_starts else
+                "; poses off the pool may beat it"))
+    return Certificate(
+        scene=s.scene.name, criterion=crit.name, kind=kind, n=n, n_params=p, pool_size=len(search.cand),
+        n_local_added=search.added, local_rounds=search.rounds, approximate_value=approx.value,
+        mean_sensitivity=dbar, max_sensitivity_pool=approx.max_sensitivity,
+        max_sensitivity_local=float(search.d_local), gap_pool=approx.check(), gap=gap_all,
+        bound_pool=bound_pool, bound=bound, support_size=int(approx.support.size),
+        support_residual=approx.support_residual(), design_value=design_value,
+        efficiency=efficiency(kind, bound, design_value, p), iterations=search.iterations,
+        local_iterations=search.local_iterations, local_status=search.status,
+        seconds=time.perf_counter() - t0, converged=approx.converged, tol=float(tol), scope=scope)

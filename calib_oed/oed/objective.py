@@ -1,0 +1,309 @@
+r"""A design criterion as a function of the measurement configurations, with its exact gradient.
+
+For a design :math:`q = (q_1, \dots, q_n)`, :math:`q_j \in \mathbb{R}^{n_v}`,
+each pose contributes the rows
+
+.. math::
+    \tilde F_j(q_j) = \Sigma^{-1}\,\frac{\partial h}{\partial p_f}(p, q_j)\,D
+    \in \mathbb{R}^{d \times n_f}
+
+of the weighted sensitivity on the free parameters :math:`p_f` (gauge rule),
+unit-scaled by :math:`D = \mathrm{diag}(u_f)` so that parameters are in mm
+and mrad (``ParameterSpace.unit_scale``). The information matrix and the
+objective are
+
+.. math::
+    M(q) = M_0 + \sum_{j=1}^{n} \tilde F_j^\top \tilde F_j, \qquad
+    \phi(q) = \Phi\big(M(q)\big)
+
+with :math:`M_0` an optional prior (measurements already taken) and
+:math:`\Phi` a :class:`calib_oed.oed.criteria.Criterion`. Because
+:math:`\tilde F_j` depends on :math:`q_j` alone,
+
+.. math::
+    \frac{\partial\phi}{\partial q_{j,k}}
+      = 2\,\mathrm{tr}\Big(\tilde F_j\,\frac{\partial\Phi}{\partial M}\,
+        \frac{\partial \tilde F_j^\top}{\partial q_{j,k}}\Big),
+
+and :math:`\partial\tilde F_j/\partial q_{j,k}` is the mixed derivative
+:math:`\partial^2 h/\partial p\,\partial q` of the measurement models
+(:meth:`calib_oed.measurement.MeasurementModel.compute_param_config_jacobian`),
+batched over poses. Derivation: ``docs/derivations.md`` §11.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+import scipy.linalg
+
+from calib_oed.calibration.problem import CalibrationProblem
+from calib_oed.exceptions import NotIdentifiableError, ShapeError
+from calib_oed.measurement import evaluate_setup
+from calib_oed.oed.criteria import ACriterion, Criterion, DCriterion, make_criterion
+
+#: KPI entries of :math:`P`: metres to millimetres.
+_MM = 1e3
+
+
+@dataclass(frozen=True)
+class DesignEvaluation:
+    """Criterion value and gradient of a design.
+
+    Attributes:
+        value: :math:`\\phi(q)` in the criterion's unit.
+        gradient: :math:`\\partial\\phi/\\partial q`, (n, nv) [unit/rad].
+        information: :math:`M(q)`, (n_f, n_f), unit-scaled.
+    """
+
+    value: float
+    gradient: np.ndarray
+    information: np.ndarray
+
+
+class RowDerivatives(NamedTuple):
+    r"""Per-pose rows :math:`\tilde F_j` and their configuration derivatives (module docstring).
+
+    Attributes:
+        rows: :math:`\tilde F_j(q_j)`, (n, d, n_f), pose-major: the d rows of
+            every model for pose j; column f in 1/mm or 1/mrad (measured
+            values in units of their :math:`\sigma`, per mm or mrad of
+            free parameter f).
+        derivatives: :math:`\partial\tilde F_j/\partial q_{j,k}`, (n, d, n_f, nv),
+            along the nv velocity coordinates of pose j; the rows' unit per
+            rad (revolute joints).
+    """
+
+    rows: np.ndarray
+    derivatives: np.ndarray
+
+
+class DesignObjective:
+    """:math:`\\phi(q) = \\Phi(M(q))` for a calibration problem (see module docstring).
+
+    Args:
+        problem: The calibration problem (its gauge rule picks the free parameters).
+        criterion: A criterion object, or a name from
+            :data:`calib_oed.oed.criteria.CRITERIA` (``"kpi"``: the paper's
+            A-criterion on the KPI covariance in mm²; ``"params"``: the
+            A-criterion on the parameter covariance in mm²/mrad²).
+        p: Parameters the sensitivities are evaluated at (None: nominal).
+        prior: Information :math:`M_0` already available, (n_f, n_f).
+    """
+
+    def __init__(
+        self,
+        problem: CalibrationProblem,
+        criterion: Criterion | str = "kpi",
+        p: np.ndarray | None = None,
+        prior: np.ndarray | None = None,
+    ):
+        self.problem = problem
+        self.p = problem.space.check(p)
+        self.free = problem.identifiability.free_indices
+        self.scale = problem.space.unit_scale[self.free]
+        nf = len(self.free)
+        if isinstance(criterion, str):
+            criterion = make_criterion(criterion, kpi_jacobian=self.kpi_jacobian(), n_params=nf,
+                                       kpi_weights=self.kpi_weights)
+        self.criterion = criterion
+        if prior is not None:
+            prior = np.asarray(prior, dtype=float)
+            if prior.shape != (nf, nf):
+                raise ShapeError("prior information", f"({nf}, {nf})", prior.shape)
+        self.prior = prior
+        # first-order pieces of the last few designs: the SQP asks for value, gradient
+        # and curvature at the same point
+        self._cache: dict[bytes, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+
+    @property
+    def n_free(self) -> int:
+        return len(self.free)
+
+    def kpi_jacobian(self) -> np.ndarray:
+        """Unit-scaled KPI Jacobian on the free parameters, (3t, n_f) [mm/mm, mm/mrad]."""
+        return self.problem.kpi_jacobian(self.p)[:, self.free] * self.scale * _MM
+
+    @property
+    def kpi_weights(self) -> np.ndarray | None:
+        """Weights of the KPI points (the scene's), or None (all 1)."""
+        return getattr(self.problem.kpi, "weights", None)
+
+    def kpi_criterion(self) -> ACriterion:
+        """The paper's KPI criterion of this problem, weighted as the scene says (whatever is optimised)."""
+        return ACriterion.kpi(self.kpi_jacobian(), self.kpi_weights)
+
+    def kpi_point_variances(self, q: np.ndarray) -> np.ndarray:
+        r"""Per KPI point :math:`v_i = \mathrm{tr}(G_i C G_i^\top)/3` [mm²], (t,)."""
+        info = self.compute_information(q)
+        g = self.kpi_jacobian()
+        try:  # one factorisation for all points: v_i = sum over the point's rows of g C g^T / 3
+            factor = scipy.linalg.cho_factor(info, lower=True, check_finite=False)
+        except np.linalg.LinAlgError:
+            try:  # the criterion names the columns of the null space
+                ACriterion.kpi(g).compute_value(info)
+            except NotIdentifiableError as exc:
+                raise self._named(exc) from None
+            raise
+        y = scipy.linalg.cho_solve(factor, g.T, check_finite=False)  # C G^T
+        return np.sum(g.T * y, axis=0).reshape(-1, 3).sum(axis=1) / 3.0
+
+    # -------------------------------------------------------------- pieces
+    def _state(self, q: np.ndarray, second_order: bool):
+        q = self.problem.robot.check_configurations(q, "design")
+        return evaluate_setup(self.problem.space, self.p, q, regressor=True,
+                              jacobian=second_order)
+
+    def _rows(self, state) -> np.ndarray:
+        blocks = [
+            mdl.compute_param_jacobian(state)[:, :, self.free] / mdl.sigma[None, :, None]
+            for mdl in self.problem.models
+        ]
+        return np.concatenate(blocks, axis=1) * self.scale  # (n, d, n_f)
+
+    def _row_derivatives(self, state) -> np.ndarray:
+        blocks = [
+            mdl.compute_param_config_jacobian(state)[:, :, self.free, :]
+            / mdl.sigma[None, :, None, None]
+            for mdl in self.problem.models
+        ]
+        return np.concatenate(blocks, axis=1) * self.scale[:, None]  # (n, d, n_f, nv)
+
+    def compute_blocks(self, q: np.ndarray) -> np.ndarray:
+        r"""Per-pose rows :math:`\tilde F_j`, (n, d, n_f), all models stacked per pose."""
+        return self._rows(self._state(q, second_order=False))
+
+    def compute_row_derivatives(self, q: np.ndarray) -> RowDerivatives:
+        r"""Per-pose rows :math:`\tilde F_j(q_j)` and :math:`\partial\tilde F_j/\partial q_{j,k}` at ``q``.
+
+        .. math::
+            \frac{\partial\tilde F_j}{\partial q_{j,k}}
+              = \Sigma^{-1}\,\frac{\partial^2 h}{\partial p_f\,\partial q_{j,k}}(p, q_j)\,D,
+
+        the mixed derivative of the measurement models
+        (``compute_param_config_jacobian``), weighted and unit-scaled as the
+        rows, all models stacked per pose as in :meth:`compute_blocks`. No
+        information matrix is formed, so any number of poses is accepted.
+
+        Args:
+            q: Configurations (n, nq) [rad].
+
+        Returns:
+            :class:`RowDerivatives`: ``rows`` (n, d, n_f) [1/mm, 1/mrad per
+            column] and ``derivatives`` (n, d, n_f, nv) [the same per rad].
+        """
+        state = self._state(q, second_order=True)
+        return RowDerivatives(self._rows(state), self._row_derivatives(state))
+
+    def information(self, blocks: np.ndarray) -> np.ndarray:
+        """:math:`M = M_0 + \\sum_j \\tilde F_j^\\top \\tilde F_j` from per-pose blocks (n, d, n_f).
+
+        Raises:
+            NotIdentifiableError: fewer measured values than free parameters
+                (and no prior).
+        """
+        flat = blocks.reshape(-1, blocks.shape[-1])
+        if self.prior is None and flat.shape[0] < flat.shape[1]:
+            raise NotIdentifiableError(
+                self.free_names,
+                f"a design of {blocks.shape[0]} poses gives {flat.shape[0]} measured values for "
+                f"{flat.shape[1]} free parameters; measure more configurations",
+            )
+        info = flat.T @ flat
+        return info if self.prior is None else info + self.prior
+
+    @property
+    def free_names(self) -> list[str]:
+        """Names of the free parameters (the columns of :math:`M`)."""
+        return [self.problem.space.names[i] for i in self.free]
+
+    def _named(self, exc: NotIdentifiableError) -> NotIdentifiableError:
+        """The criterion's error with parameter names instead of column numbers."""
+        names = []
+        for label in exc.names:
+            parts = str(label).split()
+            if len(parts) == 2 and parts[0] == "column" and parts[1].isdigit():
+                names.append(self.free_names[int(parts[1])])
+            else:
+                names.append(str(label))
+        return NotIdentifiableError(names, "the design's information matrix is singular on them")
+
+    def compute_information(self, q: np.ndarray) -> np.ndarray:
+        """:math:`M(q)`, (n_f, n_f)."""
+        return self.information(self.compute_blocks(q))
+
+    def compute_value(self, q: np.ndarray) -> float:
+        r""":math:`\phi(q)`."""
+        info = self.compute_information(q)
+        try:
+            return float(self.criterion.compute_value(info))
+        except NotIdentifiableError as exc:
+            raise self._named(exc) from None
+
+    def _first_order(self, q: np.ndarray):
+        """Rows, their q-derivatives and M at ``q`` (the last few cached by value)."""
+        q = np.asarray(q, dtype=float)
+        key = q.tobytes()
+        cache = self._cache
+        if key not in cache:
+            rows, d_rows = self.compute_row_derivatives(q)
+            info = self.information(rows)
+            if len(cache) >= 4:
+                cache.pop(next(iter(cache)))
+            cache[key] = (rows, d_rows, info)
+        return cache[key]
+
+    def compute_curvature(self, q: np.ndarray) -> np.ndarray | None:
+        r"""The criterion's exact curvature through :math:`M`, (n·nv, n·nv), or None.
+
+        With :math:`M_a = \partial M/\partial q_a
+        = \tilde F_j^\top \partial_a\tilde F_j + \partial_a\tilde F_j^\top \tilde F_j`
+        (``a`` a joint of pose ``j``) and :math:`C = M^{-1}`, the Hessian of
+        :math:`\phi = \Phi(M(q))` is
+
+        .. math::
+            \nabla^2\phi = \underbrace{\nabla^2\Phi[M_a, M_b]}_{\text{this}}
+              + \sum_{rs} \Gamma_{rs}\,\partial_a\partial_b M_{rs},
+
+        and the first term is exact and positive semidefinite for the convex
+        criteria: A (:math:`\Phi = \mathrm{tr}(WC)/k`) gives
+        :math:`\tfrac1k[\mathrm{tr}(P M_a C M_b) + \mathrm{tr}(P M_b C M_a)]`,
+        :math:`P = CWC`; D (:math:`-\log\det M`) gives
+        :math:`\mathrm{tr}(C M_a C M_b)`. The second term is block diagonal
+        per pose (it needs :math:`\partial^2\tilde F_j/\partial q_j^2`) and is
+        left to the SQP's per-pose quasi-Newton blocks
+        (``docs/derivations.md`` §12). None for other criteria.
+        """
+        crit = self.criterion
+        if not isinstance(crit, (ACriterion, DCriterion)):
+            return None
+        rows, d_rows, info = self._first_order(q)
+        n, _, nf, nv = d_rows.shape
+        c = np.linalg.inv(info)
+        c = 0.5 * (c + c.T)
+        g = np.moveaxis(d_rows, 3, 1).reshape(n * nv, -1, nf)  # (a, d, nf)
+        f = np.repeat(rows, nv, axis=0)  # (a, d, nf)
+        half = np.einsum("adi,adj->aij", f, g)
+        m_a = half + np.transpose(half, (0, 2, 1))  # (a, nf, nf)
+        v = c @ m_a  # C M_a
+        if isinstance(crit, DCriterion):
+            x = np.einsum("aij,bji->ab", v, v)
+            return 0.5 * (x + x.T)
+        p = c @ np.asarray(crit.weight) @ c
+        u = p @ m_a  # P M_a
+        x = u.reshape(n * nv, -1) @ np.transpose(v, (0, 2, 1)).reshape(n * nv, -1).T
+        return (x + x.T) / crit.dim
+
+    def compute(self, q: np.ndarray) -> DesignEvaluation:
+        r""":math:`\phi(q)` and :math:`\partial\phi/\partial q` (n, nv), exact."""
+        rows, d_rows, info = self._first_order(q)
+        try:
+            grad_m = self.criterion.compute_gradient(info)
+        except NotIdentifiableError as exc:
+            raise self._named(exc) from None
+        # dphi/dq_jk = 2 sum_d (F_j G)_d . dF_j/dq_k
+        grad = 2.0 * np.einsum("jdf,jdfk->jk", rows @ grad_m, d_rows)
+        value = float(self.criterion.compute_value(info))
+        return DesignEvaluation(value, grad, info)

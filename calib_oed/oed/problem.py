@@ -1,0 +1,212 @@
+r"""The OED problem (paper eq. 24a–24e) as a nonlinear program in :math:`x = \mathrm{vec}(q)`.
+
+.. math::
+    \min_{q_1..q_n}\; \phi(q)/|\phi(q^0)| \quad\text{s.t.}\quad
+    g(q_j) \ge 0,\quad q^{\min} + m_q \le q_j \le q^{\max} - m_q,\quad j = 1..n,
+
+with :math:`\phi` a :class:`~calib_oed.oed.objective.DesignObjective`
+(divided by its value at the start so the solver sees O(1) numbers), and
+:math:`g` the incidence, self-collision, obstacle and beam rows of the scene's
+:class:`~calib_oed.feasibility.constraints.FeasibilityModel` (values in m and
+cosine units, exact gradients). Joint limits with their margin :math:`m_q` are
+simple bounds. Without collision constraints only the incidence rows remain
+(the paper's comparison of designs optimised with and without them).
+
+The Jacobian of :math:`g` is block diagonal (pose ``j``'s rows depend on
+:math:`q_j` only) and returned sparse.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse
+
+from calib_oed.feasibility.bodies import compute_body_states
+from calib_oed.feasibility.constraints import FeasibilityModel
+from calib_oed.oed.objective import DesignObjective
+
+#: Constraint kinds of the design problem, with and without collision avoidance.
+COLLISION_KINDS = ("incidence", "self", "obstacle", "beam")
+NO_COLLISION_KINDS = ("incidence",)
+
+
+class DesignProblem:
+    """Objective, constraints and bounds of an n-pose design, for :func:`calib_oed.solver.sqp.solve_sqp`.
+
+    Args:
+        objective: The criterion as a function of the design.
+        feasibility: The scene's constraints.
+        n: Number of poses.
+        collisions: Include the capsule and beam rows (default) or only incidence.
+        scale: The objective is divided by this (use the start's value).
+    """
+
+    def __init__(
+        self,
+        objective: DesignObjective,
+        feasibility: FeasibilityModel,
+        n: int,
+        *,
+        collisions: bool = True,
+        scale: float = 1.0,
+    ):
+        if not np.isfinite(scale) or scale <= 0:
+            raise ValueError(f"objective scale must be finite and > 0, got {scale}")
+        self.objective = objective
+        self.feasibility = feasibility
+        self.n = int(n)
+        self.nq = feasibility.robot.nq
+        self.kinds = COLLISION_KINDS if collisions else NO_COLLISION_KINDS
+        self.scale = float(scale)
+        robot = feasibility.robot
+        margin = feasibility.settings.margins.joint
+        self.lower = np.tile(robot.lower + margin, self.n)
+        self.upper = np.tile(robot.upper - margin, self.n)
+        self.n_objective = 0
+        self.n_constraints = 0
+
+    @property
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """Joint limits with their safety margin, each (n·nq,) [rad]."""
+        return self.lower, self.upper
+
+    def configurations(self, x: np.ndarray) -> np.ndarray:
+        """The design (n, nq) of a variable vector (n·nq,)."""
+        return np.asarray(x, dtype=float).reshape(self.n, self.nq)
+
+    def compute_objective(self, x: np.ndarray) -> tuple[float, np.ndarray]:
+        r""":math:`\phi/\phi^0` and its gradient (n·nq,)."""
+        self.n_objective += 1
+        ev = self.objective.compute(self.configurations(x))
+        return ev.value / self.scale, ev.gradient.ravel() / self.scale
+
+    def compute_curvature(self, x: np.ndarray) -> np.ndarray | None:
+        """The objective's exact curvature through M (scaled like the objective), or None.
+
+        See :meth:`calib_oed.oed.objective.DesignObjective.compute_curvature`.
+        """
+        h = self.objective.compute_curvature(self.configurations(x))
+        return None if h is None else h / self.scale
+
+    def compute_constraint_rows(self, x: np.ndarray, jacobian: bool = True):
+        """Constraint values (n, m) and Jacobian (n, m, nq) or None."""
+        q = self.configurations(x)
+        states = compute_body_states(self.feasibility.robot.model, q, jacobian=jacobian)
+        res = self.feasibility.compute_from_states(q, states, jacobian, kinds=self.kinds)
+        return res.values, res.jacobian
+
+    def compute_constraints(self, x: np.ndarray) -> tuple[np.ndarray, scipy.sparse.csr_matrix]:
+        """Stacked values :math:`g` (n·m,) and the block-diagonal Jacobian (n·m, n·nq), CSR."""
+        self.n_constraints += 1
+        values, jac = self.compute_constraint_rows(x, jacobian=True)
+        n, m, nq = jac.shape
+        bsr = scipy.sparse.bsr_matrix((jac, np.arange(n), np.arange(n + 1)), shape=(n * m, n * nq))
+        return values.ravel(), bsr.tocsr()
+
+    def constraint_labels(self) -> list[str]:
+        """Label of each stacked row, ``"pose j: <row label>"``."""
+        rows = [lbl for k, lbl in zip(self.feasibility.kinds, self.feasibility.labels, strict=True)
+                if k in self.kinds]
+        return [f"pose {j}: {lbl}" for j in range(self.n) for lbl in rows]
+
+    def max_violation(self, x: np.ndarray) -> float:
+        """Largest violation of the constraints and bounds (>= 0) [m, rad, cos]."""
+        values, _ = self.compute_constraint_rows(x, jacobian=False)
+        x = np.asarray(x, dtype=float)
+        return float(max(0.0, -values.min(), (self.lower - x).max(), (x - self.upper).max()))
+
+
+class WorstCaseDesignProblem:
+    r"""The worst-case (max) KPI design in epigraph form, for :func:`calib_oed.solver.sqp.solve_sqp`.
+
+    With :math:`v_i(q) = \mathrm{tr}(G_i C(q) G_i^\top)/3` the variance of KPI
+    point :math:`i` [mm²] (:math:`G_i` its three rows of the unit-scaled KPI
+    Jacobian), :math:`\min_q \max_i v_i(q)` is not smooth; its epigraph form is
+
+    .. math::
+        \min_{q,\,t}\; t \quad\text{s.t.}\quad t - v_i(q)/s \ge 0\ (i = 1..T),\quad
+        g(q_j) \ge 0,\quad q^{\min} + m_q \le q_j \le q^{\max} - m_q,\quad t \ge 0,
+
+    in :math:`x = (\mathrm{vec}(q), t)`, every row smooth, :math:`s` the
+    start's :math:`\max_i v_i` (so :math:`t^0 = 1`). The gradient of each
+    :math:`v_i` is the A-criterion's on :math:`G_i` (``DesignObjective``:
+    :math:`\partial v_i/\partial M = -C G_i^\top G_i C/3`), all points at once:
+    with :math:`Y = C G^\top`,
+    :math:`\partial v_i/\partial q_{j,k} = -\tfrac23 \sum_{c \in i}
+    (\tilde F_j Y_c)\cdot(\partial_k \tilde F_j\, Y_c)`.
+
+    The Jacobian is the feasibility rows' block diagonal with a zero
+    :math:`t` column, plus :math:`T` dense epigraph rows; CSR. The extra
+    variable does not fit per-pose Hessian blocks: the SQP uses one dense
+    BFGS matrix (``block_size=None``).
+
+    Args:
+        objective: Any :class:`DesignObjective` of the problem (its rows and
+            KPI Jacobian are used; its criterion is not).
+        feasibility: The scene's constraints.
+        n: Number of poses.
+        collisions: As :class:`DesignProblem`.
+        scale: :math:`s` [mm²], > 0.
+    """
+
+    def __init__(self, objective: DesignObjective, feasibility: FeasibilityModel, n: int, *,
+                 collisions: bool = True, scale: float = 1.0):
+        self.base = DesignProblem(objective, feasibility, n, collisions=collisions, scale=scale)
+        self.objective = objective
+        self.kpi_jacobian = objective.kpi_jacobian()  # (3T, n_f)
+        self.n_points = self.kpi_jacobian.shape[0] // 3
+        self.n, self.nq, self.scale = self.base.n, self.base.nq, self.base.scale
+        self.lower = np.append(self.base.lower, 0.0)
+        self.upper = np.append(self.base.upper, np.inf)
+
+    @property
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """Joint limits with their margin [rad], and :math:`t \\ge 0`; each (n·nq + 1,)."""
+        return self.lower, self.upper
+
+    def configurations(self, x: np.ndarray) -> np.ndarray:
+        """The design (n, nq) of a variable vector (n·nq + 1,)."""
+        return self.base.configurations(np.asarray(x, dtype=float)[:-1])
+
+    def start(self, q0: np.ndarray) -> np.ndarray:
+        """:math:`x^0 = (\\mathrm{vec}(q^0), \\max_i v_i(q^0)/s)`: feasible for the epigraph rows."""
+        v, _ = self.compute_point_variances(q0, gradient=False)
+        return np.append(np.asarray(q0, dtype=float).ravel(), v.max() / self.scale)
+
+    def compute_point_variances(self, q: np.ndarray, gradient: bool = True):
+        r""":math:`v_i(q)` [mm²] (T,) and, if asked, :math:`\partial v_i/\partial q` (T, n, nv)."""
+        obj = self.objective
+        g = self.kpi_jacobian
+        if not gradient:
+            return obj.kpi_point_variances(q), None
+        rows, d_rows, info = obj._first_order(q)
+        y = np.linalg.solve(info, g.T)  # C G^T (n_f, 3T)
+        v = np.sum(g.T * y, axis=0).reshape(-1, 3).sum(axis=1) / 3.0
+        a = rows @ y  # (n, d, 3T)
+        b = np.einsum("jdfk,fc->jdkc", d_rows, y)  # (n, d, nv, 3T)
+        dv = np.einsum("jdc,jdkc->cjk", a, b)  # (3T, n, nv)
+        dv = -2.0 / 3.0 * dv.reshape(self.n_points, 3, *dv.shape[1:]).sum(axis=1)
+        return v, dv
+
+    def compute_objective(self, x: np.ndarray) -> tuple[float, np.ndarray]:
+        """:math:`t` and its gradient :math:`e_t`."""
+        grad = np.zeros(np.size(x))
+        grad[-1] = 1.0
+        return float(x[-1]), grad
+
+    def compute_constraints(self, x: np.ndarray) -> tuple[np.ndarray, scipy.sparse.csr_matrix]:
+        """Feasibility rows then epigraph rows :math:`t - v_i/s`, and their Jacobian (CSR)."""
+        x = np.asarray(x, dtype=float)
+        c_f, a_f = self.base.compute_constraints(x[:-1])
+        v, dv = self.compute_point_variances(self.configurations(x))
+        c_e = x[-1] - v / self.scale
+        a_e = np.hstack([-dv.reshape(self.n_points, -1) / self.scale, np.ones((self.n_points, 1))])
+        jac = scipy.sparse.vstack([
+            scipy.sparse.hstack([a_f, scipy.sparse.csr_matrix((a_f.shape[0], 1))]),
+            scipy.sparse.csr_matrix(a_e),
+        ]).tocsr()
+        return np.concatenate([c_f, c_e]), jac
+
+    def max_violation(self, x: np.ndarray) -> float:
+        """Largest violation of the feasibility rows and joint bounds (the epigraph rows excluded)."""
+        return self.base.max_violation(np.asarray(x, dtype=float)[:-1])

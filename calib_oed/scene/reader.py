@@ -1,0 +1,300 @@
+"""Calibration scenes: robot, laser tracker, reflectors, noise and KPI, read from YAML.
+
+A scene file states its units once (``units: {length: mm, angle: deg}``);
+everything in a :class:`Scene` is SI [m, rad]. The world frame is the robot
+base, z up. The schema is documented in ``docs/scenes.md``; the optional
+``cell:`` and ``feasibility:`` blocks are read by :mod:`calib_oed.scene.cell`.
+"""
+
+from __future__ import annotations
+
+import os
+import xml.etree.ElementTree as ET
+from collections.abc import Mapping
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from calib_oed.exceptions import (
+    CalibOedError,
+    SceneError,
+    UnknownSceneError,
+)
+from calib_oed.feasibility.shapes import Cell, FeasibilitySettings
+from calib_oed.model.compliance import Compliance
+from calib_oed.model.joint_path import sample_joint_path
+from calib_oed.model.robot import Robot, load_robot
+from calib_oed.scene.cell import read_cell, read_feasibility
+from calib_oed.scene.fields import FieldReader
+from calib_oed.scene.records import (
+    DEFAULT_SIGMA_ANGLE,
+    KPI_AGGREGATES,
+    KPI_FRAMES,
+    MEASUREMENTS,
+    SUPPORTED_VERSIONS,
+    ComplianceSpec,
+    GenericDesignSpec,
+    KpiSpec,
+    ReflectorSpec,
+    Scene,
+    TrackerSpec,
+    WorkingConfiguration,
+)
+from calib_oed.units import ANGLE_UNITS, LENGTH_UNITS
+
+
+def scene_names() -> list[str]:
+    """Names of the shipped scenes (``calib_oed/scene/shipped/<name>.yaml``)."""
+    folder = resources.files("calib_oed.scene.shipped")
+    return sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".yaml"))
+
+
+def load_scene(name_or_path: str | os.PathLike) -> Scene:
+    """Load a shipped scene by name, or a scene file by path.
+
+    Raises:
+        UnknownSceneError: a bare name that is neither a shipped scene nor a file.
+        SceneError: missing or unreadable file, YAML syntax error, invalid content.
+    """
+    text = os.fspath(name_or_path)
+    if text in scene_names():
+        path = Path(str(resources.files("calib_oed.scene.shipped").joinpath(f"{text}.yaml")))
+    else:
+        path = Path(text)
+        looks_like_path = os.sep in text or path.suffix in (".yaml", ".yml") or path.exists()
+        if not looks_like_path:
+            raise UnknownSceneError(text, scene_names())
+        if not path.is_file():
+            raise SceneError(f"scene file not found: {path}", source=str(path))
+    try:
+        data = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        at = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
+        problem = getattr(exc, "problem", None) or str(exc)
+        raise SceneError(f"YAML syntax error{at}: {problem}", source=str(path)) from exc
+    except (OSError, UnicodeDecodeError) as exc:
+        raise SceneError(f"cannot read scene file ({exc})", source=str(path)) from exc
+    return scene_from_dict(data, source=str(path))
+
+
+def scene_from_dict(data: Mapping[str, Any], source: str | None = None) -> Scene:
+    """Build a :class:`Scene` from the parsed YAML (same validation as :func:`load_scene`).
+
+    Args:
+        data: The scene as a mapping (schema version 1, see ``docs/scenes.md``).
+        source: File the data came from: named in errors, and the folder
+            relative ``robot.urdf`` paths resolve against (default: the working directory).
+    """
+    return SceneReader(source).scene(data)
+
+
+class SceneReader(FieldReader):
+    """Reads a whole scene: the top level, robot, compliance, tracker, reflectors, KPI."""
+
+    def scene(self, data) -> Scene:
+        top = self.mapping(data, None, ("version", "name", "units", "robot", "tracker",
+                                        "reflectors", "kpi"),
+                           ("description", "measurement", "generic_design", "cell",
+                            "feasibility"))
+        if top["version"] not in SUPPORTED_VERSIONS or isinstance(top["version"], bool):
+            raise self.fail("version", f"unsupported scene file version {top['version']!r}; "
+                            f"supported versions: {', '.join(map(str, SUPPORTED_VERSIONS))}")
+        units = self.mapping(top["units"], "units", ("length", "angle"))
+        self.units = {k: self.string(units[k], f"units.{k}", table)
+                      for k, table in (("length", LENGTH_UNITS), ("angle", ANGLE_UNITS))}
+        self.length = LENGTH_UNITS[self.units["length"]]
+        self.angle = ANGLE_UNITS[self.units["angle"]]
+        description = top.get("description", "")
+        if not isinstance(description, str):
+            raise self.fail("description", f"expected a string, got {description!r}")
+        robot = self.robot(top["robot"])
+        compliance = (self.compliance(top["robot"]["compliance"])
+                      if "compliance" in top["robot"] else None)
+        gd = self.mapping(top.get("generic_design", {}), "generic_design", (), ("n", "seed"))
+        return Scene(
+            name=self.string(top["name"], "name"),
+            description=description,
+            source=Path(self.source) if self.source else None,
+            robot=robot,
+            tracker=self.tracker(top["tracker"]),
+            reflectors=tuple(
+                ReflectorSpec(r["name"], self.vector(r["offset"], f"reflectors[{i}].offset", 3,
+                                                     self.length))
+                for i, r in enumerate(self.named_list(top["reflectors"], "reflectors",
+                                                      ("name", "offset"), "reflector"))
+            ),
+            measurement=self.string(top.get("measurement", "position"), "measurement",
+                                    MEASUREMENTS),
+            kpi=self.kpi(top["kpi"], robot, [r["name"] for r in top["reflectors"]]),
+            generic_design=GenericDesignSpec(
+                n=self.integer(gd.get("n", 200), "generic_design.n", 1),
+                seed=self.integer(gd.get("seed", 0), "generic_design.seed", 0),
+            ),
+            units=dict(self.units),
+            cell=read_cell(self, top["cell"]) if "cell" in top else Cell(),
+            feasibility=(read_feasibility(self, top["feasibility"], robot)
+                         if "feasibility" in top else FeasibilitySettings()),
+            compliance=compliance,
+        )
+
+    def robot(self, value) -> Robot:
+        spec = self.mapping(value, "robot", (), ("name", "urdf", "tool_frame", "joint_limits",
+                                                 "lock_joints", "package_dirs", "compliance"))
+        if ("name" in spec) == ("urdf" in spec):
+            given = [k for k in ("name", "urdf") if k in spec]
+            raise self.fail("robot", "expected exactly one of 'name' (a robot name) or 'urdf' "
+                            f"(a URDF file path), got {given or 'neither'}")
+        if "name" in spec:
+            source = self.string(spec["name"], "robot.name")
+        else:
+            path = Path(self.string(spec["urdf"], "robot.urdf")).expanduser()
+            if not path.is_absolute():
+                path = (Path(self.source).parent if self.source else Path.cwd()) / path
+            if not path.is_file():
+                raise self.fail("robot.urdf", f"URDF file not found: {path}")
+            source = str(path.resolve())
+        tool = self.string(spec["tool_frame"], "robot.tool_frame") if "tool_frame" in spec else None
+        packages = self.package_dirs(spec.get("package_dirs", []))
+        limits = self.free_mapping(spec.get("joint_limits", {}), "robot.joint_limits")
+        locks = self.free_mapping(spec.get("lock_joints", {}), "robot.lock_joints")
+        try:
+            robot = load_robot(source, tool_frame=tool, lock_joints={j: 0.0 for j in locks},
+                               package_dirs=packages)
+            if not (limits or locks):
+                return robot
+            # Joint types are known only once the URDF is read: prismatic joints take lengths.
+            types = {j.get("name"): j.get("type") for j in ET.fromstring(robot.urdf_text)
+                     .iter("joint")}
+            for j in limits:
+                if j not in robot.joint_names:
+                    raise self.fail(f"robot.joint_limits.{j}", "unknown joint; the robot's "
+                                    f"joints are: {', '.join(robot.joint_names)}")
+            scale = {j: self.length if t == "prismatic" else self.angle for j, t in types.items()}
+            bounds = {j: self.vector(v, f"robot.joint_limits.{j}", 2, what="lower, upper")
+                      for j, v in limits.items()}
+            for j, (lo, hi) in bounds.items():
+                if not lo < hi:
+                    raise self.fail(f"robot.joint_limits.{j}", f"lower limit {lo:.6g} is not "
+                                    f"below upper limit {hi:.6g}")
+            return load_robot(
+                source, tool_frame=tool,
+                joint_limits={j: b * scale[j] for j, b in bounds.items()},
+                lock_joints={j: self.number(v, f"robot.lock_joints.{j}", scale[j])
+                             for j, v in locks.items()},
+                package_dirs=packages,
+            )
+        except SceneError:
+            raise
+        except CalibOedError as exc:
+            raise self.fail("robot", str(exc)) from exc
+
+    def compliance(self, value) -> ComplianceSpec:
+        """``robot.compliance: {enabled: true, payload: {mass: kg, com: [x, y, z]}}`` (com in length units)."""
+        spec = self.mapping(value, "robot.compliance", (), ("enabled", "payload"))
+        enabled = spec.get("enabled", True)
+        if not isinstance(enabled, bool):
+            raise self.fail("robot.compliance.enabled", f"expected true or false, got {enabled!r}")
+        load = self.mapping(spec.get("payload", {}), "robot.compliance.payload", (), ("mass", "com"))
+        mass = self.number(load.get("mass", 0.0), "robot.compliance.payload.mass", nonnegative=True)
+        com = self.vector(load.get("com", [0, 0, 0]), "robot.compliance.payload.com", 3, self.length)
+        return ComplianceSpec(enabled, Compliance(mass, com))
+
+    def package_dirs(self, value) -> list[str] | None:
+        """``robot.package_dirs``: folders searched for ``package://`` meshes, relative to the file."""
+        if isinstance(value, str):
+            value = [value]
+        if not isinstance(value, list):
+            raise self.fail("robot.package_dirs", f"expected a list of folders, got {value!r}")
+        out = []
+        for k, entry in enumerate(value):
+            path = Path(self.string(entry, f"robot.package_dirs[{k}]")).expanduser()
+            if not path.is_absolute():
+                path = (Path(self.source).parent if self.source else Path.cwd()) / path
+            if not path.is_dir():
+                raise self.fail(f"robot.package_dirs[{k}]", f"folder not found: {path}")
+            out.append(str(path.resolve()))
+        return out or None
+
+    def tracker(self, value) -> TrackerSpec:
+        spec = self.mapping(value, "tracker", ("position", "rpy", "sigma"), ("sigma_angle",))
+        sigma_angle = (self.vector3_or_scalar(spec["sigma_angle"], "tracker.sigma_angle",
+                                              self.angle)
+                       if "sigma_angle" in spec else np.full(3, DEFAULT_SIGMA_ANGLE))
+        return TrackerSpec(
+            position=self.vector(spec["position"], "tracker.position", 3, self.length),
+            rpy=self.vector(spec["rpy"], "tracker.rpy", 3, self.angle),
+            sigma=self.vector3_or_scalar(spec["sigma"], "tracker.sigma", self.length),
+            sigma_angle=sigma_angle,
+        )
+
+    def kpi(self, value, robot: Robot, reflector_names: list[str]) -> KpiSpec:
+        spec = self.mapping(value, "kpi", (),
+                            ("working_configurations", "paths", "aggregate", "point", "frame",
+                             "reflector"))
+        if "working_configurations" not in spec and "paths" not in spec:
+            raise self.fail("kpi.working_configurations", "missing required key; kpi requires "
+                            "working_configurations, paths or both")
+        reflector = None
+        if "reflector" in spec:
+            if "point" in spec:
+                raise self.fail("kpi.reflector", "give either kpi.point or kpi.reflector, not both")
+            if spec["reflector"] not in reflector_names:
+                raise self.fail("kpi.reflector", f"expected one of the reflectors "
+                                f"{reflector_names}, got {spec['reflector']!r}")
+            reflector = reflector_names.index(spec["reflector"])
+        key = "kpi.working_configurations"
+        joints = robot.joint_names
+        per_joint = f"one per joint: {', '.join(joints)}"
+        prismatic = [j.shortname().startswith("JointModelP") for j in robot.model.joints[1:]]
+        scale = np.where(prismatic, self.length, self.angle)
+        units = [self.units["length" if p else "angle"] for p in prismatic]
+        configurations = []
+
+        def joint_vector(value, where):
+            q = self.vector(value, where, len(joints), what=per_joint) * scale
+            for j, name in enumerate(joints):
+                lo, hi, s, unit = robot.lower[j], robot.upper[j], scale[j], units[j]
+                if not lo - 1e-9 <= q[j] <= hi + 1e-9:  # 1e-9: rounding of unit conversion
+                    raise self.fail(where, f"{name} = {q[j] / s:.6g} {unit} is "
+                                    f"outside its limits [{lo / s:.6g}, {hi / s:.6g}] {unit}")
+            return q
+
+        for i, wc in enumerate(self.named_list(spec["working_configurations"], key,
+                                               ("name", "q"), "working configuration", ("weight",))
+                               if "working_configurations" in spec else []):
+            weight = self.number(wc.get("weight", 1.0), f"{key}[{i}].weight", nonnegative=True)
+            configurations.append(WorkingConfiguration(wc["name"], joint_vector(wc["q"], f"{key}[{i}].q"),
+                                                       weight))
+        names = {c.name for c in configurations}
+        for i, path in enumerate(self.named_list(spec["paths"], "kpi.paths",
+                                                 ("name", "waypoints", "samples"), "path",
+                                                 ("weight",)) if "paths" in spec else []):
+            pkey = f"kpi.paths[{i}]"
+            if path["name"] in names or "@" in path["name"]:
+                raise self.fail(f"{pkey}.name", f"path name {path['name']!r} must differ from the "
+                                "working configurations' names and contain no '@'")
+            points = path["waypoints"]
+            if not isinstance(points, list) or len(points) < 2:
+                raise self.fail(f"{pkey}.waypoints", "expected a list of at least 2 joint "
+                                f"configurations ({per_joint}), got {points!r}")
+            way = np.array([joint_vector(v, f"{pkey}.waypoints[{k}]") for k, v in enumerate(points)])
+            m = self.integer(path["samples"], f"{pkey}.samples", 2)
+            if not np.any(np.abs(np.diff(way, axis=0)) > 0):
+                raise self.fail(f"{pkey}.waypoints", "all waypoints are equal: the path has zero length")
+            weight = self.number(path.get("weight", 1.0), f"{pkey}.weight", nonnegative=True)
+            for k, q in enumerate(sample_joint_path(way, m)):
+                configurations.append(WorkingConfiguration(f"{path['name']}@{k}", q, weight / m,
+                                                           path["name"]))
+        return KpiSpec(
+            point=self.vector(spec.get("point", [0, 0, 0]), "kpi.point", 3, self.length),
+            frame=self.string(spec.get("frame", "world"), "kpi.frame", KPI_FRAMES),
+            configurations=tuple(configurations),
+            reflector=reflector,
+            aggregate=self.string(spec.get("aggregate", "mean"), "kpi.aggregate", KPI_AGGREGATES),
+        )
+
+

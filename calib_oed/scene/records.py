@@ -1,0 +1,223 @@
+"""Scene records: robot, tracker, reflectors, KPI and compliance specs, SI throughout.
+
+What a scene file describes once read (:mod:`calib_oed.scene.reader`): every
+length in [m], every angle in [rad], arrays read-only. The world frame is the
+robot base, z up.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+import pinocchio as pin
+
+from calib_oed.exceptions import NonFiniteError, SceneError, ShapeError
+from calib_oed.feasibility.shapes import Cell, FeasibilitySettings
+from calib_oed.model.compliance import Compliance
+from calib_oed.model.robot import Robot
+
+MEASUREMENTS = ("position", "pose")
+KPI_FRAMES = ("world", "tracker")
+KPI_AGGREGATES = ("mean", "max")
+SUPPORTED_VERSIONS = (1,)
+DEFAULT_SIGMA_ANGLE = 1e-5  # [rad] = 0.01 mrad
+
+
+def _readonly(value: Any, what: str, size: int | None = None) -> np.ndarray:
+    """A finite, read-only float copy of a vector (of length ``size`` if given)."""
+    arr = np.array(value, dtype=float)
+    if arr.ndim != 1 or (size is not None and arr.shape[0] != size):
+        raise ShapeError(what, f"({size if size is not None else 'n'},)", arr.shape)
+    if not np.all(np.isfinite(arr)):
+        raise NonFiniteError(what, np.flatnonzero(~np.isfinite(arr)).tolist())
+    arr.setflags(write=False)
+    return arr
+
+
+# eq=False: records holding arrays compare by identity (the generated __eq__
+# would compare arrays element-wise and fail on truth value).
+@dataclass(frozen=True, eq=False)
+class TrackerSpec:
+    """Laser tracker pose and noise.
+
+    Attributes:
+        position: Origin of the tracker frame in the world, :math:`t_{wt}`, shape (3,) [m].
+        rpy: Roll, pitch, yaw of the tracker frame in the world, shape (3,) [rad];
+            :math:`R_{wt} = R_z(y) R_y(p) R_x(r)` = ``pin.rpy.rpyToMatrix(r, p, y)``.
+        sigma: Standard deviation of the position noise along the tracker axes, shape (3,) [m].
+        sigma_angle: Standard deviation of the rotation noise about the tracker axes,
+            shape (3,) [rad]; used only by the 6-D pose measurement model.
+    """
+
+    position: np.ndarray
+    rpy: np.ndarray
+    sigma: np.ndarray
+    sigma_angle: np.ndarray
+
+    def __post_init__(self):
+        for name in ("position", "rpy", "sigma", "sigma_angle"):
+            object.__setattr__(self, name, _readonly(getattr(self, name), f"tracker.{name}", 3))
+        for name in ("sigma", "sigma_angle"):
+            if np.any(getattr(self, name) <= 0):
+                raise SceneError(f"must be > 0, got {getattr(self, name)}", key=f"tracker.{name}")
+
+    def placement(self) -> pin.SE3:
+        """Pose of the tracker in the world, :math:`T_{wt}` (maps tracker to world coordinates)."""
+        return pin.SE3(pin.rpy.rpyToMatrix(*self.rpy), np.array(self.position))
+
+
+@dataclass(frozen=True, eq=False)
+class ReflectorSpec:
+    """A reflector (SMR) on the tool.
+
+    Attributes:
+        name: Reflector name, unique in the scene.
+        offset: Reflector centre in the tool frame, shape (3,) [m].
+    """
+
+    name: str
+    offset: np.ndarray
+
+    def __post_init__(self):
+        object.__setattr__(self, "offset", _readonly(self.offset, f"reflector {self.name}", 3))
+
+
+@dataclass(frozen=True, eq=False)
+class WorkingConfiguration:
+    """A configuration at which the KPI is evaluated.
+
+    Attributes:
+        name: Configuration name, unique in the scene.
+        q: Joint configuration, shape (nq,) [rad] (prismatic joints [m]).
+        weight: Its weight >= 0 in the mean KPI variance (default 1; a path's
+            samples share the path's weight, ``weight/samples`` each).
+        path: Name of the path it samples (``<path>@k``), or None.
+    """
+
+    name: str
+    q: np.ndarray
+    weight: float = 1.0
+    path: str | None = None
+
+    def __post_init__(self):
+        object.__setattr__(self, "q", _readonly(self.q, f"working configuration {self.name}"))
+        if not (math.isfinite(self.weight) and self.weight >= 0):
+            raise SceneError(f"expected a number >= 0, got {self.weight!r}",
+                             key=f"kpi working configuration {self.name}.weight")
+
+
+@dataclass(frozen=True, eq=False)
+class KpiSpec:
+    """The key performance indicator: the position of a tool point at working configurations.
+
+    Attributes:
+        point: The point in the tool frame, shape (3,) [m] (zero: the tool frame origin).
+        frame: Frame the position is expressed in, ``"world"`` or ``"tracker"``.
+        configurations: The working configurations (at least one).
+        reflector: Index of the reflector whose (estimated) centre is the KPI
+            point instead of ``point``, or None.
+        aggregate: How the design criterion combines the KPI points:
+            ``"mean"`` (weighted mean variance, the A-criterion) or ``"max"``
+            (worst-case variance, docs/oed.md).
+    """
+
+    point: np.ndarray
+    frame: Literal["world", "tracker"]
+    configurations: tuple[WorkingConfiguration, ...]
+    reflector: int | None = None
+    aggregate: Literal["mean", "max"] = "mean"
+
+    def __post_init__(self):
+        object.__setattr__(self, "point", _readonly(self.point, "kpi.point", 3))
+        object.__setattr__(self, "configurations", tuple(self.configurations))
+        if self.frame not in KPI_FRAMES:
+            raise SceneError(f"expected one of {KPI_FRAMES}, got {self.frame!r}", key="kpi.frame")
+        if self.aggregate not in KPI_AGGREGATES:
+            raise SceneError(f"expected one of {', '.join(KPI_AGGREGATES)}, got {self.aggregate!r}",
+                             key="kpi.aggregate")
+        if not self.configurations:
+            raise SceneError("expected at least one", key="kpi.working_configurations")
+        if not any(c.weight > 0 for c in self.configurations):
+            raise SceneError("expected at least one working configuration with weight > 0",
+                             key="kpi.working_configurations")
+
+    @property
+    def q(self) -> np.ndarray:
+        """The working configurations stacked, shape (k, nq) [rad]."""
+        out = np.array([c.q for c in self.configurations])
+        out.setflags(write=False)
+        return out
+
+
+@dataclass(frozen=True)
+class GenericDesignSpec:
+    """The fixed-seed random design used by the gauge rule.
+
+    Attributes:
+        n: Number of configurations, uniform in the joint limits.
+        seed: Seed of :func:`numpy.random.default_rng`.
+    """
+
+    n: int = 200
+    seed: int = 0
+
+
+@dataclass(frozen=True, eq=False)
+class Scene:
+    """A calibration set-up. All quantities SI [m, rad]; world frame = robot base, z up.
+
+    Attributes:
+        name: Scene name.
+        description: Free text.
+        source: The YAML file it came from, or ``None``.
+        robot: The loaded robot (tool frame, joint limits applied).
+        tracker: Laser tracker pose and noise.
+        reflectors: Reflectors on the tool (at least one).
+        measurement: ``"position"`` (3-D per reflector) or ``"pose"`` (6-D).
+        kpi: The key performance indicator.
+        generic_design: The gauge rule's random design.
+        units: The file's units as written (``{"length": "mm", "angle": "deg"}``), for reports.
+        cell: World-fixed obstacles (capsules, half-spaces) [m]; empty if the file has none.
+        feasibility: What makes a measurement configuration executable [m, rad];
+            the defaults of :class:`FeasibilitySettings` if the file has no ``feasibility:``.
+        compliance: ``robot.compliance``: whether joint compliance is modelled and
+            the payload; None if the file has no such block (rigid joints).
+    """
+
+    name: str
+    description: str
+    source: Path | None
+    robot: Robot
+    tracker: TrackerSpec
+    reflectors: tuple[ReflectorSpec, ...]
+    measurement: Literal["position", "pose"]
+    kpi: KpiSpec
+    generic_design: GenericDesignSpec
+    units: dict[str, str]
+    cell: Cell = field(default_factory=Cell)
+    feasibility: FeasibilitySettings = field(default_factory=FeasibilitySettings)
+    compliance: ComplianceSpec | None = None
+
+
+@dataclass(frozen=True, eq=False)
+class ComplianceSpec:
+    """``robot.compliance``: joint compliance under gravity (:mod:`calib_oed.model.compliance`).
+
+    Attributes:
+        enabled: Model it (one compliance parameter per joint); ``calib-oed
+            --compliance`` turns it on for a scene that says ``enabled: false``.
+        payload: The payload on the tool (mass [kg], centre of mass in the tool frame [m]).
+    """
+
+    enabled: bool
+    payload: Compliance
+
+    def model(self) -> Compliance | None:
+        """The :class:`~calib_oed.model.compliance.Compliance` of the parameter space, or None if disabled."""
+        return self.payload if self.enabled else None
+
+

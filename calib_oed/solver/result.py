@@ -1,0 +1,361 @@
+r"""Records in and out of :func:`calib_oed.solver.sqp.solve_sqp`: settings, status, history, result.
+
+The problem solved is
+
+.. math::
+    \min_{x \in \mathbb{R}^n} f(x) \quad \text{s.t.} \quad
+    c(x) \ge 0 \;(c: \mathbb{R}^n \to \mathbb{R}^m), \qquad lb \le x \le ub,
+
+with Lagrangian :math:`L(x, \lambda, \nu) = f(x) - \lambda^\top c(x) - \nu^\top x`,
+:math:`\lambda \in \mathbb{R}^m_{\ge 0}` and :math:`\nu_j \ge 0` at a lower
+bound, :math:`\nu_j \le 0` at an upper bound, :math:`\nu_j = 0` between them.
+The residuals a :class:`SQPResult` reports about its final iterate are
+
+.. math::
+    r_p = \max\big(0,\; \max_i -c_i(x),\; \max_j (lb_j - x_j),\; \max_j (x_j - ub_j)\big),
+
+    r_d = \frac{\|\nabla f(x) - A(x)^\top \lambda - \nu\|_\infty}{\max(1, \|\nabla f(x)\|_\infty)},
+    \qquad r_c = \frac{\max_i |\lambda_i\, c_i(x)|}{\max(1, \|\nabla f(x)\|_\infty)},
+
+with :math:`A = \partial c / \partial x \in \mathbb{R}^{m \times n}`. Units are
+those of the caller's :math:`x`, :math:`c` and :math:`f`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+from enum import Enum
+
+import numpy as np
+
+from calib_oed.exceptions import SQPProblemError, SQPSettingsError  # noqa: F401 (re-exported)
+
+
+class SQPStatus(str, Enum):
+    """Why :func:`~calib_oed.solver.sqp.solve_sqp` stopped."""
+
+    CONVERGED = "converged"
+    """KKT residuals below tolerance at a feasible point."""
+    MAX_ITERATIONS = "max_iterations"
+    """The iteration limit was reached first."""
+    TIME_LIMIT = "time_limit"
+    """The wall-clock limit (``SQPSettings.time_limit``) was reached first."""
+    STALLED = "stalled"
+    """The trust region or the step fell below its minimum without convergence, or the
+    linearised constraints are inconsistent at a point feasible to tolerance."""
+    INFEASIBLE = "infeasible"
+    """Feasibility restoration could not reduce a violation above ``tol_feasibility``."""
+    FAILED = "failed"
+    """The QP subproblem could not be solved at a feasible point."""
+
+
+HESSIANS = ("bfgs",)
+QP_BACKENDS = ("dense", "sparse")
+
+
+@dataclass(frozen=True)
+class SQPSettings:
+    r"""Settings of :func:`solve_sqp`, validated at construction.
+
+    Tolerances are absolute on :math:`c` and the bounds (units of :math:`c`,
+    :math:`x`), relative to :math:`\max(1, \|\nabla f\|_\infty)` for stationarity.
+    Step bounds are ∞-norms in units of :math:`x` ([rad] for joint angles).
+
+    Attributes:
+        max_iterations: Largest number of QP subproblems.
+        time_limit: Stop after the iteration that exceeds this wall time [s]
+            (default: no limit).
+        tol_optimality: Scaled KKT stationarity and complementarity tolerance.
+        tol_feasibility: Largest violation of :math:`c \ge 0` and of the bounds.
+        tol_step: Stop (stalled) when :math:`\|d\|_\infty` falls below it.
+        step_bound: Initial trust-region radius :math:`\Delta_0`.
+        min_step_bound: :math:`\Delta_\min`; stop (stalled) when it must shrink below.
+        max_step_bound: :math:`\Delta_\max`.
+        step_bound_ratio: :math:`\kappa`: after an accepted step,
+            :math:`\Delta \le \kappa \|x_{k+1} - x_k\|_\infty`, so the box, and with
+            it the rows kept, follows the steps being taken (``inf`` disables).
+        active_margin: :math:`m_a \ge 0` of the row selection (module docstring, 2).
+        hessian: ``"bfgs"`` (the only one so far).
+        initial_hessian_scale: :math:`\beta` of :math:`B_0 = \beta I`.
+        bfgs_damping: Powell's :math:`\delta \in (0, 1)`: :math:`s^\top r \ge \delta\, s^\top B s`.
+        qp_backend: ``"dense"`` (default, faster: ``bench/bench_sqp_qp.py``) or ``"sparse"``.
+        qp_eps_abs: ProxQP absolute tolerance (its default 1e-3 is lax).
+        qp_max_iterations: ProxQP ``max_iter``; bounds the time lost on an infeasible QP.
+        qp_polish: Refine small QP steps on their active set (:func:`calib_oed.solver.qp.polish`).
+        second_order_correction: Try a second-order correction before
+            backtracking from a rejected full step (:mod:`calib_oed.solver.sqp`, item 4).
+        armijo: :math:`\eta \in (0, 1/2)` of the Armijo condition.
+        backtrack: Factor :math:`\in (0, 1)` applied to :math:`\alpha` per backtrack.
+        max_backtracks: Backtracks before the step is rejected.
+        penalty_margin: :math:`\mu_m > 0` in :math:`\mu \ge \|\lambda\|_\infty + \mu_m`.
+        restoration_penalty: :math:`\rho` of the elastic restoration QP.
+    """
+
+    max_iterations: int = 300
+    time_limit: float = float("inf")
+    tol_optimality: float = 1e-6
+    tol_feasibility: float = 1e-7
+    tol_step: float = 1e-9
+    step_bound: float = 0.3
+    min_step_bound: float = 1e-8
+    max_step_bound: float = 1.0
+    step_bound_ratio: float = 10.0
+    active_margin: float = 0.05
+    hessian: str = "bfgs"
+    initial_hessian_scale: float = 1.0
+    bfgs_damping: float = 0.2
+    qp_backend: str = "dense"
+    qp_eps_abs: float = 1e-9
+    qp_max_iterations: int = 100
+    qp_polish: bool = True
+    second_order_correction: bool = True
+    armijo: float = 1e-4
+    backtrack: float = 0.5
+    max_backtracks: int = 12
+    penalty_margin: float = 0.1
+    restoration_penalty: float = 1e3
+
+    def __post_init__(self):
+        def need(name, ok, requirement):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not ok(value):
+                raise SQPSettingsError(name, value, requirement)
+
+        def positive(v):
+            return isinstance(v, (int, float)) and np.isfinite(v) and v > 0
+
+        for name in ("max_iterations", "qp_max_iterations"):
+            need(name, lambda v: isinstance(v, (int, np.integer)) and v >= 1, "must be an integer >= 1")
+        need("max_backtracks", lambda v: isinstance(v, (int, np.integer)) and v >= 0, "must be an integer >= 0")
+        for name in ("tol_optimality", "tol_feasibility", "tol_step", "step_bound", "min_step_bound",
+                     "max_step_bound", "initial_hessian_scale", "qp_eps_abs", "penalty_margin",
+                     "restoration_penalty"):
+            need(name, positive, "must be a finite number > 0")
+        need("time_limit", lambda v: isinstance(v, (int, float)) and v > 0, "must be > 0 (inf: no limit)")
+        need("step_bound_ratio", lambda v: isinstance(v, (int, float)) and v >= 1,
+             "must be >= 1 (inf disables)")
+        need("active_margin", lambda v: isinstance(v, (int, float)) and 0 <= v < np.inf,
+             "must be finite and >= 0 (a negative margin could drop rows the QP needs)")
+        for name in ("bfgs_damping", "backtrack"):
+            need(name, lambda v: isinstance(v, (int, float)) and 0 < v < 1, "must lie in (0, 1)")
+        need("armijo", lambda v: isinstance(v, (int, float)) and 0 < v < 0.5, "must lie in (0, 0.5)")
+        if not self.min_step_bound <= self.step_bound <= self.max_step_bound:
+            raise SQPSettingsError(
+                "step_bound", self.step_bound,
+                f"must satisfy min_step_bound ({self.min_step_bound}) <= step_bound <= "
+                f"max_step_bound ({self.max_step_bound})")
+        for name in ("qp_polish", "second_order_correction"):
+            if not isinstance(getattr(self, name), bool):
+                raise SQPSettingsError(name, getattr(self, name), "must be True or False")
+        for name, valid in (("hessian", HESSIANS), ("qp_backend", QP_BACKENDS)):
+            if getattr(self, name) not in valid:
+                raise SQPSettingsError(name, getattr(self, name),
+                                       f"valid values are {', '.join(map(repr, valid))}", valid)
+
+
+def kkt_residuals(x, g, c, A, lam, lb, ub, bound_tol):
+    r""":math:`(r_d, r_c, \nu)` at :math:`x` for multipliers :math:`\lambda` (module docstring).
+
+    ``g`` is :math:`\nabla f(x)`, ``c`` and ``A`` (ndarray or scipy sparse)
+    are :math:`c(x)` and its Jacobian.
+    :math:`r = \nabla f - A^\top \lambda`; the bound multipliers are the parts
+    of :math:`r` of the right sign at bounds within ``bound_tol``
+    (:math:`\nu_j = \max(r_j, 0)` at a lower bound, :math:`\min(r_j, 0)` at an
+    upper one). Returns :math:`(\|r - \nu\|_\infty / s,\ \max_i |\lambda_i c_i| / s,\ \nu)`
+    with :math:`s = \max(1, \|\nabla f\|_\infty)`.
+    """
+    r = g - (A.T @ lam if lam.size else 0.0)  # A is sparse in the design problem
+    at_lo, at_up = x - lb <= bound_tol, ub - x <= bound_tol
+    nu = np.where(at_lo, np.maximum(r, 0.0), 0.0) + np.where(at_up, np.minimum(r, 0.0), 0.0)
+    scale = max(1.0, float(np.max(np.abs(g), initial=0.0)))
+    stat = float(np.max(np.abs(r - nu), initial=0.0)) / scale
+    comp = float(np.max(np.abs(lam * c), initial=0.0)) / scale
+    return stat, comp, nu
+
+
+@dataclass(frozen=True)
+class IterationRecord:
+    r"""One SQP iteration: the QP solved at :math:`x_k` and the step to :math:`x_{k+1}`.
+
+    Values at the point reached (``objective``, ``merit``, ``violation``) are
+    at :math:`x_{k+1}`; ``stationarity`` is the scaled KKT residual
+    :math:`r_d` at :math:`x_k` with the multipliers of that QP (it needs
+    them). The last record of a converged run is the final KKT check: no step
+    (``step_norm == 0``), values at the solution.
+
+    Attributes:
+        iteration: Index :math:`k`, from 0.
+        objective: :math:`f(x_{k+1})`.
+        merit: :math:`\phi_{\mu_k}(x_{k+1}) = f + \mu_k (\sum_i \max(0, -c_i) + \text{bound violation})`.
+        penalty: :math:`\mu_k` used in this iteration's line search.
+        violation: :math:`r_p(x_{k+1})`, max violation of :math:`c \ge 0` and the bounds.
+        stationarity: :math:`r_d(x_k)` (see the module docstring).
+        step_norm: :math:`\|x_{k+1} - x_k\|_\infty` (:math:`\alpha \|d\|_\infty`).
+        step_bound: Trust-region radius :math:`\Delta_k` of the QP (∞-norm).
+        n_rows_kept: Rows of :math:`c` passed to the QP.
+        qp_status: Outcome of the QP: ProxQP's status (``"solved"``, ``"max_iter"``,
+            ...) or ``"unreachable_row"`` (infeasible, found before solving). For a
+            restoration step, that of the QP that failed.
+        qp_iterations: Inner iterations of the QP solver (all QPs of the iteration).
+        backtracks: Halvings of :math:`\alpha` in the line search.
+        restoration: The step came from the feasibility-restoration QP.
+        time: Seconds since the start of :func:`~calib_oed.solver.sqp.solve_sqp` [s].
+        second_order_correction: The accepted point is the second-order
+            correction of the full step.
+    """
+
+    iteration: int
+    objective: float
+    merit: float
+    penalty: float
+    violation: float
+    stationarity: float
+    step_norm: float
+    step_bound: float
+    n_rows_kept: int
+    qp_status: str
+    qp_iterations: int
+    backtracks: int
+    restoration: bool
+    time: float
+    second_order_correction: bool = False
+
+
+def _json_float(v):
+    """A float for JSON: non-finite values become ``None``."""
+    v = float(v)
+    return v if math.isfinite(v) else None
+
+
+def _json(value):
+    """Recursively turn arrays, enums and non-finite floats into JSON values."""
+    if isinstance(value, Enum):
+        return value.value
+    if isinstance(value, dict):
+        return {str(k): _json(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return [_json(v) for v in value.tolist()]
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    if isinstance(value, (int, np.integer)):
+        return int(value)
+    if isinstance(value, (float, np.floating)):
+        return _json_float(value)
+    return value
+
+
+@dataclass(frozen=True)
+class SQPResult:
+    r"""Outcome of :func:`~calib_oed.solver.sqp.solve_sqp`; checks its own KKT residuals.
+
+    Attributes:
+        x: Final iterate :math:`x \in \mathbb{R}^n` (read-only).
+        fun: :math:`f(x)`.
+        status: Why the solver stopped.
+        message: The same in words.
+        iterations: Number of QP subproblems solved (length of ``history``).
+        history: One :class:`IterationRecord` per iteration.
+        multipliers: :math:`\lambda \in \mathbb{R}^m_{\ge 0}` of :math:`c(x) \ge 0`
+            from the last QP (rows left out of it get 0; read-only).
+        bound_multipliers: :math:`\nu \in \mathbb{R}^n` of the bounds (read-only).
+        max_violation: :math:`r_p(x)`.
+        kkt_stationarity: :math:`r_d(x)` (relative, see the module docstring).
+        kkt_complementarity: :math:`r_c(x)` (relative).
+        times: Seconds spent per phase: ``"objective"``, ``"constraints"``,
+            ``"qp"``, ``"hessian"``, ``"total"`` [s].
+        n_objective_evaluations: Calls of the objective.
+        n_constraint_evaluations: Calls of the constraints.
+    """
+
+    x: np.ndarray
+    fun: float
+    status: SQPStatus
+    message: str
+    iterations: int
+    history: tuple[IterationRecord, ...]
+    multipliers: np.ndarray
+    bound_multipliers: np.ndarray
+    max_violation: float
+    kkt_stationarity: float
+    kkt_complementarity: float
+    times: dict = field(default_factory=dict)
+    n_objective_evaluations: int = 0
+    n_constraint_evaluations: int = 0
+
+    def __post_init__(self):
+        for name in ("x", "multipliers", "bound_multipliers"):
+            arr = np.array(getattr(self, name), dtype=float)
+            arr.setflags(write=False)
+            object.__setattr__(self, name, arr)
+
+    @property
+    def success(self) -> bool:
+        """``status is SQPStatus.CONVERGED``."""
+        return self.status is SQPStatus.CONVERGED
+
+    def primal_residual(self) -> float:
+        r""":math:`r_p`: largest violation of :math:`c(x) \ge 0` and of the bounds."""
+        return self.max_violation
+
+    def dual_residual(self) -> float:
+        r""":math:`r_d`: scaled KKT stationarity :math:`\|\nabla_x L\|_\infty / \max(1, \|\nabla f\|_\infty)`."""
+        return self.kkt_stationarity
+
+    def check(self, tol_feasibility: float = 1e-7, tol_optimality: float = 1e-6) -> bool:
+        r"""Whether the final iterate is a KKT point to these tolerances.
+
+        True when :math:`r_p \le` ``tol_feasibility``, :math:`r_d \le`
+        ``tol_optimality``, :math:`r_c \le` ``tol_optimality`` and
+        :math:`\lambda \ge 0`. It looks at the residuals only, not at
+        ``status``.
+        """
+        return bool(
+            self.max_violation <= tol_feasibility
+            and self.kkt_stationarity <= tol_optimality
+            and self.kkt_complementarity <= tol_optimality
+            and np.all(self.multipliers >= 0.0)
+        )
+
+    def to_dict(self) -> dict:
+        """JSON-serialisable dict (arrays as lists, non-finite floats as ``None``)."""
+        out = {
+            "x": self.x,
+            "fun": self.fun,
+            "status": self.status,
+            "message": self.message,
+            "iterations": self.iterations,
+            "history": [asdict(r) for r in self.history],
+            "multipliers": self.multipliers,
+            "bound_multipliers": self.bound_multipliers,
+            "max_violation": self.max_violation,
+            "kkt_stationarity": self.kkt_stationarity,
+            "kkt_complementarity": self.kkt_complementarity,
+            "times": dict(self.times),
+            "n_objective_evaluations": self.n_objective_evaluations,
+            "n_constraint_evaluations": self.n_constraint_evaluations,
+        }
+        return _json(out)
+
+    def summary(self) -> str:
+        """A few lines for a log: status, objective, residuals, effort."""
+        kept = [r.n_rows_kept for r in self.history]
+        n_rest = sum(r.restoration for r in self.history)
+        n_soc = sum(r.second_order_correction for r in self.history)
+        t = self.times
+        return "\n".join(
+            [
+                f"SQP {self.status.value}: {self.message}",
+                f"  f = {self.fun:.10g} after {self.iterations} iterations "
+                f"({self.n_objective_evaluations} objective, "
+                f"{self.n_constraint_evaluations} constraint evaluations, "
+                f"{n_rest} restoration steps, {n_soc} second-order corrections)",
+                f"  violation {self.max_violation:.2e}, stationarity "
+                f"{self.kkt_stationarity:.2e}, complementarity {self.kkt_complementarity:.2e}",
+                f"  QP rows kept: max {max(kept, default=0)} of {self.multipliers.size}",
+                "  time [s]: "
+                + ", ".join(f"{k} {t.get(k, 0.0):.3f}" for k in ("objective", "constraints", "qp", "hessian", "total")),
+            ]
+        )

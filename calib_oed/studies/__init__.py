@@ -1,3 +1,0 @@
-"""Shipped study configurations (``<name>.yaml``), loaded by name with
-:func:`calib_oed.study_config.load_study_config`; the schema is in
-:mod:`calib_oed.study_config` and ``docs/study.md``."""

@@ -1,0 +1,6 @@
+"""Studies: the paper's comparisons over many robots and criteria, run as one job.
+
+Owns the study configuration (shipped configs in ``shipped/``), the runner
+(cases in parallel, cached by content hash) and the report (tables and
+figures). It may import every package but :mod:`calib_oed.cli`.
+"""

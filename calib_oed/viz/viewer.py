@@ -1,0 +1,454 @@
+r"""Meshcat inspection view of a calibration scene and design (a web page).
+
+One meshcat scene shows:
+
+- every design pose as a translucent ghost (red if it violates a feasibility
+  constraint), each in its subtree ``calib_oed/design/pose_<k>``: the robot's
+  URDF visual geometry, its feasibility capsules (hidden; toggle them in
+  meshcat's *Open Controls* panel), the reflectors and the laser beams to the
+  tracker. An animation steps through the poses, one per second, each alone
+  (*Animations → default → play*, or drag *time*); the page opens on the overlay;
+- each working (KPI) configuration in its own colour, ``calib_oed/kpi/<name>``,
+  with its capsules shown and, given a design, the confidence ellipsoid of the
+  KPI at the TCP with a text board stating its drawing scale;
+- the tracker (a small cylinder with its frame triad), the cell's obstacle
+  capsules and half-spaces (thin translucent plates clipped to the scene),
+  and a triad at the world frame (robot base).
+
+**The ellipsoid.** With :math:`C_i` the 3×3 block of the KPI covariance
+:math:`C_s` of the design (:meth:`~calib_oed.calibration.problem.CalibrationProblem.kpi_covariance`,
+[m²]) in world coordinates, the region at level :math:`1-\alpha` is
+:math:`\{x : (x - s_i)^\top C_i^{-1} (x - s_i) \le \chi^2_3(1-\alpha)\}`
+(:mod:`calib_oed.calibration.confidence`): half-axes :math:`a_k = \sqrt{\chi^2_3(1-\alpha)\,\lambda_k}`
+[m] along the eigenvectors of :math:`C_i`. A good design's half-axes are
+hundredths of a millimetre, so the ellipsoid is drawn scaled about its centre
+by a factor :math:`f` (one for all working configurations): the 1-2-5 number
+that brings the largest drawn half-axis nearest to ``target_half_axis``
+(50 mm). :math:`f` is in the node name (``ellipsoid_95pct_x500``), on the text
+board, and in :class:`ViewInfo`. Ellipsoid and board are drawn on top of
+everything, so that the robot's wrist never hides them.
+
+**Frames and units.** Below the root node ``calib_oed``, transforms are world
+(robot base, z up) coordinates [m]. The root node itself is shifted by
+:math:`-c`, :math:`c` the centre of the scene's bounding box
+(:attr:`ViewInfo.center`), because meshcat's orbit controls turn about its
+origin; its grid and axes are hidden.
+
+meshcat (which imports IPython and zmq) is imported only when a viewer starts.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import os
+import warnings
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, NamedTuple
+
+import numpy as np
+
+from calib_oed.calibration.confidence import (
+    MM_PER_M,
+    ConfidenceEllipsoid,
+    chi2_radius2,
+    kpi_ellipsoids,
+)
+from calib_oed.exceptions import CalibOedError, ShapeError, ViewerSettingError
+from calib_oed.io.atomic import atomic_write_text
+from calib_oed.viz.draw import (  # COLORS, TRACKER_SIZE, ellipsoid_node_name: re-exported
+    COLORS,  # noqa: F401
+    DEFAULT_TARGET_HALF_AXIS,
+    MESH_BUDGET_BYTES,
+    ROBOT_DRAWINGS,
+    ROOT,
+    TRACKER_SIZE,  # noqa: F401
+    _camera,
+    _node,
+    _Painter,
+    _placement,
+    _visual_model,
+    ellipsoid_node_name,  # noqa: F401
+)
+
+if TYPE_CHECKING:
+    import meshcat
+
+    from calib_oed.calibration.workflow import Setup
+
+
+@dataclass(frozen=True, eq=False)
+class EllipsoidView:
+    """A drawn KPI confidence ellipsoid.
+
+    Attributes:
+        path: Its meshcat node (the name carries level and scale).
+        ellipsoid: The true (unscaled) region, world coordinates [m], [m²].
+        scale: Drawing scale :math:`f`: the drawn half-axes are ``scale * ellipsoid.half_axes``.
+    """
+
+    path: str
+    ellipsoid: ConfidenceEllipsoid
+    scale: float
+
+    @property
+    def half_axes_mm(self) -> np.ndarray:
+        """True half-axes [mm], descending."""
+        return self.ellipsoid.half_axes * MM_PER_M
+
+    @property
+    def drawn_half_axes_mm(self) -> np.ndarray:
+        """Half-axes as drawn [mm]."""
+        return self.scale * self.half_axes_mm
+
+
+@dataclass(frozen=True, eq=False)
+class ViewInfo:
+    """What :func:`build_view` drew and where (meshcat paths below ``/meshcat``).
+
+    Attributes:
+        center: :math:`c` [m]; the root node ``calib_oed`` is shifted by :math:`-c`.
+        pose_paths: One subtree per design pose (``robot``, ``capsules``, ``reflectors``, ``beams``).
+        kpi_paths: One subtree per working configuration (the same, plus the ellipsoid).
+        beam_paths: Laser-beam nodes: design poses, then working configurations.
+        tracker_path: Tracker body and triad (node transform :math:`T_{W,T}`).
+        obstacle_paths: Cell capsules and half-space plates.
+        ellipsoids: The KPI ellipsoids; empty without a design or when the design
+            does not determine the KPI (``notes`` says why).
+        ellipsoid_scale: :math:`f`, or ``None`` when no ellipsoid is drawn.
+        level: Confidence level :math:`1-\\alpha` of the ellipsoids.
+        infeasible_poses: Design poses violating a feasibility constraint (drawn red).
+        robot_drawing: How design poses are drawn: ``"visual"`` or ``"capsules"``.
+        animated: Whether the step-through animation is in the scene.
+        notes: What was left out, and why.
+    """
+
+    center: np.ndarray
+    pose_paths: tuple[str, ...]
+    kpi_paths: tuple[str, ...]
+    beam_paths: tuple[str, ...]
+    tracker_path: str
+    obstacle_paths: tuple[str, ...]
+    ellipsoids: tuple[EllipsoidView, ...]
+    ellipsoid_scale: float | None
+    level: float
+    infeasible_poses: tuple[int, ...]
+    robot_drawing: str
+    animated: bool
+    notes: tuple[str, ...] = ()
+
+    @property
+    def n_poses(self) -> int:
+        """Number of design poses drawn."""
+        return len(self.pose_paths)
+
+    @property
+    def half_axes_mm(self) -> np.ndarray:
+        """True half-axes of the ellipsoids [mm], (t, 3), descending per row."""
+        return np.array([e.half_axes_mm for e in self.ellipsoids]).reshape(-1, 3)
+
+    def summary(self) -> str:
+        """A few lines for the command line (lengths in mm)."""
+        bad = f" {list(self.infeasible_poses)}" if self.infeasible_poses else ""
+        lines = [f"{self.n_poses} design pose(s), {len(self.infeasible_poses)} infeasible{bad}"]
+        for e in self.ellipsoids:
+            axes = ", ".join(f"{a:.4f}" for a in e.half_axes_mm)
+            lines.append(f"{100 * self.level:g}% KPI ellipsoid {e.ellipsoid.name!r}: half-axes "
+                         f"[{axes}] mm, drawn x{e.scale:g}")
+        return "\n".join(lines + [f"note: {n}" for n in self.notes])
+
+
+class StaticView(NamedTuple):
+    """What :func:`write_static_html` wrote: the file and what it shows."""
+
+    path: Path
+    info: ViewInfo
+
+
+class LiveView:
+    """A meshcat server showing a scene (:func:`open_viewer`); close it when done.
+
+    Attributes:
+        visualizer: The ``meshcat.Visualizer``.
+        url: The page to open in a browser.
+        info: What was drawn.
+    """
+
+    def __init__(self, visualizer: meshcat.Visualizer, info: ViewInfo):
+        self.visualizer = visualizer
+        self.url: str = visualizer.url()
+        self.info = info
+
+    def close(self) -> None:
+        """Stop the meshcat server this view started (if it started one)."""
+        _shutdown(self.visualizer)
+
+    def __enter__(self) -> LiveView:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+# ------------------------------------------------------------ inputs, numbers
+def _check_design(s: Setup, q_design) -> np.ndarray:
+    robot = s.problem.robot
+    if q_design is None:
+        return np.zeros((0, robot.nq))
+    q = robot.check_configurations(q_design, "q_design")
+    if q.shape[0] < 1:
+        raise ShapeError("q_design", f"(n, {robot.nq}) with n >= 1 (or None: no design)", q.shape)
+    return q
+
+
+def _positive(name: str, value, allow_none: bool = False) -> float | None:
+    if value is None and allow_none:
+        return None
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        v = float("nan")
+    if not (np.isfinite(v) and v > 0.0):
+        raise ViewerSettingError(name, value, "must be a finite number > 0"
+                                 + (" (or None: automatic)" if allow_none else ""))
+    return v
+
+
+def display_scale(largest_half_axis: float, target: float = DEFAULT_TARGET_HALF_AXIS) -> float:
+    """The 1-2-5 number (1, 2, 5, 10, 20, ...) nearest in ratio to ``target / largest_half_axis``.
+
+    Args:
+        largest_half_axis: Largest true half-axis [m], > 0.
+        target: Wanted largest drawn half-axis [m], > 0.
+    """
+    ratio = _positive("target", target) / _positive("largest_half_axis", largest_half_axis)
+    candidates = 10.0 ** np.floor(np.log10(ratio)) * np.array([1.0, 2.0, 5.0, 10.0])
+    best = candidates[np.argmin(np.abs(np.log(candidates / ratio)))]
+    return float(f"{best:.1g}")  # without the rounding noise of 10**k
+
+
+def world_ellipsoids(s: Setup, q_design: np.ndarray, level: float = 0.95) -> list[ConfidenceEllipsoid]:
+    r"""KPI confidence ellipsoids of design ``q_design`` (n, nq), in world coordinates.
+
+    A KPI in the tracker frame is mapped to the world: :math:`s^W = T_{W,T}\,s^T`,
+    :math:`C^W = R_T\,C^T R_T^\top` (nominal tracker pose).
+
+    Raises:
+        NotIdentifiableError: the design does not determine the KPI.
+    """
+    problem = s.problem
+    c_s = problem.kpi_covariance(q_design)
+    centers = problem.kpi.compute_values(problem.space)
+    if problem.kpi.frame == "tracker":
+        t_wt = s.scene.tracker.placement()
+        rot = np.kron(np.eye(len(centers)), t_wt.rotation)
+        c_s = rot @ c_s @ rot.T
+        centers = np.array([t_wt.act(c) for c in centers])
+    return kpi_ellipsoids(c_s, centers, level, problem.kpi.names)
+
+
+# ------------------------------------------------------------ drawing pieces
+def _animate(vis, pose_paths: Sequence[str], ghosts: bool) -> None:
+    """Pose k alone at second k, then (second n) the opening state; not playing at first."""
+    import meshcat.animation as ma
+
+    anim = ma.Animation(default_framerate=1)
+    n = len(pose_paths)
+    for k, path in enumerate(pose_paths):
+        keys = {0: k == 0, k: True, n: bool(ghosts or k == 0)}  # visibility steps (discrete track)
+        if k + 1 < n:
+            keys[k + 1] = False
+        for frame, visible in sorted(keys.items()):
+            with anim.at_frame(vis, frame) as f:
+                f[path].set_property("visible", "boolean", visible)
+    vis.set_animation(anim, play=False)
+
+
+# ----------------------------------------------------------------- the view
+def build_view(
+    vis: meshcat.Visualizer,
+    s: Setup,
+    q_design: np.ndarray | None = None,
+    *,
+    level: float = 0.95,
+    ellipsoid_scale: float | None = None,
+    target_half_axis: float = DEFAULT_TARGET_HALF_AXIS,
+    ghosts: bool = True,
+    animate: bool = True,
+    robot_drawing: str = "auto",
+    camera: Sequence[float] | None = None,
+) -> ViewInfo:
+    """Draw scene ``s`` and design ``q_design`` into a meshcat visualizer.
+
+    Args:
+        vis: A ``meshcat.Visualizer`` at its root; the view replaces ``/meshcat/calib_oed``.
+        s: The scene set-up (:func:`calib_oed.calibration.workflow.setup`).
+        q_design: Design configurations (n, nq) [rad, or m for prismatic joints], or
+            ``None``: the scene and working configurations only.
+        level: Confidence level of the KPI ellipsoids, in (0, 1).
+        ellipsoid_scale: Drawing scale :math:`f` (> 0); ``None``: :func:`display_scale`
+            of the largest half-axis and ``target_half_axis``.
+        target_half_axis: Largest drawn half-axis the automatic scale aims at [m], > 0.
+        ghosts: All design poses visible at once (else only the first; step with the animation).
+        animate: Add the step-through animation.
+        robot_drawing: ``"visual"`` (URDF visual geometry), ``"capsules"`` (feasibility
+            capsules), or ``"auto"``: visual, but capsules in the design poses when their
+            meshes would take more than :data:`MESH_BUDGET_BYTES`.
+        camera: Camera position, world [m]; default: above the scene, across the beams.
+
+    Raises:
+        ShapeError, NonFiniteError: ``q_design`` is not finite (n, nq) with n >= 1,
+            or ``camera`` not 3 finite numbers.
+        ViewerSettingError: a scale <= 0, an unknown ``robot_drawing``.
+        ConfidenceLevelError: ``level`` not in (0, 1).
+    """
+    from meshcat.geometry import triad
+
+    q = _check_design(s, q_design)
+    scale = _positive("ellipsoid_scale", ellipsoid_scale, allow_none=True)
+    target = _positive("target_half_axis", target_half_axis)
+    chi2_radius2(level, 3)  # raises ConfidenceLevelError
+    if robot_drawing not in ROBOT_DRAWINGS:
+        raise ViewerSettingError("robot_drawing", robot_drawing, f"must be one of {ROBOT_DRAWINGS}",
+                                 ROBOT_DRAWINGS)
+    eye = None if camera is None else np.asarray(camera, dtype=float)
+    if eye is not None and (eye.shape != (3,) or not np.all(np.isfinite(eye))):
+        raise ShapeError("camera", "(3,) finite [m]", np.shape(camera))
+
+    notes: list[str] = []
+    geom, mesh_bytes, note = (None, 0, "") if robot_drawing == "capsules" else _visual_model(s.problem.robot)
+    notes += [note] if note else []
+    design_geom = geom
+    page_bytes = mesh_bytes * (len(q) + len(s.scene.kpi.configurations))
+    if robot_drawing == "auto" and len(q) and page_bytes > MESH_BUDGET_BYTES:
+        design_geom = None
+        notes.append(f"design poses drawn by their capsules: the robot's meshes in every pose would "
+                     f"take {page_bytes / 1e6:.0f} MB > {MESH_BUDGET_BYTES / 1e6:.0f} MB "
+                     "(robot_drawing='visual' draws them anyway)")
+    ellipsoids: list[ConfidenceEllipsoid] = []
+    if len(q):
+        try:
+            ellipsoids = world_ellipsoids(s, q, level)
+        except CalibOedError as exc:  # too few or degenerate poses
+            notes.append(f"no KPI ellipsoid: {exc}")
+    if ellipsoids and scale is None:
+        scale = display_scale(max(float(e.half_axes[0]) for e in ellipsoids), target)
+    feasible = s.feasibility.compute(q, jacobian=False).feasible if len(q) else np.ones(0, bool)
+    infeasible = tuple(int(k) for k in np.flatnonzero(~feasible))
+
+    vis[ROOT].delete()
+    painter = _Painter(vis, s)
+    pose_paths = [f"{ROOT}/design/pose_{k:03d}" for k in range(len(q))]
+    kpi_paths = [f"{ROOT}/kpi/{_node(w.name)}" for w in s.scene.kpi.configurations]
+    beam_paths = []
+    for k, (path, qk) in enumerate(zip(pose_paths, q, strict=True)):
+        color = "infeasible" if k in infeasible else "ghost"
+        beam_paths.append(painter.pose(path, qk, color, design_geom, show_capsules=False))
+        vis[path].set_property("visible", bool(ghosts or k == 0))
+    for path, w in zip(kpi_paths, s.scene.kpi.configurations, strict=True):
+        beam_paths.append(painter.pose(path, np.asarray(w.q), "kpi", geom, show_capsules=True))
+    obstacle_paths = painter.cell()
+    tracker_path = painter.tracker_body()
+    vis[f"{ROOT}/world_frame"].set_object(triad(0.3))
+
+    points = np.vstack(painter.points)
+    center = 0.5 * (points.min(axis=0) + points.max(axis=0))
+    if eye is None:
+        obstacles = np.array([0.5 * (c.a + c.b) for c in s.scene.cell.capsules]).reshape(-1, 3)
+        eye = _camera(points, center, painter.tracker.translation, obstacles)
+    label_width = 0.25 * float(np.linalg.norm(points.max(axis=0) - points.min(axis=0)))
+    views = tuple(EllipsoidView(painter.ellipsoid(path, e, scale, eye, label_width), e, scale)
+                  for path, e in zip(kpi_paths[:len(ellipsoids)], ellipsoids, strict=True))
+
+    vis[ROOT].set_transform(_placement(np.eye(3), -center))
+    for hidden in ("/Grid", "/Axes"):
+        vis[hidden].set_property("visible", False)
+    rel = eye - center  # meshcat's camera node is y-up: world (x, y, z) is (x, z, -y) there
+    vis["/Cameras/default/rotated/<object>"].set_property("position", [rel[0], rel[2], -rel[1]])
+    animated = bool(animate and len(q) > 1)
+    if animated:
+        _animate(vis, pose_paths, ghosts)
+    return ViewInfo(
+        center=center, pose_paths=tuple(pose_paths), kpi_paths=tuple(kpi_paths),
+        beam_paths=tuple(beam_paths), tracker_path=tracker_path, obstacle_paths=tuple(obstacle_paths),
+        ellipsoids=views, ellipsoid_scale=scale if views else None, level=float(level),
+        infeasible_poses=infeasible, robot_drawing="visual" if design_geom is not None else "capsules",
+        animated=animated, notes=tuple(notes),
+    )
+
+
+# ------------------------------------------------------------------ sessions
+def _start_visualizer(zmq_url: str | None = None):
+    """A ``meshcat.Visualizer``; without ``zmq_url`` it starts a server subprocess."""
+    try:
+        with warnings.catch_warnings():  # meshcat 0.3 imports zmq.eventloop.ioloop (deprecated)
+            warnings.simplefilter("ignore", DeprecationWarning)
+            import meshcat
+    except ImportError as exc:  # a dependency: a broken installation
+        raise ImportError(f"the viewer needs meshcat (pip install 'meshcat>=0.3'): {exc}") from exc
+    with contextlib.redirect_stdout(io.StringIO()):  # it prints its URL
+        return meshcat.Visualizer(zmq_url=zmq_url)
+
+
+def _shutdown(vis) -> None:
+    """Close the visualizer's zmq socket and stop the server subprocess it started."""
+    window = vis.window
+    socket = getattr(window, "zmq_socket", None)
+    if socket is not None and not socket.closed:
+        socket.close(linger=0)
+    proc = getattr(window, "server_proc", None)
+    if proc is not None:
+        if proc.poll() is None:
+            proc.kill()
+        proc.wait(timeout=10)
+        for pipe in (proc.stdout, proc.stderr):
+            if pipe is not None:
+                pipe.close()
+
+
+def static_html(s: Setup, q_design: np.ndarray | None = None, **kw: Any) -> tuple[str, ViewInfo]:
+    """The view as meshcat's self-contained static page (text), and what it shows.
+
+    A meshcat server subprocess runs for the duration of the call only (it is
+    stopped on errors too). Keywords: those of :func:`build_view`.
+    """
+    vis = _start_visualizer()
+    try:
+        info = build_view(vis, s, q_design, **kw)
+        return vis.static_html(), info
+    finally:
+        _shutdown(vis)
+
+
+def write_static_html(path: str | os.PathLike, s: Setup, q_design: np.ndarray | None = None,
+                      **kw: Any) -> StaticView:
+    """Write the view to one HTML file that opens offline (meshcat's static export), atomically.
+
+    The page holds the viewer's JavaScript and every drawing command as inline
+    ``data:`` URLs: it needs neither network nor server. Keywords: those of
+    :func:`build_view`.
+
+    Raises:
+        ExportError: the file cannot be written (missing folder, ...).
+        ShapeError, ViewerSettingError, ...: as :func:`build_view`.
+    """
+    html, info = static_html(s, q_design, **kw)
+    return StaticView(atomic_write_text(path, html), info)
+
+
+def open_viewer(s: Setup, q_design: np.ndarray | None = None, *, zmq_url: str | None = None,
+                **kw: Any) -> LiveView:
+    """Start a meshcat server (or connect to ``zmq_url``) and draw the view in it.
+
+    Returns a :class:`LiveView`: open its ``url`` in a browser; close it (or use it
+    in a ``with`` block) to stop the server. Keywords: those of :func:`build_view`.
+    """
+    vis = _start_visualizer(zmq_url)
+    try:
+        info = build_view(vis, s, q_design, **kw)
+    except BaseException:
+        _shutdown(vis)
+        raise
+    return LiveView(vis, info)
