@@ -37,8 +37,8 @@ import proxsuite
 import scipy.sparse as sp
 from _timing import timed  # bench/ is the script folder, first on sys.path
 
+from calib_oed.solver.bfgs import damped_bfgs_update
 from calib_oed.solver.qp import DenseQPWorkspace, QPSubproblem, SparseQPWorkspace
-from calib_oed.solver.sqp import damped_bfgs_update
 
 
 def make_sequence(n, n_rows, n_qps, swap, rng):

@@ -9,6 +9,7 @@ in ``DEVELOPERS.md``): :mod:`~calib_oed.model`, :mod:`~calib_oed.measurement`,
 :mod:`~calib_oed.viz`, :mod:`~calib_oed.study`, :mod:`~calib_oed.cli`.
 """
 
+from calib_oed._version import __version__
 from calib_oed.calibration.identification import identify
 from calib_oed.calibration.identification_result import IdentificationResult
 from calib_oed.calibration.kpi import TcpKpi
@@ -37,6 +38,5 @@ __all__ = [
     "exchange_baseline", "heuristic_design", "heuristic_designs", "identify", "load_robot",
     "load_scene", "monte_carlo", "read_design_csv", "read_measurements", "scene_from_dict",
     "scene_names", "setup", "simulate_observations", "tcp_errors", "validate_calibration",
-    "write_design", "write_measurements",
+    "write_design", "write_measurements", "__version__",
 ]
-__version__ = "0.1.0"

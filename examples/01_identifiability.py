@@ -18,8 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from calib_oed.calibration.problem import CalibrationProblem
-from calib_oed.scene.reader import load_scene
+from calib_oed import CalibrationProblem, load_scene
 
 scene = load_scene("fms_kr16")                       # or load_scene("path/to/my_cell.yaml")
 problem = CalibrationProblem.from_scene(scene)

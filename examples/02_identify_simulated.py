@@ -34,8 +34,7 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import chi2
 
-from calib_oed.calibration.simulation import simulate_observations
-from calib_oed.calibration.validation import validate_calibration
+from calib_oed import MeasurementSet, load_scene, simulate_observations, validate_calibration
 from calib_oed.calibration.workflow import (
     export_result,
     heuristic_design,
@@ -47,8 +46,6 @@ from calib_oed.calibration.workflow import (
     tcp_errors,
     write_measurement_file,
 )
-from calib_oed.measurement.dataset import MeasurementSet
-from calib_oed.scene.reader import load_scene
 
 s = setup(load_scene("fms_kr16"))                    # scene + calibration problem + feasibility model
 problem = s.problem

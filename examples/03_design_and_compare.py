@@ -24,10 +24,9 @@ from __future__ import annotations
 
 import dataclasses
 
-from calib_oed.calibration.workflow import setup
+from calib_oed import load_scene, setup
 from calib_oed.oed.design import DESIGN_SQP, design, heuristic_designs
 from calib_oed.oed.result import format_criteria_table, format_design_table
-from calib_oed.scene.reader import load_scene
 
 N_POSES = 30
 settings = dataclasses.replace(DESIGN_SQP, max_iterations=60)   # a short run; default 300

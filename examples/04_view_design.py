@@ -26,10 +26,9 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import chi2
 
-from calib_oed.calibration.workflow import setup
+from calib_oed import load_scene, setup
 from calib_oed.oed.design import DESIGN_SQP, design
-from calib_oed.scene.reader import load_scene
-from calib_oed.viz.viewer import write_static_html
+from calib_oed.viz.sessions import write_static_html
 
 s = setup(load_scene("fms_kr16"))
 optimal = design(s, 20, "kpi", seed=0, settings=dataclasses.replace(DESIGN_SQP, max_iterations=20))

@@ -38,14 +38,13 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from calib_oed import load_scene, scene_from_dict, setup
 from calib_oed.calibration.report import classical_count
-from calib_oed.calibration.workflow import setup
 from calib_oed.feasibility.margins import format_margins
 from calib_oed.feasibility.mesh_check import check_design_meshes
 from calib_oed.model.registry import own_urdf_path
 from calib_oed.oed.design import DESIGN_SQP, FEASIBILITY_TOL, design, heuristic_designs
 from calib_oed.oed.result import format_design_table
-from calib_oed.scene.reader import load_scene, scene_from_dict
 
 with tempfile.TemporaryDirectory(prefix="calib_oed_example05_") as tmp:
     tmp = Path(tmp)

@@ -24,12 +24,16 @@ from __future__ import annotations
 
 import numpy as np
 
-from calib_oed.calibration.identification import identify
-from calib_oed.calibration.simulation import draw_true_parameters, simulate_observations
-from calib_oed.calibration.workflow import setup, tcp_errors
-from calib_oed.oed.design import design
-from calib_oed.oed.sequential import SequentialDesigner
-from calib_oed.scene.reader import load_scene
+from calib_oed import (
+    SequentialDesigner,
+    design,
+    draw_true_parameters,
+    identify,
+    load_scene,
+    setup,
+    simulate_observations,
+    tcp_errors,
+)
 from calib_oed.solver.sqp import SQPSettings
 
 TARGET_MM = 0.005

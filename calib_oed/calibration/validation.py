@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from calib_oed.calibration.export import read_sensor_compliance, read_sensor_yaml
+from calib_oed.calibration.sensor_file import read_sensor_compliance, read_sensor_yaml
 from calib_oed.exceptions import ExportError, MeasurementFileError
 from calib_oed.measurement.base import evaluate_setup
 from calib_oed.measurement.dataset import MeasurementSet

@@ -180,7 +180,7 @@ def cmd_montecarlo(args) -> int:
 
 
 def cmd_study(args) -> int:
-    from calib_oed.study.config import load_study_config
+    from calib_oed.study.loader import load_study_config
     from calib_oed.study.report import write_report
     from calib_oed.study.runner import run_study
 

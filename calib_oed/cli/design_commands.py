@@ -124,7 +124,8 @@ def cmd_evaluate(args) -> int:
 
 
 def _evaluate_plots(s, q, args) -> dict[str, Path]:
-    from calib_oed.viz.plots import plot_kpi_ellipsoids, plot_pose_contributions, save_figure
+    from calib_oed.viz.design_plots import plot_pose_contributions
+    from calib_oed.viz.plots import plot_kpi_ellipsoids, save_figure
 
     folder = Path(args.plot)
     folder.mkdir(parents=True, exist_ok=True)
@@ -173,7 +174,7 @@ def cmd_compare(args) -> int:
 def cmd_view(args) -> int:
     import time
 
-    from calib_oed.viz.viewer import open_viewer, write_static_html
+    from calib_oed.viz.sessions import open_viewer, write_static_html
 
     s = _setup(args.scene)
     q = None
@@ -316,7 +317,8 @@ def cmd_sequential(args) -> int:
 
     from calib_oed.io.atomic import atomic_write_text
     from calib_oed.io.design_file import write_design_csv
-    from calib_oed.oed.sequential import SEQUENTIAL_SQP, run_sequential
+    from calib_oed.oed.sequential import SEQUENTIAL_SQP
+    from calib_oed.oed.sequential_run import run_sequential
 
     s = _setup(args.scene)
     settings = SEQUENTIAL_SQP if not args.iterations else replace(SEQUENTIAL_SQP, max_iterations=args.iterations)

@@ -75,7 +75,8 @@ import proxsuite
 import scipy.linalg
 
 from calib_oed.exceptions import CertificateError, NotIdentifiableError
-from calib_oed.oed.criteria import ACriterion, Criterion, DCriterion
+from calib_oed.oed.criteria import ACriterion, DCriterion
+from calib_oed.oed.criterion_base import Criterion
 from calib_oed.oed.exchange import check_blocks
 
 __all__ = ["CERTIFIABLE", "DROP_WEIGHT", "NEWTON_REGULARISATION", "ApproximateDesign",

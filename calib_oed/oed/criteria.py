@@ -1,203 +1,35 @@
-r"""Design criteria: scalar functions of the information matrix, all minimised.
+r"""The shipped design criteria A, D and E, and :func:`make_criterion`, which builds any of them by name.
 
-A design of :math:`n` poses stacks the weighted, unit-scaled sensitivity
-blocks :math:`F_j \in \mathbb{R}^{d \times n_p}` of its poses (rows
-dimensionless, columns in 1/mm or 1/mrad, so that the parameters are in mm
-and mrad). Its information matrix and parameter covariance are
-
-.. math::
-    M = \sum_j F_j^\top F_j \in \mathbb{R}^{n_p \times n_p}
-    \quad [\mathrm{mm}^{-2},\ \mathrm{mm^{-1}\,mrad^{-1}},\ \mathrm{mrad}^{-2}],
-    \qquad C = M^{-1} \quad [\mathrm{mm}^2,\ \mathrm{mm\,mrad},\ \mathrm{mrad}^2].
-
-A :class:`Criterion` maps :math:`M` (symmetric positive definite) to a value
-:math:`\phi(M)` to *minimise* and its gradient :math:`\partial\phi/\partial M`,
-the symmetric matrix :math:`G` with :math:`d\phi = \mathrm{tr}(G\,dM)` for
-every symmetric :math:`dM`. :meth:`Criterion.compute_index` gives the quantity
-in its usual literature sense (the observability indices are maximised
-there; their value here is :math:`-\log O_k`).
-
-A singular or indefinite :math:`M` raises
-:class:`~calib_oed.exceptions.NotIdentifiableError`, naming the columns that
-carry its (near-)null space.
+The A-criterion :math:`\mathrm{tr}(W M^{-1})/k` gives the mean KPI variance
+(``kpi``, [mm²]) and the mean parameter variance (``params``, [mm², mrad²]);
+D is :math:`\log\det M^{-1}`, E is :math:`\lambda_{\max}(M^{-1})`. All are
+:class:`~calib_oed.oed.criterion_base.Criterion` objects of the information
+matrix :math:`M` (:mod:`calib_oed.oed.criterion_base` for the conventions), to
+minimise. The observability indices ``O1`` .. ``O5`` are
+:class:`~calib_oed.oed.observability.ObservabilityIndex`; :data:`CRITERIA`
+names every criterion :func:`make_criterion` builds.
 """
 
 from __future__ import annotations
 
-import abc
 from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.linalg
 
-from calib_oed.exceptions import (
-    NonFiniteError,
-    NotIdentifiableError,
-    ShapeError,
-    UnknownCriterionError,
+from calib_oed.exceptions import NonFiniteError, ShapeError, UnknownCriterionError
+from calib_oed.oed.criterion_base import (
+    Criterion,
+    _batched_cholesky,
+    _cholesky,
+    _forward_substitution,
+    _positive_eigh,
+    as_information,
 )
+from calib_oed.oed.observability import ObservabilityIndex
 
 #: Names accepted by :func:`make_criterion`.
 CRITERIA = ("kpi", "params", "D", "E", "O1", "O2", "O3", "O4", "O5")
-
-#: Relative asymmetry :math:`\max|M - M^\top| / \max|M|` above which an input is rejected.
-SYMMETRY_RTOL = 1e-8
-
-
-# ----------------------------------------------------------------- helpers
-def _check_symmetric(m: np.ndarray, what: str) -> None:
-    asym = np.abs(m - np.swapaxes(m, -1, -2)).max(axis=(-2, -1))
-    scale = np.abs(m).max(axis=(-2, -1))
-    bad = asym > SYMMETRY_RTOL * scale
-    if np.any(bad):
-        j = int(np.flatnonzero(np.atleast_1d(bad))[0])
-        a, s = np.atleast_1d(asym)[j], np.atleast_1d(scale)[j]
-        where = f" (batch member {j})" if m.ndim == 3 else ""
-        raise ValueError(f"{what}{where}: not symmetric, max |M - M^T| = {a:.3g} for max |M| = {s:.3g}")
-
-
-def as_information(info, what: str = "information matrix") -> np.ndarray:
-    """Validated float copy of a square, finite, symmetric (n_p, n_p) matrix, exactly symmetrised."""
-    m = np.array(info, dtype=float)
-    if m.ndim != 2 or m.shape[0] != m.shape[1] or m.shape[0] == 0:
-        raise ShapeError(what, "(n_p, n_p)", m.shape)
-    if not np.all(np.isfinite(m)):
-        raise NonFiniteError(what, np.flatnonzero(~np.isfinite(m)).tolist())
-    _check_symmetric(m, what)
-    return 0.5 * (m + m.T)
-
-
-def _as_informations(infos, what: str = "information matrices") -> np.ndarray:
-    m = np.asarray(infos, dtype=float)
-    if m.ndim != 3 or m.shape[1] != m.shape[2] or m.shape[1] == 0:
-        raise ShapeError(what, "(k, n_p, n_p)", m.shape)
-    if not np.all(np.isfinite(m)):
-        raise NonFiniteError(what, np.flatnonzero(~np.isfinite(m)).tolist())
-    if m.shape[0]:
-        _check_symmetric(m, what)
-    return 0.5 * (m + np.swapaxes(m, 1, 2))
-
-
-def _forward_substitution(low: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """:math:`L^{-1} B` for a stack of lower-triangular ``low`` (k, n, n) and ``b`` (k, n, r).
-
-    Vectorised over the stack, one step per row (numpy has no batched
-    triangular solve; this is much faster than a batched LU for small n).
-    """
-    z = np.empty(np.broadcast_shapes(low.shape[:-1], b.shape[:-2] + (low.shape[-1],)) + b.shape[-1:])
-    for j in range(low.shape[-1]):
-        acc = b[..., j, :] - np.einsum("...k,...kr->...r", low[..., j, :j], z[..., :j, :])
-        z[..., j, :] = acc / low[..., j, j, None]
-    return z
-
-
-def _not_identifiable(info: np.ndarray, where: str = "") -> NotIdentifiableError:
-    """The error for a singular or indefinite ``info``, naming the columns of its null space."""
-    w, v = np.linalg.eigh(info)
-    tol = max(abs(w[-1]), np.finfo(float).tiny) * info.shape[0] * np.finfo(float).eps
-    null = v[:, w <= tol] if np.any(w <= tol) else v[:, :1]
-    weight = np.sum(null**2, axis=1)
-    cols = np.flatnonzero(weight >= 0.1 * weight.max())
-    return NotIdentifiableError(
-        [f"column {i}" for i in cols],
-        f"{where}the information matrix is singular or indefinite: eigenvalues from "
-        f"{w[0]:.3g} to {w[-1]:.3g}; the listed columns carry its (near-)null space",
-    )
-
-
-def _cholesky(info: np.ndarray) -> np.ndarray:
-    """Lower Cholesky factor :math:`L` of :math:`M = L L^\\top`, or NotIdentifiableError."""
-    try:
-        return scipy.linalg.cholesky(info, lower=True, check_finite=False)
-    except np.linalg.LinAlgError:
-        raise _not_identifiable(info) from None
-
-
-def _batched_cholesky(infos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Lower Cholesky factors of a stack and a mask of the positive definite members.
-
-    Members that are not positive definite get the identity as factor.
-    """
-    k, n, _ = infos.shape
-    try:
-        return np.linalg.cholesky(infos), np.ones(k, dtype=bool)
-    except np.linalg.LinAlgError:
-        low, ok = np.broadcast_to(np.eye(n), infos.shape).copy(), np.zeros(k, dtype=bool)
-        for j in range(k):
-            try:
-                low[j] = np.linalg.cholesky(infos[j])
-                ok[j] = True
-            except np.linalg.LinAlgError:
-                pass
-        return low, ok
-
-
-def _positive_eigh(info: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Ascending eigenvalues and eigenvectors of a positive definite ``info``."""
-    w, v = np.linalg.eigh(info)
-    if w[0] <= 0.0:
-        raise _not_identifiable(info)
-    return w, v
-
-
-# -------------------------------------------------------------- interface
-class Criterion(abc.ABC):
-    r"""A scalar design criterion :math:`\phi(M)` of the information matrix, to minimise.
-
-    Attributes:
-        name: Short name (one of :data:`CRITERIA` for the shipped ones).
-        label: Human description.
-    """
-
-    name: str
-    label: str
-
-    @abc.abstractmethod
-    def compute_value(self, info: np.ndarray) -> float:
-        r"""Value :math:`\phi(M)` of the information matrix ``info`` (n_p, n_p)."""
-
-    @abc.abstractmethod
-    def compute_gradient(self, info: np.ndarray) -> np.ndarray:
-        r"""Gradient :math:`G = \partial\phi/\partial M`, symmetric (n_p, n_p): :math:`d\phi = \mathrm{tr}(G\,dM)`."""
-
-    def compute_values(self, infos: np.ndarray, *, singular: str = "raise") -> np.ndarray:
-        r"""Values :math:`\phi(M_k)` of a stack ``infos`` (k, n_p, n_p), shape (k,).
-
-        Args:
-            infos: Stack of symmetric information matrices.
-            singular: ``"raise"`` (NotIdentifiableError for the first member
-                that is not positive definite) or ``"inf"`` (its value is
-                :math:`+\infty`, so that a search ranks it last).
-        """
-        if singular not in ("raise", "inf"):
-            raise ValueError(f"singular must be 'raise' or 'inf', got {singular!r}")
-        infos = _as_informations(infos)
-        values, ok = self._batched_values(infos)
-        if not np.all(ok):
-            if singular == "raise":
-                j = int(np.flatnonzero(~ok)[0])
-                raise _not_identifiable(infos[j], f"batch member {j}: ")
-            values = np.where(ok, values, np.inf)
-        return values
-
-    def _batched_values(self, infos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Values and positive-definite mask of a validated stack; subclasses vectorise this."""
-        values, ok = np.full(infos.shape[0], np.inf), np.ones(infos.shape[0], dtype=bool)
-        for j, info in enumerate(infos):
-            try:
-                values[j] = self.compute_value(info)
-            except NotIdentifiableError:
-                ok[j] = False
-        return values, ok
-
-    def compute_index(self, info: np.ndarray, n_rows: int | None = None) -> float:
-        """The criterion in its usual literature sense; by default the value itself.
-
-        Args:
-            info: Information matrix (n_p, n_p).
-            n_rows: Number :math:`m` of stacked rows of :math:`F` (used by O1 only).
-        """
-        return self.compute_value(info)
 
 
 # ------------------------------------------------------------- A-criterion
@@ -392,115 +224,6 @@ class ECriterion(Criterion):
         lam_min = np.linalg.eigvalsh(infos)[:, 0]
         ok = lam_min > 0.0
         return 1.0 / np.where(ok, lam_min, 1.0), ok
-
-
-# --------------------------------------------------- observability indices
-_OBSERVABILITY_LABELS = {
-    1: "O1, geometric mean of the singular values / sqrt(m) (Borm & Menq 1991)",
-    2: "O2, inverse condition number sigma_L/sigma_1 (Driels & Pathre 1990)",
-    3: "O3, minimum singular value sigma_L (Nahvi, Hollerbach & Hayward 1994)",
-    4: "O4, noise amplification index sigma_L^2/sigma_1 (Nahvi & Hollerbach 1996)",
-    5: "O5, inverse sum 1/sum(1/sigma_i) (Sun & Hollerbach 2008)",
-}
-
-
-@dataclass(frozen=True, eq=False)
-class ObservabilityIndex(Criterion):
-    r"""Observability index :math:`O_k`, :math:`k = 1..5` (compared by Joubair & Bonev 2013).
-
-    With :math:`\sigma_i = \sqrt{\lambda_i(M)}` the singular values of the
-    stacked :math:`F \in \mathbb{R}^{m \times L}`, :math:`L = n_p`,
-    :math:`\sigma_1 \ge \dots \ge \sigma_L` [1/mm or 1/mrad]:
-
-    .. math::
-        O_1 = \frac{(\sigma_1 \cdots \sigma_L)^{1/L}}{\sqrt{m}}, \quad
-        O_2 = \frac{\sigma_L}{\sigma_1}, \quad
-        O_3 = \sigma_L, \quad
-        O_4 = \frac{\sigma_L^2}{\sigma_1}, \quad
-        O_5 = \Big(\sum_{i=1}^{L} \frac{1}{\sigma_i}\Big)^{-1}.
-
-    They are maximised in the literature; the value minimised here is
-    :math:`\phi = -\log O_k` (for :math:`O_1` without the constant
-    :math:`\log\sqrt{m}`, i.e. :math:`-\tfrac{1}{2L}\log\det M`). Its gradient
-    follows from :math:`d\lambda_i = v_i^\top dM\, v_i`:
-
-    .. math::
-        \frac{\partial \phi}{\partial M} = \sum_i \frac{\partial \phi}{\partial \lambda_i}\, v_i v_i^\top,
-
-    valid where the eigenvalues it uses are simple (O2–O4 use the extreme
-    ones; O1 and O5 are smooth spectral functions). :meth:`compute_index`
-    returns :math:`O_k` itself.
-
-    Attributes:
-        k: Which index, 1 to 5.
-    """
-
-    k: int
-
-    def __post_init__(self):
-        if self.k not in _OBSERVABILITY_LABELS or isinstance(self.k, bool):
-            raise ValueError(f"observability index k must be one of 1, 2, 3, 4, 5, got {self.k!r}")
-        object.__setattr__(self, "k", int(self.k))
-
-    @property
-    def name(self) -> str:
-        return f"O{self.k}"
-
-    @property
-    def label(self) -> str:
-        return _OBSERVABILITY_LABELS[self.k]
-
-    def _phi(self, lam: np.ndarray) -> np.ndarray:
-        """:math:`-\\log O_k` (O1 without :math:`\\sqrt{m}`) from ascending eigenvalues (..., L)."""
-        lo, hi = lam[..., 0], lam[..., -1]
-        if self.k == 1:
-            return -0.5 * np.mean(np.log(lam), axis=-1)
-        if self.k == 2:
-            return -0.5 * (np.log(lo) - np.log(hi))
-        if self.k == 3:
-            return -0.5 * np.log(lo)
-        if self.k == 4:
-            return -np.log(lo) + 0.5 * np.log(hi)
-        return np.log(np.sum(lam**-0.5, axis=-1))
-
-    def _dphi(self, lam: np.ndarray) -> np.ndarray:
-        """:math:`\\partial\\phi/\\partial\\lambda_i`, (L,)."""
-        c = np.zeros_like(lam)
-        if self.k == 1:
-            c[:] = -0.5 / (lam.size * lam)
-        elif self.k == 2:
-            c[0] += -0.5 / lam[0]
-            c[-1] += 0.5 / lam[-1]
-        elif self.k == 3:
-            c[0] = -0.5 / lam[0]
-        elif self.k == 4:
-            c[0] += -1.0 / lam[0]
-            c[-1] += 0.5 / lam[-1]
-        else:
-            c[:] = -0.5 * lam**-1.5 / np.sum(lam**-0.5)
-        return c
-
-    def compute_value(self, info):
-        w, _ = _positive_eigh(as_information(info))
-        return float(self._phi(w))
-
-    def compute_gradient(self, info):
-        w, v = _positive_eigh(as_information(info))
-        return (v * self._dphi(w)) @ v.T
-
-    def _batched_values(self, infos):
-        lam = np.linalg.eigvalsh(infos)
-        ok = lam[:, 0] > 0.0
-        return self._phi(np.where(ok[:, None], lam, 1.0)), ok
-
-    def compute_index(self, info, n_rows=None):
-        r""":math:`O_k` [1/mm or 1/mrad for O1, O3, O5; O2 is dimensionless]; O1 needs ``n_rows`` :math:`= m`."""
-        value = self.compute_value(info)
-        if self.k != 1:
-            return float(np.exp(-value))
-        if n_rows is None or int(n_rows) != n_rows or n_rows < 1:
-            raise ValueError(f"O1 needs n_rows, the number m >= 1 of stacked rows of F; got {n_rows!r}")
-        return float(np.exp(-value) / np.sqrt(n_rows))
 
 
 # ----------------------------------------------------------------- factory

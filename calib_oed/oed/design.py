@@ -23,7 +23,8 @@ from calib_oed.exceptions import AggregateError, ShapeError
 from calib_oed.feasibility.constraints import FEASIBILITY_TOL
 from calib_oed.feasibility.margins import margin_report
 from calib_oed.feasibility.sampling import sample_feasible
-from calib_oed.oed.criteria import CRITERIA, Criterion, make_criterion
+from calib_oed.oed.criteria import CRITERIA, make_criterion
+from calib_oed.oed.criterion_base import Criterion
 from calib_oed.oed.exchange import exchange_design
 from calib_oed.oed.objective import DesignObjective
 from calib_oed.oed.problem import DesignProblem, WorstCaseDesignProblem

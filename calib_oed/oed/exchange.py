@@ -10,7 +10,7 @@ information is
     M(\xi) = M_0 + \sum_{j \in \xi} F_j^\top F_j \in \mathbb{R}^{n_p \times n_p},
 
 with :math:`M_0` optional prior information. :func:`exchange_design`
-minimises a :class:`~calib_oed.oed.criteria.Criterion` :math:`\phi(M(\xi))` over
+minimises a :class:`~calib_oed.oed.criterion_base.Criterion` :math:`\phi(M(\xi))` over
 designs by single-point swaps, as in the exchange algorithms of Fedorov (1972,
 *Theory of Optimal Experiments*, ch. 3), Mitchell (1974, *Technometrics*
 16(2), DETMAX) and the "modified Fedorov" ordering of Cook & Nachtsheim
@@ -36,7 +36,7 @@ For the A-criterion (any weight :math:`W = R^\top R`), the D-criterion and
 
 computed for all :math:`N` candidates from one product
 :math:`[F_1; \dots; F_N] A` of shape (N d, n_p). Other criteria evaluate
-:meth:`~calib_oed.oed.criteria.Criterion.compute_values` on the stacked
+:meth:`~calib_oed.oed.criterion_base.Criterion.compute_values` on the stacked
 :math:`M_{-i} + F_c^\top F_c` in chunks. Either way :math:`M_{-i}` is summed
 afresh (no drift from repeated updates), and the chosen swap's value is
 recomputed exactly before it is accepted, so the values recorded are exact
@@ -53,14 +53,9 @@ import numpy as np
 import scipy.linalg
 
 from calib_oed.exceptions import NonFiniteError, NotIdentifiableError, ShapeError
-from calib_oed.oed.criteria import (
-    ACriterion,
-    Criterion,
-    DCriterion,
-    ObservabilityIndex,
-    _forward_substitution,
-    as_information,
-)
+from calib_oed.oed.criteria import ACriterion, DCriterion
+from calib_oed.oed.criterion_base import Criterion, _forward_substitution, as_information
+from calib_oed.oed.observability import ObservabilityIndex
 
 #: Random starts drawn before giving up on a nonsingular one.
 START_TRIES = 20

@@ -17,7 +17,7 @@ objective are
     \phi(q) = \Phi\big(M(q)\big)
 
 with :math:`M_0` an optional prior (measurements already taken) and
-:math:`\Phi` a :class:`calib_oed.oed.criteria.Criterion`. Because
+:math:`\Phi` a :class:`calib_oed.oed.criterion_base.Criterion`. Because
 :math:`\tilde F_j` depends on :math:`q_j` alone,
 
 .. math::
@@ -42,7 +42,8 @@ import scipy.linalg
 from calib_oed.calibration.problem import CalibrationProblem
 from calib_oed.exceptions import NotIdentifiableError, ShapeError
 from calib_oed.measurement import evaluate_setup
-from calib_oed.oed.criteria import ACriterion, Criterion, DCriterion, make_criterion
+from calib_oed.oed.criteria import ACriterion, DCriterion, make_criterion
+from calib_oed.oed.criterion_base import Criterion
 
 #: KPI entries of :math:`P`: metres to millimetres.
 _MM = 1e3

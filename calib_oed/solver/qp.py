@@ -26,7 +26,8 @@ Traps of ProxQP (proxsuite 0.8.0) handled here:
 * it does not flag an infeasible QP: it iterates to ``max_iter`` and returns a
   point that may violate even the box. :class:`QPStep` therefore carries our
   own primal, dual and complementarity residuals, and
-  :func:`unreachable_rows` catches the common case before ProxQP runs;
+  :func:`calib_oed.solver.restoration.unreachable_rows` catches the common
+  case before ProxQP runs;
 * with its default settings it stops with complementarity errors of ~1e-5
   even for ``eps_abs = 1e-9``: the duality-gap check is switched on;
 * warm-started with stale duals it can report success after 0 iterations
@@ -43,16 +44,18 @@ one QP object reused across iterations with a fixed row capacity) and
 :class:`SparseQPWorkspace` (ProxQP sparse, box as identity rows, rebuilt
 whenever the kept rows change). ``bench/bench_sqp_qp.py`` compares them:
 dense is 1.8-3.4x faster on QPs shaped like the design problem's.
+
+This module owns the subproblem and step records and the two workspaces;
+the active-set polish is :mod:`calib_oed.solver.polish`, the infeasible
+subproblems (unreachable rows, elastic QP) are :mod:`calib_oed.solver.restoration`.
 """
 
 from __future__ import annotations
 
-import warnings
 from typing import NamedTuple
 
 import numpy as np
 import proxsuite
-import scipy.linalg
 import scipy.sparse as sp
 
 _STATUS_NAMES = {
@@ -137,7 +140,7 @@ class QPStep(NamedTuple):
         primal_residual: See :meth:`QPSubproblem.residuals`.
         dual_residual: See :meth:`QPSubproblem.residuals`.
         complementarity: See :meth:`QPSubproblem.residuals`.
-        polished: :math:`(d, \lambda, \nu)` come from :func:`polish`.
+        polished: :math:`(d, \lambda, \nu)` come from :func:`calib_oed.solver.polish.polish`.
     """
 
     d: np.ndarray
@@ -332,95 +335,6 @@ class SparseQPWorkspace:
         return _finish(sub, r.x, r.z[:k], r.z[k:], r.info)
 
 
-def _solve_kkt(kkt, rhs):
-    """Solve the symmetric KKT system; least squares if it is singular (degenerate active set).
-
-    With more active constraints than free variables (a tiny trust region
-    fixes most components while many rows stay active) the system is singular
-    but consistent; the minimum-norm solution is then a valid one, and the
-    caller's residual check decides. ``None`` if nothing finite comes out.
-    """
-    with warnings.catch_warnings():
-        warnings.simplefilter("error", scipy.linalg.LinAlgWarning)
-        try:
-            sol = scipy.linalg.solve(kkt, rhs, assume_a="sym", check_finite=False)
-        except (np.linalg.LinAlgError, scipy.linalg.LinAlgWarning, ValueError):
-            try:
-                sol = scipy.linalg.lstsq(kkt, rhs, check_finite=False, lapack_driver="gelsy")[0]
-            except (np.linalg.LinAlgError, ValueError):
-                return None
-    return sol if np.all(np.isfinite(sol)) else None
-
-
-def polish(sub: QPSubproblem, step: QPStep, tol: float = 1e-9) -> QPStep | None:
-    r"""Exact solution on the active set ProxQP identified, or ``None``.
-
-    ProxQP's solution is accurate to ``eps_abs`` (~1e-9). Near convergence
-    the SQP step is ~1e-6 and the merit decrease :math:`\sim\|d\|^2` drowns
-    in that error. Like the solution polishing of OSQP (Stellato et al.,
-    *Math. Prog. Comp.* 12, 2020, §5), we take the active set
-    :math:`\mathcal{A} = \{i : \lambda_i > 0\}` and the box components
-    with :math:`\nu_j \ne 0` (fixed at their bound, set :math:`\mathcal{F}`
-    free) and solve the equality-constrained KKT system
-
-    .. math::
-        \begin{bmatrix} H_{\mathcal{F}\mathcal{F}} & -C_{\mathcal{A}\mathcal{F}}^\top \\
-        -C_{\mathcal{A}\mathcal{F}} & 0 \end{bmatrix}
-        \begin{bmatrix} d_\mathcal{F} \\ \lambda_\mathcal{A} \end{bmatrix} =
-        \begin{bmatrix} -g_\mathcal{F} - H_{\mathcal{F}\bar{\mathcal{F}}} d_{\bar{\mathcal{F}}} \\
-        -\ell_\mathcal{A} + C_{\mathcal{A}\bar{\mathcal{F}}} d_{\bar{\mathcal{F}}} \end{bmatrix},
-        \qquad \nu = H d + g - C^\top \lambda \text{ on } \bar{\mathcal{F}}.
-
-    Rows or box components the result violates join the active set (up to
-    three rounds). A singular system (degenerate active set) is solved in the
-    least-squares sense. The result is returned only if it is a KKT point of
-    the QP to ``tol`` (signs of :math:`\lambda, \nu` included).
-    """
-    H, g, lower, bl, bu = sub.H, sub.g, sub.lower, sub.box_lower, sub.box_upper
-    C = sub.C.toarray() if sp.issparse(sub.C) else np.asarray(sub.C)
-    scale = tol * max(1.0, float(np.max(np.abs(step.lam), initial=0.0)),
-                      float(np.max(np.abs(step.nu), initial=0.0)))
-    act = step.lam > scale
-    lo = (step.nu > scale) & np.isfinite(bl)
-    up = (step.nu < -scale) & np.isfinite(bu) & ~lo
-    for _ in range(3):
-        fixed = lo | up
-        free = ~fixed
-        d = np.where(lo, bl, np.where(up, bu, 0.0))
-        ca = C[act]
-        nf, na = int(free.sum()), int(act.sum())
-        kkt = np.zeros((nf + na, nf + na))
-        kkt[:nf, :nf] = H[np.ix_(free, free)]
-        kkt[:nf, nf:] = -ca[:, free].T
-        kkt[nf:, :nf] = -ca[:, free]
-        rhs = np.concatenate([-g[free] - H[np.ix_(free, fixed)] @ d[fixed],
-                              -lower[act] + ca[:, fixed] @ d[fixed]])
-        sol = _solve_kkt(kkt, rhs)
-        if sol is None:
-            return None
-        d[free] = sol[:nf]
-        lam = np.zeros(lower.size)
-        lam[act] = sol[nf:]
-        nu = np.where(fixed, matvec(H, d) + g - matvec(C.T, lam), 0.0)
-        new_rows = (matvec(C, d) - lower < -tol) & ~act
-        new_lo, new_up = (d < bl - tol) & free, (d > bu + tol) & free
-        if not (new_rows.any() or new_lo.any() or new_up.any()):
-            break
-        act |= new_rows
-        lo |= new_lo
-        up |= new_up
-    else:
-        return None
-    if np.any(lam < -tol) or np.any(nu[lo] < -tol) or np.any(nu[up] > tol):
-        return None
-    lam = np.maximum(lam, 0.0)
-    primal, dual, comp = sub.residuals(d, lam, nu)
-    if max(primal, dual, comp) > tol:
-        return None
-    return step._replace(d=d, lam=lam, nu=nu, primal_residual=primal, dual_residual=dual,
-                         complementarity=comp, polished=True)
-
-
 def make_workspace(backend: str, n: int, eps_abs: float, max_iter: int):
     """The QP workspace of ``backend`` (``"dense"`` or ``"sparse"``) for ``n`` variables."""
     if backend == "dense":
@@ -429,68 +343,3 @@ def make_workspace(backend: str, n: int, eps_abs: float, max_iter: int):
         return SparseQPWorkspace(n, eps_abs, max_iter)
     raise ValueError(f"unknown QP backend {backend!r}; valid: 'dense', 'sparse'")
 
-
-def unreachable_rows(C, lower, box_lower, box_upper, tol: float) -> np.ndarray:
-    r"""Rows that no :math:`d` in the box can satisfy: :math:`\max_{d \in \text{box}} C_i d < \ell_i - \text{tol}`.
-
-    :math:`\max_{d} C_i d = \sum_j \max(C_{ij} \underline{b}_j, C_{ij} \overline{b}_j)`,
-    one pass over the nonzeros. Any such row makes the QP infeasible; finding
-    it here spares ProxQP, which does not detect infeasibility and would run
-    to its iteration limit.
-    """
-    def best(a, cols):
-        with np.errstate(invalid="ignore"):
-            return np.where(a > 0, a * box_upper[cols], np.where(a < 0, a * box_lower[cols], 0.0))
-
-    if sp.issparse(C):
-        C = sp.csr_matrix(C)
-        vals = best(C.data, C.indices)
-        reach = np.asarray(sp.csr_matrix((vals, C.indices, C.indptr), shape=C.shape).sum(axis=1)).ravel()
-    else:
-        C = np.asarray(C, dtype=float)
-        reach = best(C, np.arange(C.shape[1])[None, :]).sum(axis=1) if C.size else np.zeros(C.shape[0])
-    return np.flatnonzero(reach < lower - tol)
-
-
-def solve_elastic_qp(C, lower, violated, box_lower, box_upper, penalty: float,
-                     eps_abs: float, max_iter: int) -> QPStep:
-    r"""Feasibility-restoration step: the elastic QP.
-
-    .. math::
-        \min_{d, s} \tfrac12 \|d\|_2^2 + \rho \sum_{i \in V} s_i
-        \quad \text{s.t.} \quad C_i d + s_i \ge \ell_i \;(i \in V), \quad
-        C_i d \ge \ell_i \;(i \notin V), \quad s \ge 0, \quad
-        \underline{b} \le d \le \overline{b},
-
-    with :math:`V` the rows violated at the current point
-    (:math:`\ell_i > 0`, i.e. :math:`c_i < 0`). It is always feasible
-    (:math:`d = 0`, :math:`s_i = \ell_i`), and for large :math:`\rho` its
-    :math:`d` is the shortest step minimising the linearised :math:`\ell_1`
-    violation inside the box (the elastic mode of Nocedal & Wright,
-    *Numerical Optimization*, 2nd ed., §18.3, with the proximal term
-    :math:`\tfrac12\|d\|^2` in place of the Hessian model). A term
-    :math:`10^{-8} \|s\|^2` keeps the Hessian definite. Its Hessian is
-    diagonal and its rows sparse, so it goes to ProxQP's sparse backend (the
-    box as identity rows). Returns :math:`d` (slacks dropped) and the
-    multipliers of the rows.
-    """
-    C = sp.csr_matrix(C)
-    k, n = C.shape
-    idx = np.flatnonzero(violated)
-    nv = idx.size
-    E = sp.csr_matrix((np.ones(nv), (idx, np.arange(nv))), shape=(k, nv))
-    H = sp.diags(np.concatenate([np.ones(n), np.full(nv, 1e-8)])).tocsc()
-    g = np.concatenate([np.zeros(n), np.full(nv, penalty)])
-    CC = sp.hstack([C, E], format="csr")
-    bl = np.concatenate([box_lower, np.zeros(nv)])
-    bu = np.concatenate([box_upper, np.full(nv, np.inf)])
-    stacked = sp.vstack([CC, sp.identity(n + nv, format="csr")], format="csc")
-    qp = proxsuite.proxqp.sparse.QP(n + nv, 0, k + n + nv)
-    _configure(qp, eps_abs, max_iter)
-    qp.init(H, g, None, None, stacked, np.concatenate([lower, bl]),
-            np.concatenate([np.full(k, np.inf), bu]))
-    qp.solve()
-    r = qp.results
-    sub = QPSubproblem(H, g, CC, np.asarray(lower, dtype=float), bl, bu)
-    full = _finish(sub, r.x, r.z[:k], r.z[k:], r.info)
-    return full._replace(d=full.d[:n], lam=full.lam[:k], nu=full.nu[:n])

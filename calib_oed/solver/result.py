@@ -82,7 +82,7 @@ class SQPSettings:
         qp_backend: ``"dense"`` (default, faster: ``bench/bench_sqp_qp.py``) or ``"sparse"``.
         qp_eps_abs: ProxQP absolute tolerance (its default 1e-3 is lax).
         qp_max_iterations: ProxQP ``max_iter``; bounds the time lost on an infeasible QP.
-        qp_polish: Refine small QP steps on their active set (:func:`calib_oed.solver.qp.polish`).
+        qp_polish: Refine small QP steps on their active set (:func:`calib_oed.solver.polish.polish`).
         second_order_correction: Try a second-order correction before
             backtracking from a rejected full step (:mod:`calib_oed.solver.sqp`, item 4).
         armijo: :math:`\eta \in (0, 1/2)` of the Armijo condition.

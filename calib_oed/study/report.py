@@ -1,4 +1,4 @@
-r"""The paper's tables and figures from a study's results (:mod:`calib_oed.study.runner`).
+r"""The paper's tables and figures from a study's results (:mod:`calib_oed.study.results`).
 
 All values are the KPI average variance :math:`V = \mathrm{tr}(C_s)/(3t)` [mm²]
 of a design; the heuristic baseline of a case is the median of
@@ -21,7 +21,8 @@ A-criterion on the scaled parameter covariance, the state of the art).
   machine and the wall time, and the figures: Figure 7 (KPI confidence
   ellipses of the heuristic, C_p-optimal and KPI-optimal designs of the
   ``kr16`` case, or of the first case) and Figure 8 (distribution of the
-  improvements over the cases), via :mod:`calib_oed.viz.plots`.
+  improvements over the cases), via :mod:`calib_oed.viz.plots`
+  and :mod:`calib_oed.viz.design_plots`.
 """
 
 from __future__ import annotations
@@ -34,14 +35,14 @@ from pathlib import Path
 import numpy as np
 
 from calib_oed.io.atomic import atomic_write_text
-from calib_oed.study.runner import (
+from calib_oed.study.results import (
     IMPROVEMENT_CONVENTION,
     CaseResult,
     StudyResult,
     design_label,
     improvement_pct,
-    read_study,
 )
+from calib_oed.study.runner import read_study
 
 __all__ = ["case_table", "colliding_table", "figure7_case", "means_table", "minmax_table",
            "study_tables", "write_report"]
@@ -315,9 +316,10 @@ def export_designs(case: CaseResult, folder: str | os.PathLike) -> dict[str, Pat
 
 
 def _figures(result: StudyResult, folder: Path, tables: dict) -> dict[str, Path]:
-    """Figure 7 and Figure 8 (needs calib_oed.viz.plots and matplotlib)."""
+    """Figure 7 and Figure 8 (needs calib_oed.viz.plots, calib_oed.viz.design_plots and matplotlib)."""
     from calib_oed.calibration.workflow import setup
-    from calib_oed.viz.plots import plot_improvement_distribution, plot_kpi_ellipsoids, save_figure
+    from calib_oed.viz.design_plots import plot_improvement_distribution
+    from calib_oed.viz.plots import plot_kpi_ellipsoids, save_figure
 
     paths = {}
     case = figure7_case(result)
@@ -357,7 +359,8 @@ def write_report(
     Args:
         result: A study result, or its output folder (read with :func:`calib_oed.study.runner.read_study`).
         folder: Where to write (created); default the study's output folder.
-        figures: Also draw Figure 7 and Figure 8 (needs :mod:`calib_oed.viz.plots`).
+        figures: Also draw Figure 7 and Figure 8 (needs :mod:`calib_oed.viz.plots` and
+            :mod:`calib_oed.viz.design_plots`).
 
     Returns:
         ``{"report": path, "figure7": path, "figure8": path}`` (figures only if drawn).

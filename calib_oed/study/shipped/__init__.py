@@ -1,3 +1,3 @@
 """Shipped study configurations (``<name>.yaml``), loaded by name with
-:func:`calib_oed.study.config.load_study_config`; the schema is in
-:mod:`calib_oed.study.config` and ``docs/study.md``."""
+:func:`calib_oed.study.loader.load_study_config`; the schema is in
+:mod:`calib_oed.study.loader` and ``docs/study.md``."""

@@ -24,7 +24,7 @@ from calib_oed.model.kuka import (
     write_kuka_urdf,
 )
 
-URDF_DIR = Path(__file__).resolve().parents[1] / "urdf"
+URDF_DIR = Path(__file__).resolve().parents[2] / "urdf"
 JOINTS = [f"joint_a{i}" for i in range(1, 7)]
 HOME = np.radians([0.0, -90.0, 90.0, 0.0, 0.0, 0.0])
 

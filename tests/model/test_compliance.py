@@ -252,7 +252,7 @@ def test_cli_identifiability_with_compliance(capsys):
 def test_sensor_yaml_carries_the_compliances(tmp_path):
     import yaml
 
-    from calib_oed.calibration.export import read_sensor_yaml, write_sensor_yaml
+    from calib_oed.calibration.sensor_file import read_sensor_yaml, write_sensor_yaml
     from calib_oed.model.robot import load_robot
 
     space = ParameterSpace(load_robot("kr16"), _tracker(), REFLECTORS, compliance=PAYLOAD)
@@ -290,7 +290,7 @@ def test_validation_applies_the_exported_compliances(capsys, tmp_path):
 def test_sensor_compliance_section_errors(tmp_path):
     import yaml
 
-    from calib_oed.calibration.export import read_sensor_compliance, write_sensor_yaml
+    from calib_oed.calibration.sensor_file import read_sensor_compliance, write_sensor_yaml
     from calib_oed.exceptions import ExportError
 
     scene = dataclasses.replace(load_scene("fms_kr16"), compliance=ComplianceSpec(True, Compliance(10.0)))
@@ -314,7 +314,7 @@ def test_predicted_kpi_covariance_with_compliance_matches_monte_carlo():
     """600 simulated calibrations of kr16 with a 10 kg payload, compliance identified with the geometry.
 
     The truth draws the compliances too (stiffness log-uniform 1e6..1e7 N m/rad); the bands are those
-    of tests/test_montecarlo.py (ratio s.e. ~0.033, coverage s.e. ~0.009 at N = 600).
+    of tests/calibration/test_montecarlo.py (ratio s.e. ~0.033, coverage s.e. ~0.009 at N = 600).
     """
     from calib_oed.calibration.montecarlo import monte_carlo
     from calib_oed.calibration.workflow import heuristic_design, setup

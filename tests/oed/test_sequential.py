@@ -10,7 +10,8 @@ import pytest
 from calib_oed.calibration.workflow import heuristic_design, setup, simulated_measurements
 from calib_oed.exceptions import SequentialError
 from calib_oed.feasibility.sampling import sample_feasible
-from calib_oed.oed.sequential import SequentialDesigner, measurements_needed, run_sequential
+from calib_oed.oed.sequential import SequentialDesigner
+from calib_oed.oed.sequential_run import measurements_needed, run_sequential
 from calib_oed.scene.reader import load_scene
 from calib_oed.solver.sqp import SQPSettings
 

@@ -1,4 +1,4 @@
-"""The meshcat inspection view (calib_oed.viz.viewer).
+"""The meshcat inspection view (calib_oed.viz.viewer, calib_oed.viz.sessions).
 
 What the page contains is read back from the written static HTML itself: each
 drawing command is a base64 msgpack blob there, decoded here with umsgpack
@@ -36,7 +36,7 @@ from calib_oed.exceptions import (
     ViewerSettingError,
 )
 from calib_oed.scene.reader import load_scene, scene_from_dict
-from calib_oed.viz import viewer
+from calib_oed.viz import sessions, viewer
 
 N_POSES = 10  # the fewest round numbers of poses that determine fms_kr16's KPI (25 free parameters)
 CHROMIUM_FLAGS = (
@@ -107,7 +107,7 @@ def page(s, design, tmp_path_factory):
     """The static page of the design, written once: (path, info, html, commands)."""
     assert not meshcat_children()
     path = tmp_path_factory.mktemp("view") / "scene.html"
-    written = viewer.write_static_html(path, s, design)
+    written = sessions.write_static_html(path, s, design)
     html = path.read_text(encoding="utf-8")
     return written.path, written.info, html, decode_commands(html)
 
@@ -211,7 +211,7 @@ def test_ellipsoid_is_the_95_percent_region_of_the_kpi_covariance(s, design, pag
 
 
 def test_given_scale_and_level_are_used(s, design):
-    with viewer.open_viewer(s, design, ellipsoid_scale=1000, level=0.99, animate=False) as live:
+    with sessions.open_viewer(s, design, ellipsoid_scale=1000, level=0.99, animate=False) as live:
         info = live.info
     assert info.ellipsoid_scale == 1000.0 and info.level == 0.99
     assert info.ellipsoids[0].path.endswith("/ellipsoid_99pct_x1000")
@@ -252,7 +252,7 @@ def test_ellipsoid_in_the_world_for_a_tracker_frame_kpi(s, design):
 def test_scene_without_a_determined_kpi_is_drawn_without_ellipsoid(s, design):
     q = design[:3].copy()
     q[2] = s.problem.robot.upper + 0.05  # beyond the joint limits: infeasible
-    with viewer.open_viewer(s, q) as live:
+    with sessions.open_viewer(s, q) as live:
         info = live.info
         assert live.url.startswith("http://127.0.0.1:")
         assert len(meshcat_children()) == 1
@@ -260,12 +260,12 @@ def test_scene_without_a_determined_kpi_is_drawn_without_ellipsoid(s, design):
     assert info.n_poses == 3 and info.ellipsoids == () and info.ellipsoid_scale is None
     assert any("no KPI ellipsoid" in n and "not identifiable" in n for n in info.notes)
     assert info.infeasible_poses == (2,) and "1 infeasible [2]" in info.summary()
-    with viewer.open_viewer(s, None) as live:
+    with sessions.open_viewer(s, None) as live:
         assert live.info.n_poses == 0 and live.info.ellipsoids == () and live.info.kpi_paths
 
 
 def test_capsule_drawing_and_first_pose_only(s, design):
-    html, info = viewer.static_html(s, design[:3], robot_drawing="capsules", ghosts=False, animate=False)
+    html, info = sessions.static_html(s, design[:3], robot_drawing="capsules", ghosts=False, animate=False)
     commands = decode_commands(html)
     paths = set(by_path(commands, "set_object"))
     assert info.robot_drawing == "capsules" and not info.animated
@@ -317,7 +317,7 @@ def test_bad_designs_are_refused(s, q, error, needle):
 def test_bad_design_writes_nothing_and_stops_the_server(s, tmp_path):
     target = tmp_path / "view.html"
     with pytest.raises(ShapeError):
-        viewer.write_static_html(target, s, np.zeros((2, 7)))
+        sessions.write_static_html(target, s, np.zeros((2, 7)))
     assert list(tmp_path.iterdir()) == [] and not meshcat_children()
 
 
@@ -346,12 +346,12 @@ def test_page_is_written_atomically(s, design, tmp_path, monkeypatch):
 
     monkeypatch.setattr("calib_oed.io.atomic.os.replace", fail)
     with pytest.raises((OSError, ExportError), match="disk full"):
-        viewer.write_static_html(target, s, design[:2], animate=False)
+        sessions.write_static_html(target, s, design[:2], animate=False)
     assert target.read_text() == "previous page"  # untouched, no temporary left behind
     assert [p.name for p in tmp_path.iterdir()] == ["view.html"]
     assert not meshcat_children()
     with pytest.raises(ExportError, match="does not exist"):
-        viewer.write_static_html(tmp_path / "missing" / "view.html", s, design[:2], animate=False)
+        sessions.write_static_html(tmp_path / "missing" / "view.html", s, design[:2], animate=False)
 
 
 def test_page_leaves_no_temporary_and_no_server(page):

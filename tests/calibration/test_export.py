@@ -12,15 +12,13 @@ import yaml
 from conftest import ROBOTS, make_space
 
 from calib_oed import load_robot
-from calib_oed.calibration import export
+from calib_oed.calibration import export_files
 from calib_oed.calibration.export import (
-    SENSOR_FORMAT,
     calibrated_urdf_text,
     export_calibrated_urdf,
     export_calibration,
-    read_sensor_yaml,
-    write_sensor_yaml,
 )
+from calib_oed.calibration.sensor_file import SENSOR_FORMAT, read_sensor_yaml, write_sensor_yaml
 from calib_oed.exceptions import ExportError, ShapeError
 
 TOL = 1e-9  # [m], [rad]
@@ -272,14 +270,14 @@ def test_failed_write_leaves_no_file(tmp_path, monkeypatch):
     assert os.listdir(tmp_path) == []
     monkeypatch.undo()
 
-    real = export.io_utils.atomic_write_text
+    real = export_files.io_utils.atomic_write_text
 
     def fail_on_yaml(path, text):
         if str(path).endswith(".yaml"):
             raise OSError("disk full")
         return real(path, text)
 
-    monkeypatch.setattr(export.io_utils, "atomic_write_text", fail_on_yaml)
+    monkeypatch.setattr(export_files.io_utils, "atomic_write_text", fail_on_yaml)
     with pytest.raises(ExportError, match="disk full"):
         export_calibration(space, p, tmp_path)
     assert os.listdir(tmp_path) == []  # the URDF written first was removed again

@@ -17,9 +17,9 @@ from calib_oed.oed.criteria import (
     ACriterion,
     DCriterion,
     ECriterion,
-    ObservabilityIndex,
     make_criterion,
 )
+from calib_oed.oed.observability import ObservabilityIndex
 
 G_HAND = np.array([[1.0, 1.0], [1.0, -1.0]])
 

@@ -12,13 +12,13 @@ import pytest
 from calib_oed.exceptions import NonFiniteError, NotIdentifiableError, ShapeError
 from calib_oed.oed.criteria import (
     ACriterion,
-    Criterion,
     DCriterion,
     ECriterion,
-    ObservabilityIndex,
     make_criterion,
 )
+from calib_oed.oed.criterion_base import Criterion
 from calib_oed.oed.exchange import ExchangeResult, exchange_design, information_matrix
+from calib_oed.oed.observability import ObservabilityIndex
 
 N_CAND, N_DESIGN = 12, 4
 SHAPES = [(1, 3), (2, 3), (2, 2)]  # (d, n_p)

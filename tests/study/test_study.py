@@ -1,4 +1,4 @@
-"""Tests of the study runner, its configuration and its report (calib_oed.study.runner*)."""
+"""Tests of the study runner, its configuration and its report (calib_oed.study)."""
 
 from __future__ import annotations
 
@@ -16,16 +16,11 @@ import calib_oed.study.runner as study_module
 from calib_oed.calibration.workflow import setup
 from calib_oed.exceptions import OptionalDependencyError, StudyConfigError, StudyResumeError
 from calib_oed.model.kuka import notional_grid
-from calib_oed.study.config import load_study_config, study_config_from_dict, study_names
+from calib_oed.study.case import colliding_poses
+from calib_oed.study.loader import load_study_config, study_config_from_dict, study_names
 from calib_oed.study.report import study_tables, write_report
-from calib_oed.study.runner import (
-    CaseFailure,
-    DesignRow,
-    colliding_poses,
-    improvement_pct,
-    read_study,
-    run_study,
-)
+from calib_oed.study.results import CaseFailure, DesignRow, improvement_pct
+from calib_oed.study.runner import read_study, run_study
 
 # CI's study: the shipped 2-arm smoke configuration (20 poses, 3 heuristic
 # seeds, 10 SQP iterations; about 1 s a case), as a dict to vary.

@@ -19,7 +19,7 @@ from calib_oed.calibration.workflow import (
 from calib_oed.exceptions import ExportError, NonFiniteError, ShapeError, UnknownCriterionError
 from calib_oed.oed.objective import DesignObjective
 from calib_oed.scene.reader import load_scene
-from calib_oed.viz import plots
+from calib_oed.viz import design_plots, plots
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
@@ -113,7 +113,7 @@ def test_leave_one_out_matches_a_direct_recomputation(kr16):
 
     full = f.reshape(-1, f.shape[-1])
     for name, phi in (("kpi", kpi), ("params", params)):
-        loo = plots.pose_contributions(s.problem, q, name)
+        loo = design_plots.pose_contributions(s.problem, q, name)
         assert loo.shape == (len(q),)
         assert np.all(loo >= 0.0)  # removing a pose never helps an A-criterion
         for i in (0, 7, 29):
@@ -121,7 +121,7 @@ def test_leave_one_out_matches_a_direct_recomputation(kr16):
             assert loo[i] == pytest.approx(phi(rest) / phi(full) - 1.0, rel=1e-8)
     # a DesignObjective's own criterion is used when none is given
     obj = DesignObjective(s.problem, "params")
-    assert np.allclose(plots.pose_contributions(obj, q), plots.pose_contributions(s, q, "params"),
+    assert np.allclose(design_plots.pose_contributions(obj, q), design_plots.pose_contributions(s, q, "params"),
                        rtol=1e-12)
 
 
@@ -133,8 +133,8 @@ def test_sensitivities_obey_the_equivalence_theorem(kr16):
     c = np.linalg.inv(np.einsum("jdf,jdg->fg", f, f))
     leverage = np.einsum("jdf,fg,jdg->j", f, c, f)  # tr(F_i C F_i^T)
     for name, total in (("kpi", 1.0), ("params", 1.0), ("D", n_f)):
-        sens = plots.pose_contributions(s.problem, q, name, kind="sensitivity")
-        loo = plots.pose_contributions(s.problem, q, name)
+        sens = design_plots.pose_contributions(s.problem, q, name, kind="sensitivity")
+        loo = design_plots.pose_contributions(s.problem, q, name)
         assert sens.sum() == pytest.approx(total, rel=1e-8)
         assert np.all(sens >= 0.0)
         assert np.all(loo >= sens * (1 - 1e-10))
@@ -144,22 +144,22 @@ def test_sensitivities_obey_the_equivalence_theorem(kr16):
             ratio = 1.0 / np.linalg.det(np.eye(3) - f[i] @ c @ f[i].T)
             assert loo[i] == pytest.approx(ratio - 1.0, rel=1e-7)
     with pytest.raises(ValueError, match="'leave_one_out', 'sensitivity'"):
-        plots.pose_contributions(s.problem, q, kind="gradient")
+        design_plots.pose_contributions(s.problem, q, kind="gradient")
     with pytest.raises(UnknownCriterionError, match="'kpi'"):
-        plots.pose_contributions(s.problem, q, "A-optimal")
+        design_plots.pose_contributions(s.problem, q, "A-optimal")
 
 
 def test_pose_contribution_bars_show_the_values(kr16):
     s, q = kr16
-    loo = plots.pose_contributions(s.problem, q)
-    sens = plots.pose_contributions(s.problem, q, kind="sensitivity")
-    ax = plots.plot_pose_contributions(s.problem, q).axes[0]
+    loo = design_plots.pose_contributions(s.problem, q)
+    sens = design_plots.pose_contributions(s.problem, q, kind="sensitivity")
+    ax = design_plots.plot_pose_contributions(s.problem, q).axes[0]
     bars = [p for p in ax.patches if (p.get_gid() or "").startswith("pose ")]
     assert [b.get_gid() for b in bars] == [f"pose {i}" for i in range(len(q))]
     assert np.allclose([b.get_height() for b in bars], 100.0 * loo, rtol=1e-12)
     assert np.allclose(_line(ax, "sensitivity").get_ydata(), 100.0 * sens, rtol=1e-12)
     assert "[%]" in ax.get_ylabel()
-    ax = plots.plot_pose_contributions(s.problem, q, sort=True, sensitivity=False).axes[0]
+    ax = design_plots.plot_pose_contributions(s.problem, q, sort=True, sensitivity=False).axes[0]
     bars = [p for p in ax.patches if (p.get_gid() or "").startswith("pose ")]
     order = np.argsort(-loo, kind="stable")
     assert [b.get_gid() for b in bars] == [f"pose {i}" for i in order]
@@ -172,9 +172,9 @@ def test_an_indispensable_pose_contributes_infinity(kr16):
     s, q = kr16
     q9 = q[:9]
     assert np.isfinite(DesignObjective(s.problem).compute_value(q9))
-    assert np.all(np.isinf(plots.pose_contributions(s.problem, q9)))
-    sens = plots.pose_contributions(s.problem, q9, kind="sensitivity")
-    ax = plots.plot_pose_contributions(s.problem, q9).axes[0]
+    assert np.all(np.isinf(design_plots.pose_contributions(s.problem, q9)))
+    sens = design_plots.pose_contributions(s.problem, q9, kind="sensitivity")
+    ax = design_plots.plot_pose_contributions(s.problem, q9).axes[0]
     bars = [p for p in ax.patches if (p.get_gid() or "").startswith("pose ")]
     heights = {b.get_height() for b in bars}
     assert len(heights) == 1 and heights.pop() > 100.0 * sens.max()  # drawn above every finite value
@@ -235,7 +235,7 @@ def test_residual_plot_marks_outliers(identified):
 def test_improvement_plot_marks_mean_and_median():
     rng = np.random.default_rng(5)
     data = {"vs heuristic": rng.normal(68.0, 6.0, 200), "vs C_p-optimal": rng.gamma(9.0, 5.0, 150)}
-    fig = plots.plot_improvement_distribution(data, xlabel="improvement [%]")
+    fig = design_plots.plot_improvement_distribution(data, xlabel="improvement [%]")
     ax = fig.axes[0]
     for name, v in data.items():
         assert np.allclose(_line(ax, f"{name}: mean").get_xdata(), np.mean(v), rtol=1e-14)
@@ -245,15 +245,15 @@ def test_improvement_plot_marks_mean_and_median():
            f"median {np.median(data['vs heuristic']):.1f} %" in labels
     assert ax.get_xlabel() == "improvement [%]"
     with pytest.raises(ShapeError):
-        plots.plot_improvement_distribution({"a": []})
+        design_plots.plot_improvement_distribution({"a": []})
     with pytest.raises(NonFiniteError):
-        plots.plot_improvement_distribution({"a": [1.0, np.nan]})
+        design_plots.plot_improvement_distribution({"a": [1.0, np.nan]})
 
 
 # ----------------------------------------------------------- save_figure
 @pytest.fixture(scope="module")
 def small_figure():
-    return plots.plot_improvement_distribution({"vs heuristic": [10.0, 20.0, 25.0, 40.0]})
+    return design_plots.plot_improvement_distribution({"vs heuristic": [10.0, 20.0, 25.0, 40.0]})
 
 
 def test_save_figure_writes_png_svg_pdf(tmp_path, small_figure):
@@ -297,5 +297,5 @@ def test_no_pyplot_figures_are_left_open(kr16):
     s, q = kr16
     before = plt.get_fignums()
     plots.plot_kpi_ellipsoids(s.problem, {"h": q})
-    plots.plot_pose_contributions(s.problem, q[:12], sensitivity=False)
+    design_plots.plot_pose_contributions(s.problem, q[:12], sensitivity=False)
     assert plt.get_fignums() == before

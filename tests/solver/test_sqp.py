@@ -17,19 +17,15 @@ import scipy.optimize
 import scipy.sparse as sp
 
 from calib_oed.exceptions import NonFiniteError, ShapeError
-from calib_oed.solver.qp import (
-    DenseQPWorkspace,
-    QPSubproblem,
-    SparseQPWorkspace,
-    polish,
-    unreachable_rows,
-)
+from calib_oed.solver.bfgs import damped_bfgs_update
+from calib_oed.solver.polish import polish
+from calib_oed.solver.qp import DenseQPWorkspace, QPSubproblem, SparseQPWorkspace
+from calib_oed.solver.restoration import unreachable_rows
 from calib_oed.solver.sqp import (
     SQPProblemError,
     SQPSettings,
     SQPSettingsError,
     SQPStatus,
-    damped_bfgs_update,
     solve_sqp,
 )
 

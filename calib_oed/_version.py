@@ -1,0 +1,3 @@
+"""The version of calib_oed (written into exported files)."""
+
+__version__ = "0.1.0"

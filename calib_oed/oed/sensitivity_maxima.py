@@ -1,0 +1,210 @@
+r"""Local maxima of the sensitivity :math:`d(x, w)` over the continuous feasible set.
+
+For the certificate (:mod:`calib_oed.oed.certificate`) the largest
+sensitivity :math:`d^{\max}` must be taken over every feasible pose, not only
+over a pool. This module owns that search: the sensitivity field
+:math:`d(x) = -\mathrm{tr}(\Gamma F(x)^\top F(x))` with its exact gradient
+(:func:`sensitivity_field`), its local maximisation under the design
+constraints (:func:`maximise_sensitivity`, :class:`LocalMaxima`), the choice of
+separated starts (:func:`spread_starts`) and the column generation that adds
+the maxima to the candidates and re-solves the approximate design
+(``_local_search``).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from calib_oed.feasibility.constraints import FEASIBILITY_TOL
+from calib_oed.oed.approximate import ApproximateDesign, information, solve_approximate
+from calib_oed.oed.objective import DesignObjective
+from calib_oed.oed.problem import DesignProblem
+from calib_oed.solver.sqp import SQPSettings, solve_sqp
+
+#: Starts per SQP of the local maximisation (its dense QP grows with the square of the starts).
+LOCAL_CHUNK = 8
+#: Two local-maximisation starts closer than this in every joint [rad] count as one.
+START_SEPARATION = 1.0
+
+
+# ---------------------------------------------- the continuous feasible set
+def sensitivity_field(objective: DesignObjective, gamma: np.ndarray, q) -> tuple[np.ndarray, np.ndarray]:
+    r"""Sensitivity :math:`d(x) = -\mathrm{tr}(\Gamma F(x)^\top F(x))` of poses ``q`` (K, nq) and its gradient.
+
+    .. math::
+        \frac{\partial d}{\partial x_k} = -2\,\mathrm{tr}\Big(F\,\Gamma\,\frac{\partial F^\top}{\partial x_k}\Big)
+        \quad [\text{unit of } d/\mathrm{rad}],
+
+    the design gradient of ``docs/derivations.md`` §11 with :math:`\Gamma` held
+    fixed (the mixed derivatives of the measurement models, batched over poses:
+    :meth:`~calib_oed.oed.objective.DesignObjective.compute_row_derivatives`).
+
+    Returns:
+        ``d`` (K,) and ``grad`` (K, nv).
+    """
+    rows, d_rows = objective.compute_row_derivatives(q)  # (K, d, p), (K, d, p, nv)
+    fg = rows @ gamma
+    return -np.einsum("kdf,kdf->k", fg, rows), -2.0 * np.einsum("kdf,kdfv->kv", fg, d_rows)
+
+
+@dataclass(frozen=True, eq=False)
+class LocalMaxima:
+    """Local maxima of the sensitivity over the feasible set, one per start.
+
+    Attributes:
+        q: End points (K, nq) [rad].
+        values: :math:`d` at them (K,).
+        start_values: :math:`d` at the starts (K,).
+        violation: Largest constraint or bound violation per end point (K,) [m, rad, cos].
+        status: The SQP's status.
+        iterations: SQP iterations.
+        seconds: Wall time [s].
+    """
+
+    q: np.ndarray
+    values: np.ndarray
+    start_values: np.ndarray
+    violation: np.ndarray
+    status: str
+    iterations: int
+    seconds: float
+
+    @property
+    def feasible(self) -> np.ndarray:
+        return self.violation <= FEASIBILITY_TOL
+
+    @property
+    def max_value(self) -> float:
+        """Largest :math:`d` over the feasible end points and the starts."""
+        return float(max(np.max(self.values[self.feasible], initial=-np.inf), self.start_values.max()))
+
+    def to_dict(self) -> dict:
+        return {"q": self.q.tolist(), "values": self.values.tolist(),
+                "start_values": self.start_values.tolist(), "violation": self.violation.tolist(),
+                "max_value": self.max_value, "status": self.status, "iterations": self.iterations,
+                "seconds": self.seconds}
+
+
+def maximise_sensitivity(setup, objective: DesignObjective, gamma: np.ndarray, starts, scale: float, *,
+                         collisions: bool = True, max_iterations: int = 80,
+                         time_limit: float = np.inf) -> LocalMaxima:
+    r"""Local maxima of :math:`d(x)` s.t. the design constraints, from each start (one SQP, separable).
+
+    Maximises :math:`\sum_j d(x_j)/\text{scale}` over the K poses at once
+    (:func:`calib_oed.solver.sqp.solve_sqp`, per-pose BFGS blocks): the poses share
+    nothing, so this is K independent local maximisations.
+    """
+    t0 = time.perf_counter()
+    starts = np.atleast_2d(np.asarray(starts, dtype=float))
+    k, nq = starts.shape
+    nlp = DesignProblem(objective, setup.feasibility, k, collisions=collisions)
+    d0, _ = sensitivity_field(objective, gamma, starts)
+
+    def negative(x):
+        d, g = sensitivity_field(objective, gamma, x.reshape(k, nq))
+        return -float(d.sum()) / scale, -g.ravel() / scale
+
+    res = solve_sqp(negative, starts.ravel(), constraints=nlp.compute_constraints, bounds=nlp.bounds,
+                    settings=SQPSettings(max_iterations=max_iterations, time_limit=time_limit,
+                                         step_bound=0.2),
+                    block_size=nq)
+    q = res.x.reshape(k, nq)
+    values, _ = nlp.compute_constraint_rows(res.x, jacobian=False)
+    lo, hi = nlp.bounds
+    viol = np.maximum.reduce([np.zeros(k), -values.min(axis=1), (lo - res.x).reshape(k, nq).max(axis=1),
+                              (res.x - hi).reshape(k, nq).max(axis=1)])
+    d, _ = sensitivity_field(objective, gamma, q)
+    return LocalMaxima(q, d, d0, viol, str(getattr(res.status, "value", res.status)), res.iterations,
+                       time.perf_counter() - t0)
+
+
+def _maximise_in_chunks(setup, objective, gamma, starts, scale, chunk, **kwargs) -> LocalMaxima:
+    """:func:`maximise_sensitivity` on chunks of ``chunk`` starts (the dense QP grows as K²), concatenated."""
+    parts = [maximise_sensitivity(setup, objective, gamma, starts[i:i + chunk], scale, **kwargs)
+             for i in range(0, len(starts), chunk)]
+    worst = next((p.status for p in parts if p.status != "converged"), parts[0].status)
+    return LocalMaxima(*(np.concatenate([getattr(p, f) for p in parts])
+                         for f in ("q", "values", "start_values", "violation")),
+                       worst, sum(p.iterations for p in parts), sum(p.seconds for p in parts))
+
+
+def _distinct(q: np.ndarray, values: np.ndarray, tol: float = 1e-4) -> np.ndarray:
+    """Indices of ``q`` without near-duplicates (∞-distance < ``tol`` rad), the larger value kept."""
+    keep: list[int] = []
+    for i in np.argsort(-values):
+        if all(np.max(np.abs(q[i] - q[j])) >= tol for j in keep):
+            keep.append(int(i))
+    return np.array(sorted(keep), dtype=np.intp)
+
+
+def spread_starts(candidates: np.ndarray, values: np.ndarray, k: int,
+                  separation: float | None = None) -> np.ndarray:
+    """Indices of up to ``k`` candidates of largest ``values``, pairwise at least ``separation`` apart (∞-norm, rad).
+
+    ``separation`` defaults to :data:`START_SEPARATION`.
+    """
+    separation = START_SEPARATION if separation is None else separation
+    chosen: list[int] = []
+    for i in np.argsort(-values):
+        if len(chosen) == k:
+            break
+        if all(np.max(np.abs(candidates[i] - candidates[j])) >= separation for j in chosen):
+            chosen.append(int(i))
+    return np.array(chosen, dtype=np.intp)
+
+
+@dataclass
+class _Search:
+    """State of the column generation over the continuous feasible set (internal to :func:`~calib_oed.oed.certificate.certify`)."""
+
+    cand: np.ndarray
+    blocks: np.ndarray
+    approx: ApproximateDesign
+    iterations: int
+    added: int = 0
+    rounds: int = 0
+    local_iterations: int = 0
+    d_local: float = np.nan
+    status: str = "not run"
+    final_starts: int = 0
+
+
+def _local_search(s, objective, search: _Search, *, starts: int, verify_starts: int, rounds: int,
+                  iterations: int, collisions: bool, tol: float, local_tol: float,
+                  max_iterations: int) -> _Search:
+    r"""Add local maxima of :math:`d` with :math:`d > \bar d(1+\text{local\_tol})` and re-solve (to ``tol``) until none is found.
+
+    A round maximises from ``starts`` separated candidates; when it finds no
+    violation, a verification round uses ``verify_starts``; the search ends
+    when that finds none either, or after ``rounds`` re-solves.
+    """
+    crit, verifying = objective.criterion, False
+    while True:
+        k = verify_starts if verifying else starts
+        gamma = crit.compute_gradient(information(search.blocks, search.approx.weights))
+        dbar = search.approx.mean_sensitivity
+        idx = spread_starts(search.cand, search.approx.sensitivities, k)
+        loc = _maximise_in_chunks(s, objective, gamma, search.cand[idx], dbar, LOCAL_CHUNK,
+                                  collisions=collisions, max_iterations=iterations)
+        search.local_iterations += loc.iterations
+        search.d_local, search.status, search.final_starts = loc.max_value, loc.status, idx.size
+        new = np.flatnonzero(loc.feasible & (loc.values > dbar * (1.0 + local_tol)))
+        if new.size == 0 and not verifying and verify_starts > starts:
+            verifying = True
+            continue
+        if new.size == 0 or search.rounds == rounds:
+            return search
+        new = new[_distinct(loc.q[new], loc.values[new])]
+        search.cand = np.vstack([search.cand, loc.q[new]])
+        search.blocks = np.concatenate([search.blocks, objective.compute_blocks(loc.q[new])])
+        search.added += int(new.size)
+        search.rounds += 1
+        w0 = np.concatenate([search.approx.weights, np.zeros(new.size)])
+        search.approx = solve_approximate(search.blocks, crit, weights=w0, tol=tol,
+                                          max_iterations=max_iterations)
+        search.iterations += search.approx.iterations
+        verifying = False
+
