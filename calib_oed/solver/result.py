@@ -26,10 +26,39 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass, field
 from enum import Enum
+from typing import NamedTuple
 
 import numpy as np
 
 from calib_oed.exceptions import SQPProblemError, SQPSettingsError  # noqa: F401 (re-exported)
+
+
+class StructuredHessian(NamedTuple):
+    r"""A Hessian in factored form: :math:`H = \mathrm{blkdiag}(H_1, \dots, H_b) + U U^\top`.
+
+    The design problem's Lagrangian Hessian has this shape: one
+    :math:`s \times s` block per pose (the criterion's curvature through that
+    pose's sensitivities, and :math:`-\sum_i \lambda_i \nabla^2 c_i` of that
+    pose's rows), plus the exact coupling between poses through :math:`M^{-1}`,
+    which factors with few columns.
+
+    Attributes:
+        blocks: (b, s, s) symmetric diagonal blocks, :math:`b s = n`; they may be indefinite.
+        low_rank: (n, r) factor :math:`U` of the positive semidefinite coupling, or None.
+    """
+
+    blocks: np.ndarray
+    low_rank: np.ndarray | None = None
+
+    def dense(self) -> np.ndarray:
+        """The (n, n) matrix (for tests and small problems)."""
+        b, s, _ = self.blocks.shape
+        h = np.zeros((b * s, b * s))
+        for j in range(b):
+            h[j * s:(j + 1) * s, j * s:(j + 1) * s] = self.blocks[j]
+        if self.low_rank is not None:
+            h += self.low_rank @ self.low_rank.T
+        return h
 
 
 class SQPStatus(str, Enum):
