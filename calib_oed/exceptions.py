@@ -378,3 +378,40 @@ class AggregateError(CalibOedError, ValueError):
         self.valid = list(valid)
         super().__init__(why or f"unknown KPI aggregate {aggregate!r}; valid aggregates are: "
                          f"{_choices(self.valid)}")
+
+
+class DesignError(CalibOedError, ValueError):
+    """A design (:func:`calib_oed.oed.design.design`) cannot be computed as asked.
+
+    Attributes:
+        what: The offending argument (``"start"``, ``"pool"``, ``"replicates"``, ``"n"``, ...).
+        value: The value given.
+        valid: The valid choices, where there are few.
+    """
+
+    def __init__(self, what: str, value, requirement: str, valid: Sequence[str] | None = None):
+        self.what = what
+        self.value = value
+        self.valid = list(valid) if valid is not None else None
+        choices = f"; valid choices are: {_choices(self.valid)}" if self.valid else ""
+        super().__init__(f"design: {what} = {value!r}: {requirement}{choices}")
+
+
+class DesignMemoryError(DesignError, MemoryError):
+    """A design too large for this machine's memory, found before anything is allocated.
+
+    Attributes:
+        needed_bytes: Estimated peak memory of the design [bytes].
+        available_bytes: Memory available now [bytes].
+        largest_n: Largest number of poses that fits.
+    """
+
+    def __init__(self, n: int, needed_bytes: float, available_bytes: float, largest_n: int):
+        self.needed_bytes = float(needed_bytes)
+        self.available_bytes = float(available_bytes)
+        self.largest_n = int(largest_n)
+        CalibOedError.__init__(
+            self, f"design: n = {n} poses needs about {needed_bytes / 2**30:.1f} GiB of memory, "
+            f"{available_bytes / 2**30:.1f} GiB are available; the largest n that fits is about "
+            f"{largest_n} (or design in batches with `calib-oed sequential`)")
+        self.what, self.value, self.valid = "n", n, None

@@ -94,16 +94,29 @@ def build_parser() -> argparse.ArgumentParser:
 
     from calib_oed.oed.criteria import CRITERIA
 
-    p = sub.add_parser("design", help="optimal measurement configurations (SQP from a heuristic start)")
+    p = sub.add_parser("design", help="optimal measurement configurations: exchange start on a "
+                       "feasible pool, SQP refinement, efficiency against a certified bound")
     scene_arg(p)
-    p.add_argument("-n", type=_positive_int, default=60, help="number of poses (default 60)")
+    p.add_argument("-n", type=_positive_int, default=60, help="number of measurements (default 60)")
     p.add_argument("--criterion", default="kpi", choices=CRITERIA,
                    help="kpi (default: the paper's KPI A-criterion), params (A on the parameter "
                    "covariance, mm and mrad), D, E, or an observability index O1..O5")
-    p.add_argument("--start", default="heuristic", metavar="heuristic|exchange|CSV",
-                   help="start design: random feasible poses (default), the exchange algorithm's "
-                   "best poses of a 3000-pose feasible pool (better designs), or a design CSV")
-    p.add_argument("--seed", type=int, default=0, help="seed of the heuristic start (default 0)")
+    p.add_argument("--start", default="exchange", metavar="exchange|heuristic|CSV",
+                   help="start design: the exchange algorithm's best poses of the candidate pool "
+                   "(default), random feasible poses (the paper's start), or a design CSV")
+    p.add_argument("--pool", default="3000", metavar="N|FILE",
+                   help="candidate pool of the exchange start and the certificate: N random "
+                   "feasible poses (default 3000), or a design CSV/YAML of your own candidate "
+                   "configurations (infeasible ones are dropped and counted)")
+    p.add_argument("--no-refine", action="store_true",
+                   help="no SQP refinement: pure selection from the pool (with --start exchange)")
+    p.add_argument("--replicates", type=_positive_int, default=1, metavar="K",
+                   help="each configuration may be measured up to K times (default 1: all "
+                   "distinct); the record says how many distinct poses")
+    p.add_argument("--no-certificate", action="store_true",
+                   help="skip the optimality certificate (the efficiency against a lower bound "
+                   "valid for any feasible design of this size)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the pool and the start (default 0)")
     p.add_argument("--starts", type=_positive_int, default=1,
                    help="multi-start: keep the best of this many seeded starts (default 1)")
     p.add_argument("--no-collisions", action="store_true",

@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+from pathlib import Path
 
 import numpy as np
 
@@ -121,14 +122,33 @@ def _progress(args, what: str):
     return callback, bar
 
 
+def _pool(s, args):
+    """``--pool``: a number of random feasible candidates, or a design file of candidates."""
+    text = str(getattr(args, "pool", None) or "3000")
+    if text.isdigit():
+        if int(text) < 1:
+            raise CalibOedError(f"--pool {text}: give a number of candidates >= 1 or a design file")
+        return int(text)
+    from calib_oed.oed.result import read_design_file
+
+    if not Path(text).exists():
+        raise CalibOedError(f"--pool {text}: neither a number of candidates nor an existing "
+                            "design file (CSV with joint-name header, or design.yaml)")
+    return read_design_file(text, s.problem.robot)
+
+
 def _optimise(s, args, criterion: str, start, aggregate: str = "mean"):
     from calib_oed.oed.design import design
 
     what = f"{criterion}{'-max' if aggregate == 'max' else ''}-optimal design"
+    pool = _pool(s, args)
     callback, bar = _progress(args, what)
     try:
-        return design(s, args.n, criterion, start=start, seed=args.seed,
+        return design(s, args.n, criterion, start=start, seed=args.seed, pool=pool,
                       n_starts=getattr(args, "starts", 1), collisions=not getattr(args, "no_collisions", False),
+                      refine=not getattr(args, "no_refine", False),
+                      replicates=getattr(args, "replicates", 1),
+                      certificate=not getattr(args, "no_certificate", False),
                       settings=_sqp_settings(args), callback=callback, aggregate=aggregate)
     finally:
         if bar is not None:

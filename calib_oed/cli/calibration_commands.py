@@ -47,9 +47,16 @@ def cmd_demo(args) -> int:
           f"{bool(s.feasibility.compute(q_start, jacobian=False).feasible.all())}")
     designs = {"heuristic": evaluate_design(s, q_start, "kpi", method="heuristic", seed=args.seed)}
     if not args.no_optimise:
-        designs["C_p-optimal"] = _optimise(s, args, "params", q_start)
-        designs["KPI-optimal"] = _optimise(s, args, "kpi", q_start)
+        # the default pipeline (exchange start on a feasible pool, SQP, certificate),
+        # or a refinement of the design the user gave
+        given = getattr(args, "design", None) or getattr(args, "design_option", None)
+        start = q_start if given else "exchange"
+        designs["C_p-optimal"] = _optimise(s, args, "params", start)
+        designs["KPI-optimal"] = _optimise(s, args, "kpi", start)
     print(format_design_table(designs))
+    for name, d in designs.items():
+        if d.certificate:
+            print(f"{name}:{d.efficiency_line().strip()[len('efficiency:'):]}")
     final = designs["KPI-optimal" if not args.no_optimise else "heuristic"]
     q = final.q
     what = f"{final.method} {final.criterion} design of {final.n} poses"

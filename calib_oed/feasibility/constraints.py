@@ -38,7 +38,9 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse
 
+from calib_oed.exceptions import ShapeError
 from calib_oed.feasibility.bodies import BodyStates, compute_body_states
+from calib_oed.feasibility.curvature import lagrangian_hessian
 from calib_oed.feasibility.segments import closest_parameters
 from calib_oed.feasibility.shapes import Capsule, Cell, FeasibilitySettings
 from calib_oed.model.robot import Robot, frame_index
@@ -249,23 +251,47 @@ class FeasibilityModel:
                             kinds: Sequence[str] = KINDS) -> ConstraintValues:
         """Constraint values from evaluated body states; ``kinds`` restricts the rows
         (``("joint", "incidence")`` is the cheap pre-filter of the sampler)."""
-        parts_v, parts_j = [], []
-        fns = []
-        if "joint" in kinds:
-            fns.append(self._joint_rows)
-        if "incidence" in kinds:
-            fns.append(self._incidence_rows)
-        if {"self", "obstacle", "beam"} & set(kinds):
+        asked, capsule_kinds = set(kinds), set(KINDS[2:])
+        fns = [fn for kind, fn in (("joint", self._joint_rows), ("incidence", self._incidence_rows)) if kind in asked]
+        computed = asked
+        if capsule_kinds & asked:  # these give every capsule kind: keep the asked ones below
             fns += [self._pair_rows, self._halfspace_rows]
-        for fn in fns:
-            v, jac = fn(q, states, jacobian)
-            parts_v.append(v)
-            parts_j.append(jac)
-        values = np.concatenate(parts_v, axis=1)
-        jac = np.concatenate(parts_j, axis=1) if jacobian else None
-        rows = [k in kinds for k in self.kinds]
+            computed = asked | capsule_kinds
+        parts_v, parts_j = zip(*(fn(q, states, jacobian) for fn in fns), strict=True)
+        rows = self.row_mask(asked)
+        keep = rows[self.row_mask(computed)]
+        values = np.concatenate(parts_v, axis=1)[:, keep]
+        jac = np.concatenate(parts_j, axis=1)[:, keep] if jacobian else None
         return ConstraintValues(values, jac, tuple(k for k, r in zip(self.kinds, rows, strict=True) if r),
                                 tuple(lbl for lbl, r in zip(self.labels, rows, strict=True) if r))
+
+    def row_mask(self, kinds: Sequence[str] | set[str] = KINDS) -> np.ndarray:
+        """Boolean (m,): the rows of the given kinds (the rows ``compute_from_states`` returns)."""
+        return np.array([k in kinds for k in self.kinds], dtype=bool)
+
+    def compute_lagrangian_hessian(self, q: np.ndarray, lam: np.ndarray, kinds: Sequence[str] = KINDS,
+                                   states: BodyStates | None = None) -> np.ndarray:
+        r"""Per pose :math:`H_j = \sum_i \lambda_{ji}\,\partial^2 g_{ji}/\partial q_j^2`, (n, nq, nq).
+
+        Args:
+            q: Configurations, (n, nq).
+            lam: Multipliers, (n, m_kinds), in the row order of
+                ``compute_from_states(..., kinds=kinds)``; rows with a zero multiplier
+                are skipped (joint rows are linear: always zero).
+            kinds: The row kinds ``lam`` covers.
+            states: Body states of ``q`` with Jacobians (reuse those of the rows), or ``None``.
+
+        Exact and analytic (:mod:`calib_oed.feasibility.curvature`); an SQP with
+        :math:`L = f - \lambda^\top g` adds :math:`-H_j` to pose j's block.
+        """
+        q = self.robot.check_configurations(q)
+        rows = self.row_mask(kinds)
+        lam = np.asarray(lam, dtype=float)
+        if lam.shape != (q.shape[0], int(rows.sum())):
+            raise ShapeError("lam", f"({q.shape[0]}, {int(rows.sum())})", lam.shape)
+        full = np.zeros((q.shape[0], self.n_constraints))
+        full[:, rows] = lam
+        return lagrangian_hessian(self, q, full, states)
 
     def compute_values(self, q: np.ndarray) -> np.ndarray:
         """Constraint values :math:`g(q)`, (n, m)."""

@@ -24,7 +24,9 @@ from __future__ import annotations
 
 import numpy as np
 
-_EPS = 1e-12
+#: Squared length [m²] below which a segment is a point; relative tolerance of the
+#: parallel test (:math:`ae - b^2 \le` ``EPS`` :math:`\cdot ae`).
+EPS = 1e-12
 
 
 def closest_parameters(a1, b1, a2, b2) -> tuple[np.ndarray, np.ndarray]:
@@ -42,12 +44,12 @@ def closest_parameters(a1, b1, a2, b2) -> tuple[np.ndarray, np.ndarray]:
     b = np.einsum("...i,...i->...", d1, d2)
     c = np.einsum("...i,...i->...", d1, r)
     f = np.einsum("...i,...i->...", d2, r)
-    p1 = a > _EPS  # first segment is not a point
-    p2 = e > _EPS
+    p1 = a > EPS  # first segment is not a point
+    p2 = e > EPS
     a_safe = np.where(p1, a, 1.0)
     e_safe = np.where(p2, e, 1.0)
     denom = a * e - b * b
-    general = p1 & p2 & (denom > _EPS * np.maximum(a * e, _EPS))
+    general = p1 & p2 & (denom > EPS * np.maximum(a * e, EPS))
     s = np.where(general, np.clip((b * f - c * e) / np.where(general, denom, 1.0), 0.0, 1.0), 0.0)
     # second segment a point: t = 0, s from projecting a2 on the first segment
     s = np.where(p1 & ~p2, np.clip(-c / a_safe, 0.0, 1.0), s)

@@ -36,6 +36,7 @@ from calib_oed.exceptions import ShapeError
 from calib_oed.model.kinematics import (
     ToolKinematics,
     compute_tool_kinematics,
+    jacobian_config_derivative,
     regressor_config_derivative,
     skew,
 )
@@ -79,6 +80,11 @@ class SetupState:
         r""":math:`\partial K/\partial q` (n, 6, 6 n_j, nv), computed once per state for all models
         (:func:`calib_oed.model.kinematics.regressor_config_derivative`)."""
         return regressor_config_derivative(self.kin)
+
+    @cached_property
+    def jacobian_q(self) -> np.ndarray:
+        r""":math:`\partial J/\partial q` (n, 6, nv, nv), once per state (second-order models)."""
+        return jacobian_config_derivative(self.kin)
 
     def joint_param_sensitivity(self, d_eps: np.ndarray) -> np.ndarray:
         r"""Chain rule from right perturbations :math:`\epsilon_i` to parameters :math:`\delta_i`.
@@ -370,6 +376,14 @@ class MeasurementModel(abc.ABC):
             f"{type(self).__name__} does not provide the mixed derivative needed for design "
             "optimisation; implement compute_param_config_jacobian"
         )
+
+    def compute_param_config_hessian(self, state: SetupState) -> np.ndarray | None:
+        r""":math:`\partial^3 h/\partial p\,\partial q_k\,\partial q_l`, (n, d, n_p, nv, nv), or None.
+
+        For the exact design Hessian (``docs/derivations.md`` §13). None if the model lacks
+        it or with compliance modelled (needs :math:`\partial^2\tau_g/\partial q^2`).
+        """
+        return None
 
     def check_measured(self, values: np.ndarray, n: int) -> np.ndarray:
         """Validate measured values of this model for n configurations."""

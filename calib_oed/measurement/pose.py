@@ -34,6 +34,8 @@ import pinocchio as pin
 
 from calib_oed.measurement.base import MeasurementModel, SetupState, skew
 from calib_oed.measurement.position import DEFAULT_SIGMA, TrackerPosition
+from calib_oed.measurement.second_order import joint_rows_hessian
+from calib_oed.model.kinematics import log_jacobian_derivative, log_jacobian_second_derivative
 
 #: Default rotation noise per axis [rad] (0.01 mrad).
 DEFAULT_SIGMA_ANGLE = 1e-5
@@ -115,7 +117,9 @@ class PoseMeasurement(MeasurementModel):
 
         With :math:`w_k = R_{F,P}^\top \omega_{J,k}` the probe-frame rotation
         rate of joint ``k`` (:math:`R_{T,P}(q + dq_k) = R_{T,P}\exp(w_k\,dq_k)`),
-        :math:`H_k = d J_{\log}/dq_k` = ``pin.Hlog3(R_{T,P}, w_k)``, and
+        :math:`H_k = d J_{\log}/dq_k` = ``pin.Hlog3(R_{T,P}, w_k)`` (computed as
+        :math:`DJ_{\log}(\theta)[J_{\log}w_k]`, :func:`~calib_oed.model.kinematics.log_jacobian_derivative`,
+        exact also near :math:`R_{T,P} = I` where ``Hlog3`` is not), and
         :math:`\partial\omega_K/\partial q_k` the angular rows of
         :func:`~calib_oed.model.kinematics.regressor_config_derivative`:
 
@@ -137,7 +141,7 @@ class PoseMeasurement(MeasurementModel):
         rot = self._rotations(state)
         jlog = self._jlog(rot)
         w = self.probe_rotation.T @ state.kin.jacobian[:, 3:, :]  # (n, 3, nv)
-        hlog = np.array([[pin.Hlog3(rot[i], w[i, :, k]) for k in range(nv)] for i in range(n)])
+        _, _, hlog = self._log_rates(rot, jlog, np.moveaxis(w, 1, 2))
         omega = self.probe_rotation.T @ state.kin.regressor[:, 3:, :]  # (n, 3, 6nj)
         omega_q = np.einsum("ab,nbcq->nacq", self.probe_rotation.T,
                             state.regressor_q[:, 3:])
@@ -153,4 +157,66 @@ class PoseMeasurement(MeasurementModel):
             trk = trk @ pin.Jexp6(delta_t)
         rows[:, :, space.tracker_slice] = np.moveaxis(trk, 1, 3)
         out[:, 3:] = state.finish_param_config(rows, jlog @ omega, joints)
+        return out
+
+    @staticmethod
+    def _log_rates(rot: np.ndarray, jlog: np.ndarray, w: np.ndarray):
+        r""":math:`\theta = \log_3 R_{T,P}` (n, 3), which moves by :math:`\theta_k = J_{\log}w_k`
+        (n, nv, 3) along :math:`q_k`, and :math:`H_k = DJ_{\log}[\theta_k]` (n, nv, 3, 3)."""
+        theta = np.array([pin.log3(r) for r in rot])
+        th_k = np.einsum("nab,nkb->nka", jlog, w)
+        return theta, th_k, log_jacobian_derivative(theta[:, None], th_k)
+
+    def compute_param_config_hessian(self, state: SetupState) -> np.ndarray | None:
+        r"""Second configuration derivative of the rows, (n, 6, n_p, nv, nv); None with compliance.
+
+        Position rows as :class:`TrackerPosition`. Rotation rows: with
+        :math:`\theta_k = J_{\log}w_k`, :math:`H_k = DJ_{\log}[\theta_k]`,
+        :math:`\theta_{kl} = H_l w_k + J_{\log}\,\partial_l w_k` and
+        :math:`H_{kl} = D^2J_{\log}[\theta_k, \theta_l] + DJ_{\log}[\theta_{kl}]`
+        (:mod:`calib_oed.model.kinematics`), differentiating the terms of
+        :meth:`compute_param_config_jacobian` along :math:`q_l`:
+
+        .. math::
+            \partial_{kl}\big(J_{\log}\tilde\omega_K\big)
+              &= H_{kl}\tilde\omega_K + H_k\,\partial_l\tilde\omega_K
+                 + H_l\,\partial_k\tilde\omega_K + J_{\log}\,\partial_{kl}\tilde\omega_K,
+              \qquad \tilde\omega_K = R_{F,P}^\top\omega_K,\\
+            \partial_{kl}\big(J_{\log}[\,0\;\;-R_{T,P}^\top]\big)
+              &= \big[\,0\;\; \big(-H_{kl} + H_k[w_l]_\times + H_l[w_k]_\times
+                 + J_{\log}([\partial_l w_k]_\times - [w_k]_\times[w_l]_\times)\big)R_{T,P}^\top\big]
+
+        (``docs/derivations.md`` §13), times the right Jacobians :math:`J_r`.
+        """
+        if state.torque is not None:
+            return None
+        space, kin = state.space, state.kin
+        n, nv = state.n, kin.jacobian.shape[2]
+        out = np.zeros((n, 6, space.size, nv, nv))
+        self._position.compute_param_config_hessian(state, out=out[:, :3])
+        rot = self._rotations(state)
+        jlog = self._jlog(rot)
+        rfp = self.probe_rotation.T
+        w = np.moveaxis(rfp @ kin.jacobian[:, 3:, :], 1, 2)  # (n, nv, 3): w_k
+        w_q = np.einsum("ab,nbkl->nkla", rfp, state.jacobian_q[:, 3:])  # d_l w_k, (n, k, l, 3)
+        theta, th_k, hk = self._log_rates(rot, jlog, w)
+        theta = theta[:, None, None]
+        th_kl = np.einsum("nlab,nkb->nkla", hk, w) + np.einsum("nab,nklb->nkla", jlog, w_q)
+        hkl = (log_jacobian_second_derivative(theta, th_k[:, :, None], th_k[:, None, :])
+               + log_jacobian_derivative(theta, th_kl))  # (n, k, l, 3, 3)
+        rows = out[:, 3:]  # a view
+        lams = [np.zeros(a.shape[:-1] + (6,)) for a in (jlog, hk, hkl)]  # Lambda = [0, J_log R_FP^T]
+        for lam, a in zip(lams, (jlog, hk, hkl), strict=True):
+            lam[..., 3:] = a @ rfp
+        rows[:, :, space.joints_slice] = joint_rows_hessian(state, *lams)
+        sw = skew(w)  # (n, nv, 3, 3)
+        mixed = hk[:, :, None] @ sw[:, None, :]  # H_k [w_l]x
+        inner = (-hkl + mixed + np.swapaxes(mixed, 1, 2)
+                 + jlog[:, None, None] @ (skew(w_q) - sw[:, :, None] @ sw[:, None, :]))
+        trk = np.zeros((n, nv, nv, 3, 6))
+        trk[..., 3:] = inner @ np.transpose(rot, (0, 2, 1))[:, None, None]
+        delta_t = state.p[space.tracker_slice]
+        if np.any(delta_t):
+            trk = trk @ pin.Jexp6(delta_t)
+        rows[:, :, space.tracker_slice] = np.moveaxis(trk, (1, 2), (3, 4))
         return out

@@ -21,6 +21,7 @@ from __future__ import annotations
 import numpy as np
 
 from calib_oed.measurement.base import MeasurementModel, SetupState
+from calib_oed.measurement.second_order import tool_point_param_config_hessian
 
 #: Default laser-tracker noise per axis [m] (0.01 mm).
 DEFAULT_SIGMA = 1e-5
@@ -59,3 +60,15 @@ class TrackerPosition(MeasurementModel):
     def compute_param_config_jacobian(self, state: SetupState) -> np.ndarray:
         offset = state.reflector_offset(self.reflector)
         return state.tool_point_param_config_jacobian(offset, "tracker", reflector=self.reflector)
+
+    def compute_param_config_hessian(self, state: SetupState, out: np.ndarray | None = None
+                                     ) -> np.ndarray | None:
+        """Second configuration derivative of the rows (:mod:`~calib_oed.measurement.second_order`).
+
+        None with compliance; ``out``: a zeroed (n, 3, n_p, nv, nv) array to write into.
+        """
+        if state.torque is not None:
+            return None
+        offset = state.reflector_offset(self.reflector)
+        return tool_point_param_config_hessian(state, offset, "tracker", reflector=self.reflector,
+                                               out=out)

@@ -16,6 +16,14 @@ A point :math:`c` fixed in the tool frame, :math:`x = t + R c`, then has
 .. math::
     \frac{\partial x}{\partial \epsilon} = R\,[\,I \;\; -[c]_\times\,]\,K, \qquad
     \frac{\partial x}{\partial q} = R\,[\,I \;\; -[c]_\times\,]\,J .
+
+Second order (design optimisation, ``docs/derivations.md`` §11 and §13): the
+configuration derivatives of :math:`K` and :math:`J`
+(:func:`regressor_config_derivative`, :func:`jacobian_config_derivative`,
+:func:`regressor_config_hessian`, all through :math:`\mathrm{ad}(J_k)`,
+:func:`ad_matrices`), and :math:`J_{\log}` (``pin.Jlog3``) with its first and
+second derivatives in :math:`\theta = \log_3 R` (:func:`log_jacobian`,
+:func:`log_jacobian_derivative`, :func:`log_jacobian_second_derivative`).
 """
 
 from __future__ import annotations
@@ -24,6 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import pinocchio as pin
+import scipy.special
 
 
 @dataclass(frozen=True, eq=False)
@@ -185,8 +194,131 @@ def jacobian_config_derivative(kin: ToolKinematics) -> np.ndarray:
     return out
 
 
+def regressor_config_hessian(kin: ToolKinematics) -> np.ndarray:
+    r""":math:`\partial^2 K/\partial q_k\,\partial q_l`, (n, 6, 6 n_j, nv, nv), of the LOCAL regressor.
+
+    Differentiating :math:`\partial K_i/\partial q_k = -\mathrm{ad}(J_k)\,K_i`
+    (:func:`regressor_config_derivative`) once more, with
+    :math:`\partial J_k/\partial q_l = -\mathrm{ad}(J_l)\,J_k` for :math:`l > k`
+    (:func:`jacobian_config_derivative`) and
+    :math:`\mathrm{ad}(\mathrm{ad}(x)\,y) = \mathrm{ad}(x)\,\mathrm{ad}(y) - \mathrm{ad}(y)\,\mathrm{ad}(x)`,
+    both orders give the same, symmetric result
+
+    .. math::
+        \frac{\partial^2 K_i}{\partial q_k\,\partial q_l} =
+        \begin{cases} \mathrm{ad}(J_{\max(k,l)})\,\mathrm{ad}(J_{\min(k,l)})\,K_i
+            & \min(k, l) \ge i \\ 0 & \text{otherwise} \end{cases}
+
+    (``docs/derivations.md`` §13). Same joint assumptions as
+    :func:`regressor_config_derivative` (revolute or prismatic 1-DoF joints).
+    The measurement models never form this array: they apply the identity in
+    factored form (:func:`calib_oed.measurement.second_order.joint_rows_hessian`);
+    this dense form is the reference the tests difference.
+    """
+    reg, jac = _need_both(kin)
+    n, _, ncol = reg.shape
+    nv = jac.shape[2]
+    out = np.zeros((n, 6, ncol, nv, nv))
+    for k in range(nv):
+        cols = slice(0, 6 * (k + 1))  # blocks i <= k = min(k, l)
+        inner = _ad_apply(jac[:, :, k], reg[:, :, cols])
+        for m in range(k, nv):
+            block = _ad_apply(jac[:, :, m], inner)
+            out[:, :, cols, k, m] = block
+            out[:, :, cols, m, k] = block
+    return out
+
+
+def ad_matrices(jacobian: np.ndarray) -> np.ndarray:
+    r""":math:`\mathrm{ad}(J_k)` as 6x6 matrices, (n, nv, 6, 6), from the LOCAL Jacobian (n, 6, nv).
+
+    :math:`\mathrm{ad}(v, \omega) = \begin{bmatrix} [\omega]_\times & [v]_\times \\
+    0 & [\omega]_\times \end{bmatrix}` (see :func:`regressor_config_derivative`).
+    """
+    cols = np.moveaxis(np.asarray(jacobian, dtype=float), 1, 2)  # (n, nv, 6)
+    out = np.zeros(cols.shape[:2] + (6, 6))
+    sw = skew(cols[..., 3:])
+    out[..., :3, :3] = sw
+    out[..., 3:, 3:] = sw
+    out[..., :3, 3:] = skew(cols[..., :3])
+    return out
+
+
 def _need_both(kin: ToolKinematics) -> tuple[np.ndarray, np.ndarray]:
     if kin.regressor is None or kin.jacobian is None:
         raise ValueError("second-order kinematics need both the regressor and the Jacobian; "
                          "compute the kinematics with regressor=True, jacobian=True")
     return kin.regressor, kin.jacobian
+
+
+# ------------------------------------------- SO(3) logarithm: J_log and its derivatives
+#: Terms of the series of b(s) below; at |θ| = π the m-th term is at most 4^-m / 12.
+_LOG_TERMS = 48
+_M = np.arange(_LOG_TERMS)
+#: :math:`b(s) = \sum_m c_m s^m`, :math:`c_m = 2\zeta(2m+2)/(2\pi)^{2m+2}` (all positive).
+_LOG_COEFFS = 2.0 * scipy.special.zeta(2 * _M + 2) / (2 * np.pi) ** (2 * _M + 2)
+
+
+def _log_series(theta: np.ndarray):
+    r""":math:`b, b', b''` at :math:`s = |\theta|^2`, each shaped like ``theta[..., 0]``."""
+    s = np.sum(theta**2, axis=-1)
+    poly = np.polynomial.polynomial.polyval
+    b = poly(s, _LOG_COEFFS)
+    b1 = poly(s, _LOG_COEFFS[1:] * _M[1:])
+    b2 = poly(s, _LOG_COEFFS[2:] * _M[2:] * _M[1:-1])
+    return b[..., None, None], b1[..., None, None], b2[..., None, None]
+
+
+def log_jacobian(theta: np.ndarray) -> np.ndarray:
+    r""":math:`J_{\log}` (``pin.Jlog3``) as a function of :math:`\theta = \log_3 R`, (..., 3, 3).
+
+    .. math::
+        J_{\log}(\theta) = J_r(\theta)^{-1} = I + \tfrac12[\theta]_\times + b(|\theta|^2)\,[\theta]_\times^2,
+        \qquad b(\theta^2) = \frac{1}{\theta^2} - \frac{1 + \cos\theta}{2\theta\sin\theta}
+        = \sum_{m \ge 0} \frac{2\zeta(2m+2)}{(2\pi)^{2m+2}}\,\theta^{2m},
+
+    the series (from :math:`x\cot x`, Bernoulli numbers) summed for every
+    :math:`|\theta| \le \pi` (the range of ``log3``): no cancellation near 0.
+    """
+    theta = np.asarray(theta, dtype=float)
+    sk = skew(theta)
+    b, _, _ = _log_series(theta)
+    return np.eye(3) + 0.5 * sk + b * (sk @ sk)
+
+
+def log_jacobian_derivative(theta: np.ndarray, u: np.ndarray) -> np.ndarray:
+    r"""Directional derivative :math:`DJ_{\log}(\theta)[u]`, (..., 3, 3) (shapes broadcast).
+
+    .. math::
+        DJ_{\log}[u] = \tfrac12[u]_\times + 2b'\,(\theta\cdot u)\,S^2 + b\,([u]_\times S + S[u]_\times),
+        \qquad S = [\theta]_\times .
+
+    Along the right perturbation :math:`R \leftarrow R\exp_3(w\,t)`,
+    :math:`\dot\theta = J_{\log}w` and ``pin.Hlog3(R, w)`` = :math:`DJ_{\log}[J_{\log}w]`.
+    """
+    theta, u = np.asarray(theta, dtype=float), np.asarray(u, dtype=float)
+    sk, su = skew(theta), skew(u)
+    b, b1, _ = _log_series(theta)  # on theta's own shape: the series once per rotation
+    tu = np.sum(theta * u, axis=-1)[..., None, None]
+    return 0.5 * su + 2.0 * b1 * tu * (sk @ sk) + b * (su @ sk + sk @ su)
+
+
+def log_jacobian_second_derivative(theta: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    r"""Second directional derivative :math:`D^2J_{\log}(\theta)[u, v]`, (..., 3, 3), symmetric in u, v.
+
+    .. math::
+        D^2J_{\log}[u, v] = \big(4b''(\theta\cdot u)(\theta\cdot v) + 2b'(u\cdot v)\big)S^2
+          + 2b'(\theta\cdot u)\{[v]_\times, S\} + 2b'(\theta\cdot v)\{[u]_\times, S\}
+          + b\,\{[u]_\times, [v]_\times\}
+
+    with :math:`\{X, Y\} = XY + YX`.
+    """
+    theta, u, v = (np.asarray(a, dtype=float) for a in (theta, u, v))
+    sk, su, sv = skew(theta), skew(u), skew(v)
+    b, b1, b2 = _log_series(theta)
+    tu = np.sum(theta * u, axis=-1)[..., None, None]
+    tv = np.sum(theta * v, axis=-1)[..., None, None]
+    uv = np.sum(u * v, axis=-1)[..., None, None]
+    return ((4.0 * b2 * tu * tv + 2.0 * b1 * uv) * (sk @ sk)
+            + 2.0 * b1 * tu * (sv @ sk + sk @ sv) + 2.0 * b1 * tv * (su @ sk + sk @ su)
+            + b * (su @ sv + sv @ su))

@@ -19,16 +19,29 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from calib_oed.calibration.workflow import Setup
-from calib_oed.exceptions import AggregateError, ShapeError
+from calib_oed.exceptions import (
+    AggregateError,
+    CertificateError,
+    DesignError,
+)
 from calib_oed.feasibility.constraints import FEASIBILITY_TOL
 from calib_oed.feasibility.margins import margin_report
 from calib_oed.feasibility.sampling import sample_feasible
 from calib_oed.oed.criteria import CRITERIA, make_criterion
 from calib_oed.oed.criterion_base import Criterion
-from calib_oed.oed.exchange import exchange_design
+from calib_oed.oed.memory import check_memory
 from calib_oed.oed.objective import DesignObjective
 from calib_oed.oed.problem import DesignProblem, WorstCaseDesignProblem
 from calib_oed.oed.result import Design
+from calib_oed.oed.starts import (
+    DEFAULT_POOL,
+    CandidatePool,
+    candidate_pool,
+    check_start,
+    exchange_start,
+    given_start,
+    heuristic_start,
+)
 from calib_oed.scene.records import Scene
 from calib_oed.solver.sqp import SQPResult, SQPSettings, solve_sqp
 
@@ -104,6 +117,7 @@ def evaluate_design(
     seed: int | None = None,
     collisions: bool = True,
     aggregate: str = "mean",
+    certificate: dict | None = None,
 ) -> Design:
     r"""The :class:`~calib_oed.oed.result.Design` record of configurations ``q`` (n, nq).
 
@@ -138,27 +152,23 @@ def evaluate_design(
         seed=seed,
         collisions=collisions,
         method=method,
+        certificate=certificate or {},
     )
 
 
-#: Named start designs of :func:`design`.
-STARTS = ("heuristic", "exchange")
+#: Local maximisations of the certificate run after every design (``docs/oed.md``):
+#: on fms_kr16 8 starts give a bound within 0.2 % of 32 starts' in 6 s instead of 14 s.
+CERTIFICATE_STARTS = 8
 
 
-def _start_designs(s: Setup, n: int, start, seed: int, n_starts: int, criterion,
-                   pool: int) -> list[tuple[int | None, np.ndarray]]:
+def _start_designs(s: Setup, objective: DesignObjective, n: int, start, seed: int, n_starts: int,
+                   pool: CandidatePool | None, replicates: int) -> list[tuple[int | None, np.ndarray]]:
     if isinstance(start, str):
-        if start not in STARTS:
-            raise ValueError(f"start must be one of {', '.join(map(repr, STARTS))} or an (n, nq) "
-                             f"array of configurations, got {start!r}")
         if start == "exchange":
-            return [(seed + k, exchange_baseline(s, n, criterion, pool=pool, seed=seed + k).q)
+            return [(seed + k, exchange_start(objective, pool, n, seed + k, replicates)[0])
                     for k in range(n_starts)]
-        return [(seed + k, sample_feasible(s.feasibility, n, seed + k)) for k in range(n_starts)]
-    q0 = s.problem.robot.check_configurations(start, "start design")
-    if q0.shape[0] != n:
-        raise ShapeError("start design", f"({n}, {s.problem.robot.nq})", q0.shape)
-    return [(None, q0)]
+        return [(seed + k, heuristic_start(s, n, seed + k)) for k in range(n_starts)]
+    return [(None, given_start(s, start, n))]
 
 
 def design(
@@ -166,78 +176,151 @@ def design(
     n: int = 60,
     criterion: str | Criterion = "kpi",
     *,
-    start: str | np.ndarray = "heuristic",
+    start: str | np.ndarray = "exchange",
+    pool: int | np.ndarray = DEFAULT_POOL,
     seed: int = 0,
     n_starts: int = 1,
+    refine: bool = True,
+    replicates: int = 1,
+    certificate: bool = True,
     collisions: bool = True,
     settings: SQPSettings | None = None,
     callback=None,
-    pool: int = 3000,
     structured_hessian: bool = False,
     aggregate: str = "mean",
 ) -> Design:
-    r"""An optimal design of ``n`` measurement configurations.
+    r"""An optimal design of ``n`` measurement configurations, and how good it is.
+
+    The pipeline (``docs/oed.md``): (1) a pool of feasible candidates
+    (``pool`` random ones, or the user's); (2) the start: the exchange
+    algorithm's best ``n`` of the pool (default), random feasible poses, or a
+    given design; (3) local refinement by the SQP inside the feasible set
+    (``refine``); (4) the optimality certificate on the same pool: a lower
+    bound on the criterion of any feasible ``n``-pose design, and this
+    design's efficiency against it (``certificate``).
 
     Args:
         scene: A scene, or a :class:`~calib_oed.calibration.workflow.Setup` (reuses its
             feasibility model).
-        n: Number of poses.
+        n: Number of measurements (poses).
         criterion: A name of :data:`calib_oed.oed.criteria.CRITERIA` or a criterion.
-        start: ``"heuristic"`` (random feasible poses from ``seed``, the
-            paper's start), ``"exchange"`` (the exchange algorithm's best
-            ``n`` of ``pool`` random feasible poses for the same criterion:
-            a better basin, see docs/oed.md) or a design (n, nq) [rad].
-        seed: Seed of the heuristic start; start ``k`` of a multi-start uses
-            ``seed + k``. Same seed, same design up to rounding: ProxQP's
+        start: ``"exchange"`` (default: the exchange algorithm on the pool, the
+            good basin), ``"heuristic"`` (random feasible poses from ``seed``,
+            the paper's start) or a design (n, nq) [rad].
+        pool: Size of the random feasible pool drawn from ``seed``, or the
+            candidates themselves (N, nq) [rad]; infeasible ones are dropped
+            and counted in the record.
+        seed: Seed of the pool and the starts; start ``k`` of a multi-start
+            uses ``seed + k``. Same seed, same design up to rounding: ProxQP's
             results are not bitwise reproducible, so designs of one seed agree to
             about 1e-6 rad, not bit for bit.
-        n_starts: Run from this many heuristic starts and keep the best.
+        n_starts: Run from this many seeded starts and keep the best.
+        refine: Refine the start with the SQP (default); ``False`` keeps the
+            start (pure selection from the pool with ``start="exchange"``).
+        replicates: Each configuration may be measured up to this many times
+            (1: all distinct); the record's ``multiplicity`` says how many distinct
+            poses and how often each.
+        certificate: Compute the certificate and the efficiency (A criteria
+            ``kpi``/``params`` and ``D``, mean aggregate); the record says why
+            when it cannot.
         collisions: Impose the capsule and beam constraints (default), or only
             joint limits and incidence.
         settings: SQP settings (default :data:`DESIGN_SQP`).
         callback: Called with each SQP iteration record.
-        pool: Candidate pool of the ``"exchange"`` start.
         structured_hessian: Give the SQP the criterion's exact curvature
             through M (A and D criteria) plus per-pose BFGS blocks instead of
-            one dense BFGS matrix. Fewer iterations, but each QP is slower:
-            measured slower overall on fms_kr16 (docs/oed.md), so off by default.
+            one dense BFGS matrix.
         aggregate: ``"mean"`` (default: the criterion, for ``kpi`` the weighted
             mean variance of the KPI points) or ``"max"`` (criterion ``kpi``
             only: the worst-case variance :math:`\max_i v_i`, by the epigraph
-            problem :class:`~calib_oed.oed.problem.WorstCaseDesignProblem`;
-            a dense BFGS Hessian, ``structured_hessian`` is ignored).
+            problem :class:`~calib_oed.oed.problem.WorstCaseDesignProblem`).
 
     Returns:
-        The best design, with the SQP record of its run.
+        The best design, with the SQP record of its run and its certificate.
+
+    Raises:
+        DesignError: an unknown start, bad counts, a pool too small for ``n``.
+        calib_oed.exceptions.DesignMemoryError: ``n`` too large for the memory available.
     """
     s = _setup(scene)
-    if n_starts < 1:
-        raise ValueError(f"n_starts must be >= 1, got {n_starts}")
+    check_start(start)
+    n = int(n)
+    if n < 1:
+        raise DesignError("n", n, "a design needs at least one pose")
+    if int(n_starts) != n_starts or n_starts < 1:
+        raise DesignError("n_starts", n_starts, "an integer >= 1")
+    if int(replicates) != replicates or replicates < 1:
+        raise DesignError("replicates", replicates, "an integer >= 1 (1: every pose distinct)")
     _check_aggregate(aggregate, criterion)
-    best = None
-    t0 = time.perf_counter()
+    check_memory(n, s.problem.robot.nq, int(len(s.feasibility.labels)))
+    t0, cpu0 = time.perf_counter(), time.process_time()
     with threadpool_limits(limits=1, user_api="blas"):
-        run = _optimise_worst_case if aggregate == "max" else _optimise_starts
-        best = run(s, int(n), criterion, start, seed, n_starts, collisions,
-                   settings, callback, pool, structured_hessian)
-    value, q, phi0, result, start_seed = best
-    record = result.to_dict()
+        objective = DesignObjective(s.problem, criterion)
+        needs_pool = (isinstance(start, str) and start == "exchange") or certificate
+        cands = candidate_pool(s, pool, seed, collisions) if needs_pool else None
+        starts = _start_designs(s, objective, n, start, seed, int(n_starts), cands, int(replicates))
+        if not refine:
+            best = _best_start(objective, starts, aggregate)
+        else:
+            run = _optimise_worst_case if aggregate == "max" else _optimise_starts
+            best = run(s, starts, criterion, collisions, settings, callback, structured_hessian)
+        design_seconds, design_cpu = time.perf_counter() - t0, time.process_time() - cpu0
+        value, q, phi0, result, start_seed = best
+        cert = (_certificate(s, q, criterion, aggregate, cands, seed, collisions) if certificate
+                else {"skipped": "not asked for (--no-certificate)"})
+    record = {} if result is None else result.to_dict()
     record.pop("x", None)
     record.pop("multipliers", None)
-    if aggregate == "max":  # the epigraph variable at the end, t s [mm²]: bounds every v_i up to the violation
+    if aggregate == "max" and result is not None:  # the epigraph variable t s [mm²]: bounds every v_i
         record["epigraph_t_mm2"] = float(result.x[-1] * phi0)
+    record["start"] = start if isinstance(start, str) else "given"
+    record["pool"] = None if cands is None else cands.to_dict()
+    record["replicates"] = int(replicates)
+    record["cpu_seconds"] = design_cpu
+    named = start if isinstance(start, str) else "given"
+    method = f"{named}+sqp" if refine else named
     return evaluate_design(
-        s, q, criterion, method="sqp", start_value=phi0, solver=record,
-        seconds=time.perf_counter() - t0, seed=start_seed, collisions=collisions,
-        aggregate=aggregate,
+        s, q, criterion, method=method, start_value=phi0, solver=record,
+        seconds=design_seconds, seed=start_seed, collisions=collisions,
+        aggregate=aggregate, certificate=cert,
     )
 
 
-def _optimise_worst_case(s, n, criterion, start, seed, n_starts, collisions, settings, callback,
-                         pool, structured_hessian):
+def _best_start(objective: DesignObjective, starts, aggregate: str):
+    """The best start design without refinement: ``(value, q, value, None, seed)``."""
+    best = None
+    for start_seed, q0 in starts:
+        value = (float(objective.kpi_point_variances(q0).max()) if aggregate == "max"
+                 else objective.compute_value(q0))
+        if best is None or value < best[0]:
+            best = (value, q0, value, None, start_seed)
+    return best
+
+
+def _certificate(s: Setup, q: np.ndarray, criterion, aggregate: str, cands: CandidatePool,
+                 seed: int, collisions: bool) -> dict:
+    """The certificate of design ``q`` on the pool already drawn, as a record (or why not)."""
+    from calib_oed.oed.certificate import certify
+
+    if aggregate == "max":
+        return {"skipped": "no certificate for the worst-case KPI aggregate 'max' (mean only)"}
+    t0, cpu0 = time.perf_counter(), time.process_time()
+    try:
+        c = certify(s, q, criterion, pool=cands.q, seed=seed, local_starts=CERTIFICATE_STARTS,
+                    collisions=collisions)
+    except CertificateError as exc:
+        return {"skipped": str(exc)}
+    return {"efficiency": float(c.efficiency), "lower_bound": float(c.bound),
+            "lower_bound_pool": float(c.bound_pool), "kind": c.kind, "scope": c.scope,
+            "pool_size": int(c.pool_size), "local_starts": CERTIFICATE_STARTS,
+            "converged": bool(c.converged), "seconds": time.perf_counter() - t0,
+            "cpu_seconds": time.process_time() - cpu0}
+
+
+def _optimise_worst_case(s, starts, criterion, collisions, settings, callback, structured_hessian):
     """The epigraph SQP from every start; the best ``(max_i v_i, q, start max, result, seed)``."""
     best = None
-    for start_seed, q0 in _start_designs(s, n, start, seed, n_starts, criterion, pool):
+    for start_seed, q0 in starts:
         objective = DesignObjective(s.problem, criterion)
         v0 = float(objective.kpi_point_variances(q0).max())
         nlp = WorstCaseDesignProblem(objective, s.feasibility, len(q0), collisions=collisions,
@@ -254,11 +337,10 @@ def _optimise_worst_case(s, n, criterion, start, seed, n_starts, collisions, set
     return best
 
 
-def _optimise_starts(s, n, criterion, start, seed, n_starts, collisions, settings, callback, pool,
-                     structured_hessian):
+def _optimise_starts(s, starts, criterion, collisions, settings, callback, structured_hessian):
     """Run the SQP from every start; the best ``(value, q, phi0, result, seed)``."""
     best = None
-    for start_seed, q0 in _start_designs(s, n, start, seed, n_starts, criterion, pool):
+    for start_seed, q0 in starts:
         objective = DesignObjective(s.problem, criterion)
         value, q, phi0, result = optimise_from(objective, s.feasibility, q0, collisions=collisions,
                                                settings=settings, callback=callback,
@@ -300,28 +382,26 @@ def exchange_baseline(
     n: int = 60,
     criterion: str | Criterion = "kpi",
     *,
-    pool: int | np.ndarray = 3000,
+    pool: int | np.ndarray = DEFAULT_POOL,
     seed: int = 0,
+    replicates: int = 1,
 ) -> Design:
-    """The best n poses of a feasible candidate pool by the exchange algorithm.
+    """The best n poses of a feasible candidate pool by the exchange algorithm (no refinement).
 
     Args:
         pool: Number of random feasible candidates drawn from ``seed``, or the
-            candidates themselves (N, nq).
+            candidates themselves (N, nq); infeasible ones are dropped.
+        replicates: Each candidate may be chosen up to this many times.
     """
     s = _setup(scene)
     t0 = time.perf_counter()
-    if isinstance(pool, (int, np.integer)):
-        candidates = sample_feasible(s.feasibility, int(pool), seed, max_draws=50_000_000)
-    else:
-        candidates = s.problem.robot.check_configurations(pool, "candidate pool")
+    cands = candidate_pool(s, pool, seed)
     objective = DesignObjective(s.problem, criterion)
-    blocks = objective.compute_blocks(candidates)
     with threadpool_limits(limits=1, user_api="blas"):
-        result = exchange_design(blocks, n, objective.criterion, rng=seed)
-    q = candidates[np.asarray(result.indices)]
+        q, result = exchange_start(objective, cands, n, seed, replicates)
     record = result.to_dict()
-    record["pool"] = int(len(candidates))
+    record["pool"] = cands.to_dict()
+    record["replicates"] = int(replicates)
     return evaluate_design(
         s, q, criterion, method="exchange", start_value=result.initial_value, solver=record,
         seconds=time.perf_counter() - t0, seed=seed,

@@ -28,7 +28,11 @@ with :math:`M_0` an optional prior (measurements already taken) and
 and :math:`\partial\tilde F_j/\partial q_{j,k}` is the mixed derivative
 :math:`\partial^2 h/\partial p\,\partial q` of the measurement models
 (:meth:`calib_oed.measurement.MeasurementModel.compute_param_config_jacobian`),
-batched over poses. Derivation: ``docs/derivations.md`` §11.
+batched over poses. Derivation: ``docs/derivations.md`` §11. The exact
+Hessian for the A and D criteria (:meth:`DesignObjective.compute_hessian`,
+per-pose blocks plus a low-rank coupling, :mod:`calib_oed.oed.hessian`) also
+needs :math:`\partial^2\tilde F_j/\partial q_j^2`
+(``compute_param_config_hessian``); ``docs/derivations.md`` §13.
 """
 
 from __future__ import annotations
@@ -42,8 +46,10 @@ import scipy.linalg
 from calib_oed.calibration.problem import CalibrationProblem
 from calib_oed.exceptions import NotIdentifiableError, ShapeError
 from calib_oed.measurement import evaluate_setup
-from calib_oed.oed.criteria import ACriterion, DCriterion, make_criterion
+from calib_oed.oed.criteria import ACriterion, make_criterion
 from calib_oed.oed.criterion_base import Criterion
+from calib_oed.oed.hessian import coupling_factor, has_exact_hessian, structured_hessian
+from calib_oed.solver.result import StructuredHessian
 
 #: KPI entries of :math:`P`: metres to millimetres.
 _MM = 1e3
@@ -115,9 +121,9 @@ class DesignObjective:
             if prior.shape != (nf, nf):
                 raise ShapeError("prior information", f"({nf}, {nf})", prior.shape)
         self.prior = prior
-        # first-order pieces of the last few designs: the SQP asks for value, gradient
-        # and curvature at the same point
-        self._cache: dict[bytes, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        # first-order pieces (and the kinematic state) of the last few designs: the SQP
+        # asks for value, gradient and curvature at the same point
+        self._cache: dict[bytes, tuple] = {}
 
     @property
     def n_free(self) -> int:
@@ -172,6 +178,21 @@ class DesignObjective:
         ]
         return np.concatenate(blocks, axis=1) * self.scale[:, None]  # (n, d, n_f, nv)
 
+    def _row_hessians(self, state) -> np.ndarray | None:
+        out, start = None, 0
+        for mdl in self.problem.models:
+            dd = mdl.compute_param_config_hessian(state)
+            if dd is None:
+                return None
+            if out is None:
+                out = np.empty((dd.shape[0], sum(m.dim for m in self.problem.models), len(self.free))
+                               + dd.shape[3:])
+            rows = slice(start, start + mdl.dim)
+            start += mdl.dim
+            factor = self.scale[None, :] / mdl.sigma[:, None]  # (d, n_f)
+            np.multiply(dd[:, :, self.free], factor[None, :, :, None, None], out=out[:, rows])
+        return out  # (n, d, n_f, nv, nv)
+
     def compute_blocks(self, q: np.ndarray) -> np.ndarray:
         r"""Per-pose rows :math:`\tilde F_j`, (n, d, n_f), all models stacked per pose."""
         return self._rows(self._state(q, second_order=False))
@@ -197,6 +218,15 @@ class DesignObjective:
         """
         state = self._state(q, second_order=True)
         return RowDerivatives(self._rows(state), self._row_derivatives(state))
+
+    def compute_row_hessians(self, q: np.ndarray) -> np.ndarray | None:
+        r""":math:`\partial^2\tilde F_j/\partial q_{j,k}\,\partial q_{j,l}`, (n, d, n_f, nv, nv), or None.
+
+        The models' ``compute_param_config_hessian``, weighted, unit-scaled
+        and stacked as :meth:`compute_row_derivatives`; None when a model
+        does not provide it (or with joint compliance modelled).
+        """
+        return self._row_hessians(self._state(q, second_order=True))
 
     def information(self, blocks: np.ndarray) -> np.ndarray:
         """:math:`M = M_0 + \\sum_j \\tilde F_j^\\top \\tilde F_j` from per-pose blocks (n, d, n_f).
@@ -245,16 +275,46 @@ class DesignObjective:
 
     def _first_order(self, q: np.ndarray):
         """Rows, their q-derivatives and M at ``q`` (the last few cached by value)."""
+        return self._evaluated(q)[:3]
+
+    def _evaluated(self, q: np.ndarray):
+        """Rows, their q-derivatives, M and the kinematic state at ``q`` (cached)."""
         q = np.asarray(q, dtype=float)
         key = q.tobytes()
         cache = self._cache
         if key not in cache:
-            rows, d_rows = self.compute_row_derivatives(q)
+            state = self._state(q, second_order=True)
+            rows = self._rows(state)
+            d_rows = self._row_derivatives(state)
             info = self.information(rows)
             if len(cache) >= 4:
                 cache.pop(next(iter(cache)))
-            cache[key] = (rows, d_rows, info)
+            cache[key] = (rows, d_rows, info, state)
         return cache[key]
+
+    def compute_hessian(self, q: np.ndarray) -> StructuredHessian | None:
+        r"""The exact Hessian of :math:`\phi` in :math:`x = \mathrm{vec}(q)` (pose-major), or None.
+
+        :math:`\nabla^2\phi = \mathrm{blkdiag}(H_1..H_n) + UU^\top`: ``blocks``
+        :math:`H_j = \mathrm{tr}(\Gamma\,\partial_{kl}M)` (n, nv, nv), symmetric and
+        possibly indefinite, and ``low_rank`` :math:`U` (n·nv, r), the
+        positive semidefinite coupling :math:`\nabla^2\Phi(M)[M_a, M_b]` that
+        :meth:`compute_curvature` returns dense (:mod:`calib_oed.oed.hessian`,
+        ``docs/derivations.md`` §13). The prior :math:`M_0` enters through
+        :math:`M`. None for criteria other than A (``kpi``, ``params``) and D,
+        and when a measurement model has no second configuration derivative
+        (:meth:`compute_row_hessians`; e.g. with joint compliance modelled).
+        """
+        if not has_exact_hessian(self.criterion):
+            return None
+        rows, d_rows, info, state = self._evaluated(q)
+        dd_rows = self._row_hessians(state)
+        if dd_rows is None:
+            return None
+        try:
+            return structured_hessian(self.criterion, info, rows, d_rows, dd_rows)
+        except NotIdentifiableError as exc:
+            raise self._named(exc) from None
 
     def compute_curvature(self, q: np.ndarray) -> np.ndarray | None:
         r"""The criterion's exact curvature through :math:`M`, (n·nv, n·nv), or None.
@@ -272,30 +332,21 @@ class DesignObjective:
         criteria: A (:math:`\Phi = \mathrm{tr}(WC)/k`) gives
         :math:`\tfrac1k[\mathrm{tr}(P M_a C M_b) + \mathrm{tr}(P M_b C M_a)]`,
         :math:`P = CWC`; D (:math:`-\log\det M`) gives
-        :math:`\mathrm{tr}(C M_a C M_b)`. The second term is block diagonal
-        per pose (it needs :math:`\partial^2\tilde F_j/\partial q_j^2`) and is
-        left to the SQP's per-pose quasi-Newton blocks
-        (``docs/derivations.md`` §12). None for other criteria.
+        :math:`\mathrm{tr}(C M_a C M_b)`. Formed as :math:`UU^\top` from the
+        factor of :meth:`compute_hessian` (:func:`calib_oed.oed.hessian.coupling_factor`).
+        The second term is block diagonal per pose (it needs
+        :math:`\partial^2\tilde F_j/\partial q_j^2`): :meth:`compute_hessian`
+        has it, or the SQP's per-pose quasi-Newton blocks stand in for it
+        (``docs/derivations.md`` §12–13). None for other criteria.
         """
-        crit = self.criterion
-        if not isinstance(crit, (ACriterion, DCriterion)):
+        if not has_exact_hessian(self.criterion):
             return None
         rows, d_rows, info = self._first_order(q)
-        n, _, nf, nv = d_rows.shape
-        c = np.linalg.inv(info)
-        c = 0.5 * (c + c.T)
-        g = np.moveaxis(d_rows, 3, 1).reshape(n * nv, -1, nf)  # (a, d, nf)
-        f = np.repeat(rows, nv, axis=0)  # (a, d, nf)
-        half = np.einsum("adi,adj->aij", f, g)
-        m_a = half + np.transpose(half, (0, 2, 1))  # (a, nf, nf)
-        v = c @ m_a  # C M_a
-        if isinstance(crit, DCriterion):
-            x = np.einsum("aij,bji->ab", v, v)
-            return 0.5 * (x + x.T)
-        p = c @ np.asarray(crit.weight) @ c
-        u = p @ m_a  # P M_a
-        x = u.reshape(n * nv, -1) @ np.transpose(v, (0, 2, 1)).reshape(n * nv, -1).T
-        return (x + x.T) / crit.dim
+        try:
+            u = coupling_factor(self.criterion, info, rows, d_rows)
+        except NotIdentifiableError as exc:
+            raise self._named(exc) from None
+        return u @ u.T
 
     def compute(self, q: np.ndarray) -> DesignEvaluation:
         r""":math:`\phi(q)` and :math:`\partial\phi/\partial q` (n, nv), exact."""

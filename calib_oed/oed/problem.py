@@ -24,6 +24,7 @@ import scipy.sparse
 from calib_oed.feasibility.bodies import compute_body_states
 from calib_oed.feasibility.constraints import FeasibilityModel
 from calib_oed.oed.objective import DesignObjective
+from calib_oed.solver.result import StructuredHessian
 
 #: Constraint kinds of the design problem, with and without collision avoidance.
 COLLISION_KINDS = ("incidence", "self", "obstacle", "beam")
@@ -87,6 +88,33 @@ class DesignProblem:
         """
         h = self.objective.compute_curvature(self.configurations(x))
         return None if h is None else h / self.scale
+
+    def compute_lagrangian_hessian(self, x: np.ndarray, lam: np.ndarray) -> StructuredHessian | None:
+        r"""The exact Hessian of :math:`L = \phi/s - \lambda^\top g` in factored form, or None.
+
+        Per pose :math:`j` the block
+        :math:`\partial^2\phi/\partial q_j^2|_{\text{rows}}/s - \sum_i \lambda_{ji}\nabla^2 g_{ji}`
+        (the criterion's curvature through pose j's rows, derivations §13, and
+        the constraint curvature of :meth:`~calib_oed.feasibility.constraints.FeasibilityModel.compute_lagrangian_hessian`),
+        plus the exact coupling through :math:`M^{-1}` as :math:`U U^\top / s`.
+        None when the criterion has no exact Hessian (E, O1..O5, joint compliance).
+
+        Args:
+            x: The design (n·nq,) [rad].
+            lam: Multipliers of the stacked rows (n·m,), >= 0, in the order of
+                :meth:`compute_constraints`.
+        """
+        q = self.configurations(x)
+        obj = self.objective.compute_hessian(q)
+        if obj is None:
+            return None
+        blocks = obj.blocks / self.scale
+        lam = np.asarray(lam, dtype=float)
+        if lam.size and np.any(lam):
+            blocks = blocks - self.feasibility.compute_lagrangian_hessian(
+                q, lam.reshape(self.n, -1), kinds=self.kinds)
+        low = None if obj.low_rank is None else obj.low_rank / np.sqrt(self.scale)
+        return StructuredHessian(blocks, low)
 
     def compute_constraint_rows(self, x: np.ndarray, jacobian: bool = True):
         """Constraint values (n, m) and Jacobian (n, m, nq) or None."""

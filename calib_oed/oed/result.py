@@ -60,8 +60,15 @@ class Design:
         seconds: Wall time of the optimisation [s].
         seed: Seed of the start design.
         collisions: Whether collision constraints were imposed.
-        method: ``"sqp"`` (continuous optimisation), ``"exchange"`` (from a
-            candidate pool) or ``"heuristic"`` (random feasible poses).
+        method: How it was obtained: ``"exchange+sqp"`` (the default pipeline:
+            exchange start refined by the SQP), ``"heuristic+sqp"``,
+            ``"given+sqp"``, ``"exchange"`` (selection from a candidate pool
+            only), ``"heuristic"`` (random feasible poses) or ``"given"``.
+        certificate: The optimality certificate of the design
+            (:func:`calib_oed.oed.certificate.certify`): ``efficiency`` (<= 1),
+            ``lower_bound`` (the criterion no feasible design of n poses can
+            beat, in the criterion's unit), ``scope``, ``seconds``; or
+            ``skipped`` with the reason; {} when not computed.
     """
 
     scene: str
@@ -80,10 +87,24 @@ class Design:
     seed: int | None = None
     collisions: bool = True
     method: str = "sqp"
+    certificate: dict = field(default_factory=dict)
 
     @property
     def n(self) -> int:
         return int(self.q.shape[0])
+
+    @property
+    def efficiency(self) -> float | None:
+        """Efficiency against the certified lower bound (<= 1), or None without a certificate."""
+        value = self.certificate.get("efficiency")
+        return None if value is None else float(value)
+
+    @property
+    def multiplicity(self) -> list[int]:
+        """How often each distinct configuration is measured (order of first occurrence)."""
+        from calib_oed.oed.starts import multiplicities
+
+        return multiplicities(self.q)
 
     @property
     def kpi_variance(self) -> float:
@@ -117,11 +138,28 @@ class Design:
             lines.insert(3, f"  {len(self.kpi_names)} KPI points: mean variance {self.kpi_variance:.4g} mm² "
                          f"(weighted as the scene says), max {self.kpi_max_variance:.4g} mm² "
                          f"(sigma {np.sqrt(self.kpi_max_variance):.5f} mm) at {self.kpi_worst}")
-        if self.solver:
+        counts = self.multiplicity
+        if len(counts) < self.n:
+            lines.append(f"  {len(counts)} distinct poses for {self.n} measurements: "
+                         f"{sum(c > 1 for c in counts)} measured more than once (at most {max(counts)} times)")
+        if self.solver.get("status"):
             lines.append(f"  solver: {self.solver.get('status')}, {self.solver.get('iterations')} "
                          f"iterations, {self.solver.get('message', '')}")
+        lines.append(self.efficiency_line())
         lines.append(format_margins(list(self.margins)))
         return "\n".join(lines)
+
+    def efficiency_line(self) -> str:
+        """The certificate in one line: the efficiency, the bound, or why there is none."""
+        cert = self.certificate
+        if self.efficiency is not None:
+            return (f"  efficiency: {100 * self.efficiency:.1f} % of the best any {self.n}-pose "
+                    f"feasible design could reach (certified lower bound "
+                    f"{cert['lower_bound']:.4g} against {self.value:.4g}, criterion "
+                    f"{self.criterion!r}; certificate {cert.get('seconds', 0.0):.1f} s)")
+        if cert.get("skipped"):
+            return f"  efficiency: not certified ({cert['skipped']})"
+        return "  efficiency: not certified"
 
     def to_dict(self) -> dict:
         """A plain, YAML/JSON-safe record (SI configurations plus degrees)."""
@@ -145,6 +183,10 @@ class Design:
             "feasible": self.feasible,
             "margins": [vars(m) for m in self.margins],
             "seconds": self.seconds,
+            "efficiency": self.efficiency,
+            "certificate": dict(self.certificate),
+            "distinct_poses": len(self.multiplicity),
+            "multiplicity": self.multiplicity,
             "solver": self.solver,
         })
 

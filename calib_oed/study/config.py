@@ -23,7 +23,8 @@ from pathlib import Path
 
 from calib_oed.exceptions import StudyConfigError
 from calib_oed.oed.criteria import CRITERIA
-from calib_oed.oed.design import DESIGN_SQP, STARTS
+from calib_oed.oed.design import DESIGN_SQP
+from calib_oed.oed.starts import STARTS
 from calib_oed.scene.reader import load_scene
 from calib_oed.scene.records import Scene
 from calib_oed.scene.scaling import scaled_scene

@@ -48,7 +48,8 @@ from calib_oed.exceptions import CalibOedError, StudyConfigError
 from calib_oed.model.kuka import NOTIONAL_LAMBDAS, NOTIONAL_MUS
 from calib_oed.model.registry import NOTIONAL_PATTERN
 from calib_oed.oed.criteria import CRITERIA
-from calib_oed.oed.design import DESIGN_SQP, STARTS
+from calib_oed.oed.design import DESIGN_SQP
+from calib_oed.oed.starts import STARTS
 from calib_oed.scene.reader import load_scene, scene_names
 from calib_oed.scene.scaling import kuka_dimensions
 from calib_oed.study.config import (

@@ -34,7 +34,8 @@ def kr16_pool(kr16):
 
 def test_certificate_is_below_random_exchange_and_sqp_designs(kr16, kr16_pool):
     n = 30
-    sqp = design(kr16, n, "kpi", seed=4, settings=SQPSettings(max_iterations=15))
+    sqp = design(kr16, n, "kpi", start="heuristic", seed=4, settings=SQPSettings(max_iterations=15),
+                 certificate=False)
     c = cert.certify(kr16, sqp.q, "kpi", pool=kr16_pool, local_starts=8, verify_starts=16,
                      local_rounds=4, local_iterations=40)
     assert c.converged and c.check() <= c.tol and c.holds()

@@ -66,3 +66,29 @@ def test_bad_scale(kr16):
     objective = DesignObjective(kr16.problem, "kpi")
     with pytest.raises(ValueError, match="scale"):
         DesignProblem(objective, kr16.feasibility, 3, scale=0.0)
+
+
+@pytest.mark.parametrize("criterion", ["kpi", "D"])
+def test_lagrangian_hessian_matches_differences_of_the_lagrangian_gradient(kr16, criterion):
+    """Per-pose blocks (criterion through the rows, constraint curvature) plus the coupling
+    U U^T equal central differences of grad(phi/s) - A^T lam, with random multipliers."""
+    s = kr16
+    n = 10
+    nlp = DesignProblem(DesignObjective(s.problem, criterion), s.feasibility, n, scale=2e-5)
+    x = heuristic_design(s, n, 0).ravel()
+    c, _ = nlp.compute_constraints(x)
+    rng = np.random.default_rng(0)
+    lam = rng.random(c.size) * (rng.random(c.size) < 0.2)
+    hess = nlp.compute_lagrangian_hessian(x, lam)
+    assert hess.blocks.shape == (n, 6, 6) and hess.low_rank.shape[0] == n * 6
+
+    def gradient(y):
+        _, g = nlp.compute_objective(y)
+        _, jac = nlp.compute_constraints(y)
+        return g - jac.T @ lam
+
+    fd = central_difference(gradient, x)
+    assert np.abs(hess.dense() - fd).max() <= 1e-6 * np.abs(fd).max()
+    # without multipliers only the criterion remains
+    plain = nlp.compute_lagrangian_hessian(x, np.zeros_like(lam))
+    assert not np.allclose(plain.blocks, hess.blocks)

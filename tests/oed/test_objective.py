@@ -163,3 +163,145 @@ def test_curvature_is_the_criterion_hessian_along_dm(criterion):
 def test_no_curvature_for_eigenvalue_criteria(robot):
     objective = DesignObjective(_problem(robot), "E")
     assert objective.compute_curvature(robot.random_configurations(8, 1)) is None
+
+
+# ------------------------------------------------------------------ exact Hessian
+_MIXED: dict = {}
+
+
+def _mixed_problem(robot):
+    """Position and pose models on both reflectors, two KPI points (one problem per robot)."""
+    if robot.name not in _MIXED:
+        space = make_space(robot)
+        kpi = TcpKpi(robot.random_configurations(2, 5), point=np.array([0.0, 0.0, 0.1]))
+        models = [TrackerPosition(0), PoseMeasurement(1, sigma=2e-5, sigma_angle=3e-5),
+                  TrackerPosition(1, sigma=1.5e-5)]
+        _MIXED[robot.name] = CalibrationProblem(space, models, kpi, GenericDesign(n=60, seed=0))
+    return _MIXED[robot.name]
+
+
+def _gradient_differences(objective, q, eps=1e-5):
+    """Central differences of the exact gradient, (n nv, n nv), x = q.ravel()."""
+    return central_difference(lambda x: objective.compute(x.reshape(q.shape)).gradient.ravel(),
+                              q.ravel(), eps)
+
+
+def test_row_hessians_match_differences_of_the_row_derivatives(robot):
+    objective = DesignObjective(_mixed_problem(robot), "kpi")
+    q = robot.random_configurations(3, 37)
+    dd = objective.compute_row_hessians(q)
+    rows, d_rows = objective.compute_row_derivatives(q)
+    assert dd.shape == d_rows.shape + (q.shape[1],)
+    for j in range(len(q)):
+
+        def derivatives_of(x, j=j):
+            qq = q.copy()
+            qq[j] = x
+            return objective.compute_row_derivatives(qq).derivatives[j]
+
+        assert relative_error(dd[j], central_difference(derivatives_of, q[j], 1e-4)) < 1e-6
+
+
+@pytest.mark.parametrize("criterion", ["kpi", "params", "D"])
+def test_hessian_matches_differences_of_the_gradient(robot, criterion):
+    """compute_hessian().dense() is the exact Hessian: central differences of the exact gradient."""
+    objective = DesignObjective(_mixed_problem(robot), criterion)
+    q = robot.random_configurations(8, 38)
+    hess = objective.compute_hessian(q)
+    n, nv = q.shape
+    assert hess.blocks.shape == (n, nv, nv)
+    assert np.allclose(hess.blocks, np.transpose(hess.blocks, (0, 2, 1)), rtol=0, atol=0)
+    assert relative_error(hess.dense(), _gradient_differences(objective, q)) < 1e-6
+
+
+def test_hessian_with_prior_weights_and_perturbed_parameters(robot):
+    """Prior information, weighted KPI points and sensitivities at non-nominal p."""
+    problem = _mixed_problem(robot)
+    base = DesignObjective(problem, "kpi")
+    prior = base.compute_information(robot.random_configurations(10, 3))
+    crit = ACriterion.kpi(base.kpi_jacobian(), weights=[1.0, 3.0])
+    objective = DesignObjective(problem, crit, p=problem.space.random(2, 1e-3, 1e-3), prior=prior)
+    q = robot.random_configurations(4, 39)  # fewer poses than parameters: the prior makes M regular
+    hess = objective.compute_hessian(q)
+    assert relative_error(hess.dense(), _gradient_differences(objective, q)) < 1e-6
+
+
+@pytest.mark.parametrize("criterion", ["kpi", "params", "D"])
+def test_hessian_low_rank_part_is_the_curvature_through_m(criterion):
+    """U U^T = compute_curvature (PSD); U's columns: r_W n_f for A, n_f(n_f+1)/2 for D."""
+    from calib_oed import load_robot
+
+    robot = load_robot("kr16")
+    objective = DesignObjective(_mixed_problem(robot), criterion)
+    q = robot.random_configurations(8, 40)
+    hess = objective.compute_hessian(q)
+    low = hess.low_rank
+    curvature = objective.compute_curvature(q)
+    assert relative_error(low @ low.T, _dense_curvature(objective, q)) < 1e-12
+    assert np.array_equal(curvature, low @ low.T)
+    nf = objective.n_free
+    cols = {"kpi": 6 * nf, "params": nf * nf, "D": nf * (nf + 1) // 2}[criterion]  # 2 KPI points
+    assert low.shape == (q.size, cols)
+    eig = np.linalg.eigvalsh(low @ low.T)
+    assert eig.min() >= -1e-12 * eig.max()
+    # the pose blocks are the rest: dense Hessian minus the coupling, zero off the diagonal blocks
+    rest = hess.dense() - curvature
+    nv = q.shape[1]
+    for j in range(len(q)):
+        rest[j * nv:(j + 1) * nv, j * nv:(j + 1) * nv] -= hess.blocks[j]
+    assert np.abs(rest).max() <= 1e-12 * np.abs(curvature).max()
+
+
+def _dense_curvature(objective, q):
+    """The coupling formed directly: (2/k) tr(P M_a C M_b) for A, tr(C M_a C M_b) for D."""
+    rows, d_rows = objective.compute_row_derivatives(q)
+    n, _, nf, nv = d_rows.shape
+    c = np.linalg.inv(objective.compute_information(q))
+    half = np.einsum("jdf,jdgk->jkfg", rows, d_rows).reshape(n * nv, nf, nf)
+    v = c @ (half + np.transpose(half, (0, 2, 1)))  # C M_a
+    crit = objective.criterion
+    if isinstance(crit, ACriterion):
+        x = (c @ crit.weight @ v).reshape(n * nv, -1) @ np.transpose(v, (0, 2, 1)).reshape(n * nv, -1).T
+        return (x + x.T) / crit.dim
+    return np.einsum("aij,bji->ab", v, v)
+
+
+def test_hessian_of_a_singular_design_names_the_parameters():
+    from calib_oed import load_robot
+    from calib_oed.exceptions import NotIdentifiableError
+
+    robot = load_robot("ur5")
+    objective = DesignObjective(_problem(robot), "D")
+    q = np.repeat(robot.random_configurations(1, 4), 20, axis=0)  # one pose, 20 times
+    for method in (objective.compute_hessian, objective.compute_curvature):
+        with pytest.raises(NotIdentifiableError) as err:
+            method(q)
+        assert set(err.value.names) <= set(objective.free_names)
+
+
+@pytest.mark.parametrize("criterion", ["E", "O1", "O3"])
+def test_no_hessian_for_eigenvalue_criteria(criterion):
+    from calib_oed import load_robot
+
+    robot = load_robot("ur5")
+    objective = DesignObjective(_problem(robot), criterion)
+    assert objective.compute_hessian(robot.random_configurations(8, 1)) is None
+
+
+def test_no_hessian_with_compliance():
+    """With joint compliance the rows' second derivative would need d2 tau_g/dq2: None (fall back)."""
+    from calib_oed import load_robot
+    from calib_oed.model.compliance import Compliance
+    from calib_oed.model.parameters import ParameterSpace
+
+    base = make_space(load_robot("ur5"))
+    space = ParameterSpace(base.robot, base.tracker_placement(None), base.reflector_offsets(None),
+                           compliance=Compliance(10.0, [0.0, 0.0, 0.1]))
+    kpi = TcpKpi(base.robot.random_configurations(1, 5), point=np.array([0.0, 0.0, 0.1]))
+    problem = CalibrationProblem(space, [TrackerPosition(0), TrackerPosition(1)], kpi,
+                                 GenericDesign(n=60, seed=0))
+    objective = DesignObjective(problem, "kpi")
+    q = base.robot.random_configurations(8, 2)
+    assert objective.compute_row_hessians(q) is None
+    assert objective.compute_hessian(q) is None
+    assert objective.compute(q).gradient.shape == q.shape  # first order unaffected

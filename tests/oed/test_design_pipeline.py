@@ -1,0 +1,116 @@
+"""The default design pipeline: exchange start on a pool, SQP refinement, certificate; pools
+given by the user, pure selection, replicates, the memory check, and the CLI flags."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import yaml
+
+from calib_oed.calibration.workflow import setup
+from calib_oed.cli import EXIT_BAD_INPUT, EXIT_OK, main
+from calib_oed.exceptions import DesignError, DesignMemoryError
+from calib_oed.io.design_file import write_design_csv
+from calib_oed.oed import memory
+from calib_oed.oed.design import design, exchange_baseline
+from calib_oed.oed.starts import multiplicities
+from calib_oed.scene.reader import load_scene
+from calib_oed.solver.sqp import SQPSettings
+
+N = 12
+FEW = SQPSettings(max_iterations=15)
+
+
+@pytest.fixture(scope="module")
+def kr16():
+    return setup(load_scene("fms_kr16"))
+
+
+@pytest.fixture(scope="module")
+def default(kr16):
+    """The default call (small pool and few iterations to keep the test short)."""
+    return design(kr16, N, "kpi", pool=400, settings=FEW)
+
+
+def test_default_is_exchange_refined_and_certified(kr16, default):
+    ex = exchange_baseline(kr16, N, "kpi", pool=400, seed=0)
+    assert default.method == "exchange+sqp" and default.feasible
+    assert np.isclose(default.start_value, ex.value, rtol=1e-9)  # starts from the exchange design
+    assert default.value <= ex.value * (1 + 1e-9)
+    cert = default.certificate
+    # the bound holds for every n-pose design, this one included: efficiency = bound / value <= 1
+    assert 0 < cert["lower_bound"] <= default.value
+    assert default.efficiency == pytest.approx(cert["lower_bound"] / default.value, rel=1e-12)
+    assert cert["pool_size"] >= 400  # the exchange's pool, reused (plus the design's poses)
+    assert ex.value >= cert["lower_bound"]  # the exchange design cannot beat it either
+    assert "efficiency:" in default.summary() and f"{N}-pose" in default.summary()
+    data = default.to_dict()
+    assert data["efficiency"] == default.efficiency and data["distinct_poses"] == N
+    assert data["solver"]["pool"] == {"size": 400, "source": "random", "seed": 0, "rejected": 0}
+
+
+def test_no_refine_is_pure_selection(kr16):
+    ex = exchange_baseline(kr16, N, "kpi", pool=400, seed=0)
+    sel = design(kr16, N, "kpi", pool=400, refine=False, certificate=False)
+    assert sel.method == "exchange" and np.array_equal(sel.q, ex.q) and sel.value == ex.value
+
+
+def test_given_pool_drops_infeasible_candidates(kr16):
+    good = exchange_baseline(kr16, 30, "kpi", pool=200, seed=1).q
+    bad = np.tile(kr16.problem.robot.upper, (3, 1))  # at the joint limits: violates the 1 deg margin
+    assert not kr16.feasibility.compute(bad, jacobian=False).feasible.any()
+    d = design(kr16, N, "kpi", pool=np.vstack([bad, good]), refine=False, certificate=False)
+    assert d.solver["pool"] == {"size": 30, "source": "given", "seed": None, "rejected": 3}
+    assert all(any(np.array_equal(row, g) for g in good) for row in d.q)  # selected from the pool
+    with pytest.raises(DesignError, match="none is feasible"):
+        design(kr16, N, "kpi", pool=bad, certificate=False)
+    with pytest.raises(DesignError, match="at most 30 poses"):
+        design(kr16, 31, "kpi", pool=good, refine=False, certificate=False)
+
+
+def test_replicates_use_fewer_distinct_poses(kr16):
+    """12 measurements from a pool of 9: only possible by measuring poses again."""
+    pool = exchange_baseline(kr16, 9, "kpi", pool=200, seed=2).q
+    d = design(kr16, N, "kpi", pool=pool, replicates=3, refine=False, certificate=False)
+    counts = multiplicities(d.q)
+    assert sum(counts) == N and len(counts) <= 9 and max(counts) <= 3
+    assert d.to_dict()["multiplicity"] == counts and "distinct poses" in d.summary()
+    # refinement moves copies together (the problem is symmetric under swapping them)
+    r = design(kr16, N, "kpi", pool=pool, replicates=3, settings=SQPSettings(max_iterations=5),
+               certificate=False)
+    assert len(multiplicities(r.q)) <= 9 and r.value <= d.value * (1 + 1e-9)
+    with pytest.raises(DesignError, match="replicates"):
+        design(kr16, N, "kpi", replicates=0)
+
+
+def test_multiplicities_group_equal_poses():
+    q = np.random.default_rng(0).random((5, 6))
+    assert multiplicities(np.vstack([q, q[[0, 0, 3]]])) == [3, 1, 1, 2, 1]
+    assert multiplicities(np.vstack([q, q[:1] + 1e-3])) == [1] * 6
+
+
+def test_memory_check_names_the_largest_n(kr16, monkeypatch):
+    monkeypatch.setattr(memory, "_available_memory", lambda: 2.0 * 2**30)
+    with pytest.raises(DesignMemoryError) as info:
+        design(kr16, 4000, "kpi")
+    err = info.value
+    assert 0 < err.largest_n < 4000 and "GiB" in str(err) and str(err.largest_n) in str(err)
+    memory.check_memory(err.largest_n, 6, len(kr16.feasibility.labels))  # that one fits
+    with pytest.raises(DesignMemoryError):
+        memory.check_memory(err.largest_n + 1, 6, len(kr16.feasibility.labels))
+
+
+def test_cli_pool_file_replicates_and_no_certificate(tmp_path, kr16, capsys):
+    pool = exchange_baseline(kr16, 10, "kpi", pool=200, seed=2).q
+    write_design_csv(tmp_path / "pool.csv", kr16.problem.robot, pool)
+    out = tmp_path / "d"
+    assert main(["design", "fms_kr16", "-n", "14", "--pool", str(tmp_path / "pool.csv"),
+                 "--replicates", "2", "--no-refine", "--no-certificate", "-o", str(out),
+                 "--quiet"]) == EXIT_OK
+    data = yaml.safe_load((out / "design.yaml").read_text())
+    assert data["method"] == "exchange" and data["distinct_poses"] <= 10
+    assert sum(data["multiplicity"]) == 14 and data["certificate"]["skipped"].startswith("not asked")
+    capsys.readouterr()
+    assert main(["design", "fms_kr16", "--pool", str(tmp_path / "missing.csv")]) == EXIT_BAD_INPUT
+    err = capsys.readouterr().err
+    assert "--pool" in err and len(err.strip().splitlines()) == 1
