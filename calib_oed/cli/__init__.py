@@ -116,6 +116,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-certificate", action="store_true",
                    help="skip the optimality certificate (the efficiency against a lower bound "
                    "valid for any feasible design of this size)")
+    p.add_argument("--hessian", choices=("exact", "bfgs"), default="exact",
+                   help="SQP curvature: the exact Lagrangian Hessian (default; criteria kpi, "
+                   "params, D) or damped BFGS")
     p.add_argument("--seed", type=int, default=0, help="seed of the pool and the start (default 0)")
     p.add_argument("--starts", type=_positive_int, default=1,
                    help="multi-start: keep the best of this many seeded starts (default 1)")

@@ -149,6 +149,7 @@ def _optimise(s, args, criterion: str, start, aggregate: str = "mean"):
                       refine=not getattr(args, "no_refine", False),
                       replicates=getattr(args, "replicates", 1),
                       certificate=not getattr(args, "no_certificate", False),
+                      hessian=getattr(args, "hessian", "exact"),
                       settings=_sqp_settings(args), callback=callback, aggregate=aggregate)
     finally:
         if bar is not None:

@@ -12,6 +12,7 @@
 
 from __future__ import annotations
 
+import inspect
 import time
 from collections.abc import Sequence
 
@@ -29,6 +30,7 @@ from calib_oed.feasibility.margins import margin_report
 from calib_oed.feasibility.sampling import sample_feasible
 from calib_oed.oed.criteria import CRITERIA, make_criterion
 from calib_oed.oed.criterion_base import Criterion
+from calib_oed.oed.hessian import has_exact_hessian
 from calib_oed.oed.memory import check_memory
 from calib_oed.oed.objective import DesignObjective
 from calib_oed.oed.problem import DesignProblem, WorstCaseDesignProblem
@@ -156,6 +158,9 @@ def evaluate_design(
     )
 
 
+#: Curvature models of the design SQP: the exact Lagrangian Hessian (default), or damped BFGS.
+HESSIANS = ("exact", "bfgs")
+
 #: Local maximisations of the certificate run after every design (``docs/oed.md``):
 #: on fms_kr16 8 starts give a bound within 0.2 % of 32 starts' in 6 s instead of 14 s.
 CERTIFICATE_STARTS = 8
@@ -188,6 +193,7 @@ def design(
     callback=None,
     structured_hessian: bool = False,
     aggregate: str = "mean",
+    hessian: str = "exact",
 ) -> Design:
     r"""An optimal design of ``n`` measurement configurations, and how good it is.
 
@@ -229,7 +235,10 @@ def design(
         callback: Called with each SQP iteration record.
         structured_hessian: Give the SQP the criterion's exact curvature
             through M (A and D criteria) plus per-pose BFGS blocks instead of
-            one dense BFGS matrix.
+            one dense BFGS matrix (the earlier structured form; overrides ``hessian``).
+        hessian: ``"exact"`` (default: the exact Lagrangian Hessian, per-pose
+            blocks plus the low-rank coupling, where the criterion has one:
+            ``kpi``, ``params``, ``D``) or ``"bfgs"`` (damped BFGS).
         aggregate: ``"mean"`` (default: the criterion, for ``kpi`` the weighted
             mean variance of the KPI points) or ``"max"`` (criterion ``kpi``
             only: the worst-case variance :math:`\max_i v_i`, by the epigraph
@@ -263,7 +272,8 @@ def design(
             best = _best_start(objective, starts, aggregate)
         else:
             run = _optimise_worst_case if aggregate == "max" else _optimise_starts
-            best = run(s, starts, criterion, collisions, settings, callback, structured_hessian)
+            best = run(s, starts, criterion, collisions, settings, callback, structured_hessian,
+                       hessian)
         design_seconds, design_cpu = time.perf_counter() - t0, time.process_time() - cpu0
         value, q, phi0, result, start_seed = best
         cert = (_certificate(s, q, criterion, aggregate, cands, seed, collisions) if certificate
@@ -310,14 +320,19 @@ def _certificate(s: Setup, q: np.ndarray, criterion, aggregate: str, cands: Cand
                     collisions=collisions)
     except CertificateError as exc:
         return {"skipped": str(exc)}
+    rounds = inspect.signature(certify).parameters["local_rounds"].default
     return {"efficiency": float(c.efficiency), "lower_bound": float(c.bound),
+            # the search ended by finding no better local maximum (else: at its round limit,
+            # and the bound is only as good as the maxima found so far)
+            "search_complete": bool(c.local_rounds < rounds),
             "lower_bound_pool": float(c.bound_pool), "kind": c.kind, "scope": c.scope,
             "pool_size": int(c.pool_size), "local_starts": CERTIFICATE_STARTS,
             "converged": bool(c.converged), "seconds": time.perf_counter() - t0,
             "cpu_seconds": time.process_time() - cpu0}
 
 
-def _optimise_worst_case(s, starts, criterion, collisions, settings, callback, structured_hessian):
+def _optimise_worst_case(s, starts, criterion, collisions, settings, callback, structured_hessian,
+                         hessian):
     """The epigraph SQP from every start; the best ``(max_i v_i, q, start max, result, seed)``."""
     best = None
     for start_seed, q0 in starts:
@@ -337,14 +352,16 @@ def _optimise_worst_case(s, starts, criterion, collisions, settings, callback, s
     return best
 
 
-def _optimise_starts(s, starts, criterion, collisions, settings, callback, structured_hessian):
+def _optimise_starts(s, starts, criterion, collisions, settings, callback, structured_hessian,
+                     hessian):
     """Run the SQP from every start; the best ``(value, q, phi0, result, seed)``."""
     best = None
     for start_seed, q0 in starts:
         objective = DesignObjective(s.problem, criterion)
         value, q, phi0, result = optimise_from(objective, s.feasibility, q0, collisions=collisions,
                                                settings=settings, callback=callback,
-                                               structured_hessian=structured_hessian)
+                                               structured_hessian=structured_hessian,
+                                               hessian=hessian)
         if best is None or value < best[0]:
             best = (value, q, phi0, result, start_seed)
     return best
@@ -352,12 +369,17 @@ def _optimise_starts(s, starts, criterion, collisions, settings, callback, struc
 
 def optimise_from(objective: DesignObjective, feasibility, q0: np.ndarray, *, collisions: bool = True,
                   settings: SQPSettings | None = None, callback=None,
-                  structured_hessian: bool = False) -> tuple[float, np.ndarray, float, SQPResult]:
+                  structured_hessian: bool = False,
+                  hessian: str = "exact") -> tuple[float, np.ndarray, float, SQPResult]:
     r"""One SQP run of ``objective`` (its prior and parameters included) from the design ``q0``.
 
     The objective is divided by :math:`|\phi(q^0)|` (log-type criteria can be
     negative) so the solver sees O(1) numbers; a last iterate that violates a
-    constraint is projected back onto the feasible set.
+    constraint is projected back onto the feasible set. ``hessian="exact"``
+    gives the SQP the exact Lagrangian Hessian
+    (:meth:`~calib_oed.oed.problem.DesignProblem.compute_lagrangian_hessian`)
+    where the criterion has one (A, D; not with joint compliance), else
+    the SQP's damped BFGS; ``"bfgs"`` always the latter.
 
     Returns:
         ``(value, q, start value, SQP result)``: the criterion at the final design ``q`` (n, nq).
@@ -365,11 +387,15 @@ def optimise_from(objective: DesignObjective, feasibility, q0: np.ndarray, *, co
     phi0 = objective.compute_value(q0)
     nlp = DesignProblem(objective, feasibility, len(q0), collisions=collisions,
                         scale=max(abs(phi0), 1e-300))
+    if hessian not in HESSIANS:
+        raise DesignError("hessian", hessian, "how the SQP models curvature", HESSIANS)
     structured = structured_hessian and nlp.compute_curvature(q0.ravel()) is not None
+    exact = (hessian == "exact" and not structured and has_exact_hessian(objective.criterion))
     result = solve_sqp(nlp.compute_objective, q0.ravel(), constraints=nlp.compute_constraints,
                        bounds=nlp.bounds, settings=settings or DESIGN_SQP, callback=callback,
                        hessian_model=nlp.compute_curvature if structured else None,
-                       block_size=nlp.nq)
+                       block_size=nlp.nq,
+                       lagrangian_hessian=nlp.compute_lagrangian_hessian if exact else None)
     x = result.x
     if nlp.max_violation(x) > FEASIBILITY_TOL:
         x = project_feasible(nlp, x)

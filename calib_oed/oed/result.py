@@ -156,7 +156,10 @@ class Design:
             return (f"  efficiency: {100 * self.efficiency:.1f} % of the best any {self.n}-pose "
                     f"feasible design could reach (certified lower bound "
                     f"{cert['lower_bound']:.4g} against {self.value:.4g}, criterion "
-                    f"{self.criterion!r}; certificate {cert.get('seconds', 0.0):.1f} s)")
+                    f"{self.criterion!r}; certificate {cert.get('seconds', 0.0):.1f} s"
+                    + ("" if cert.get("search_complete", True) else
+                       "; its search for better poses hit its round limit, so the bound is only "
+                       "as good as the poses it found") + ")")
         if cert.get("skipped"):
             return f"  efficiency: not certified ({cert['skipped']})"
         return "  efficiency: not certified"

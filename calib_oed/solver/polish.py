@@ -14,7 +14,7 @@ import numpy as np
 import scipy.linalg
 import scipy.sparse as sp
 
-from calib_oed.solver.qp import QPStep, QPSubproblem, matvec
+from calib_oed.solver.qp import QPStep, QPSubproblem, as_dense, matvec
 
 
 def _solve_kkt(kkt, rhs):
@@ -59,9 +59,10 @@ def polish(sub: QPSubproblem, step: QPStep, tol: float = 1e-9) -> QPStep | None:
     Rows or box components the result violates join the active set (up to
     three rounds). A singular system (degenerate active set) is solved in the
     least-squares sense. The result is returned only if it is a KKT point of
-    the QP to ``tol`` (signs of :math:`\lambda, \nu` included).
+    the QP to ``tol`` (signs of :math:`\lambda, \nu` included). A structured
+    :math:`H` is made dense (the caller skips the polish for large :math:`n`).
     """
-    H, g, lower, bl, bu = sub.H, sub.g, sub.lower, sub.box_lower, sub.box_upper
+    H, g, lower, bl, bu = as_dense(sub.H), sub.g, sub.lower, sub.box_lower, sub.box_upper
     C = sub.C.toarray() if sp.issparse(sub.C) else np.asarray(sub.C)
     scale = tol * max(1.0, float(np.max(np.abs(step.lam), initial=0.0)),
                       float(np.max(np.abs(step.nu), initial=0.0)))

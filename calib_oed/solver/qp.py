@@ -37,17 +37,29 @@ Traps of ProxQP (proxsuite 0.8.0) handled here:
   the solver itself returns (:class:`DenseQPWorkspace` writes the guess into
   the result vectors instead);
 * sparse ``update`` silently keeps the old matrices when the new ones have
-  another sparsity pattern (:class:`SparseQPWorkspace` rebuilds instead).
+  another sparsity pattern (:class:`SparseQPWorkspace` rebuilds instead);
+* its sparse ``Automatic`` backend picks an iterative (matrix-free) KKT solver
+  when it expects fill, ~500x slower on the lifted QP: the Cholesky one is forced;
+* it allocates with a library that calls ``std::terminate`` when memory runs
+  out: a dense QP of 420 variables and 31,616 rows aborted the whole process
+  ("terminate called without an active exception"). Sizes are therefore
+  checked *before* a QP object is built (:class:`QPSizeError`).
 
 Two backends: :class:`DenseQPWorkspace` (ProxQP dense, native box constraints,
-one QP object reused across iterations with a fixed row capacity) and
-:class:`SparseQPWorkspace` (ProxQP sparse, box as identity rows, rebuilt
-whenever the kept rows change). ``bench/bench_sqp_qp.py`` compares them:
-dense is 1.8-3.4x faster on QPs shaped like the design problem's.
+one QP object reused across iterations with a fixed row capacity, at most
+``max_capacity`` rows) and :class:`SparseQPWorkspace` (ProxQP sparse, box as
+identity rows, rebuilt whenever the kept rows change, at most ``max_nonzeros``
+nonzeros). ``bench/bench_sqp_qp.py`` compares them: dense was 1.8-3.4x faster
+on QPs shaped like the design problem's (400 rows) when the SQP was written;
+re-measured for issue 16 (``--rows 400/1000/1600 --qps 5``, shared 2-core
+machine) sparse took 0.4-0.9x the dense time at every size.
+A third, :class:`calib_oed.solver.lifted.LiftedQPWorkspace`, takes a
+:class:`~calib_oed.solver.result.StructuredHessian` in factored form.
 
 This module owns the subproblem and step records and the two workspaces;
 the active-set polish is :mod:`calib_oed.solver.polish`, the infeasible
-subproblems (unreachable rows, elastic QP) are :mod:`calib_oed.solver.restoration`.
+subproblems (unreachable rows, elastic QP) are :mod:`calib_oed.solver.restoration`,
+the choice of workspace and the capture of its failures :mod:`calib_oed.solver.subproblem`.
 """
 
 from __future__ import annotations
@@ -68,25 +80,38 @@ _STATUS_NAMES = {
 }
 
 
+class QPSizeError(RuntimeError):
+    """A QP larger than the workspace's bound: refused before ProxQP allocates (module docstring)."""
+
+
 def matvec(M, v) -> np.ndarray:
-    """:math:`M v` without waking BLAS threads for a dense :math:`M` (scipy sparse as usual).
+    """:math:`M v` without waking BLAS threads for a dense :math:`M` (scipy sparse and
+    :class:`~calib_oed.solver.result.StructuredHessian` through their ``@``).
 
     OpenBLAS runs a 360 x 360 ``dgemv`` on all cores and its threads then spin
     for a while, competing with ProxQP (single-threaded) for the CPU: on two
     cores that cost the SQP ~30 % of its time. ``einsum`` without
     ``optimize`` is a plain single-threaded loop, fast enough here.
     """
-    if sp.issparse(M):
+    if not isinstance(M, np.ndarray):
         return M @ v
     return np.einsum("ij,j->i", M, v)
+
+
+def as_dense(H) -> np.ndarray:
+    """The (n, n) ndarray of a dense, scipy sparse or structured Hessian."""
+    if isinstance(H, np.ndarray):
+        return H
+    return H.toarray() if sp.issparse(H) else H.dense()
 
 
 class QPSubproblem(NamedTuple):
     r"""Data of :math:`\min \tfrac12 d^\top H d + g^\top d` s.t. :math:`C d \ge \ell`, :math:`\underline{b} \le d \le \overline{b}`.
 
     Attributes:
-        H: :math:`H \in \mathbb{R}^{n \times n}`, symmetric positive definite; dense
-            (scipy sparse only in the restoration QP).
+        H: :math:`H \in \mathbb{R}^{n \times n}`, symmetric positive definite; dense,
+            a :class:`~calib_oed.solver.result.StructuredHessian` (lifted QP), or
+            scipy sparse (restoration QP).
         g: :math:`g \in \mathbb{R}^n`.
         C: :math:`C \in \mathbb{R}^{k \times n}`, dense ndarray or scipy sparse.
         lower: :math:`\ell \in \mathbb{R}^k`.
@@ -141,6 +166,8 @@ class QPStep(NamedTuple):
         dual_residual: See :meth:`QPSubproblem.residuals`.
         complementarity: See :meth:`QPSubproblem.residuals`.
         polished: :math:`(d, \lambda, \nu)` come from :func:`calib_oed.solver.polish.polish`.
+        message: Why the QP failed, when it did not return (``status`` ``"error"``,
+            ``"too_large"`` or ``"non_finite"``, :mod:`calib_oed.solver.subproblem`).
     """
 
     d: np.ndarray
@@ -152,6 +179,7 @@ class QPStep(NamedTuple):
     dual_residual: float
     complementarity: float
     polished: bool = False
+    message: str = ""
 
     def is_solved(self, primal_tolerance: float, dual_tolerance: float) -> bool:
         """Solved per ProxQP *and* per our residuals.
@@ -176,6 +204,10 @@ def _configure(qp, eps_abs: float, max_iter: int) -> None:
     # bounds the time of one QP: ProxQP's default 1500 inner iterations per outer one let a
     # degenerate QP of the design problem run for minutes (seen in bench/bench_oed.py)
     s.max_iter_in = 200
+    # sparse QPs: ProxQP's "Automatic" backend switches to its iterative MatrixFree solver when it
+    # expects much fill; on a lifted QP (n = 2400, r = 60 dense coupling rows) that took 181 s
+    # instead of 0.35 s with the Cholesky factorisation
+    s.sparse_backend = proxsuite.proxqp.SparseBackend.SparseCholesky
     s.verbose = False
 
 
@@ -217,11 +249,14 @@ class DenseQPWorkspace:
     """
 
     def __init__(self, n: int, eps_abs: float, max_iter: int, capacity: int = 32,
-                 update_preconditioner: bool = False):
+                 update_preconditioner: bool = False, max_capacity: int | None = None):
         self.n = n
         self.eps_abs = eps_abs
         self.max_iter = max_iter
+        self.max_capacity = max_capacity
         self.min_capacity = self.capacity = max(1, int(capacity))
+        if max_capacity is not None:
+            self.min_capacity = self.capacity = min(self.capacity, max(1, int(max_capacity)))
         self.update_preconditioner = update_preconditioner
         self._qp = None
         self.n_builds = 0
@@ -238,10 +273,13 @@ class DenseQPWorkspace:
     def solve(self, sub: QPSubproblem, d0=None, lam0=None, nu0=None) -> QPStep:
         """Solve ``sub``, warm-started from ``(d0, lam0, nu0)`` when given."""
         n, k = self.n, sub.lower.size
+        if self.max_capacity is not None and k > self.max_capacity:
+            raise QPSizeError(f"dense QP of {k} rows above its capacity bound {self.max_capacity}")
         fresh = self._qp is None or k > self.capacity or (
             4 * k < self.capacity and self.capacity > self.min_capacity)
         if fresh:
-            self._build(max(self.min_capacity, 2 * k))
+            cap = max(self.min_capacity, 2 * k)
+            self._build(cap if self.max_capacity is None else min(cap, self.max_capacity))
         cap = self.capacity
         C = np.zeros((cap, n))
         if k:
@@ -281,29 +319,39 @@ class SparseQPWorkspace:
     the symbolic factorisation and silently ignores a matrix whose sparsity
     pattern differs, so the object is reused only when the stacked constraint
     matrix has exactly the previous pattern; otherwise a new one is built.
-    Warm start through ``solve(x, y, z)``.
+    Warm start through ``solve(x, y, z)``. A QP with more than ``max_nonzeros``
+    nonzeros (:math:`n(n+1)/2` of :math:`H`, those of :math:`C`, :math:`n` box
+    rows) raises :class:`QPSizeError` before anything is allocated.
     """
 
-    def __init__(self, n: int, eps_abs: float, max_iter: int):
+    def __init__(self, n: int, eps_abs: float, max_iter: int, max_nonzeros: int | None = None):
         self.n = n
         self.eps_abs = eps_abs
         self.max_iter = max_iter
+        self.max_nonzeros = max_nonzeros
         self._qp = None
         self._pattern = None
         self.n_builds = 0
-        rows, cols = np.triu_indices(n)
-        order = np.lexsort((rows, cols))  # column-major order of the upper triangle
-        self._h_rows, self._h_cols = rows[order], cols[order]
-        self._h_indptr = np.concatenate([[0], np.cumsum(np.arange(1, n + 1))]).astype(np.int32)
+        self._h_rows = None  # the upper triangle's pattern, built on first use
 
     def _hessian(self, H) -> sp.csc_matrix:
-        data = np.asarray(H)[self._h_rows, self._h_cols]
+        n = self.n
+        if self._h_rows is None:
+            rows, cols = np.triu_indices(n)
+            order = np.lexsort((rows, cols))  # column-major order of the upper triangle
+            self._h_rows, self._h_cols = rows[order], cols[order]
+            self._h_indptr = np.concatenate([[0], np.cumsum(np.arange(1, n + 1))]).astype(np.int32)
+        data = as_dense(H)[self._h_rows, self._h_cols]
         return sp.csc_matrix((data, self._h_rows.astype(np.int32), self._h_indptr), shape=(self.n, self.n))
 
     def solve(self, sub: QPSubproblem, d0=None, lam0=None, nu0=None) -> QPStep:
         """Solve ``sub``, warm-started from ``(d0, lam0, nu0)`` when given."""
         n, k = self.n, sub.lower.size
         rows = sp.csr_matrix(sub.C) if k else sp.csr_matrix((0, n))
+        nnz = n * (n + 1) // 2 + rows.nnz + n
+        if self.max_nonzeros is not None and nnz > self.max_nonzeros:
+            raise QPSizeError(f"sparse QP with a dense Hessian of n = {n}: {nnz:.3g} nonzeros above "
+                              f"max_qp_nonzeros = {self.max_nonzeros:.3g}")
         C = sp.vstack([rows, sp.identity(n, format="csr")], format="csc")
         C.sort_indices()
         lower = np.concatenate([sub.lower, sub.box_lower])

@@ -4,16 +4,20 @@ At an infeasible iterate the linearised rows :math:`C d \ge \ell` may have
 no solution in the box :math:`[\underline{b}, \overline{b}]`; ProxQP does not
 detect this (:mod:`calib_oed.solver.qp`). :func:`unreachable_rows` finds the
 obvious cases in :math:`O(\text{nnz})`, and :func:`solve_elastic_qp` gives the
-feasibility-restoration step of the SQP (:mod:`calib_oed.solver.sqp`, item 5).
+feasibility-restoration step of the SQP (:mod:`calib_oed.solver.sqp`, item 5);
+:class:`_RestorationMixin` is that step inside :class:`calib_oed.solver.iteration._Run`.
 """
 
 from __future__ import annotations
+
+import time
 
 import numpy as np
 import proxsuite
 import scipy.sparse as sp
 
 from calib_oed.solver.qp import QPStep, QPSubproblem, _configure, _finish
+from calib_oed.solver.result import SQPStatus
 
 
 def unreachable_rows(C, lower, box_lower, box_upper, tol: float) -> np.ndarray:
@@ -80,3 +84,86 @@ def solve_elastic_qp(C, lower, violated, box_lower, box_upper, penalty: float,
     sub = QPSubproblem(H, g, CC, np.asarray(lower, dtype=float), bl, bu)
     full = _finish(sub, r.x, r.z[:k], r.z[k:], r.info)
     return full._replace(d=full.d[:n], lam=full.lam[:k], nu=full.nu[:n])
+
+
+class _RestorationMixin:
+    """Feasibility restoration of :class:`calib_oed.solver.iteration._Run` (:mod:`calib_oed.solver.sqp`, item 5)."""
+
+    def _restore(self, k, delta, qp_status, qp_iter):
+        r"""Feasibility restoration: elastic QP, then backtracking on the violation :math:`h`.
+
+        Accept :math:`x + \alpha d` when :math:`h(x + \alpha d) \le h(x) - \eta \alpha\, p`
+        with :math:`p = h_K(x) - \sum_{i \in K} \max(0, -(c_i + A_i d))` the
+        decrease the linearisation predicts (by convexity of the linearised
+        :math:`h`, :math:`\alpha p` is its decrease along :math:`\alpha d`). On
+        failure retry with a smaller box. Locally infeasible when :math:`p`
+        vanishes, or when ten restoration steps in a row cut :math:`h` by
+        less than 1 %. The rows :math:`K` are those of the QP (at most
+        ``max_qp_rows``, the violated ones first); :math:`h` itself sums every row.
+        """
+        s, pt = self.s, self.pt
+        n_rows = 0
+        for _ in range(4):
+            rows = self._rows(delta)
+            n_rows = rows.size
+            c_k, a_k = pt.c[rows], pt.A[rows]
+            t = time.perf_counter()
+            try:
+                step = solve_elastic_qp(a_k, -c_k, c_k < 0, np.maximum(self.lb - pt.x, -delta),
+                                        np.minimum(self.ub - pt.x, delta), s.restoration_penalty,
+                                        s.qp_eps_abs, s.qp_max_iterations)
+            except Exception as exc:  # noqa: BLE001 (ProxQP's errors become a status, never an abort)
+                self.p.times["qp"] += time.perf_counter() - t
+                self._stop(SQPStatus.QP_FAILED, f"restoration QP of {n_rows} rows raised "
+                           f"{type(exc).__name__}: {exc}")
+                return self._record(k, np.nan, 0.0, delta, n_rows, "error", qp_iter, 0, True)
+            self.p.times["qp"] += time.perf_counter() - t
+            qp_iter += step.iterations
+            h_now = float(np.maximum(-c_k, 0.0).sum())
+            if not np.all(np.isfinite(step.d)):
+                self._stop(SQPStatus.QP_FAILED, "restoration QP returned non-finite values "
+                           f"(ProxQP status {step.status!r})")
+                return self._record(k, np.nan, 0.0, delta, rows.size, "non_finite", qp_iter, 0, True)
+            if step.status != "solved" and step.primal_residual > 1e-6 * max(1.0, h_now):
+                self._stop(SQPStatus.FAILED, f"restoration QP not solved (ProxQP status {step.status!r})")
+                return self._record(k, np.nan, 0.0, delta, rows.size, qp_status, qp_iter, 0, True)
+            d = step.d
+            pred = h_now - float(np.maximum(-(c_k + a_k @ d), 0.0).sum())
+            if pred <= 1e-8 * max(1.0, h_now):
+                break
+            alpha = 1.0
+            for backtracks in range(s.max_backtracks + 1):
+                trial = self._trial(pt.x + alpha * d)
+                if trial is not None and trial.violation_l1 <= pt.violation_l1 - s.armijo * alpha * pred:
+                    return self._restored(k, trial, delta, rows.size, qp_status, qp_iter, backtracks)
+                alpha *= s.backtrack
+            delta = 0.5 * alpha * float(np.max(np.abs(d)))
+            if delta < s.min_step_bound:
+                break
+        if self._crash_message:  # the QP solver failed, not the problem: say so
+            self._stop(SQPStatus.QP_FAILED, f"QP subproblem failed ({qp_status}): {self._crash_message}; "
+                       f"restoration cannot reduce the violation ({pt.violation_max:.2e}) further")
+        elif pt.violation_max <= s.tol_feasibility:  # feasible to tolerance: not an infeasibility
+            self._stop(SQPStatus.STALLED, "the linearised constraints are inconsistent at a point "
+                       f"feasible to tolerance (violation {pt.violation_max:.2e} <= tol_feasibility "
+                       f"{s.tol_feasibility:.0e}) and restoration cannot reduce it further")
+        else:
+            self._stop(SQPStatus.INFEASIBLE, "the linearised constraints are infeasible and restoration "
+                       f"cannot reduce the violation ({pt.violation_max:.2e}): locally infeasible")
+        return self._record(k, np.nan, 0.0, delta, n_rows, qp_status, qp_iter, 0, True)
+
+    def _restored(self, k, trial, delta, n_rows, qp_status, qp_iter, backtracks):
+        """Accept a restoration step; watch the progress of a run of them."""
+        s = self.s
+        if self.restoration_run == 0:
+            self.restoration_reference = self.pt.violation_l1
+        self.restoration_run += 1
+        step_norm = float(np.max(np.abs(trial.x - self.pt.x), initial=0.0))
+        self._accept(trial, self.lam)
+        self.delta = max(s.min_step_bound, min(s.max_step_bound, step_norm))
+        if self.restoration_run % 10 == 0:
+            if trial.violation_l1 > 0.99 * self.restoration_reference:
+                self._stop(SQPStatus.INFEASIBLE, f"restoration stalled: {self.restoration_run} steps "
+                           f"left the violation at {trial.violation_max:.2e}: locally infeasible")
+            self.restoration_reference = trial.violation_l1
+        return self._record(k, np.nan, step_norm, delta, n_rows, qp_status, qp_iter, backtracks, True)

@@ -1,4 +1,6 @@
-r"""Records in and out of :func:`calib_oed.solver.sqp.solve_sqp`: settings, status, history, result.
+r"""Records in and out of :func:`calib_oed.solver.sqp.solve_sqp`: structured Hessian, status, history, result.
+
+(The settings are :mod:`calib_oed.solver.settings`, re-exported here.)
 
 The problem solved is
 
@@ -31,6 +33,7 @@ from typing import NamedTuple
 import numpy as np
 
 from calib_oed.exceptions import SQPProblemError, SQPSettingsError  # noqa: F401 (re-exported)
+from calib_oed.solver.settings import HESSIANS, QP_BACKENDS, SQPSettings  # noqa: F401 (re-exported)
 
 
 class StructuredHessian(NamedTuple):
@@ -50,6 +53,12 @@ class StructuredHessian(NamedTuple):
     blocks: np.ndarray
     low_rank: np.ndarray | None = None
 
+    @property
+    def shape(self) -> tuple[int, int]:
+        """:math:`(n, n)`."""
+        b, s, _ = self.blocks.shape
+        return b * s, b * s
+
     def dense(self) -> np.ndarray:
         """The (n, n) matrix (for tests and small problems)."""
         b, s, _ = self.blocks.shape
@@ -59,6 +68,15 @@ class StructuredHessian(NamedTuple):
         if self.low_rank is not None:
             h += self.low_rank @ self.low_rank.T
         return h
+
+    def __matmul__(self, v) -> np.ndarray:
+        r""":math:`H v = \mathrm{blkdiag}(H_j)\, v + U (U^\top v)` for a vector :math:`v \in \mathbb{R}^n`."""
+        b, s, _ = self.blocks.shape
+        v = np.asarray(v, dtype=float)
+        out = np.einsum("jab,jb->ja", self.blocks, v.reshape(b, s)).reshape(-1)
+        if self.low_rank is not None and self.low_rank.shape[1]:
+            out = out + np.einsum("ir,r->i", self.low_rank, np.einsum("ir,i->r", self.low_rank, v))
+        return out
 
 
 class SQPStatus(str, Enum):
@@ -76,111 +94,13 @@ class SQPStatus(str, Enum):
     INFEASIBLE = "infeasible"
     """Feasibility restoration could not reduce a violation above ``tol_feasibility``."""
     FAILED = "failed"
-    """The QP subproblem could not be solved at a feasible point."""
-
-
-HESSIANS = ("bfgs",)
-QP_BACKENDS = ("dense", "sparse")
-
-
-@dataclass(frozen=True)
-class SQPSettings:
-    r"""Settings of :func:`solve_sqp`, validated at construction.
-
-    Tolerances are absolute on :math:`c` and the bounds (units of :math:`c`,
-    :math:`x`), relative to :math:`\max(1, \|\nabla f\|_\infty)` for stationarity.
-    Step bounds are ∞-norms in units of :math:`x` ([rad] for joint angles).
-
-    Attributes:
-        max_iterations: Largest number of QP subproblems.
-        time_limit: Stop after the iteration that exceeds this wall time [s]
-            (default: no limit).
-        tol_optimality: Scaled KKT stationarity and complementarity tolerance.
-        tol_feasibility: Largest violation of :math:`c \ge 0` and of the bounds.
-        tol_step: Stop (stalled) when :math:`\|d\|_\infty` falls below it.
-        step_bound: Initial trust-region radius :math:`\Delta_0`.
-        min_step_bound: :math:`\Delta_\min`; stop (stalled) when it must shrink below.
-        max_step_bound: :math:`\Delta_\max`.
-        step_bound_ratio: :math:`\kappa`: after an accepted step,
-            :math:`\Delta \le \kappa \|x_{k+1} - x_k\|_\infty`, so the box, and with
-            it the rows kept, follows the steps being taken (``inf`` disables).
-        active_margin: :math:`m_a \ge 0` of the row selection (module docstring, 2).
-        hessian: ``"bfgs"`` (the only one so far).
-        initial_hessian_scale: :math:`\beta` of :math:`B_0 = \beta I`.
-        bfgs_damping: Powell's :math:`\delta \in (0, 1)`: :math:`s^\top r \ge \delta\, s^\top B s`.
-        qp_backend: ``"dense"`` (default, faster: ``bench/bench_sqp_qp.py``) or ``"sparse"``.
-        qp_eps_abs: ProxQP absolute tolerance (its default 1e-3 is lax).
-        qp_max_iterations: ProxQP ``max_iter``; bounds the time lost on an infeasible QP.
-        qp_polish: Refine small QP steps on their active set (:func:`calib_oed.solver.polish.polish`).
-        second_order_correction: Try a second-order correction before
-            backtracking from a rejected full step (:mod:`calib_oed.solver.sqp`, item 4).
-        armijo: :math:`\eta \in (0, 1/2)` of the Armijo condition.
-        backtrack: Factor :math:`\in (0, 1)` applied to :math:`\alpha` per backtrack.
-        max_backtracks: Backtracks before the step is rejected.
-        penalty_margin: :math:`\mu_m > 0` in :math:`\mu \ge \|\lambda\|_\infty + \mu_m`.
-        restoration_penalty: :math:`\rho` of the elastic restoration QP.
-    """
-
-    max_iterations: int = 300
-    time_limit: float = float("inf")
-    tol_optimality: float = 1e-6
-    tol_feasibility: float = 1e-7
-    tol_step: float = 1e-9
-    step_bound: float = 0.3
-    min_step_bound: float = 1e-8
-    max_step_bound: float = 1.0
-    step_bound_ratio: float = 10.0
-    active_margin: float = 0.05
-    hessian: str = "bfgs"
-    initial_hessian_scale: float = 1.0
-    bfgs_damping: float = 0.2
-    qp_backend: str = "dense"
-    qp_eps_abs: float = 1e-9
-    qp_max_iterations: int = 100
-    qp_polish: bool = True
-    second_order_correction: bool = True
-    armijo: float = 1e-4
-    backtrack: float = 0.5
-    max_backtracks: int = 12
-    penalty_margin: float = 0.1
-    restoration_penalty: float = 1e3
-
-    def __post_init__(self):
-        def need(name, ok, requirement):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not ok(value):
-                raise SQPSettingsError(name, value, requirement)
-
-        def positive(v):
-            return isinstance(v, (int, float)) and np.isfinite(v) and v > 0
-
-        for name in ("max_iterations", "qp_max_iterations"):
-            need(name, lambda v: isinstance(v, (int, np.integer)) and v >= 1, "must be an integer >= 1")
-        need("max_backtracks", lambda v: isinstance(v, (int, np.integer)) and v >= 0, "must be an integer >= 0")
-        for name in ("tol_optimality", "tol_feasibility", "tol_step", "step_bound", "min_step_bound",
-                     "max_step_bound", "initial_hessian_scale", "qp_eps_abs", "penalty_margin",
-                     "restoration_penalty"):
-            need(name, positive, "must be a finite number > 0")
-        need("time_limit", lambda v: isinstance(v, (int, float)) and v > 0, "must be > 0 (inf: no limit)")
-        need("step_bound_ratio", lambda v: isinstance(v, (int, float)) and v >= 1,
-             "must be >= 1 (inf disables)")
-        need("active_margin", lambda v: isinstance(v, (int, float)) and 0 <= v < np.inf,
-             "must be finite and >= 0 (a negative margin could drop rows the QP needs)")
-        for name in ("bfgs_damping", "backtrack"):
-            need(name, lambda v: isinstance(v, (int, float)) and 0 < v < 1, "must lie in (0, 1)")
-        need("armijo", lambda v: isinstance(v, (int, float)) and 0 < v < 0.5, "must lie in (0, 0.5)")
-        if not self.min_step_bound <= self.step_bound <= self.max_step_bound:
-            raise SQPSettingsError(
-                "step_bound", self.step_bound,
-                f"must satisfy min_step_bound ({self.min_step_bound}) <= step_bound <= "
-                f"max_step_bound ({self.max_step_bound})")
-        for name in ("qp_polish", "second_order_correction"):
-            if not isinstance(getattr(self, name), bool):
-                raise SQPSettingsError(name, getattr(self, name), "must be True or False")
-        for name, valid in (("hessian", HESSIANS), ("qp_backend", QP_BACKENDS)):
-            if getattr(self, name) not in valid:
-                raise SQPSettingsError(name, getattr(self, name),
-                                       f"valid values are {', '.join(map(repr, valid))}", valid)
+    """The QP subproblem could not be solved at a feasible point (ProxQP returned, not to tolerance)."""
+    QP_FAILED = "qp_failed"
+    """The QP solver raised, returned non-finite values, or the QP was refused as too large
+    (``SQPSettings.max_qp_nonzeros``); the message names the cause."""
+    NUMERICAL_ERROR = "numerical_error"
+    """A numerical failure outside the QP solver (``MemoryError``, ``LinAlgError``,
+    floating-point error); the message names it."""
 
 
 def kkt_residuals(x, g, c, A, lam, lb, ub, bound_tol):
@@ -232,6 +152,18 @@ class IterationRecord:
         time: Seconds since the start of :func:`~calib_oed.solver.sqp.solve_sqp` [s].
         second_order_correction: The accepted point is the second-order
             correction of the full step.
+        hessian: The QP's Hessian: ``"bfgs"`` (damped BFGS), ``"model+bfgs"``
+            (``hessian_model`` plus BFGS blocks) or ``"exact"`` (the caller's
+            ``lagrangian_hessian``, made positive definite).
+        hessian_fallback: The exact Hessian was asked for but not used in this
+            iteration (the callable returned None, raised or gave a bad value, or
+            its QP failed): the BFGS one was.
+        hessian_modified: Eigenvalues of the exact Hessian changed to make it
+            positive definite (:mod:`calib_oed.solver.hessian`).
+        qp_backend: ``"dense"``, ``"sparse"`` or ``"lifted"`` (sparse, the
+            coupling :math:`U U^\top` kept factored); ``""`` when no QP was solved.
+        n_rows_dropped: Near-active rows left out by ``SQPSettings.max_qp_rows``
+            (the farthest from activity).
     """
 
     iteration: int
@@ -249,6 +181,11 @@ class IterationRecord:
     restoration: bool
     time: float
     second_order_correction: bool = False
+    hessian: str = "bfgs"
+    hessian_fallback: bool = False
+    hessian_modified: int = 0
+    qp_backend: str = ""
+    n_rows_dropped: int = 0
 
 
 def _json_float(v):
@@ -297,6 +234,10 @@ class SQPResult:
             ``"qp"``, ``"hessian"``, ``"total"`` [s].
         n_objective_evaluations: Calls of the objective.
         n_constraint_evaluations: Calls of the constraints.
+        hessian: The Hessian asked for: ``"bfgs"``, ``"model+bfgs"`` or ``"exact"``.
+        hessian_fallbacks: Iterations in which the exact Hessian was asked for
+            but the BFGS one was used.
+        hessian_message: Why the last fallback happened (``""`` if none).
     """
 
     x: np.ndarray
@@ -313,6 +254,9 @@ class SQPResult:
     times: dict = field(default_factory=dict)
     n_objective_evaluations: int = 0
     n_constraint_evaluations: int = 0
+    hessian: str = "bfgs"
+    hessian_fallbacks: int = 0
+    hessian_message: str = ""
 
     def __post_init__(self):
         for name in ("x", "multipliers", "bound_multipliers"):
@@ -365,6 +309,9 @@ class SQPResult:
             "times": dict(self.times),
             "n_objective_evaluations": self.n_objective_evaluations,
             "n_constraint_evaluations": self.n_constraint_evaluations,
+            "hessian": self.hessian,
+            "hessian_fallbacks": self.hessian_fallbacks,
+            "hessian_message": self.hessian_message,
         }
         return _json(out)
 
@@ -383,7 +330,10 @@ class SQPResult:
                 f"{n_rest} restoration steps, {n_soc} second-order corrections)",
                 f"  violation {self.max_violation:.2e}, stationarity "
                 f"{self.kkt_stationarity:.2e}, complementarity {self.kkt_complementarity:.2e}",
-                f"  QP rows kept: max {max(kept, default=0)} of {self.multipliers.size}",
+                f"  QP rows kept: max {max(kept, default=0)} of {self.multipliers.size}"
+                f" ({sum(r.n_rows_dropped > 0 for r in self.history)} QPs at max_qp_rows)",
+                f"  Hessian: {self.hessian}" + (f", {self.hessian_fallbacks} BFGS fallbacks "
+                                                 f"({self.hessian_message})" if self.hessian_fallbacks else ""),
                 "  time [s]: "
                 + ", ".join(f"{k} {t.get(k, 0.0):.3f}" for k in ("objective", "constraints", "qp", "hessian", "total")),
             ]

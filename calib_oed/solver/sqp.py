@@ -23,15 +23,30 @@ far from active; :math:`f` scaled by the caller to O(1). One iteration at
    multipliers, its residuals checked by us, small steps polished on their
    active set. Its multipliers :math:`\lambda_{k+1} \ge 0` (0 for dropped rows)
    are the multiplier estimates.
-2. **Row selection**: :math:`i \in K_k` iff
+2. **Row selection** (:mod:`calib_oed.solver.rows`): the candidates are the rows with
    :math:`c_i - \|A_i\|_1 \Delta_k \le m_a` (``active_margin``). Inside the box
-   :math:`|A_i d| \le \|A_i\|_1 \Delta_k`, so a dropped row cannot reach 0 under
+   :math:`|A_i d| \le \|A_i\|_1 \Delta_k`, so any other row cannot reach 0 under
    the linearisation: for :math:`m_a \ge 0` dropping it does not change the QP.
+   At most ``max_qp_rows`` (default :math:`\max(200, 4n)`) candidates are kept,
+   violated rows and rows with :math:`\lambda_i > 0` first, then the nearest
+   to activity by :math:`c_i / \|A_i\|_1` [units of x]; a dropped row that the
+   step violates (linearised) joins the QP, which is solved again. The QP's
+   size is thus bounded whatever :math:`\Delta`; the dense ProxQP backend is
+   used only up to ``max_dense_qp_size`` (variables + row capacity), larger
+   QPs go to the sparse backend, and a QP the sparse backend could not hold
+   (``max_qp_nonzeros``) is refused before ProxQP allocates
+   (:mod:`calib_oed.solver.subproblem`).
 3. **Hessian**: damped BFGS (N&W §18.3, Procedure 18.2; Powell 1978) on the
    Lagrangian gradient difference
    :math:`y = \nabla_x L(x_{k+1}, \lambda_{k+1}) - \nabla_x L(x_k, \lambda_{k+1})`,
    from :math:`B_0 = \beta I`, rescaled before the first update to
-   :math:`(y^\top y / s^\top y) I` (Shanno–Phua; N&W eq. 6.20).
+   :math:`(y^\top y / s^\top y) I` (Shanno–Phua; N&W eq. 6.20). With
+   ``lagrangian_hessian``, the exact :math:`\nabla^2_{xx} L(x_k, \lambda_k) = D + U U^\top`
+   instead, its diagonal blocks made positive definite by an eigenvalue
+   modification (:mod:`calib_oed.solver.hessian`) and the coupling kept
+   factored in a lifted sparse QP (:mod:`calib_oed.solver.lifted`); the BFGS
+   matrices are still updated and used whenever the exact Hessian is not
+   available (the callable returns None or fails) or its QP fails.
 4. **Globalisation**: the :math:`\ell_1` merit (N&W §15.4 and §18.3, "Merit functions")
 
    .. math::
@@ -64,7 +79,8 @@ far from active; :math:`f` scaled by the caller to O(1). One iteration at
    violation is already within ``tol_feasibility``: then the linearisation is
    inconsistent, e.g. degenerate active rows, not the problem). A QP that fails at a feasible
    :math:`x_k` (numerical trouble) is retried with :math:`\Delta / 10`, then
-   :attr:`SQPStatus.FAILED`.
+   :attr:`SQPStatus.FAILED` (:attr:`SQPStatus.QP_FAILED` when the QP solver
+   raised, returned non-finite values or the QP was too large).
 6. **Stop**: :attr:`SQPStatus.CONVERGED` when :math:`r_p \le` ``tol_feasibility``
    and :math:`r_d, r_c \le` ``tol_optimality`` at :math:`x_k` with
    :math:`\lambda_{k+1}` (:mod:`calib_oed.solver.result` for the residuals);
@@ -73,6 +89,13 @@ far from active; :math:`f` scaled by the caller to O(1). One iteration at
 
 Bounds are kept exactly: :math:`x_0` is projected onto them and every step
 stays inside, so their merit term is zero in practice.
+
+Failures are statuses, not exceptions: only bad input raises (shapes,
+non-finite values at :math:`x_0`, ``lb > ub``, invalid settings, and errors
+raised by the caller's ``objective``, ``constraints`` or ``hessian_model``).
+QP failures end in :attr:`SQPStatus.FAILED` or :attr:`SQPStatus.QP_FAILED`;
+``MemoryError``, ``LinAlgError`` and floating-point errors anywhere else in
+an iteration in :attr:`SQPStatus.NUMERICAL_ERROR`, with the last iterate.
 
 This module owns the entry point :func:`solve_sqp` and its outer loop; one
 iteration (items 1-5) is :class:`calib_oed.solver.iteration._Run`, the caller's
@@ -95,15 +118,20 @@ from calib_oed.solver.result import (
     SQPSettings,
     SQPSettingsError,
     SQPStatus,
+    StructuredHessian,
     kkt_residuals,
 )
 
 __all__ = ["SQPSettings", "SQPSettingsError", "SQPProblemError", "SQPStatus", "SQPResult",
-           "IterationRecord", "solve_sqp"]
+           "IterationRecord", "StructuredHessian", "solve_sqp"]
+
+_NUMERICAL = (MemoryError, np.linalg.LinAlgError, FloatingPointError)
+"""Errors an iteration turns into :attr:`SQPStatus.NUMERICAL_ERROR`."""
 
 
 def solve_sqp(objective, x0, *, constraints=None, bounds=None, settings: SQPSettings | None = None,
-              callback=None, hessian_model=None, block_size: int | None = None) -> SQPResult:
+              callback=None, hessian_model=None, block_size: int | None = None,
+              lagrangian_hessian=None) -> SQPResult:
     r"""Minimise :math:`f(x)` s.t. :math:`c(x) \ge 0`, :math:`lb \le x \le ub` by SQP (module docstring).
 
     Args:
@@ -122,6 +150,17 @@ def solve_sqp(objective, x0, *, constraints=None, bounds=None, settings: SQPSett
         block_size: Size of the diagonal blocks of the quasi-Newton remainder
             (e.g. the joints of one pose when every constraint and the unknown
             curvature are per pose); default one dense block.
+        lagrangian_hessian: Optional ``(x, lam) -> StructuredHessian`` (or
+            ``None``): the exact Hessian :math:`\nabla^2_{xx} L` of
+            :math:`L = f - \lambda^\top c` at :math:`x` for the row multipliers
+            ``lam`` (m,), :math:`\lambda \ge 0` (0 for rows not in the last QP),
+            as diagonal blocks (b, s, s), possibly indefinite, plus a low-rank
+            factor :math:`U` (n, r) of a positive semidefinite coupling
+            :math:`U U^\top`. Used in place of BFGS (module docstring, item 3);
+            returning ``None`` or raising falls back to BFGS for that
+            iteration (counted in ``SQPResult.hessian_fallbacks``). Without
+            ``block_size`` the fallback BFGS matrices take the block size of
+            the first Hessian returned (one dense block if none ever is).
 
     Returns:
         :class:`SQPResult`; call ``check()`` for the KKT residuals.
@@ -142,10 +181,24 @@ def solve_sqp(objective, x0, *, constraints=None, bounds=None, settings: SQPSett
     lb, ub = _bounds(bounds, n)
     times = dict.fromkeys(("objective", "constraints", "qp", "hessian", "total"), 0.0)
     problem = _Problem(objective, constraints, n, lb, ub, times)
-    run = _Run(problem, problem.evaluate(np.clip(x0, lb, ub), strict=True), lb, ub, s, t0,
-               hessian_model, block_size)
+    pt0 = problem.evaluate(np.clip(x0, lb, ub), strict=True)
+    try:
+        run = _Run(problem, pt0, lb, ub, s, t0, hessian_model, block_size, lagrangian_hessian)
+    except MemoryError as exc:  # e.g. one dense BFGS matrix for a very large n
+        times["total"] = time.perf_counter() - t0
+        return SQPResult(
+            x=pt0.x, fun=pt0.f, status=SQPStatus.NUMERICAL_ERROR,
+            message=f"MemoryError setting up the solver for n = {n}: {exc} (give block_size "
+                    "or lagrangian_hessian instead of one dense Hessian)",
+            iterations=0, history=(), multipliers=np.zeros(pt0.c.size), bound_multipliers=np.zeros(n),
+            max_violation=pt0.violation_max, kkt_stationarity=np.nan, kkt_complementarity=np.nan,
+            times=times, n_objective_evaluations=problem.n_obj, n_constraint_evaluations=problem.n_con)
     for k in range(s.max_iterations):
-        record = run.iterate(k)
+        try:
+            record = run.iterate(k)
+        except _NUMERICAL as exc:
+            run._stop(SQPStatus.NUMERICAL_ERROR, f"iteration {k}: {type(exc).__name__}: {exc}")
+            break
         if callback is not None:
             callback(record)
         if run.status is not None:
@@ -163,4 +216,5 @@ def solve_sqp(objective, x0, *, constraints=None, bounds=None, settings: SQPSett
         x=pt.x, fun=pt.f, status=run.status, message=run.message, iterations=len(run.history),
         history=tuple(run.history), multipliers=run.lam, bound_multipliers=nu_bounds,
         max_violation=pt.violation_max, kkt_stationarity=stat, kkt_complementarity=comp, times=times,
-        n_objective_evaluations=problem.n_obj, n_constraint_evaluations=problem.n_con)
+        n_objective_evaluations=problem.n_obj, n_constraint_evaluations=problem.n_con,
+        hessian=run.hessian_label, hessian_fallbacks=run.n_fallbacks, hessian_message=run.fallback_reason)

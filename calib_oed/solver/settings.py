@@ -1,0 +1,166 @@
+r"""Settings of :func:`calib_oed.solver.sqp.solve_sqp`, validated at construction.
+
+Units: tolerances on :math:`c` and the bounds are those of :math:`c` and
+:math:`x` (for the design problem [m], cosines and [rad]); step bounds are
+∞-norms in units of :math:`x` [rad]; sizes are counts of rows, variables or
+nonzeros.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from calib_oed.exceptions import SQPSettingsError
+
+HESSIANS = ("bfgs",)
+QP_BACKENDS = ("dense", "sparse")
+HESSIAN_MODIFICATIONS = ("abs", "floor")
+HESSIAN_MODIFICATION_SCOPES = ("block", "matrix")
+
+
+@dataclass(frozen=True)
+class SQPSettings:
+    r"""Settings of :func:`~calib_oed.solver.sqp.solve_sqp`, validated at construction.
+
+    Tolerances are absolute on :math:`c` and the bounds (units of :math:`c`,
+    :math:`x`), relative to :math:`\max(1, \|\nabla f\|_\infty)` for stationarity.
+    Step bounds are ∞-norms in units of :math:`x` ([rad] for joint angles).
+
+    Attributes:
+        max_iterations: Largest number of QP subproblems.
+        time_limit: Stop after the iteration that exceeds this wall time [s]
+            (default: no limit).
+        tol_optimality: Scaled KKT stationarity and complementarity tolerance.
+        tol_feasibility: Largest violation of :math:`c \ge 0` and of the bounds.
+        tol_step: Stop (stalled) when :math:`\|d\|_\infty` falls below it.
+        step_bound: Initial trust-region radius :math:`\Delta_0`.
+        min_step_bound: :math:`\Delta_\min`; stop (stalled) when it must shrink below.
+        max_step_bound: :math:`\Delta_\max`.
+        step_bound_ratio: :math:`\kappa`: after an accepted step,
+            :math:`\Delta \le \kappa \|x_{k+1} - x_k\|_\infty`, so the box, and with
+            it the rows kept, follows the steps being taken (``inf`` disables).
+        active_margin: :math:`m_a \ge 0` of the row selection (:mod:`calib_oed.solver.rows`).
+        max_qp_rows: Most constraint rows in any QP, whatever :math:`\Delta`
+            (:mod:`calib_oed.solver.rows`); ``None``: :math:`\max(200, 4n)`.
+            At most :math:`n` linearly independent rows can be active at a QP
+            solution, so :math:`4n` keeps every row that can matter plus a
+            margin, and the design runs measured (200–400 rows at :math:`n = 360`)
+            never reach it; at :math:`\Delta = 1` rad a Panda cell offered
+            15,800 rows.
+        max_dense_qp_size: The dense ProxQP backend is used only while
+            :math:`n + K \le` this (:math:`K` its row capacity); larger QPs go to
+            the sparse backend. Dense ProxQP's memory grows as :math:`(n + K)^2`
+            (measured 260 MB at :math:`n + K = 8420`; at 16,420 it aborts the
+            process under a 6 GB limit), and above ~1000 rows the sparse
+            backend was as fast (``bench/bench_sqp_qp.py --rows 1600``).
+        max_qp_nonzeros: Largest number of nonzeros (Hessian upper triangle,
+            equality and inequality rows) of a sparse QP; a larger one is
+            refused with :attr:`SQPStatus.QP_FAILED` instead of letting
+            ProxQP's allocation abort the process (measured ~60 bytes per
+            nonzero for a dense Hessian: 1e7 is ~600 MB).
+        hessian: ``"bfgs"`` (the quasi-Newton model; the exact Hessian is
+            switched on by passing ``lagrangian_hessian`` to ``solve_sqp``).
+        hessian_modification: How an exact Hessian is made positive definite
+            (:mod:`calib_oed.solver.hessian`): ``"abs"`` (default) eigenvalues
+            :math:`\max(|\theta|, \epsilon)`, or ``"floor"``: :math:`\max(\theta, \epsilon)`.
+        hessian_modification_scope: ``"block"`` (default): each diagonal block
+            of :math:`D`, the coupling :math:`U U^\top` kept factored (lifted
+            sparse QP); ``"matrix"``: the dense :math:`D + U U^\top` as a whole
+            (O(n³), dense QP; for comparison and small problems).
+        hessian_eigenvalue_floor: :math:`\epsilon_r`: the smallest eigenvalue
+            kept is :math:`\epsilon = \epsilon_r \max(1, \max|\theta|)`.
+        initial_hessian_scale: :math:`\beta` of :math:`B_0 = \beta I`.
+        bfgs_damping: Powell's :math:`\delta \in (0, 1)`: :math:`s^\top r \ge \delta\, s^\top B s`.
+        qp_backend: ``"dense"`` (default) or ``"sparse"`` for QPs with a dense
+            Hessian (the lifted QP of an exact structured Hessian is always sparse).
+        qp_eps_abs: ProxQP absolute tolerance (its default 1e-3 is lax).
+        qp_max_iterations: ProxQP ``max_iter``; bounds the time lost on an infeasible QP.
+        qp_polish: Refine small QP steps on their active set (:func:`calib_oed.solver.polish.polish`).
+        second_order_correction: Try a second-order correction before
+            backtracking from a rejected full step (:mod:`calib_oed.solver.sqp`, item 4).
+        armijo: :math:`\eta \in (0, 1/2)` of the Armijo condition.
+        backtrack: Factor :math:`\in (0, 1)` applied to :math:`\alpha` per backtrack.
+        max_backtracks: Backtracks before the step is rejected.
+        penalty_margin: :math:`\mu_m > 0` in :math:`\mu \ge \|\lambda\|_\infty + \mu_m`.
+        restoration_penalty: :math:`\rho` of the elastic restoration QP.
+    """
+
+    max_iterations: int = 300
+    time_limit: float = float("inf")
+    tol_optimality: float = 1e-6
+    tol_feasibility: float = 1e-7
+    tol_step: float = 1e-9
+    step_bound: float = 0.3
+    min_step_bound: float = 1e-8
+    max_step_bound: float = 1.0
+    step_bound_ratio: float = 10.0
+    active_margin: float = 0.05
+    max_qp_rows: int | None = None
+    max_dense_qp_size: int = 3000
+    max_qp_nonzeros: int = 10_000_000
+    hessian: str = "bfgs"
+    hessian_modification: str = "abs"
+    hessian_modification_scope: str = "block"
+    hessian_eigenvalue_floor: float = 1e-8
+    initial_hessian_scale: float = 1.0
+    bfgs_damping: float = 0.2
+    qp_backend: str = "dense"
+    qp_eps_abs: float = 1e-9
+    qp_max_iterations: int = 100
+    qp_polish: bool = True
+    second_order_correction: bool = True
+    armijo: float = 1e-4
+    backtrack: float = 0.5
+    max_backtracks: int = 12
+    penalty_margin: float = 0.1
+    restoration_penalty: float = 1e3
+
+    def __post_init__(self):
+        def need(name, ok, requirement):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not ok(value):
+                raise SQPSettingsError(name, value, requirement)
+
+        def positive(v):
+            return isinstance(v, (int, float)) and np.isfinite(v) and v > 0
+
+        def integer(low):
+            return lambda v: isinstance(v, (int, np.integer)) and v >= low
+
+        for name in ("max_iterations", "qp_max_iterations", "max_dense_qp_size", "max_qp_nonzeros"):
+            need(name, integer(1), "must be an integer >= 1")
+        need("max_backtracks", integer(0), "must be an integer >= 0")
+        need("max_qp_rows", lambda v: v is None or integer(1)(v), "must be None (automatic) or an integer >= 1")
+        for name in ("tol_optimality", "tol_feasibility", "tol_step", "step_bound", "min_step_bound",
+                     "max_step_bound", "initial_hessian_scale", "qp_eps_abs", "penalty_margin",
+                     "restoration_penalty"):
+            need(name, positive, "must be a finite number > 0")
+        need("hessian_eigenvalue_floor", lambda v: positive(v) and v < 1, "must lie in (0, 1)")
+        need("time_limit", lambda v: isinstance(v, (int, float)) and v > 0, "must be > 0 (inf: no limit)")
+        need("step_bound_ratio", lambda v: isinstance(v, (int, float)) and v >= 1,
+             "must be >= 1 (inf disables)")
+        need("active_margin", lambda v: isinstance(v, (int, float)) and 0 <= v < np.inf,
+             "must be finite and >= 0 (a negative margin could drop rows the QP needs)")
+        for name in ("bfgs_damping", "backtrack"):
+            need(name, lambda v: isinstance(v, (int, float)) and 0 < v < 1, "must lie in (0, 1)")
+        need("armijo", lambda v: isinstance(v, (int, float)) and 0 < v < 0.5, "must lie in (0, 0.5)")
+        if not self.min_step_bound <= self.step_bound <= self.max_step_bound:
+            raise SQPSettingsError(
+                "step_bound", self.step_bound,
+                f"must satisfy min_step_bound ({self.min_step_bound}) <= step_bound <= "
+                f"max_step_bound ({self.max_step_bound})")
+        for name in ("qp_polish", "second_order_correction"):
+            if not isinstance(getattr(self, name), bool):
+                raise SQPSettingsError(name, getattr(self, name), "must be True or False")
+        for name, valid in (("hessian", HESSIANS), ("qp_backend", QP_BACKENDS),
+                            ("hessian_modification", HESSIAN_MODIFICATIONS),
+                            ("hessian_modification_scope", HESSIAN_MODIFICATION_SCOPES)):
+            if getattr(self, name) not in valid:
+                raise SQPSettingsError(name, getattr(self, name),
+                                       f"valid values are {', '.join(map(repr, valid))}", valid)
+
+    def qp_row_limit(self, n: int) -> int:
+        r"""Most rows in a QP for :math:`n` variables: ``max_qp_rows`` or :math:`\max(200, 4n)`."""
+        return int(self.max_qp_rows) if self.max_qp_rows is not None else max(200, 4 * int(n))

@@ -1,0 +1,278 @@
+r"""The QP subproblem of one SQP iteration: rows, Hessian, backend, and failures as data.
+
+:class:`QPSolver` picks the ProxQP workspace for a :class:`~calib_oed.solver.qp.QPSubproblem`
+and never lets it raise:
+
+* a :class:`~calib_oed.solver.result.StructuredHessian` goes to the lifted
+  sparse QP (:mod:`calib_oed.solver.lifted`);
+* a dense Hessian goes to the dense backend (``qp_backend="dense"``) only
+  while :math:`n + K \le` ``max_dense_qp_size`` (:math:`K` its row capacity,
+  at most that bound minus :math:`n`); otherwise to the sparse backend;
+* every workspace refuses a QP beyond its size bound before ProxQP allocates
+  (ProxQP aborts the process when an allocation fails, :mod:`calib_oed.solver.qp`);
+* an exception (ProxQP's, ``MemoryError``, ``LinAlgError``, ...) or a
+  non-finite result becomes a failed :class:`~calib_oed.solver.qp.QPStep`
+  with status ``"error"``, ``"too_large"`` or ``"non_finite"`` and a message,
+  which the iteration treats like any unsolved QP and, if it persists,
+  reports as :attr:`~calib_oed.solver.result.SQPStatus.QP_FAILED`.
+
+:class:`_SubproblemMixin` is the part of :class:`calib_oed.solver.iteration._Run`
+that builds and solves the QP at :math:`x_k`: row selection with the
+``max_qp_rows`` bound (:mod:`calib_oed.solver.rows`) and the re-solve with the
+dropped rows a step violates, the Hessian (the caller's exact one made positive
+definite, :mod:`calib_oed.solver.hessian`, with the BFGS matrices as fallback),
+and the second-order correction with the same Hessian.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from calib_oed.solver.hessian import check_structured, positive_definite
+from calib_oed.solver.lifted import LiftedQPWorkspace
+from calib_oed.solver.polish import polish
+from calib_oed.solver.qp import (
+    DenseQPWorkspace,
+    QPSizeError,
+    QPStep,
+    QPSubproblem,
+    SparseQPWorkspace,
+)
+from calib_oed.solver.restoration import unreachable_rows
+from calib_oed.solver.result import StructuredHessian
+from calib_oed.solver.rows import missed_rows, select_rows
+from calib_oed.solver.settings import SQPSettings
+
+_POLISH_BELOW = 1e-4
+r"""Polish QP steps with :math:`\|d\|_\infty` at most this (and any step whose line search
+failed): only there is ProxQP's ~1e-9 error, summed over the active rows of the
+:math:`\ell_1` merit, comparable to the merit decrease. Larger steps do not need it, and
+the dense solve would cost time for nothing (the design problem takes hundreds of
+steps of ~1e-3)."""
+
+CRASHED = ("error", "too_large", "non_finite")
+"""QP statuses of a solver that did not return a usable answer (not ProxQP's own)."""
+
+_MISSED_ROUNDS = 2
+"""Re-solves per QP with the dropped rows its step violates (:mod:`calib_oed.solver.rows`)."""
+
+
+def failed_step(n: int, k: int, status: str, message: str = "") -> QPStep:
+    """A QP step that carries only a failure: NaN step, infinite residuals."""
+    nan = np.full(n, np.nan)
+    return QPStep(nan, np.zeros(k), nan, status, 0, np.inf, np.inf, np.inf, message=message)
+
+
+class QPSolver:
+    """The workspaces of one SQP run and the choice among them (module docstring)."""
+
+    def __init__(self, n: int, settings: SQPSettings):
+        self.n, self.s = n, settings
+        self._ws: dict[str, object] = {}
+        self.last_backend = ""
+
+    def dense_ok(self, k: int) -> bool:
+        """Whether a QP of ``k`` rows with a dense Hessian goes to the dense backend."""
+        return self.s.qp_backend == "dense" and self.n + k <= self.s.max_dense_qp_size
+
+    def _workspace(self, sub: QPSubproblem):
+        s, n = self.s, self.n
+        if isinstance(sub.H, StructuredHessian):
+            name = "lifted"
+        else:
+            name = "dense" if self.dense_ok(sub.lower.size) else "sparse"
+        if name not in self._ws:
+            if name == "lifted":
+                self._ws[name] = LiftedQPWorkspace(n, s.qp_eps_abs, s.qp_max_iterations, s.max_qp_nonzeros)
+            elif name == "dense":
+                self._ws[name] = DenseQPWorkspace(n, s.qp_eps_abs, s.qp_max_iterations,
+                                                  max_capacity=max(1, s.max_dense_qp_size - n))
+            else:
+                self._ws[name] = SparseQPWorkspace(n, s.qp_eps_abs, s.qp_max_iterations, s.max_qp_nonzeros)
+        return name, self._ws[name]
+
+    def solve(self, sub: QPSubproblem, lam0=None, nu0=None) -> QPStep:
+        """Solve ``sub`` warm-started from the duals; failures come back as a failed step."""
+        n, k = self.n, sub.lower.size
+        name = ""
+        try:
+            name, ws = self._workspace(sub)
+            step = ws.solve(sub, None, lam0, nu0)
+        except QPSizeError as exc:
+            step = failed_step(n, k, "too_large", str(exc))
+        except Exception as exc:  # noqa: BLE001 (ProxQP raises RuntimeError, ValueError, MemoryError, ...)
+            self._ws.pop(name, None)  # its state is unknown: the next QP builds a new one
+            step = failed_step(n, k, "error", f"{name or 'QP'} solver raised {type(exc).__name__}: {exc}")
+        else:
+            if not (np.all(np.isfinite(step.d)) and np.all(np.isfinite(step.lam))
+                    and np.all(np.isfinite(step.nu))):
+                self._ws.pop(name, None)
+                step = failed_step(n, k, "non_finite", f"{name} QP solver returned non-finite values "
+                                   f"(ProxQP status {step.status!r})")
+        self.last_backend = name
+        return step
+
+
+@dataclass
+class _QPInfo:
+    """What the last QP of an iteration used (for its :class:`IterationRecord`)."""
+
+    hessian: str = "bfgs"
+    fallback: bool = False
+    modified: int = 0
+    backend: str = ""
+    dropped: int = 0
+
+
+class _SubproblemMixin:
+    """Row selection, Hessian and QP solve of :class:`calib_oed.solver.iteration._Run`."""
+
+    # ------------------------------------------------------------- rows
+    def _select(self, delta):
+        pt = self.pt
+        must = self.sticky | (self.lam > 0)
+        sel = select_rows(pt.c, pt.row_l1, delta, self.s.active_margin, self.max_rows, must)
+        if sel.dropped.size:  # marked rows that are no longer candidates are forgotten
+            near = np.zeros_like(self.sticky)
+            near[sel.rows], near[sel.dropped] = True, True
+            self.sticky &= near
+        return sel
+
+    def _rows(self, delta):
+        return self._select(delta).rows
+
+    # ------------------------------------------------------------- Hessian
+    def _fallback(self, reason):
+        self.fallback_reason = reason
+
+    def _exact_hessian(self):
+        r"""``(H, n_modified)`` from ``lagrangian_hessian`` at :math:`(x_k, \lambda_k)`, or None (reason kept)."""
+        key = (self._version, self.lam.tobytes())
+        if key == self._exact_key:
+            return self._exact
+        s, pt = self.s, self.pt
+        t = time.perf_counter()
+        self._exact, self._exact_key = None, key
+        try:
+            h = self.lagrangian_hessian(pt.x.copy(), self.lam.copy())
+            if h is None:
+                self._fallback("lagrangian_hessian returned None")
+            else:
+                h = check_structured(h, pt.x.size)
+                self._init_bfgs(h.blocks.shape[1])
+                self._exact = positive_definite(h, s.hessian_modification, s.hessian_modification_scope,
+                                                s.hessian_eigenvalue_floor)
+        except Exception as exc:  # noqa: BLE001 (the caller's function: any failure means "use BFGS")
+            self._fallback(f"lagrangian_hessian failed: {type(exc).__name__}: {exc}")
+        self.p.times["hessian"] += time.perf_counter() - t
+        return self._exact
+
+    def _dense_bfgs(self):
+        r""":math:`B = H_0 + \mathrm{blkdiag}(R_1..R_b)` (structured) or the BFGS matrix itself, cached."""
+        if self._B is None:
+            nb, bs = self.R.shape[0], self.R.shape[1]
+            if nb == 1 and self.H0 is None:
+                self._B = self.R[0]
+            else:
+                B = np.zeros((nb * bs, nb * bs)) if self.H0 is None else self.H0.copy()
+                for j in range(nb):
+                    B[j * bs:(j + 1) * bs, j * bs:(j + 1) * bs] += self.R[j]
+                self._B = B
+        return self._B
+
+    def _qp_hessian(self, k):
+        """The QP's Hessian for ``k`` rows and its record entries ``(H, label, fallback, modified)``."""
+        want_exact = self.lagrangian_hessian is not None
+        if want_exact and self._use_exact:
+            exact = self._exact_hessian()
+            if exact is not None:
+                return exact[0], "exact", False, exact[1]
+        label = "bfgs" if self.hessian_model is None else "model+bfgs"
+        self._init_bfgs(self.pt.x.size)  # no structure seen: one dense block
+        if self.H0 is None and self.R.shape[0] > 1 and not self.qp.dense_ok(k):
+            return StructuredHessian(self.R, None), label, want_exact, 0  # block-diagonal: sparse QP
+        return self._dense_bfgs(), label, want_exact, 0
+
+    # ------------------------------------------------------------- QP
+    def _qp(self, delta):
+        """Solve the QP subproblem with trust region ``delta``; ``(rows, step, ok)``.
+
+        The subproblem and its tolerances are kept in ``self._sub`` for the
+        second-order correction, what it used in ``self._info``. When rows were
+        dropped by ``max_qp_rows`` and the step violates some of them
+        (linearised), they join the QP (and stay preferred in later iterations)
+        and it is solved again, up to twice.
+        """
+        pt, s = self.pt, self.s
+        sel = self._select(delta)
+        its = 0  # ProxQP iterations of the rounds before the last
+        for rounds in range(_MISSED_ROUNDS + 1):
+            rows = sel.rows
+            H, label, fallback, modified = self._qp_hessian(rows.size)
+            self._info = _QPInfo(label, fallback, modified, "", int(sel.dropped.size))
+            sub = QPSubproblem(H, pt.g, pt.A[rows], -pt.c[rows],
+                               np.maximum(self.lb - pt.x, -delta), np.minimum(self.ub - pt.x, delta))
+            scale = max(1.0, float(np.max(np.abs(pt.c[rows]), initial=0.0)))
+            tol_p = 10 * s.qp_eps_abs * scale
+            tol_d = 10 * s.qp_eps_abs * max(scale, float(np.max(np.abs(pt.g), initial=0.0)))
+            self._sub = (sub, tol_p, tol_d)
+            if np.any(pt.c[rows] < 0):
+                bad = unreachable_rows(sub.C, sub.lower, sub.box_lower, sub.box_upper, tol_p)
+                if bad.size:  # infeasible for sure: do not let ProxQP run to its limit
+                    return rows, failed_step(pt.x.size, rows.size, "unreachable_row"), False
+            t = time.perf_counter()
+            step = self._solve(sub, self.lam[rows], self.nu, tol_d)
+            ok = step.is_solved(tol_p, tol_d)
+            if not ok and step.status not in CRASHED:  # a stale warm start can mislead ProxQP: cold
+                cold = self._solve(sub, None, None, tol_d)
+                step, ok = cold._replace(iterations=cold.iterations + step.iterations), cold.is_solved(tol_p, tol_d)
+            self.p.times["qp"] += time.perf_counter() - t
+            if not ok or rounds == _MISSED_ROUNDS:
+                break
+            missed = missed_rows(pt.c, pt.A, step.d, sel.dropped, tol_p)
+            if not missed.size:
+                break
+            self.sticky[missed] = True
+            sel = self._select(delta)
+            its += step.iterations
+        return rows, step._replace(iterations=step.iterations + its), ok
+
+    def _solve(self, sub, lam0, nu0, tol):
+        step = self.qp.solve(sub, lam0, nu0)
+        self._info.backend = self.qp.last_backend
+        if (self.s.qp_polish and step.status not in CRASHED and step.primal_residual <= 1e3 * tol
+                and self.pt.x.size <= self.s.max_dense_qp_size
+                and np.max(np.abs(step.d), initial=0.0) <= _POLISH_BELOW):
+            step = polish(sub, step, tol) or step
+        return step
+
+    def _second_order_correction(self, rows, step, trial):
+        r"""Second-order correction after a rejected full step (Fletcher 1987, §14.4; N&W §18.3).
+
+        The full step :math:`d` satisfies the linearised constraints, but the
+        curvature of the active ones makes :math:`c(x + d)` violated and the
+        :math:`\ell_1` merit rejects it (the Maratos effect). Re-solve the QP with
+        the constraint constants taken at :math:`x + d`,
+
+        .. math::
+            c_i(x + d) + A_i (p - d) \ge 0 \quad (i \in K),
+
+        same Hessian (exact or BFGS, as in the QP of :math:`d`), :math:`\nabla f`,
+        box and warm start, and return the evaluated :math:`x + p` (``None`` if
+        the QP fails) and the QP iterations.
+        """
+        pt = self.pt
+        sub, tol_p, tol_d = self._sub
+        a_k = pt.A[rows]
+        sub = sub._replace(lower=-(trial.c[rows] - a_k @ step.d))
+        if unreachable_rows(sub.C, sub.lower, sub.box_lower, sub.box_upper, tol_p).size:
+            return None, 0
+        t = time.perf_counter()
+        corr = self._solve(sub, step.lam, step.nu, tol_d)
+        self.p.times["qp"] += time.perf_counter() - t
+        if not corr.is_solved(tol_p, tol_d):
+            return None, corr.iterations
+        return self._trial(pt.x + corr.d), corr.iterations

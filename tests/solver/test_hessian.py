@@ -1,0 +1,228 @@
+"""The exact structured Hessian in the SQP: PD modification (calib_oed.solver.hessian) and its use.
+
+The test problem has a known optimum by construction: a separable nonconvex
+(double-well) objective plus a low-rank coupling, two active constraints with
+chosen multipliers, and the linear term that makes that point a KKT point
+with a positive definite Hessian of the Lagrangian (a strict local minimum).
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from calib_oed.solver.hessian import (
+    check_structured,
+    modify_blocks,
+    modify_dense,
+    positive_definite,
+)
+from calib_oed.solver.lifted import LiftedQPWorkspace
+from calib_oed.solver.result import StructuredHessian
+from calib_oed.solver.sqp import SQPSettings, SQPSettingsError, SQPStatus, solve_sqp
+
+
+def _orthogonal(rng, s):
+    q, _ = np.linalg.qr(rng.standard_normal((s, s)))
+    return q
+
+
+def test_indefinite_block_is_made_positive_definite():
+    rng = np.random.default_rng(0)
+    q = _orthogonal(rng, 4)
+    theta = np.array([-2.0, 0.5, 3.0, 1e-12])
+    q2 = _orthogonal(rng, 4)
+    pd = q2 @ np.diag([1.0, 2.0, 3.0, 4.0]) @ q2.T
+    pd = 0.5 * (pd + pd.T)
+    blocks = np.stack([q @ np.diag(theta) @ q.T, pd])
+    eps = 1e-8 * 4.0  # rel_floor * max(1, max |theta| over all blocks)
+    for method, expected in (("abs", [2.0, 0.5, 3.0, eps]), ("floor", [eps, 0.5, 3.0, eps])):
+        out, n_mod = modify_blocks(blocks, method, 1e-8)
+        assert n_mod == 2
+        np.testing.assert_allclose(out[0], q @ np.diag(expected) @ q.T, atol=1e-12)  # same eigenvectors
+        np.testing.assert_allclose(np.sort(np.linalg.eigvalsh(out[0])), np.sort(expected), atol=1e-12)
+        np.testing.assert_array_equal(out[1], 0.5 * (pd + pd.T))  # a definite block is left alone
+        assert np.linalg.eigvalsh(out).min() > 0
+
+
+def test_block_and_matrix_scope_differ_where_the_coupling_helps():
+    """D indefinite, D + U U^T definite: the matrix scope keeps it, the block scope convexifies D."""
+    rng = np.random.default_rng(1)
+    blocks = np.stack([np.diag([1.0, -0.5]), np.diag([2.0, 1.0])])
+    u = np.array([[0.0], [2.0], [0.0], [0.0]])  # U U^T adds 4 to the (1, 1) entry
+    h = StructuredHessian(blocks, u)
+    assert np.linalg.eigvalsh(h.dense()).min() > 0
+    dense, n_dense = positive_definite(h, "abs", "matrix", 1e-8)
+    np.testing.assert_allclose(dense, h.dense(), atol=1e-12)
+    assert n_dense == 0
+    structured, n_block = positive_definite(h, "abs", "block", 1e-8)
+    assert n_block == 1 and isinstance(structured, StructuredHessian)
+    np.testing.assert_allclose(structured.blocks[0], np.diag([1.0, 0.5]))
+    v = rng.standard_normal(4)
+    np.testing.assert_allclose(structured @ v, structured.dense() @ v, atol=1e-12)
+    m, n_m = modify_dense(np.diag([-1.0, 2.0]), "floor", 1e-8)
+    np.testing.assert_allclose(m, np.diag([2e-8, 2.0]))
+    assert n_m == 1
+
+
+@pytest.mark.parametrize("bad, match", [
+    ("nope", "StructuredHessian"),
+    ((np.zeros((2, 3, 3)), None), "b \\* s = n"),
+    ((np.full((2, 2, 2), np.nan), None), "non-finite"),
+    ((np.zeros((2, 2, 2)), np.zeros((3, 1))), "low_rank"),
+])
+def test_bad_structured_hessians_are_named(bad, match):
+    with pytest.raises(ValueError, match=match):
+        check_structured(bad, 4)
+
+
+def test_hessian_settings_are_validated():
+    for field, value in (("hessian_modification", "clip"), ("hessian_modification_scope", "pose"),
+                         ("hessian_eigenvalue_floor", 0.0), ("hessian_eigenvalue_floor", 1.0)):
+        with pytest.raises(SQPSettingsError, match=field):
+            SQPSettings(**{field: value})
+
+
+def _double_well(b=10, s=6, r=3, seed=0):
+    r"""f = sum(x^4/4 - x^2/2) + |V^T x - t|^2 / 2 - q^T x, rows: a ball on block 0, a plane, loose balls.
+
+    x* is drawn in [0.9, 1.3]^n, where every x^4/4 - x^2/2 is convex; the
+    ball and the plane are active there with lambda* = (0.8, 0.5). At
+    x0 = 0.5 the diagonal curvature 3 x^2 - 1 is negative: indefinite blocks.
+    """
+    rng = np.random.default_rng(seed)
+    n = b * s
+    v = rng.standard_normal((n, r)) * 2 / np.sqrt(n)
+    t = rng.standard_normal(r)
+    x_star = rng.uniform(0.9, 1.3, n)
+    radius2 = float(x_star[:s] @ x_star[:s])
+    a = rng.standard_normal(n)
+    beta = float(a @ x_star)
+    lam_star = np.array([0.8, 0.5])
+
+    def constraints(x):
+        blocks = x.reshape(b, s)
+        c = np.concatenate([[radius2 - blocks[0] @ blocks[0], a @ x - beta], 10.0 * s - np.sum(blocks**2, axis=1)])
+        jac = np.zeros((2 + b, n))
+        jac[0, :s] = -2 * blocks[0]
+        jac[1] = a
+        for j in range(b):
+            jac[2 + j, j * s:(j + 1) * s] = -2 * blocks[j]
+        return c, jac
+
+    q = x_star**3 - x_star + v @ (v.T @ x_star - t) - constraints(x_star)[1][:2].T @ lam_star
+
+    def objective(x):
+        res = v.T @ x - t
+        return np.sum(x**4 / 4 - x**2 / 2) + 0.5 * res @ res - q @ x, x**3 - x + v @ res - q
+
+    def hessian(x, lam):
+        """Hessian of L = f - lam^T c: diag(3x^2 - 1) + 2 lam_ball on the ball's block, + V V^T."""
+        blocks = np.zeros((b, s, s))
+        diag = (3 * x**2 - 1).reshape(b, s) + 2 * lam[2:, None]
+        diag[0] += 2 * lam[0]
+        blocks[:, np.arange(s), np.arange(s)] = diag
+        return StructuredHessian(blocks, v)
+
+    return objective, constraints, hessian, x_star, lam_star
+
+
+@pytest.mark.parametrize("method, scope", [("abs", "block"), ("floor", "block"), ("abs", "matrix")])
+def test_exact_hessian_converges_in_far_fewer_iterations_than_bfgs(method, scope):
+    objective, constraints, hessian, x_star, lam_star = _double_well()
+    x0 = np.full(x_star.size, 0.5)
+    seen = []
+
+    def recording(x, lam):
+        seen.append(lam.copy())
+        return hessian(x, lam)
+
+    settings = SQPSettings(hessian_modification=method, hessian_modification_scope=scope)
+    exact = solve_sqp(objective, x0, constraints=constraints, lagrangian_hessian=recording, settings=settings)
+    bfgs = solve_sqp(objective, x0, constraints=constraints)
+    blocks = solve_sqp(objective, x0, constraints=constraints, block_size=6)
+    for res in (exact, bfgs, blocks):
+        assert res.status is SQPStatus.CONVERGED and res.check(), res.summary()
+        np.testing.assert_allclose(res.x, x_star, atol=1e-5)
+        np.testing.assert_allclose(res.multipliers[:2], lam_star, atol=1e-5)
+    assert exact.iterations <= 10 and 2 * exact.iterations <= min(bfgs.iterations, blocks.iterations)
+    assert exact.hessian == "exact" and exact.hessian_fallbacks == 0 and bfgs.hessian == "bfgs"
+    assert all(r.hessian == "exact" for r in exact.history)
+    assert exact.history[0].hessian_modified > 0  # indefinite at the start
+    expected_backend = "lifted" if scope == "block" else "dense"
+    assert {r.qp_backend for r in exact.history} == {expected_backend}
+    assert np.all(seen[0] == 0) and all(lam.shape == (12,) and np.all(lam >= 0) for lam in seen)
+    record = json.loads(json.dumps(exact.to_dict(), allow_nan=False))
+    assert record["hessian"] == "exact" and record["history"][0]["hessian"] == "exact"
+
+
+@pytest.mark.parametrize("failure", ["none", "raise", "nan"])
+def test_exact_hessian_falls_back_to_bfgs(failure):
+    objective, constraints, hessian, x_star, _ = _double_well(b=4)
+    calls = []
+
+    def flaky(x, lam):
+        calls.append(1)
+        if len(calls) % 2 == 0:
+            return hessian(x, lam)
+        if failure == "raise":
+            raise RuntimeError("curvature not available here")
+        if failure == "nan":
+            h = hessian(x, lam)
+            return StructuredHessian(h.blocks * np.nan, h.low_rank)
+        return None
+
+    res = solve_sqp(objective, np.full(x_star.size, 0.5), constraints=constraints, lagrangian_hessian=flaky)
+    assert res.status is SQPStatus.CONVERGED and res.check(), res.summary()
+    np.testing.assert_allclose(res.x, x_star, atol=1e-5)
+    assert res.hessian_fallbacks > 0 and res.hessian == "exact"
+    assert {"none": "returned None", "raise": "RuntimeError", "nan": "non-finite"}[failure] in res.hessian_message
+    fell = [r for r in res.history if r.hessian_fallback]
+    assert fell and all(r.hessian == "bfgs" for r in fell)
+    assert "BFGS fallbacks" in res.summary()
+
+
+def test_a_failing_lifted_qp_falls_back_to_bfgs(monkeypatch):
+    def broken(self, sub, d0=None, lam0=None, nu0=None):
+        raise RuntimeError("lifted QP broke")
+
+    monkeypatch.setattr(LiftedQPWorkspace, "solve", broken)
+    objective, constraints, hessian, x_star, _ = _double_well(b=4)
+    res = solve_sqp(objective, np.full(x_star.size, 0.5), constraints=constraints, lagrangian_hessian=hessian)
+    assert res.status is SQPStatus.CONVERGED and res.check(), res.summary()
+    assert res.hessian_fallbacks == res.iterations and "lifted QP broke" in res.hessian_message
+    assert all(r.qp_backend == "dense" for r in res.history)
+
+
+def test_a_coupling_of_many_columns_goes_to_the_dense_qp():
+    """r = 5 > n / 3 = 4: the lifted QP would be slower than the dense one; same optimum."""
+    objective, constraints, hessian, x_star, _ = _double_well(b=2, r=5)
+    res = solve_sqp(objective, np.full(x_star.size, 0.5), constraints=constraints, lagrangian_hessian=hessian)
+    assert res.status is SQPStatus.CONVERGED and res.check(), res.summary()
+    np.testing.assert_allclose(res.x, x_star, atol=1e-5)
+    assert {r.qp_backend for r in res.history} == {"dense"} and res.hessian_fallbacks == 0
+
+
+@pytest.mark.parametrize("bounds, x_star", [
+    (None, [1.0, 1.0]),
+    (([-np.inf, -1.5], [0.5, np.inf]), [0.5, 0.25]),
+])
+def test_rosenbrock_with_its_exact_hessian_and_no_rows(bounds, x_star):
+    """Newton on Rosenbrock (one 2x2 block, m = 0): half the BFGS iterations, same optimum."""
+    def rosenbrock(x):
+        f = 100 * (x[1] - x[0] ** 2) ** 2 + (1 - x[0]) ** 2
+        return f, np.array([-400 * x[0] * (x[1] - x[0] ** 2) - 2 * (1 - x[0]), 200 * (x[1] - x[0] ** 2)])
+
+    def hessian(x, lam):
+        assert lam.shape == (0,)
+        return StructuredHessian(np.array([[[1200 * x[0] ** 2 - 400 * x[1] + 2, -400 * x[0]],
+                                            [-400 * x[0], 200.0]]]))
+
+    x0 = np.array([-1.2, 1.0])
+    exact = solve_sqp(rosenbrock, x0, bounds=bounds, lagrangian_hessian=hessian)
+    bfgs = solve_sqp(rosenbrock, x0, bounds=bounds)
+    assert exact.status is SQPStatus.CONVERGED and exact.check(), exact.summary()
+    np.testing.assert_allclose(exact.x, x_star, atol=1e-6)
+    assert 2 * exact.iterations <= bfgs.iterations + 2
