@@ -88,6 +88,8 @@ def build_parser() -> argparse.ArgumentParser:
                    "(default: a temporary folder)")
     p.add_argument("--no-optimise", action="store_true", help="skip the design optimisation "
                    "(use the heuristic design)")
+    p.add_argument("--pool", default="3000", metavar="N|FILE",
+                   help="candidate pool of the designs' exchange start and certificate (default 3000)")
     p.add_argument("--iterations", type=_positive_int, help="limit the SQP iterations")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=cmd_demo)

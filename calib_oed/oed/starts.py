@@ -21,6 +21,7 @@ start together stay together unless separating them lowers the criterion.
 
 from __future__ import annotations
 
+import weakref
 from dataclasses import dataclass
 
 import numpy as np
@@ -40,6 +41,9 @@ STARTS = ("heuristic", "exchange")
 #: On fms_kr16 (60 poses, KPI) 1000 candidates end 17 % above the exchange value of
 #: 3000, 3000 within 1 % of 6000 (docs/oed.md, "Starts"); drawing 3000 costs ~2 s.
 DEFAULT_POOL = 3000
+
+#: Random pools already drawn, per set-up: {(size, seed): CandidatePool}.
+_POOLS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 #: Two poses closer than this (max over joints) [rad] are one configuration measured twice.
 SAME_POSE_TOL = 1e-7
@@ -80,10 +84,15 @@ def candidate_pool(s: Setup, pool: int | np.ndarray, seed: int, collisions: bool
     if isinstance(pool, (int, np.integer)):
         if pool < 1:
             raise DesignError("pool", int(pool), "the pool needs at least one candidate")
-        # drawn under the full model also without collisions: a collision-free
-        # candidate is feasible for either design
-        q = sample_feasible(s.feasibility, int(pool), seed, max_draws=50_000_000)
-        return CandidatePool(q, "random", int(seed))
+        key = (int(pool), int(seed))
+        cache = _POOLS.setdefault(s, {})
+        if key not in cache:  # several designs of one set-up (demo, study) share the draw
+            # drawn under the full model also without collisions: a collision-free
+            # candidate is feasible for either design
+            q = sample_feasible(s.feasibility, int(pool), seed, max_draws=50_000_000)
+            q.setflags(write=False)
+            cache[key] = CandidatePool(q, "random", int(seed))
+        return cache[key]
     q = s.problem.robot.check_configurations(pool, "candidate pool")
     values = s.feasibility.compute(q, jacobian=False).values
     if not collisions:

@@ -177,11 +177,21 @@ class _Run(_SubproblemMixin, _RestorationMixin):
             crashed = step.status in CRASHED
             self._crash_message = step.message if crashed else ""
             if np.any(pt.c[rows] < 0) and not (crashed and pt.violation_max <= s.tol_feasibility):
-                # a larger box may make the linearisation feasible
+                # a larger box may make the linearisation feasible: just large enough for
+                # every violated row to reach 0 under its linearisation (|A_i d| <= ||A_i||_1 D),
+                # with a factor 2 to spare, not the largest box (a long step through curved
+                # rows is then cut by many backtracks)
                 if delta < s.max_step_bound and not crashed:
-                    delta = s.max_step_bound
+                    bad = pt.c < 0
+                    need = float(np.max(-pt.c[bad] / np.maximum(pt.row_l1[bad], 1e-300),
+                                        initial=0.0))
+                    delta = min(s.max_step_bound, max(4.0 * delta, 2.0 * need))
                     rows, step, ok = self._qp(delta)
                     qp_iter += step.iterations
+                    if not ok and delta < s.max_step_bound:
+                        delta = s.max_step_bound
+                        rows, step, ok = self._qp(delta)
+                        qp_iter += step.iterations
                 if not ok:
                     return self._restore(k, delta, step.status, qp_iter)
             else:  # d = 0 is feasible (to tolerance): a numerical failure; a smaller box is an easier QP

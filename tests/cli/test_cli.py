@@ -29,7 +29,7 @@ def test_identifiability_json(capsys):
 
 def test_demo_runs_the_whole_job(capsys, tmp_path):
     argv = ["demo", "ur5_table", "-n", "40", "--seed", "1", "-N", "6", "--jobs", "1", "--quiet",
-            "--iterations", "15", "-o", str(tmp_path)]
+            "--iterations", "15", "--pool", "400", "-o", str(tmp_path)]
     assert main(argv) == EXIT_OK
     out = capsys.readouterr().out
     assert "KPI standard deviation" in out and " mm" in out
@@ -38,6 +38,7 @@ def test_demo_runs_the_whole_job(capsys, tmp_path):
     assert "coverage of the 95% ellipsoid" in out
     assert (tmp_path / "ur5_calibrated.urdf").is_file() and (tmp_path / "ur5_sensor.yaml").is_file()
     assert "C_p-optimal" in out and "KPI-optimal" in out and (tmp_path / "design.yaml").is_file()
+    assert "KPI-optimal: " in out and "% of the best any 40-pose feasible design" in out
 
 
 @pytest.mark.parametrize(
