@@ -4,14 +4,22 @@ from __future__ import annotations
 
 from calib_oed.exceptions import DesignMemoryError
 
+#: Columns of the exact Hessian's coupling factor U budgeted per variable row (75 for one
+#: KPI point on fms_kr16; a factor wider than n nv / 3 goes to a dense QP, below).
+COUPLING_COLUMNS = 400
 
-def check_memory(n: int, nv: int, rows_per_pose: int) -> None:
+
+def check_memory(n: int, nv: int, rows_per_pose: int, dense: bool = True) -> None:
     """Refuse a design whose solver would not fit in memory, before allocating anything.
 
-    The estimate is the SQP's dense quasi-Newton matrix and its dense QP
-    (about 6 copies of an (n nv)² matrix of floats) plus the constraint
-    Jacobian ((n · rows_per_pose) × nv floats, a few copies) [bytes]; it is
-    compared with the memory available now (``/proc/meminfo`` MemAvailable).
+    The estimate [bytes] of the SQP's largest arrays: with a dense Hessian
+    (damped BFGS, ``dense``) about 6 copies of an (n nv)² matrix of floats
+    (the matrix, its QP copy and ProxQP's factorisation); with the exact
+    structured Hessian the per-pose blocks, the coupling factor
+    (n nv × :data:`COUPLING_COLUMNS`, a few copies) and, when that factor is
+    too wide to lift, one dense (n nv)² matrix; plus the constraint Jacobian
+    ((n · rows_per_pose) × nv floats, a few copies). It is compared with the
+    memory available now (``/proc/meminfo`` MemAvailable).
 
     Raises:
         DesignMemoryError: the estimate exceeds 80 % of the available memory.
@@ -21,7 +29,11 @@ def check_memory(n: int, nv: int, rows_per_pose: int) -> None:
         return
 
     def needed(k: int) -> float:
-        return 8.0 * (6 * (k * nv) ** 2 + 4 * k * rows_per_pose * nv)
+        rows = 4 * k * rows_per_pose * nv
+        if dense:
+            return 8.0 * (6 * (k * nv) ** 2 + rows)
+        wide = COUPLING_COLUMNS > k * nv / 3  # then formed densely
+        return 8.0 * (4 * k * nv * COUPLING_COLUMNS + 2 * wide * (k * nv) ** 2 + rows)
 
     if needed(n) <= 0.8 * available:
         return

@@ -90,14 +90,19 @@ def test_multiplicities_group_equal_poses():
 
 
 def test_memory_check_names_the_largest_n(kr16, monkeypatch):
-    monkeypatch.setattr(memory, "_available_memory", lambda: 2.0 * 2**30)
+    monkeypatch.setattr(memory, "_available_memory", lambda: 0.1 * 2**30)
     with pytest.raises(DesignMemoryError) as info:
         design(kr16, 4000, "kpi")
     err = info.value
     assert 0 < err.largest_n < 4000 and "GiB" in str(err) and str(err.largest_n) in str(err)
-    memory.check_memory(err.largest_n, 6, len(kr16.feasibility.labels))  # that one fits
+    rows = len(kr16.feasibility.labels)
+    memory.check_memory(err.largest_n, 6, rows, dense=False)  # that one fits
     with pytest.raises(DesignMemoryError):
-        memory.check_memory(err.largest_n + 1, 6, len(kr16.feasibility.labels))
+        memory.check_memory(err.largest_n + 1, 6, rows, dense=False)
+    # a dense (BFGS) Hessian needs far more: the largest n that fits is smaller
+    with pytest.raises(DesignMemoryError) as dense:
+        design(kr16, 4000, "kpi", hessian="bfgs")
+    assert dense.value.largest_n < err.largest_n
 
 
 def test_cli_pool_file_replicates_and_no_certificate(tmp_path, kr16, capsys):
