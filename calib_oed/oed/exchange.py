@@ -329,7 +329,7 @@ def exchange_design(
         )
     prior = _check_prior(prior, n_p)
     if not isinstance(criterion, Criterion):
-        raise TypeError(f"criterion must be a calib_oed.oed.criteria.Criterion, got {type(criterion).__name__}")
+        raise TypeError(f"criterion must be a calib_oed.oed.criterion_base.Criterion, got {type(criterion).__name__}")
     max_sweeps = operator.index(max_sweeps)
     if max_sweeps < 0 or not np.isfinite(rtol) or rtol < 0:
         raise ValueError(f"need max_sweeps >= 0 and a finite rtol >= 0, got {max_sweeps}, {rtol}")
