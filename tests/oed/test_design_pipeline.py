@@ -3,6 +3,8 @@ given by the user, pure selection, replicates, the memory check, and the CLI fla
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 import yaml
@@ -119,3 +121,50 @@ def test_cli_pool_file_replicates_and_no_certificate(tmp_path, kr16, capsys):
     assert main(["design", "fms_kr16", "--pool", str(tmp_path / "missing.csv")]) == EXIT_BAD_INPUT
     err = capsys.readouterr().err
     assert "--pool" in err and len(err.strip().splitlines()) == 1
+
+
+def _crowded_ur5_cell():
+    """ur5_table with 120 small obstacles on a shell around the arm: thousands of rows per design."""
+    import yaml as _yaml
+
+    from calib_oed.scene.reader import scene_from_dict
+
+    path = Path(__file__).parents[2] / "calib_oed" / "scene" / "shipped" / "ur5_table.yaml"
+    data = _yaml.safe_load(path.read_text())
+    rng = np.random.default_rng(3)
+    capsules = []
+    for k in range(120):
+        az, el = rng.uniform(-np.pi, np.pi), rng.uniform(0.05, 1.2)
+        c = 1050.0 * np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
+        if c[0] > 600 and abs(c[1] + 300) < 700:  # keep the line of sight to the tracker clear
+            continue
+        capsules.append({"name": f"post{k}", "a": c.tolist(), "b": (c + [0, 0, 60]).tolist(),
+                         "radius": 20})
+    data["cell"]["capsules"] = capsules
+    return setup(scene_from_dict(data, source=str(path)))
+
+
+def test_a_crowded_cell_with_failing_qps_ends_with_a_status(monkeypatch):
+    """The cell kind that used to abort the process (many obstacle rows, a QP failure that
+    widened the trust region to 1 rad): the QP rows stay bounded, and a QP solver that
+    fails ends the design with a status and a feasible record, never an exception."""
+    from calib_oed.solver.lifted import LiftedQPWorkspace
+    from calib_oed.solver.qp import DenseQPWorkspace, SparseQPWorkspace
+
+    s = _crowded_ur5_cell()
+    n = 12
+    rows = []
+    d = design(s, n, "kpi", pool=300, certificate=False, callback=rows.append,
+               settings=SQPSettings(max_iterations=12, step_bound=1.0))
+    assert len(s.feasibility.labels) * n > 1000 and d.feasible
+    assert rows and max(r.n_rows_kept for r in rows) <= max(200, 4 * n * 6)
+    assert max(r.n_rows_dropped for r in rows) > 1000  # the bound is what kept the QP small
+
+    def fail(*args, **kwargs):
+        raise MemoryError()
+
+    for workspace in (DenseQPWorkspace, SparseQPWorkspace, LiftedQPWorkspace):
+        monkeypatch.setattr(workspace, "solve", fail)
+    broken = design(s, n, "kpi", pool=300, certificate=False, settings=SQPSettings(max_iterations=12))
+    assert broken.solver["status"] == "qp_failed" and "MemoryError" in broken.solver["message"]
+    assert broken.feasible and broken.value <= broken.start_value * (1 + 1e-12)
