@@ -14,9 +14,8 @@ certificate's time and the efficiency against the certified lower bound.
 
 Scenes: the five shipped ones and ``bench/scenes/ur10_cell.yaml``,
 ``bench/scenes/panda_cell.yaml`` (example-robot-data arms in cells of our
-own making). ``--growth`` runs fms_kr16 at each n (without the certificate
-above n = 120, whose pool then dominates nothing but the bound) and reports
-time and peak memory against n. Results: docs/benchmarks.md.
+own making). ``--growth`` runs fms_kr16 at each n (the certificate only up to
+n = 120, to keep the run short) and reports time and peak memory against n. Results: docs/benchmarks.md.
 """
 
 from __future__ import annotations

@@ -28,7 +28,7 @@ import numpy as np
 import scipy.spatial
 
 from calib_oed.calibration.workflow import Setup
-from calib_oed.exceptions import DesignError, SamplingError, ShapeError
+from calib_oed.exceptions import DesignError, ShapeError
 from calib_oed.feasibility.constraints import FEASIBILITY_TOL
 from calib_oed.feasibility.sampling import sample_feasible
 from calib_oed.oed.exchange import ExchangeResult, exchange_design
@@ -79,7 +79,7 @@ def candidate_pool(s: Setup, pool: int | np.ndarray, seed: int, collisions: bool
 
     Raises:
         DesignError: a pool size < 1, or no given candidate is feasible.
-        SamplingError: the scene's feasible set is too small to draw the pool.
+        calib_oed.exceptions.SamplingError: the scene's feasible set is too small to draw the pool.
     """
     if isinstance(pool, (int, np.integer)):
         if pool < 1:
@@ -173,5 +173,5 @@ def multiplicities(q: np.ndarray, tol: float = SAME_POSE_TOL) -> list[int]:
     return [roots.count(r) for r in order]
 
 
-__all__ = ["DEFAULT_POOL", "STARTS", "CandidatePool", "SamplingError", "candidate_pool",
+__all__ = ["DEFAULT_POOL", "STARTS", "CandidatePool", "candidate_pool",
            "check_start", "exchange_start", "given_start", "heuristic_start", "multiplicities"]

@@ -6,6 +6,7 @@ import json
 
 import numpy as np
 import pytest
+from test_sqp import _hs43 as hs43
 
 import calib_oed.solver.iteration as iteration
 from calib_oed.solver.qp import DenseQPWorkspace, QPSizeError, QPSubproblem, SparseQPWorkspace
@@ -15,23 +16,8 @@ from calib_oed.solver.subproblem import QPSolver
 
 
 def _hs43():
-    """Rosen–Suzuki (Hock & Schittkowski 43): x* = (0, 1, 2, -1)."""
-    def obj(x):
-        x1, x2, x3, x4 = x
-        f = x1**2 + x2**2 + 2 * x3**2 + x4**2 - 5 * x1 - 5 * x2 - 21 * x3 + 7 * x4
-        return f, np.array([2 * x1 - 5, 2 * x2 - 5, 4 * x3 - 21, 2 * x4 + 7])
-
-    def con(x):
-        x1, x2, x3, x4 = x
-        c = np.array([8 - x1**2 - x2**2 - x3**2 - x4**2 - x1 + x2 - x3 + x4,
-                      10 - x1**2 - 2 * x2**2 - x3**2 - 2 * x4**2 + x1 + x4,
-                      5 - 2 * x1**2 - x2**2 - x3**2 - 2 * x1 + x2 + x4])
-        a = np.array([[-2 * x1 - 1, -2 * x2 + 1, -2 * x3 - 1, -2 * x4 + 1],
-                      [-2 * x1 + 1, -4 * x2, -2 * x3, -4 * x4 + 1],
-                      [-4 * x1 - 2, -2 * x2 + 1, -2 * x3, 1.0]])
-        return c, a
-
-    return obj, con
+    """Rosen–Suzuki (Hock & Schittkowski 43): x* = (0, 1, 2, -1); objective and constraints."""
+    return hs43()[:2]
 
 
 def _raise(exc):
