@@ -32,7 +32,14 @@ from calib_oed.oed.criterion_base import Criterion
 from calib_oed.oed.hessian import has_exact_hessian
 from calib_oed.oed.memory import check_memory
 from calib_oed.oed.objective import DesignObjective
-from calib_oed.oed.problem import DesignProblem, WorstCaseDesignProblem
+from calib_oed.oed.refine import (  # noqa: F401 (DESIGN_SQP, HESSIANS, optimise_from: re-exported)
+    DESIGN_SQP,
+    HESSIANS,
+    optimise_from,
+    optimise_starts,
+    optimise_worst_case,
+    project_feasible,
+)
 from calib_oed.oed.result import Design
 from calib_oed.oed.starts import (
     DEFAULT_POOL,
@@ -44,10 +51,7 @@ from calib_oed.oed.starts import (
     heuristic_start,
 )
 from calib_oed.scene.records import Scene
-from calib_oed.solver.sqp import SQPResult, SQPSettings, solve_sqp
-
-#: SQP settings of the design problem (objective scaled to 1 at the start, x in rad).
-DESIGN_SQP = SQPSettings()
+from calib_oed.solver.sqp import SQPSettings, SQPStatus
 
 #: How a KPI of several points is aggregated: weighted mean variance, or worst-case variance.
 AGGREGATES = ("mean", "max")
@@ -64,23 +68,6 @@ def _check_aggregate(aggregate: str, criterion) -> None:
         raise AggregateError(aggregate, AGGREGATES, "the worst-case KPI aggregate 'max' applies to "
                              f"the criterion 'kpi' only, got criterion {name!r}; use aggregate "
                              "'mean' with it")
-
-
-def project_feasible(nlp: DesignProblem, x: np.ndarray, max_iterations: int = 50) -> np.ndarray:
-    r"""The nearest feasible design: :math:`\min_y \tfrac12\|y - x\|^2` s.t. the design constraints.
-
-    Used when the SQP stops (iteration limit) at an iterate violating a
-    constraint by more than :data:`FEASIBILITY_TOL`; the quadratic objective
-    makes the SQP's BFGS start exact, so a few iterations suffice.
-    """
-    def distance(y):
-        d = y - x
-        return 0.5 * float(d @ d), d
-
-    res = solve_sqp(distance, x, constraints=nlp.compute_constraints, bounds=nlp.bounds,
-                    settings=SQPSettings(max_iterations=max_iterations, step_bound=0.05,
-                                         tol_feasibility=0.1 * FEASIBILITY_TOL))
-    return res.x
 
 
 def _setup(scene: Scene | Setup) -> Setup:
@@ -157,9 +144,6 @@ def evaluate_design(
     )
 
 
-#: Curvature models of the design SQP: the exact Lagrangian Hessian (default), or damped BFGS.
-HESSIANS = ("exact", "bfgs")
-
 #: Named criteria with an exact Hessian (the A criteria and D).
 EXACT_CRITERIA = ("kpi", "params", "D")
 
@@ -169,6 +153,7 @@ CERTIFICATE_STARTS = 8
 #: Most re-solves of the certificate's local search (``certify``'s default); the record says
 #: when the search stopped there instead of finding no better pose.
 CERTIFICATE_ROUNDS = 30
+_CERT_INTERRUPTED = "interrupted during the certificate"
 
 
 def _start_designs(s: Setup, objective: DesignObjective, n: int, start, seed: int, n_starts: int,
@@ -279,14 +264,21 @@ def design(
         if not refine:
             best = _best_start(objective, starts, aggregate)
         else:
-            run = _optimise_worst_case if aggregate == "max" else _optimise_starts
+            run = optimise_worst_case if aggregate == "max" else optimise_starts
             best = run(s, starts, criterion, collisions, settings, callback, structured_hessian,
                        hessian)
         design_seconds, design_cpu = time.perf_counter() - t0, time.process_time() - cpu0
         value, q, phi0, result, start_seed = best
-        cert = (_certificate(s, q, criterion, aggregate, cands, seed, collisions) if certificate
-                else {"skipped": "not asked for (--no-certificate)"})
+        interrupted = result is not None and result.status is SQPStatus.INTERRUPTED
+        if interrupted:
+            cert = {"skipped": "interrupted before the certificate"}
+        elif certificate:
+            cert = _certificate(s, q, criterion, aggregate, cands, seed, collisions)
+            interrupted = cert.get("skipped") == _CERT_INTERRUPTED
+        else:
+            cert = {"skipped": "not asked for (--no-certificate)"}
     record = {} if result is None else result.to_dict()
+    record["interrupted"] = interrupted
     record.pop("x", None)
     record.pop("multipliers", None)
     if aggregate == "max" and result is not None:  # the epigraph variable t s [mm²]: bounds every v_i
@@ -328,6 +320,8 @@ def _certificate(s: Setup, q: np.ndarray, criterion, aggregate: str, cands: Cand
                     local_rounds=CERTIFICATE_ROUNDS, collisions=collisions)
     except CertificateError as exc:
         return {"skipped": str(exc)}
+    except KeyboardInterrupt:  # the design is kept; only its efficiency is lost
+        return {"skipped": _CERT_INTERRUPTED}
     return {"efficiency": float(c.efficiency), "lower_bound": float(c.bound),
             # the search ended by finding no better local maximum (else: at its round limit,
             # and the bound is only as good as the maxima found so far)
@@ -336,78 +330,6 @@ def _certificate(s: Setup, q: np.ndarray, criterion, aggregate: str, cands: Cand
             "pool_size": int(c.pool_size), "local_starts": CERTIFICATE_STARTS,
             "converged": bool(c.converged), "seconds": time.perf_counter() - t0,
             "cpu_seconds": time.process_time() - cpu0}
-
-
-def _optimise_worst_case(s, starts, criterion, collisions, settings, callback, structured_hessian,
-                         hessian):
-    """The epigraph SQP from every start; the best ``(max_i v_i, q, start max, result, seed)``."""
-    best = None
-    for start_seed, q0 in starts:
-        objective = DesignObjective(s.problem, criterion)
-        v0 = float(objective.kpi_point_variances(q0).max())
-        nlp = WorstCaseDesignProblem(objective, s.feasibility, len(q0), collisions=collisions,
-                                     scale=max(v0, 1e-300))
-        result = solve_sqp(nlp.compute_objective, nlp.start(q0), constraints=nlp.compute_constraints,
-                           bounds=nlp.bounds, settings=settings or DESIGN_SQP, callback=callback)
-        x = result.x
-        if nlp.max_violation(x) > FEASIBILITY_TOL:
-            x = np.append(project_feasible(nlp.base, x[:-1]), x[-1])
-        q = nlp.configurations(x)
-        value = float(objective.kpi_point_variances(q).max())
-        if best is None or value < best[0]:
-            best = (value, q, v0, result, start_seed)
-    return best
-
-
-def _optimise_starts(s, starts, criterion, collisions, settings, callback, structured_hessian,
-                     hessian):
-    """Run the SQP from every start; the best ``(value, q, phi0, result, seed)``."""
-    best = None
-    for start_seed, q0 in starts:
-        objective = DesignObjective(s.problem, criterion)
-        value, q, phi0, result = optimise_from(objective, s.feasibility, q0, collisions=collisions,
-                                               settings=settings, callback=callback,
-                                               structured_hessian=structured_hessian,
-                                               hessian=hessian)
-        if best is None or value < best[0]:
-            best = (value, q, phi0, result, start_seed)
-    return best
-
-
-def optimise_from(objective: DesignObjective, feasibility, q0: np.ndarray, *, collisions: bool = True,
-                  settings: SQPSettings | None = None, callback=None,
-                  structured_hessian: bool = False,
-                  hessian: str = "exact") -> tuple[float, np.ndarray, float, SQPResult]:
-    r"""One SQP run of ``objective`` (its prior and parameters included) from the design ``q0``.
-
-    The objective is divided by :math:`|\phi(q^0)|` (log-type criteria can be
-    negative) so the solver sees O(1) numbers; a last iterate that violates a
-    constraint is projected back onto the feasible set. ``hessian="exact"``
-    gives the SQP the exact Lagrangian Hessian
-    (:meth:`~calib_oed.oed.problem.DesignProblem.compute_lagrangian_hessian`)
-    where the criterion has one (A, D; not with joint compliance), else
-    the SQP's damped BFGS; ``"bfgs"`` always the latter.
-
-    Returns:
-        ``(value, q, start value, SQP result)``: the criterion at the final design ``q`` (n, nq).
-    """
-    phi0 = objective.compute_value(q0)
-    nlp = DesignProblem(objective, feasibility, len(q0), collisions=collisions,
-                        scale=max(abs(phi0), 1e-300))
-    if hessian not in HESSIANS:
-        raise DesignError("hessian", hessian, "how the SQP models curvature", HESSIANS)
-    structured = structured_hessian and nlp.compute_curvature(q0.ravel()) is not None
-    exact = (hessian == "exact" and not structured and has_exact_hessian(objective.criterion))
-    result = solve_sqp(nlp.compute_objective, q0.ravel(), constraints=nlp.compute_constraints,
-                       bounds=nlp.bounds, settings=settings or DESIGN_SQP, callback=callback,
-                       hessian_model=nlp.compute_curvature if structured else None,
-                       block_size=nlp.nq,
-                       lagrangian_hessian=nlp.compute_lagrangian_hessian if exact else None)
-    x = result.x
-    if nlp.max_violation(x) > FEASIBILITY_TOL:
-        x = project_feasible(nlp, x)
-    q = nlp.configurations(x).copy()
-    return float(objective.compute_value(q)), q, float(phi0), result
 
 
 def exchange_baseline(

@@ -100,6 +100,11 @@ class Design:
         return None if value is None else float(value)
 
     @property
+    def interrupted(self) -> bool:
+        """A Ctrl-C (or SIGTERM) stopped the pipeline: the best feasible design so far."""
+        return bool(self.solver.get("interrupted", False))
+
+    @property
     def multiplicity(self) -> list[int]:
         """How often each distinct configuration is measured (order of first occurrence)."""
         from calib_oed.oed.starts import multiplicities
@@ -145,6 +150,9 @@ class Design:
         if self.solver.get("status"):
             lines.append(f"  solver: {self.solver.get('status')}, {self.solver.get('iterations')} "
                          f"iterations, {self.solver.get('message', '')}")
+        if self.interrupted:
+            lines.append("  INTERRUPTED: the best feasible design found before Ctrl-C "
+                         "(not converged)")
         lines.append(self.efficiency_line())
         lines.append(format_margins(list(self.margins)))
         return "\n".join(lines)
@@ -184,6 +192,7 @@ class Design:
             "kpi_max_variance_mm2": self.kpi_max_variance,
             "kpi_worst": self.kpi_worst,
             "feasible": self.feasible,
+            "interrupted": self.interrupted,
             "margins": [vars(m) for m in self.margins],
             "seconds": self.seconds,
             "efficiency": self.efficiency,

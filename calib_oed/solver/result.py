@@ -101,6 +101,9 @@ class SQPStatus(str, Enum):
     NUMERICAL_ERROR = "numerical_error"
     """A numerical failure outside the QP solver (``MemoryError``, ``LinAlgError``,
     floating-point error); the message names it."""
+    INTERRUPTED = "interrupted"
+    """A ``KeyboardInterrupt`` (Ctrl-C, or SIGTERM turned into one) arrived during an
+    iteration; the result holds the last accepted iterate."""
 
 
 def kkt_residuals(x, g, c, A, lam, lb, ub, bound_tol):

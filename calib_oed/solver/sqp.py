@@ -196,11 +196,14 @@ def solve_sqp(objective, x0, *, constraints=None, bounds=None, settings: SQPSett
     for k in range(s.max_iterations):
         try:
             record = run.iterate(k)
+            if callback is not None:
+                callback(record)
         except _NUMERICAL as exc:
             run._stop(SQPStatus.NUMERICAL_ERROR, f"iteration {k}: {type(exc).__name__}: {exc}")
             break
-        if callback is not None:
-            callback(record)
+        except KeyboardInterrupt:  # the last accepted iterate is returned, not lost
+            run._stop(SQPStatus.INTERRUPTED, f"interrupted in iteration {k}")
+            break
         if run.status is not None:
             break
         if time.perf_counter() - t0 > s.time_limit:

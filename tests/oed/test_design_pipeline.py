@@ -168,3 +168,18 @@ def test_a_crowded_cell_with_failing_qps_ends_with_a_status(monkeypatch):
     broken = design(s, n, "kpi", pool=300, certificate=False, settings=SQPSettings(max_iterations=12))
     assert broken.solver["status"] == "qp_failed" and "MemoryError" in broken.solver["message"]
     assert broken.feasible and broken.value <= broken.start_value * (1 + 1e-12)
+
+
+def test_ctrl_c_keeps_the_best_feasible_design_so_far(kr16):
+    """Ctrl-C in the SQP (a KeyboardInterrupt, here from the progress callback) returns the
+    design so far, feasible, marked interrupted, without the certificate."""
+    def callback(record):
+        if record.iteration == 2:
+            raise KeyboardInterrupt
+
+    d = design(kr16, N, "kpi", pool=400, settings=FEW, callback=callback)
+    assert d.interrupted and d.solver["status"] == "interrupted"
+    assert d.feasible and d.value <= d.start_value * (1 + 1e-9)
+    assert d.solver["iterations"] == 3
+    assert d.efficiency is None and "interrupted" in d.certificate["skipped"]
+    assert not design(kr16, N, "kpi", pool=400, refine=False, certificate=False).interrupted

@@ -508,3 +508,20 @@ def test_time_limit_stops_with_its_status():
     assert "wall-clock" in res.message
     with pytest.raises(SQPSettingsError):
         SQPSettings(time_limit=0)
+
+
+def test_ctrl_c_returns_the_last_accepted_iterate_with_status_interrupted():
+    """A KeyboardInterrupt during an iteration (here raised by the callback at iteration 3)
+    ends the run with status ``interrupted`` and the iterate the run had accepted."""
+    seen = []
+
+    def callback(record):
+        seen.append(record)
+        if record.iteration == 3:
+            raise KeyboardInterrupt
+
+    res = solve_sqp(_rosenbrock, np.array([-1.2, 1.0]), callback=callback)
+    assert res.status is SQPStatus.INTERRUPTED and "iteration 3" in res.message
+    assert res.iterations == 4 and len(seen) == 4
+    assert res.fun == pytest.approx(_rosenbrock(res.x)[0])
+    assert res.fun < _rosenbrock(np.array([-1.2, 1.0]))[0]  # progress so far is kept

@@ -1,0 +1,123 @@
+r"""Local refinement of a design by the SQP: one run from a start, the best of several starts.
+
+:func:`optimise_from` scales the design NLP (:class:`~calib_oed.oed.problem.DesignProblem`)
+to an O(1) objective and hands it to :func:`calib_oed.solver.sqp.solve_sqp` with
+the exact Lagrangian Hessian where the criterion has one; a last iterate that
+violates a constraint is projected back onto the feasible set
+(:func:`project_feasible`). An interrupted run (Ctrl-C: status
+``interrupted``) keeps its last iterate if it is feasible, else its start,
+and ends a multi-start: the driver then returns the best design so far.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from calib_oed.exceptions import DesignError
+from calib_oed.feasibility.constraints import FEASIBILITY_TOL
+from calib_oed.oed.hessian import has_exact_hessian
+from calib_oed.oed.objective import DesignObjective
+from calib_oed.oed.problem import DesignProblem, WorstCaseDesignProblem
+from calib_oed.solver.sqp import SQPResult, SQPSettings, SQPStatus, solve_sqp
+
+#: SQP settings of the design problem (objective scaled to 1 at the start, x in rad).
+DESIGN_SQP = SQPSettings()
+
+#: Curvature models of the design SQP: the exact Lagrangian Hessian (default), or damped BFGS.
+HESSIANS = ("exact", "bfgs")
+
+def project_feasible(nlp: DesignProblem, x: np.ndarray, max_iterations: int = 50) -> np.ndarray:
+    r"""The nearest feasible design: :math:`\min_y \tfrac12\|y - x\|^2` s.t. the design constraints.
+
+    Used when the SQP stops (iteration limit) at an iterate violating a
+    constraint by more than :data:`FEASIBILITY_TOL`; the quadratic objective
+    makes the SQP's BFGS start exact, so a few iterations suffice.
+    """
+    def distance(y):
+        d = y - x
+        return 0.5 * float(d @ d), d
+
+    res = solve_sqp(distance, x, constraints=nlp.compute_constraints, bounds=nlp.bounds,
+                    settings=SQPSettings(max_iterations=max_iterations, step_bound=0.05,
+                                         tol_feasibility=0.1 * FEASIBILITY_TOL))
+    return res.x
+
+
+def optimise_worst_case(s, starts, criterion, collisions, settings, callback, structured_hessian,
+                         hessian):
+    """The epigraph SQP from every start; the best ``(max_i v_i, q, start max, result, seed)``."""
+    best = None
+    for start_seed, q0 in starts:
+        objective = DesignObjective(s.problem, criterion)
+        v0 = float(objective.kpi_point_variances(q0).max())
+        nlp = WorstCaseDesignProblem(objective, s.feasibility, len(q0), collisions=collisions,
+                                     scale=max(v0, 1e-300))
+        result = solve_sqp(nlp.compute_objective, nlp.start(q0), constraints=nlp.compute_constraints,
+                           bounds=nlp.bounds, settings=settings or DESIGN_SQP, callback=callback)
+        x = result.x
+        if nlp.max_violation(x) > FEASIBILITY_TOL:
+            x = (nlp.start(q0) if result.status is SQPStatus.INTERRUPTED
+                 else np.append(project_feasible(nlp.base, x[:-1]), x[-1]))
+        q = nlp.configurations(x)
+        value = float(objective.kpi_point_variances(q).max())
+        if best is None or value < best[0]:
+            best = (value, q, v0, result, start_seed)
+        if result.status is SQPStatus.INTERRUPTED:
+            return (*best[:3], result, best[4])
+    return best
+
+
+def optimise_starts(s, starts, criterion, collisions, settings, callback, structured_hessian,
+                     hessian):
+    """Run the SQP from every start; the best ``(value, q, phi0, result, seed)``."""
+    best = None
+    for start_seed, q0 in starts:
+        objective = DesignObjective(s.problem, criterion)
+        value, q, phi0, result = optimise_from(objective, s.feasibility, q0, collisions=collisions,
+                                               settings=settings, callback=callback,
+                                               structured_hessian=structured_hessian,
+                                               hessian=hessian)
+        if best is None or value < best[0]:
+            best = (value, q, phi0, result, start_seed)
+        if result.status is SQPStatus.INTERRUPTED:  # no further starts: the best so far, and
+            return (*best[:3], result, best[4])     # the record that says it was interrupted
+    return best
+
+
+def optimise_from(objective: DesignObjective, feasibility, q0: np.ndarray, *, collisions: bool = True,
+                  settings: SQPSettings | None = None, callback=None,
+                  structured_hessian: bool = False,
+                  hessian: str = "exact") -> tuple[float, np.ndarray, float, SQPResult]:
+    r"""One SQP run of ``objective`` (its prior and parameters included) from the design ``q0``.
+
+    The objective is divided by :math:`|\phi(q^0)|` (log-type criteria can be
+    negative) so the solver sees O(1) numbers; a last iterate that violates a
+    constraint is projected back onto the feasible set. ``hessian="exact"``
+    gives the SQP the exact Lagrangian Hessian
+    (:meth:`~calib_oed.oed.problem.DesignProblem.compute_lagrangian_hessian`)
+    where the criterion has one (A, D; not with joint compliance), else
+    the SQP's damped BFGS; ``"bfgs"`` always the latter.
+
+    Returns:
+        ``(value, q, start value, SQP result)``: the criterion at the final design ``q`` (n, nq).
+    """
+    phi0 = objective.compute_value(q0)
+    nlp = DesignProblem(objective, feasibility, len(q0), collisions=collisions,
+                        scale=max(abs(phi0), 1e-300))
+    if hessian not in HESSIANS:
+        raise DesignError("hessian", hessian, "how the SQP models curvature", HESSIANS)
+    structured = structured_hessian and nlp.compute_curvature(q0.ravel()) is not None
+    exact = (hessian == "exact" and not structured and has_exact_hessian(objective.criterion))
+    result = solve_sqp(nlp.compute_objective, q0.ravel(), constraints=nlp.compute_constraints,
+                       bounds=nlp.bounds, settings=settings or DESIGN_SQP, callback=callback,
+                       hessian_model=nlp.compute_curvature if structured else None,
+                       block_size=nlp.nq,
+                       lagrangian_hessian=nlp.compute_lagrangian_hessian if exact else None)
+    x = result.x
+    if nlp.max_violation(x) > FEASIBILITY_TOL:
+        # interrupted: the (feasible) start rather than a projection the user did not wait for
+        x = (q0.ravel() if result.status is SQPStatus.INTERRUPTED else project_feasible(nlp, x))
+    q = nlp.configurations(x).copy()
+    return float(objective.compute_value(q)), q, float(phi0), result
+
+
