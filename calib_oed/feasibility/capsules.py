@@ -335,7 +335,9 @@ def capsules_from_table(
 
 
 def robot_capsules(robot: Robot, settings: FeasibilitySettings) -> tuple[Capsule, ...]:
-    """``settings.robot_capsules`` validated, or capsules fitted with ``settings.capsule_margin``."""
+    """``settings.robot_capsules`` validated, or one capsule per link fitted with
+    ``settings.capsule_margin``. The feasibility model uses
+    :func:`calib_oed.feasibility.link_fit.fitted_robot_capsules` (several per mesh link)."""
     if settings.robot_capsules is not None:
         return capsules_from_table(robot, settings.robot_capsules)
     return fit_capsules(robot, margin=settings.capsule_margin)

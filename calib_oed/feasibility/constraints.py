@@ -5,14 +5,16 @@ Every constraint is written :math:`g(q) \ge 0` (feasible), in SI, per pose:
 - **joint** (2 per joint): :math:`q_i - (\underline q_i + m_q) \ge 0`,
   :math:`(\overline q_i - m_q) - q_i \ge 0` [rad or m];
 - **incidence** (1 per reflector, paper eq. 4):
-  :math:`z_F^\top u - \cos(\beta_{max} - m_\beta) \ge 0` [1], with
-  :math:`z_F` the tool z axis and :math:`u = (t_T - c)/\lVert t_T - c\rVert`
+  :math:`z^\top u - \cos(\beta_{max} - m_\beta) \ge 0` [1], with
+  :math:`z = R_{W,F}\,n_j` the reflector's axis (its unit ``normal`` :math:`n_j`
+  in the tool frame, default tool z) and :math:`u = (t_T - c)/\lVert t_T - c\rVert`
   the unit direction from the reflector :math:`c` to the tracker :math:`t_T`;
 - **self**, **obstacle**, **beam** (capsule pairs, paper §2.2):
   :math:`d(S_1, S_2) - r_1 - r_2 - m_d \ge 0` [m] with :math:`d` the distance
   of the axis segments; against a half-space :math:`n^\top x \ge c_0` one
   row per end point, :math:`n^\top a - c_0 - r - m_d \ge 0` and the same for
-  :math:`b` (smooth, unlike their minimum).
+  :math:`b` (smooth, unlike their minimum); against a box, cylinder or mesh
+  one row :math:`d(S, O) - r - m_d \ge 0` (:mod:`calib_oed.feasibility.solids`).
 
 Gradients (envelope theorem: the closest-point parameters are held fixed):
 with witness points :math:`w_1, w_2` and :math:`u = (w_1 - w_2)/\lVert w_1 - w_2\rVert`,
@@ -43,6 +45,7 @@ from calib_oed.feasibility.bodies import BodyStates, compute_body_states
 from calib_oed.feasibility.curvature import lagrangian_hessian
 from calib_oed.feasibility.segments import closest_parameters
 from calib_oed.feasibility.shapes import Capsule, Cell, FeasibilitySettings
+from calib_oed.feasibility.solids import SolidPairs, solid_candidates, solid_rows
 from calib_oed.model.robot import Robot, frame_index
 
 #: Constraint kinds, in row order within a pose.
@@ -162,6 +165,13 @@ class FeasibilityModel:
         tracker_position: Tracker origin in the world [m], (3,).
         reflector_offsets: Reflector offsets in the tool frame [m], (k, 3).
         reflector_names: Names of the reflectors.
+        reflector_normals: Each reflector's axis in the tool frame, (k, 3) (normalised;
+            ``None``: tool z for every reflector).
+        solid_pairs: ``(segment, solid)`` pairs against the cell's boxes, cylinders and
+            meshes, (S, 2), or ``None`` for every candidate (:func:`solid_candidates`).
+        solid_kinds: Kind of each solid pair (``"obstacle"`` or ``"beam"``).
+
+    Rows per pose, in order: joint, incidence, solid, capsule pairs, half-space pairs.
     """
 
     def __init__(
@@ -177,6 +187,9 @@ class FeasibilityModel:
         tracker_position: np.ndarray,
         reflector_offsets: np.ndarray,
         reflector_names: Sequence[str],
+        reflector_normals: np.ndarray | None = None,
+        solid_pairs: np.ndarray | None = None,
+        solid_kinds: Sequence[str] | None = None,
     ):
         self.robot = robot
         self.segments = segments
@@ -193,6 +206,22 @@ class FeasibilityModel:
         self._tool_body = int(tool.parentJoint)
         self._tool_rotation = tool.placement.rotation.copy()
         self._reflector_local = np.array([tool.placement.act(c) for c in self.reflector_offsets]).reshape(-1, 3)
+        k = len(self.reflector_offsets)
+        normals = np.tile([0.0, 0.0, 1.0], (k, 1)) if reflector_normals is None else np.array(
+            reflector_normals, dtype=float).reshape(-1, 3)
+        if normals.shape != (k, 3):
+            raise ShapeError("reflector_normals", f"({k}, 3)", normals.shape)
+        norm = np.linalg.norm(normals, axis=1, keepdims=True)
+        if not np.all(np.isfinite(normals)) or np.any(norm < 1e-12):
+            raise ValueError(f"reflector normals must be finite and non-zero, got {normals.tolist()}")
+        self.reflector_normals = normals / norm
+        #: Each reflector's axis in its body (joint) frame.
+        self.reflector_axis_local = (self._tool_rotation @ self.reflector_normals.T).T.copy()
+        if solid_pairs is None:
+            solid_pairs, solid_kinds, _ = solid_candidates(segments, cell)
+        solid_pairs = np.asarray(solid_pairs, dtype=int).reshape(-1, 2)
+        self.solid_kinds = tuple(solid_kinds or ())
+        self.solid_pairs = SolidPairs(cell, solid_pairs, segments.radius[solid_pairs[:, 0]])
         if self.halfspace_pairs.size:
             hs = cell.halfspaces
             self._hs_normal = np.array([hs[h].normal for h in self.halfspace_pairs[:, 1]])
@@ -217,6 +246,9 @@ class FeasibilityModel:
             kinds.append("incidence")
             labels.append(f"incidence:{name}")
         names = self.segments.names
+        for (i, o), kind in zip(self.solid_pairs.pairs, self.solid_kinds, strict=True):
+            kinds.append(kind)
+            labels.append(f"{kind}:{names[i]}|{self.cell.solids[o].name}")
         for (i, j), kind in zip(self.pairs, self.pair_kinds, strict=True):
             kinds.append(kind)
             labels.append(f"{kind}:{names[i]}|{names[j]}")
@@ -255,7 +287,7 @@ class FeasibilityModel:
         fns = [fn for kind, fn in (("joint", self._joint_rows), ("incidence", self._incidence_rows)) if kind in asked]
         computed = asked
         if capsule_kinds & asked:  # these give every capsule kind: keep the asked ones below
-            fns += [self._pair_rows, self._halfspace_rows]
+            fns += [lambda q, st, jac: solid_rows(self, st, jac), self._pair_rows, self._halfspace_rows]
             computed = asked | capsule_kinds
         parts_v, parts_j = zip(*(fn(q, states, jacobian) for fn in fns), strict=True)
         rows = self.row_mask(asked)
@@ -328,7 +360,7 @@ class FeasibilityModel:
         body = np.full(k, self._tool_body)
         c = states.points(body, self._reflector_local)  # (n, k, 3)
         rot = states.rotation[:, self._tool_body] @ self._tool_rotation  # (n, 3, 3)
-        z = rot[:, :, 2][:, None, :].repeat(k, axis=1)  # (n, k, 3)
+        z = np.einsum("nij,kj->nki", rot, self.reflector_normals)  # (n, k, 3)
         diff = self.tracker_position - c
         length = np.linalg.norm(diff, axis=2, keepdims=True)
         u = diff / length

@@ -34,6 +34,26 @@ regime switches), the value function's Hessian is the Schur complement
 :math:`D_k = \partial d_k/\partial q` (the witness points' motion along the
 segments). Interior-interior: :math:`F = \{s, t\}`; edge: one parameter clamped;
 vertex: both clamped, no Schur term.
+
+**Solids** (:mod:`calib_oed.feasibility.solids`). A box row whose witness is an
+end point :math:`x` of the segment is the distance of a point to the box,
+:math:`d = \lVert P_m(x_O - \mathrm{clamp}(x_O))\rVert` over the clamped
+coordinates :math:`m`:
+:math:`\nabla^2 d = u^\top\partial^2 x + J_x^\top(P - uu^\top)J_x/d`,
+:math:`P = R_{W,O}\,\mathrm{diag}(m)\,R_{W,O}^\top` (a face: :math:`P = uu^\top`,
+no second term); an edge witness is the segment distance above with the
+world-fixed edge as second segment, and so is a cylinder's side (its axis as
+second segment). All exact. Meshes, cylinder caps and rims, and axes that
+meet a box (coal rows) use the **tangent-plane model**: the solid is
+replaced by the half-space its separating plane bounds at the witness
+(normal :math:`u`), the witness parameter :math:`s` held:
+:math:`\nabla^2 g \approx u^\top\big((1-s)\,\partial^2 a + s\,\partial^2 b\big)`.
+It is exact where the witness on the solid lies inside a flat face and the
+segment's witness is an end point (a mesh face, a cylinder cap); it omits the
+solid's own curvature at edges, vertices and the cylinder's rim (a term
+:math:`J^\top(I - uu^\top)J/\rho`, :math:`\rho` the radius of curvature
+plus the distance), so there it is the Hessian of a valid local model, not of
+the row.
 """
 
 from __future__ import annotations
@@ -44,6 +64,7 @@ import numpy as np
 
 from calib_oed.feasibility.bodies import BodyStates, compute_body_states
 from calib_oed.feasibility.segments import EPS, closest_parameters
+from calib_oed.feasibility.solids import EDGE, END_B
 
 #: Distances [m] below which the curvature of the norm is evaluated at this floor
 #: (contact; the gradient row uses the same floor).
@@ -180,13 +201,20 @@ def _requests(model, pose, row, nq):
     """The points each curved row needs: ``(kind, index, pose, body, local)`` per group."""
     seg, robot = model.segments, model.robot
     tool = robot.model.frames[robot.tool_frame_id]
-    k, p = len(model.reflector_names), len(model.pairs)
+    k, p, ns = len(model.reflector_names), len(model.pairs), len(model.solid_pairs)
     r = row - 2 * nq
     out = []
     sel = np.flatnonzero((r >= 0) & (r < k))
     if sel.size:
         local = np.array([tool.placement.act(c) for c in model.reflector_offsets]).reshape(-1, 3)
         out.append(("incidence", sel, pose[sel], np.full(sel.size, tool.parentJoint), local[r[sel]]))
+    sel = np.flatnonzero((r >= k) & (r < k + ns))
+    if sel.size:  # two end points per solid row: a, b
+        i = model.solid_pairs.pairs[r[sel] - k, 0]
+        body = np.stack([seg.body_a[i], seg.body_b[i]], 1)
+        local = np.stack([seg.a_local[i], seg.b_local[i]], 1)
+        out.append(("solid", sel, np.repeat(pose[sel], 2), body.ravel(), local.reshape(-1, 3)))
+    k += ns  # the capsule and half-space rows follow the solid rows
     sel = np.flatnonzero((r >= k) & (r < k + p))
     if sel.size:  # four end points per pair: a1, b1, a2, b2
         ij = model.pairs[r[sel] - k]
@@ -208,7 +236,7 @@ def _row_hessians(model, kind, states, pose, index, x, jx, omega):
     """Hessians (K, nv, nv) of one group's rows from their points."""
     if kind == "incidence":
         tool = model.robot.model.frames[model.robot.tool_frame_id]
-        z = (states.rotation[pose, tool.parentJoint] @ tool.placement.rotation)[:, :, 2]
+        z = np.einsum("kij,kj->ki", states.rotation[pose, tool.parentJoint], model.reflector_axis_local[index])
         dz = _cross(omega, z[:, :, None])
         return incidence_derivatives(z, dz, point_hessian(omega, dz), x, jx, point_hessian(omega, jx),
                                      model.tracker_position)[2]
@@ -219,9 +247,43 @@ def _row_hessians(model, kind, states, pose, index, x, jx, omega):
             return point_hessian_along(omega, jx, np.repeat(u, 4, axis=0)).reshape(-1, 4, nv, nv)
 
         return segment_distance_derivatives(x.reshape(-1, 4, 3), jx.reshape(-1, 4, 3, nv), hess_along)[2]
-    hs = model.halfspace_pairs[(index - len(model.reflector_names) - len(model.pairs)) // 2, 1]
+    if kind == "solid":
+        return solid_hessians(model.solid_pairs, index - len(model.reflector_names), x.reshape(-1, 2, 3),
+                              jx.reshape(-1, 2, 3, jx.shape[-1]), omega.reshape(-1, 2, 3, jx.shape[-1]))
+    first = len(model.reflector_names) + len(model.solid_pairs) + len(model.pairs)
+    hs = model.halfspace_pairs[(index - first) // 2, 1]
     normal = np.array([model.cell.halfspaces[h].normal for h in hs]).reshape(-1, 3)
     return point_hessian_along(omega, jx, normal)
+
+
+def solid_hessians(solids, pair: np.ndarray, x: np.ndarray, jx: np.ndarray, omega: np.ndarray) -> np.ndarray:
+    r""":math:`\nabla^2 d` (K, nv, nv) of solid rows ``pair`` (K,) from their segments' end points
+    ``x`` (K, 2, 3), Jacobians ``jx`` and angular Jacobians ``omega`` (K, 2, 3, nv) (module docstring)."""
+    w = solids.closest(x[:, 0], x[:, 1], pair)
+    nv = jx.shape[-1]
+    ua = point_hessian_along(omega[:, 0], jx[:, 0], w.u)
+    ub = point_hessian_along(omega[:, 1], jx[:, 1], w.u)
+    out = (1.0 - w.s)[:, None, None] * ua + w.s[:, None, None] * ub  # tangent-plane model
+    end = np.flatnonzero(w.regime <= END_B)
+    if end.size:  # point to box: + J^T (P - u u^T) J / d
+        b = (w.regime[end] == END_B).astype(int)
+        jac = jx[end, b]
+        rot = solids.rotation[pair[end]]
+        proj = np.einsum("kij,kj,klj->kil", rot, w.mask[end].astype(float), rot) - _outer(w.u[end], w.u[end])
+        out[end] += np.swapaxes(jac, 1, 2) @ proj @ jac / np.maximum(w.dist[end], TINY)[:, None, None]
+    edge = np.flatnonzero(w.regime == EDGE)
+    if edge.size:  # segment to the world-fixed edge
+        pts = np.concatenate([x[edge], w.edge[edge]], axis=1)
+        jac = np.concatenate([jx[edge], np.zeros((edge.size, 2, 3, nv))], axis=1)
+
+        def hess_along(u):
+            h = np.zeros((edge.size, 4, nv, nv))
+            h[:, 0] = point_hessian_along(omega[edge, 0], jx[edge, 0], u)
+            h[:, 1] = point_hessian_along(omega[edge, 1], jx[edge, 1], u)
+            return h
+
+        out[edge] = segment_distance_derivatives(pts, jac, hess_along)[2]
+    return out
 
 
 def lagrangian_hessian(model, q: np.ndarray, lam: np.ndarray, states: BodyStates | None = None) -> np.ndarray:

@@ -40,6 +40,7 @@ import pinocchio as pin
 from calib_oed.exceptions import NonFiniteError, ShapeError, UnknownLinkError
 from calib_oed.feasibility.capsules import link_names, load_collision_model
 from calib_oed.feasibility.shapes import Cell
+from calib_oed.feasibility.solids import solid_collision_objects
 from calib_oed.model.robot import Robot
 
 __all__ = ["MeshCheckReport", "check_design_meshes"]
@@ -245,12 +246,16 @@ def check_design_meshes(
     moving = [k for k in range(len(objs)) if joints[k] != 0]
     cap_names, half_names = _obstacle_names(cell)
     cell_shapes = [_segment_shape(c.a, c.b, c.radius) for c in cell.capsules]
+    solids = solid_collision_objects(cell)  # boxes, cylinders, meshes: checked like the capsules
+    cap_names += [s[0] for s in solids]
+    cell_shapes += [s[1:3] for s in solids]
     cell_shapes += [
         (coal.Halfspace(np.asarray(h.normal), float(h.offset)), pin.SE3.Identity())
         for h in cell.halfspaces
     ]
     cell_names = cap_names + half_names
-    cell_pairs = [(k, o) for k in moving for o in range(len(cell_shapes))]
+    ignored = [o.ignore_links for o in cell.capsules] + [s[3] for s in solids] + [h.ignore_links for h in cell.halfspaces]
+    cell_pairs = [(k, o) for k in moving for o in range(len(cell_shapes)) if links[k] not in ignored[o]]
     pairs += [(links[k], cell_names[o]) for k, o in cell_pairs]
     kinds += ["cell"] * len(cell_pairs)
     beam_geoms = [k for k in range(len(objs)) if joints[k] != tool_joint]

@@ -27,6 +27,7 @@ import numpy as np
 from calib_oed.exceptions import UnknownLinkError
 from calib_oed.feasibility.constraints import FeasibilityModel, SegmentTable, build_segments
 from calib_oed.feasibility.shapes import Capsule, Cell, FeasibilitySettings
+from calib_oed.feasibility.solids import prune_solid_pairs
 from calib_oed.model.robot import Robot
 
 
@@ -89,10 +90,13 @@ class PairReport:
         return "\n".join(lines)
 
 
-def _candidates(robot: Robot, seg: SegmentTable, cell: Cell, excluded: Sequence[tuple[str, str]]):
+def _candidates(robot: Robot, seg: SegmentTable, cell: Cell, excluded: Sequence[tuple[str, str]],
+                mesh_dropped: Sequence = ()):
     parents = robot.model.parents
     tool_body = int(robot.model.frames[robot.tool_frame_id].parentJoint)
     excl = {frozenset(p) for p in excluded}
+    on_meshes = {frozenset((p.link_a, p.link_b)): p for p in mesh_dropped}
+    ignored = {o.name: o.ignore_links for o in (*cell.capsules, *cell.halfspaces)}
     pairs, kinds, hs_pairs, hs_kinds, dropped = [], [], [], [], []
     body_roles = ("robot", "reflector")
     ns = len(seg)
@@ -109,6 +113,10 @@ def _candidates(robot: Robot, seg: SegmentTable, cell: Cell, excluded: Sequence[
                     reason = "adjacent links"
                 elif frozenset((seg.links[i], seg.links[j])) in excl:
                     reason = "excluded by the scene"
+                elif frozenset((seg.links[i], seg.links[j])) in on_meshes:
+                    mp = on_meshes[frozenset((seg.links[i], seg.links[j]))]
+                    dropped.append(DroppedPair(f"self:{label_ij}", mp.reason, mp.min_clearance, mp.max_clearance))
+                    continue
                 if reason:
                     dropped.append(DroppedPair(f"self:{label_ij}", reason))
                 else:
@@ -118,8 +126,11 @@ def _candidates(robot: Robot, seg: SegmentTable, cell: Cell, excluded: Sequence[
                 continue
             elif "obstacle" in (ri, rj) and "beam" not in (ri, rj):
                 body = bi if ri != "obstacle" else bj
+                obst, link = (j, seg.links[i]) if ri != "obstacle" else (i, seg.links[j])
                 if body == 0:
                     dropped.append(DroppedPair(f"obstacle:{label_ij}", "both fixed"))
+                elif link in ignored.get(seg.names[obst], ()):
+                    dropped.append(DroppedPair(f"obstacle:{label_ij}", "ignore_links of the obstacle"))
                 else:
                     pairs.append((i, j))
                     kinds.append("obstacle")
@@ -138,6 +149,9 @@ def _candidates(robot: Robot, seg: SegmentTable, cell: Cell, excluded: Sequence[
             if role != "beam" and int(seg.body_a[i]) == 0:
                 dropped.append(DroppedPair(f"obstacle:{seg.names[i]}|{hs.name}", "both fixed"))
                 continue
+            if role != "beam" and seg.links[i] in hs.ignore_links:
+                dropped.append(DroppedPair(f"obstacle:{seg.names[i]}|{hs.name}", "ignore_links of the obstacle"))
+                continue
             hs_pairs.append((i, h))
             hs_kinds.append("beam" if role == "beam" else "obstacle")
     return pairs, kinds, hs_pairs, hs_kinds, dropped
@@ -152,6 +166,8 @@ def build_feasibility_model(
     reflector_names: Sequence[str] | None = None,
     capsules: Sequence[Capsule] | None = None,
     prune: bool = True,
+    reflector_normals: np.ndarray | None = None,
+    mesh_pairs: bool | None = None,
 ) -> tuple[FeasibilityModel, PairReport]:
     """Assemble the feasibility model of a cell and report the pair selection.
 
@@ -163,25 +179,38 @@ def build_feasibility_model(
         reflector_offsets: Reflector offsets in the tool frame [m], (k, 3).
         reflector_names: Their names (default ``reflector0..``).
         capsules: Robot capsules (link frames); default: the scene's table or
-            the fit to the URDF collision geometry (:func:`robot_capsules`).
+            the capsules fitted to the URDF collision geometry, one per link or,
+            with ``settings.link_fit == "split"``, several
+            (:func:`calib_oed.feasibility.link_fit.fitted_robot_capsules`).
         prune: Run the sampling pass that drops pairs that cannot matter.
+        reflector_normals: Reflector axes in the tool frame, (k, 3) (default tool z).
+        mesh_pairs: Drop the self pairs decided on the collision meshes
+            (:mod:`calib_oed.feasibility.mesh_pairs`); default: with the split fit
+            to the URDF geometry (no ``capsules``, no scene table).
     """
     reflector_offsets = np.asarray(reflector_offsets, dtype=float).reshape(-1, 3)
     if reflector_names is None:
         reflector_names = [f"reflector{j}" for j in range(len(reflector_offsets))]
     from calib_oed.feasibility.capsules import link_names, robot_capsules
+    from calib_oed.feasibility.link_fit import fitted_robot_capsules
+    from calib_oed.feasibility.mesh_pairs import dropped_mesh_pairs
 
+    split = settings.link_fit == "split"
+    if mesh_pairs is None:
+        mesh_pairs = capsules is None and settings.robot_capsules is None and split
     if capsules is None:
-        capsules = robot_capsules(robot, settings)
+        capsules = fitted_robot_capsules(robot, settings) if split else robot_capsules(robot, settings)
     links = set(link_names(robot))
     for pair in settings.excluded_pairs:
         for name in pair:
             if name not in links:
                 raise UnknownLinkError(name, sorted(links))
     seg = build_segments(robot, capsules, cell, settings, tracker_position, reflector_offsets, reflector_names)
-    pairs, kinds, hs_pairs, hs_kinds, dropped = _candidates(robot, seg, cell, settings.excluded_pairs)
+    on_meshes = dropped_mesh_pairs(robot, settings.margins.clearance) if mesh_pairs else ()
+    pairs, kinds, hs_pairs, hs_kinds, dropped = _candidates(robot, seg, cell, settings.excluded_pairs, on_meshes)
     args = (cell, settings, tracker_position, reflector_offsets, reflector_names)
-    model = FeasibilityModel(robot, seg, np.array(pairs), kinds, np.array(hs_pairs), hs_kinds, *args)
+    model = FeasibilityModel(robot, seg, np.array(pairs), kinds, np.array(hs_pairs), hs_kinds, *args,
+                             reflector_normals=reflector_normals)
     n_links = len({c.frame for c in capsules})
     samples = int(settings.prune_samples) if prune else 0
     if samples > 0:
@@ -210,12 +239,16 @@ def build_feasibility_model(
             if reason:
                 keep[k] = False
                 dropped.append(DroppedPair(labels[k], reason, float(lo[k]), float(hi[k])))
+        solid_pairs, solid_kinds, solid_dropped = prune_solid_pairs(model, values, settings.prune_distance)
+        dropped += [DroppedPair(*d) for d in solid_dropped]
         kp, kh = keep[: len(pairs)], keep[len(pairs):]
         pairs = [p for p, k in zip(pairs, kp, strict=True) if k]
         kinds = [p for p, k in zip(kinds, kp, strict=True) if k]
         hs_pairs = [p for p, k in zip(hs_pairs, kh, strict=True) if k]
         hs_kinds = [p for p, k in zip(hs_kinds, kh, strict=True) if k]
-        model = FeasibilityModel(robot, seg, np.array(pairs), kinds, np.array(hs_pairs), hs_kinds, *args)
+        model = FeasibilityModel(robot, seg, np.array(pairs), kinds, np.array(hs_pairs), hs_kinds, *args,
+                                 reflector_normals=reflector_normals, solid_pairs=solid_pairs,
+                                 solid_kinds=solid_kinds)
     counts = {k: v for k, v in model.count_per_pose().items()}
     checked = tuple(dict.fromkeys(
         lbl.replace(".a|", "|").replace(".b|", "|")
@@ -235,4 +268,5 @@ def feasibility_from_scene(scene, prune: bool = True) -> tuple[FeasibilityModel,
         np.array([r.offset for r in scene.reflectors]),
         [r.name for r in scene.reflectors],
         prune=prune,
+        reflector_normals=np.array([r.normal for r in scene.reflectors]),
     )

@@ -28,6 +28,12 @@ from calib_oed.exceptions import (
     UnknownRobotError,
     UnsupportedModelError,
 )
+from calib_oed.model.description import (
+    default_package_dirs,
+    expand_xacro,
+    is_xacro,
+    resolve_package_paths,
+)
 from calib_oed.model.registry import (
     EXAMPLE_ROBOTS,
     NOTIONAL_PATTERN,
@@ -62,10 +68,14 @@ class Robot:
         tool_frame_id: Its index in ``model.frames``.
         lower: Lower joint limits used for design [rad or m], read-only.
         upper: Upper joint limits [rad or m], read-only.
-        urdf_path: The URDF file, or ``None`` for a generated model.
-        urdf_text: The URDF the model was built from.
-        package_dirs: Folders for resolving ``package://`` mesh paths.
+        urdf_path: The URDF (or xacro) file, or ``None`` for a generated model.
+        urdf_text: The URDF the model was built from (for a xacro file, its expansion).
+        package_dirs: Folders for resolving ``package://`` mesh paths: those
+            given, then the parent folder of every package the URDF names that
+            was found there or on ``ROS_PACKAGE_PATH``
+            (:func:`calib_oed.model.description.resolve_package_paths`).
         locked_joints: Joints removed from the model and their fixed values.
+        xacro_args: The arguments a xacro file was expanded with (empty for a URDF).
     """
 
     name: str
@@ -78,6 +88,7 @@ class Robot:
     urdf_text: str
     package_dirs: tuple[str, ...] = ()
     locked_joints: dict[str, float] = field(default_factory=dict)
+    xacro_args: dict[str, str] = field(default_factory=dict)
 
     @property
     def nq(self) -> int:
@@ -130,11 +141,13 @@ def load_robot(
     joint_limits: Mapping[str, Sequence[float]] | None = None,
     lock_joints: Mapping[str, float] | None = None,
     package_dirs: Sequence[str | os.PathLike] | None = None,
+    xacro_args: Mapping[str, object] | None = None,
 ) -> Robot:
     """Load a serial arm.
 
     Args:
-        source: A URDF file path, one of our robots (``"kr16"``, ``"kr300"``,
+        source: A URDF file path, a xacro file path (``*.xacro``, expanded with
+            ``xacro_args``), one of our robots (``"kr16"``, ``"kr300"``,
             ``"kr500"``), a notional arm ``"notional_l<λ mm>_m<μ mm>"``, or an
             example-robot-data arm (``"ur5"``, ``"panda"``, ...); see
             :func:`calib_oed.model.registry.robot_names`.
@@ -143,20 +156,27 @@ def load_robot(
         joint_limits: Overrides ``{joint: (lower, upper)}`` [rad or m].
         lock_joints: Joints to hold fixed ``{joint: value}`` [rad or m]; needed
             when the URDF branches (grippers) beside the tool chain.
-        package_dirs: Folders for ``package://`` mesh paths.
+        package_dirs: Folders for ``package://`` mesh paths and ``$(find pkg)``
+            (default: the URDF's folder, or the registry's); ``ROS_PACKAGE_PATH``
+            is searched after them.
+        xacro_args: Arguments of a xacro file, ``{name: value}`` (as
+            ``xacro file.xacro name:=value``).
 
     Raises:
-        RobotLoadError: missing or malformed URDF.
+        RobotLoadError: missing or malformed URDF, xacro that fails to expand.
         UnknownRobotError: unknown robot name.
         UnknownFrameError: unknown tool frame.
         UnknownJointError: an override names a joint the robot does not have.
         UnsupportedModelError: not a serial chain, continuous or mimic joints.
         JointLimitError: inconsistent limits.
     """
-    src = _resolve(source)
-    dirs = src.package_dirs if package_dirs is None else tuple(str(d) for d in package_dirs)
-    locks = {**src.locked_joints, **(lock_joints or {})}
+    given = None if package_dirs is None else tuple(str(d) for d in package_dirs)
+    src = _resolve(source, given, xacro_args)
     where = str(src.path or src.name)
+    text, dirs = resolve_package_paths(src.text, src.package_dirs if given is None else given,
+                                       where, strict=False)
+    src = src._replace(text=text)
+    locks = {**src.locked_joints, **(lock_joints or {})}
     mimic = _mimic_joints(src.text, where)
     try:
         full = pin.buildModelFromXML(src.text)
@@ -179,6 +199,7 @@ def load_robot(
         urdf_text=src.text,
         package_dirs=dirs,
         locked_joints=locks,
+        xacro_args={str(k): str(v) for k, v in (xacro_args or {}).items()},
     )
 
 
@@ -193,8 +214,12 @@ class _Source(NamedTuple):
     package_dirs: tuple[str, ...] = ()
 
 
-def _resolve(source: str | os.PathLike) -> _Source:
+def _resolve(source: str | os.PathLike, package_dirs: tuple[str, ...] | None,
+             xacro_args: Mapping[str, object] | None) -> _Source:
     src = str(source)
+    if xacro_args and not is_xacro(src):
+        raise RobotLoadError(f"xacro_args given for {src!r}, which is not a xacro file "
+                             "(*.xacro); a URDF takes no arguments")
     if src in OWN_ROBOTS:
         path = own_urdf_path(src)
         return _Source(src, path, path.read_text(), OWN_ROBOTS[src])
@@ -216,16 +241,22 @@ def _resolve(source: str | os.PathLike) -> _Source:
         return _Source(src, path, path.read_text(), entry.tool_frame, entry.locked_joints,
                        (str(share),))
     path = Path(src)
-    looks_like_path = os.sep in src or src.endswith((".urdf", ".xml")) or path.exists()
+    looks_like_path = (os.sep in src or src.endswith((".urdf", ".xml")) or is_xacro(src)
+                       or path.exists())
     if not looks_like_path:
         raise UnknownRobotError(src, robot_names())
     if not path.is_file():
-        raise RobotLoadError(f"URDF file not found: {path}")
+        raise RobotLoadError(f"{'xacro' if is_xacro(src) else 'URDF'} file not found: {path}")
+    here = default_package_dirs(path)
+    if is_xacro(src):
+        text = expand_xacro(path, xacro_args, package_dirs if package_dirs is not None else here)
+        stem = path.name.removesuffix(".xacro").removesuffix(".urdf")
+        return _Source(stem, path.resolve(), text, package_dirs=here)
     try:
         text = path.read_text()
     except (OSError, UnicodeDecodeError) as exc:
         raise RobotLoadError(f"{path}: cannot read URDF ({exc})") from exc
-    return _Source(path.stem, path.resolve(), text, package_dirs=(str(path.resolve().parent),))
+    return _Source(path.stem, path.resolve(), text, package_dirs=here)
 
 
 def _mimic_joints(text: str, where: str) -> set[str]:

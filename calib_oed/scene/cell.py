@@ -9,18 +9,41 @@ A half-space keeps the free side :math:`n^\top x \ge c` as written in the file;
 the normal need not be unit length (both :math:`n` and :math:`c` are divided by
 :math:`\lVert n \rVert`). The shorthands ``x_min: v`` (:math:`x \ge v`) and
 ``x_max: v`` (:math:`x \le v`), and likewise for y and z, give axis-aligned planes.
+
+Solid obstacles: ``boxes`` (``center``, ``size`` = side lengths, ``rpy``),
+``cylinders`` (``center``, ``radius``, ``length`` along the local z axis,
+``rpy``), ``spheres`` (``center``, ``radius``; a capsule with ``a == b``) and
+``meshes`` (``file``, STL/OBJ/... read by coal's assimp loader, relative to the
+scene file; its coordinates times ``scale`` (a number or x, y, z) are in the
+scene's length unit, then rotated by ``rpy`` and moved by ``xyz``; checked as
+their convex hull). ``rpy`` is :math:`R_{W,O} = R_z(y)R_y(p)R_x(r)`, as for the
+tracker. Every obstacle takes ``ignore_links``: robot links never checked
+against it (``[base_link]`` for the floor the base stands on).
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import replace
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import coal
 import numpy as np
 import pinocchio as pin
 
 from calib_oed.exceptions import UnknownLinkError
-from calib_oed.feasibility.shapes import Capsule, Cell, FeasibilitySettings, HalfSpace, Margins
+from calib_oed.feasibility.shapes import (
+    LINK_FITS,
+    Box,
+    Capsule,
+    Cell,
+    Cylinder,
+    FeasibilitySettings,
+    HalfSpace,
+    Margins,
+    MeshObstacle,
+)
 
 if TYPE_CHECKING:
     from calib_oed.model.robot import Robot
@@ -34,9 +57,10 @@ HALFSPACE_SHORTHANDS: dict[str, tuple[tuple[float, float, float], float]] = {
     "z_min": ((0.0, 0.0, 1.0), 1.0), "z_max": ((0.0, 0.0, -1.0), -1.0),
 }  # fmt: skip
 FEASIBILITY_KEYS = ("incidence_limit", "beam_radius", "reflector_radius", "capsule_margin",
-                    "margins", "excluded_pairs", "robot_capsules", "prune")
+                    "margins", "excluded_pairs", "robot_capsules", "prune", "link_fit")
 _XYZ = "x, y, z"
-_CELL = "cell.capsules and cell.halfspaces together"
+CELL_KEYS = ("capsules", "halfspaces", "boxes", "cylinders", "spheres", "meshes")
+_CELL = "the cell's obstacles (" + ", ".join(CELL_KEYS) + ")"
 
 
 def robot_links(robot: Robot) -> list[str]:
@@ -44,21 +68,112 @@ def robot_links(robot: Robot) -> list[str]:
     return list(dict.fromkeys(f.name for f in robot.model.frames if f.type == pin.FrameType.BODY))
 
 
-def read_cell(reader: FieldReader, value: Any) -> Cell:
-    """The ``cell:`` block: world-fixed obstacle capsules and free half-spaces [m]."""
-    spec = reader.mapping(value, "cell", (), ("capsules", "halfspaces"))
+def read_cell(reader: FieldReader, value: Any, robot: Robot | None = None) -> Cell:
+    """The ``cell:`` block: world-fixed obstacles [m] (module docstring); ``ignore_links``
+    are checked against ``robot``'s links when it is given."""
+    spec = reader.mapping(value, "cell", (), CELL_KEYS)
     names: set[str] = set()
-    capsules = []
-    for i, item in enumerate(_list(reader, spec.get("capsules", []), "cell.capsules")):
-        key = f"cell.capsules[{i}]"
-        item = reader.mapping(item, key, ("name", "a", "b", "radius"))
-        name = _unique(reader, item, key, names, _CELL)
-        capsules.append(_capsule(reader, item, key, None, name))
-    halfspaces = [
-        _halfspace(reader, item, f"cell.halfspaces[{i}]", names)
-        for i, item in enumerate(_list(reader, spec.get("halfspaces", []), "cell.halfspaces"))
-    ]
-    return Cell(capsules=tuple(capsules), halfspaces=tuple(halfspaces))
+    links = robot_links(robot) if robot is not None else None
+    out: dict[str, list] = {k: [] for k in CELL_KEYS}
+    for kind in CELL_KEYS:
+        for i, item in enumerate(_list(reader, spec.get(kind, []), f"cell.{kind}")):
+            key = f"cell.{kind}[{i}]"
+            if kind == "halfspaces":
+                out[kind].append(_halfspace(reader, item, key, names, links))
+                continue
+            item = reader.mapping(item, key, ("name", *_REQUIRED[kind]), ("ignore_links", *_OPTIONAL[kind]))
+            name = _unique(reader, item, key, names, _CELL)
+            ignore = _ignore(reader, item, key, links)
+            out[kind].append(_SOLID_READERS[kind](reader, item, key, name, ignore))
+    return Cell(capsules=tuple(out["capsules"] + out["spheres"]), halfspaces=tuple(out["halfspaces"]),
+                boxes=tuple(out["boxes"]), cylinders=tuple(out["cylinders"]), meshes=tuple(out["meshes"]))
+
+
+def reflector_normal(reader: FieldReader, value: Any, i: int) -> np.ndarray:
+    """``reflectors[i].normal``: the reflector's axis in the tool frame, normalised."""
+    key = f"reflectors[{i}].normal"
+    normal = reader.vector(value, key, 3, what="nx, ny, nz")
+    norm = float(np.linalg.norm(normal))
+    if norm < 1e-12:
+        raise reader.fail(key, f"must be non-zero (the reflector's axis in the tool frame), got {value!r}")
+    return normal / norm
+
+
+_REQUIRED = {"capsules": ("a", "b", "radius"), "boxes": ("center", "size"),
+             "cylinders": ("center", "radius", "length"), "spheres": ("center", "radius"),
+             "meshes": ("file",)}
+_OPTIONAL = {"capsules": (), "boxes": ("rpy",), "cylinders": ("rpy",), "spheres": (),
+             "meshes": ("scale", "xyz", "rpy")}
+
+
+def _ignore(reader: FieldReader, item: dict, key: str, links: list[str] | None) -> tuple[str, ...]:
+    value = item.get("ignore_links", [])
+    if not isinstance(value, list):
+        raise reader.fail(f"{key}.ignore_links", f"expected a list of link names, got {value!r}")
+    if links is None:
+        return tuple(reader.string(v, f"{key}.ignore_links[{j}]") for j, v in enumerate(value))
+    return tuple(_link(reader, v, f"{key}.ignore_links[{j}]", links) for j, v in enumerate(value))
+
+
+def _rotation(reader: FieldReader, item: dict, key: str) -> np.ndarray:
+    if "rpy" not in item:
+        return np.eye(3)
+    rpy = reader.vector(item["rpy"], f"{key}.rpy", 3, reader.angle, what="roll, pitch, yaw")
+    return pin.rpy.rpyToMatrix(*rpy)
+
+
+def _length(reader: FieldReader, item: dict, key: str, name: str) -> float:
+    return reader.number(item[name], f"{key}.{name}", reader.length, positive=True)
+
+
+def _read_capsule(reader, item, key, name, ignore):
+    return replace(_capsule(reader, item, key, None, name), ignore_links=ignore)
+
+
+def _read_sphere(reader, item, key, name, ignore):
+    c = reader.vector(item["center"], f"{key}.center", 3, reader.length, what=_XYZ)
+    return Capsule(c, c, _length(reader, item, key, "radius"), None, name, ignore)
+
+
+def _read_box(reader, item, key, name, ignore):
+    size = reader.vector(item["size"], f"{key}.size", 3, reader.length, what="side lengths x, y, z")
+    if np.any(size <= 0):
+        raise reader.fail(f"{key}.size", f"expected side lengths > 0, got {item['size']!r}")
+    return Box(reader.vector(item["center"], f"{key}.center", 3, reader.length, what=_XYZ), size,
+               _rotation(reader, item, key), name, ignore)
+
+
+def _read_cylinder(reader, item, key, name, ignore):
+    return Cylinder(reader.vector(item["center"], f"{key}.center", 3, reader.length, what=_XYZ),
+                    _length(reader, item, key, "radius"), _length(reader, item, key, "length"),
+                    _rotation(reader, item, key), name, ignore)
+
+
+def _read_mesh(reader, item, key, name, ignore):
+    path = Path(reader.string(item["file"], f"{key}.file"))
+    if not path.is_absolute():
+        path = (Path(reader.source).parent if reader.source else Path.cwd()) / path
+    if not path.is_file():
+        raise reader.fail(f"{key}.file", f"mesh file not found: {path} (a path relative to the scene file)")
+    scale = (reader.vector3_or_scalar(item["scale"], f"{key}.scale", 1.0) if "scale" in item
+             else np.ones(3))
+    if np.any(scale <= 0):
+        raise reader.fail(f"{key}.scale", f"expected a scale > 0 (a number or x, y, z), got {item['scale']!r}")
+    try:
+        bvh = coal.MeshLoader().load(str(path), np.asarray(scale, dtype=float))
+    except ValueError as exc:
+        raise reader.fail(f"{key}.file", f"cannot read the mesh {path}: {str(exc).splitlines()[-1]}") from exc
+    vertices = np.array([bvh.vertex(i) for i in range(bvh.num_vertices)]).reshape(-1, 3) * reader.length
+    xyz = (reader.vector(item["xyz"], f"{key}.xyz", 3, reader.length, what=_XYZ) if "xyz" in item
+           else np.zeros(3))
+    try:
+        return MeshObstacle(vertices @ _rotation(reader, item, key).T + xyz, name, ignore, str(path))
+    except ValueError as exc:
+        raise reader.fail(f"{key}.file", str(exc)) from exc
+
+
+_SOLID_READERS = {"capsules": _read_capsule, "spheres": _read_sphere, "boxes": _read_box,
+                  "cylinders": _read_cylinder, "meshes": _read_mesh}
 
 
 def read_feasibility(reader: FieldReader, value: Any, robot: Robot) -> FeasibilitySettings:
@@ -99,6 +214,8 @@ def read_feasibility(reader: FieldReader, value: Any, robot: Robot) -> Feasibili
         prune_distance=(reader.number(prune["distance"], "feasibility.prune.distance",
                                       reader.length, positive=True)
                         if "distance" in prune else default.prune_distance),
+        link_fit=reader.string(spec.get("link_fit", default.link_fit), "feasibility.link_fit",
+                               LINK_FITS),
     )
 
 
@@ -127,9 +244,11 @@ def _capsule(reader: FieldReader, item: dict, key: str, frame: str | None, name:
     )
 
 
-def _halfspace(reader: FieldReader, item: Any, key: str, names: set[str]) -> HalfSpace:
-    item = reader.mapping(item, key, ("name",), ("normal", "offset", *HALFSPACE_SHORTHANDS))
+def _halfspace(reader: FieldReader, item: Any, key: str, names: set[str],
+               links: list[str] | None = None) -> HalfSpace:
+    item = reader.mapping(item, key, ("name",), ("normal", "offset", *HALFSPACE_SHORTHANDS, "ignore_links"))
     name = _unique(reader, item, key, names, _CELL)
+    ignore = _ignore(reader, item, key, links)
     short = [k for k in HALFSPACE_SHORTHANDS if k in item]
     plane = [k for k in ("normal", "offset") if k in item]
     if len(short) + bool(plane) != 1:
@@ -140,7 +259,7 @@ def _halfspace(reader: FieldReader, item: Any, key: str, names: set[str]) -> Hal
     if short:
         normal, sign = HALFSPACE_SHORTHANDS[short[0]]
         value = reader.number(item[short[0]], f"{key}.{short[0]}", reader.length)
-        return HalfSpace(np.array(normal), sign * value, name)
+        return HalfSpace(np.array(normal), sign * value, name, ignore)
     for k in ("normal", "offset"):
         if k not in item:
             raise reader.fail(f"{key}.{k}", "missing required key; a half-space given by its "
@@ -150,7 +269,7 @@ def _halfspace(reader: FieldReader, item: Any, key: str, names: set[str]) -> Hal
     if norm < 1e-12:
         raise reader.fail(f"{key}.normal", f"must be non-zero, got {item['normal']!r}")
     offset = reader.number(item["offset"], f"{key}.offset", reader.length)
-    return HalfSpace(normal / norm, offset / norm, name)
+    return HalfSpace(normal / norm, offset / norm, name, ignore)
 
 
 def _margins(reader: FieldReader, value: Any, incidence_limit: float, robot: Robot) -> Margins:

@@ -27,7 +27,8 @@ from calib_oed.feasibility.shapes import Cell, FeasibilitySettings
 from calib_oed.model.compliance import Compliance
 from calib_oed.model.joint_path import sample_joint_path
 from calib_oed.model.robot import Robot, load_robot
-from calib_oed.scene.cell import read_cell, read_feasibility
+from calib_oed.scene.cell import read_cell, read_feasibility, reflector_normal
+from calib_oed.scene.checks import check_scene
 from calib_oed.scene.fields import FieldReader
 from calib_oed.scene.records import (
     DEFAULT_SIGMA_ANGLE,
@@ -52,12 +53,16 @@ def scene_names() -> list[str]:
     return sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".yaml"))
 
 
-def load_scene(name_or_path: str | os.PathLike) -> Scene:
+def load_scene(name_or_path: str | os.PathLike, *, check: bool = True) -> Scene:
     """Load a shipped scene by name, or a scene file by path.
+
+    With ``check`` (default), the scene checks itself (:func:`calib_oed.scene.checks.check_scene`):
+    the robot at the working configurations and the tracker against the cell.
 
     Raises:
         UnknownSceneError: a bare name that is neither a shipped scene nor a file.
-        SceneError: missing or unreadable file, YAML syntax error, invalid content.
+        SceneError: missing or unreadable file, YAML syntax error, invalid content,
+            an impossible scene (the pair and its depth named).
     """
     text = os.fspath(name_or_path)
     if text in scene_names():
@@ -78,18 +83,23 @@ def load_scene(name_or_path: str | os.PathLike) -> Scene:
         raise SceneError(f"YAML syntax error{at}: {problem}", source=str(path)) from exc
     except (OSError, UnicodeDecodeError) as exc:
         raise SceneError(f"cannot read scene file ({exc})", source=str(path)) from exc
-    return scene_from_dict(data, source=str(path))
+    return scene_from_dict(data, source=str(path), check=check)
 
 
-def scene_from_dict(data: Mapping[str, Any], source: str | None = None) -> Scene:
+def scene_from_dict(data: Mapping[str, Any], source: str | None = None, *,
+                    check: bool = True) -> Scene:
     """Build a :class:`Scene` from the parsed YAML (same validation as :func:`load_scene`).
 
     Args:
         data: The scene as a mapping (schema version 1, see ``docs/scenes.md``).
         source: File the data came from: named in errors, and the folder
             relative ``robot.urdf`` paths resolve against (default: the working directory).
+        check: Run :func:`calib_oed.scene.checks.check_scene` on the result.
     """
-    return SceneReader(source).scene(data)
+    scene = SceneReader(source).scene(data)
+    if check:
+        check_scene(scene)
+    return scene
 
 
 class SceneReader(FieldReader):
@@ -99,7 +109,7 @@ class SceneReader(FieldReader):
         top = self.mapping(data, None, ("version", "name", "units", "robot", "tracker",
                                         "reflectors", "kpi"),
                            ("description", "measurement", "generic_design", "cell",
-                            "feasibility"))
+                            "feasibility", "program"))
         if top["version"] not in SUPPORTED_VERSIONS or isinstance(top["version"], bool):
             raise self.fail("version", f"unsupported scene file version {top['version']!r}; "
                             f"supported versions: {', '.join(map(str, SUPPORTED_VERSIONS))}")
@@ -123,9 +133,10 @@ class SceneReader(FieldReader):
             tracker=self.tracker(top["tracker"]),
             reflectors=tuple(
                 ReflectorSpec(r["name"], self.vector(r["offset"], f"reflectors[{i}].offset", 3,
-                                                     self.length))
+                                                     self.length),
+                              reflector_normal(self, r.get("normal", [0.0, 0.0, 1.0]), i))
                 for i, r in enumerate(self.named_list(top["reflectors"], "reflectors",
-                                                      ("name", "offset"), "reflector"))
+                                                      ("name", "offset"), "reflector", ("normal",)))
             ),
             measurement=self.string(top.get("measurement", "position"), "measurement",
                                     MEASUREMENTS),
@@ -135,27 +146,39 @@ class SceneReader(FieldReader):
                 seed=self.integer(gd.get("seed", 0), "generic_design.seed", 0),
             ),
             units=dict(self.units),
-            cell=read_cell(self, top["cell"]) if "cell" in top else Cell(),
+            cell=read_cell(self, top["cell"], robot) if "cell" in top else Cell(),
             feasibility=(read_feasibility(self, top["feasibility"], robot)
                          if "feasibility" in top else FeasibilitySettings()),
             compliance=compliance,
+            program=self.free_mapping(top.get("program", {}), "program"),
         )
 
     def robot(self, value) -> Robot:
-        spec = self.mapping(value, "robot", (), ("name", "urdf", "tool_frame", "joint_limits",
-                                                 "lock_joints", "package_dirs", "compliance"))
-        if ("name" in spec) == ("urdf" in spec):
-            given = [k for k in ("name", "urdf") if k in spec]
-            raise self.fail("robot", "expected exactly one of 'name' (a robot name) or 'urdf' "
-                            f"(a URDF file path), got {given or 'neither'}")
+        spec = self.mapping(value, "robot", (), ("name", "urdf", "xacro", "args", "tool_frame",
+                                                 "joint_limits", "lock_joints", "package_dirs",
+                                                 "compliance"))
+        given = [k for k in ("name", "urdf", "xacro") if k in spec]
+        if len(given) != 1:
+            raise self.fail("robot", "expected exactly one of 'name' (a robot name), 'urdf' "
+                            "(a URDF file path) or 'xacro' (a xacro file path, with 'args'), "
+                            f"got {given or 'neither'}")
+        if "args" in spec and "xacro" not in spec:
+            raise self.fail("robot.args", "arguments are for a xacro file (robot.xacro); "
+                            f"this robot is given by {given[0]!r}")
+        xacro_args = self.xacro_args(spec.get("args", {}))
         if "name" in spec:
             source = self.string(spec["name"], "robot.name")
         else:
-            path = Path(self.string(spec["urdf"], "robot.urdf")).expanduser()
+            key = given[0]
+            path = Path(self.string(spec[key], f"robot.{key}")).expanduser()
             if not path.is_absolute():
                 path = (Path(self.source).parent if self.source else Path.cwd()) / path
             if not path.is_file():
-                raise self.fail("robot.urdf", f"URDF file not found: {path}")
+                raise self.fail(f"robot.{key}", f"{key.upper() if key == 'urdf' else key} file "
+                                f"not found: {path}")
+            if (key == "xacro") != path.name.endswith(".xacro"):
+                raise self.fail(f"robot.{key}", f"{path.name}: a xacro file (*.xacro) goes under "
+                                "robot.xacro, a URDF under robot.urdf")
             source = str(path.resolve())
         tool = self.string(spec["tool_frame"], "robot.tool_frame") if "tool_frame" in spec else None
         packages = self.package_dirs(spec.get("package_dirs", []))
@@ -163,7 +186,7 @@ class SceneReader(FieldReader):
         locks = self.free_mapping(spec.get("lock_joints", {}), "robot.lock_joints")
         try:
             robot = load_robot(source, tool_frame=tool, lock_joints={j: 0.0 for j in locks},
-                               package_dirs=packages)
+                               package_dirs=packages, xacro_args=xacro_args)
             if not (limits or locks):
                 return robot
             # Joint types are known only once the URDF is read: prismatic joints take lengths.
@@ -185,12 +208,24 @@ class SceneReader(FieldReader):
                 joint_limits={j: b * scale[j] for j, b in bounds.items()},
                 lock_joints={j: self.number(v, f"robot.lock_joints.{j}", scale[j])
                              for j, v in locks.items()},
-                package_dirs=packages,
+                package_dirs=packages, xacro_args=xacro_args,
             )
         except SceneError:
             raise
         except CalibOedError as exc:
             raise self.fail("robot", str(exc)) from exc
+
+    def xacro_args(self, value) -> dict[str, str]:
+        """``robot.args``: ``{name: value}`` for the xacro file, as ``name:=value`` on the command line."""
+        if not isinstance(value, Mapping):
+            raise self.fail("robot.args", f"expected a mapping {{argument: value}}, got {value!r}")
+        args = dict(value)
+        for name, v in args.items():
+            if not isinstance(v, (str, int, float, bool)):
+                raise self.fail(f"robot.args.{name}", f"expected a string, number or true/false, "
+                                f"got {v!r}")
+        return {str(k): ("true" if v is True else "false" if v is False else str(v))
+                for k, v in args.items()}
 
     def compliance(self, value) -> ComplianceSpec:
         """``robot.compliance: {enabled: true, payload: {mass: kg, com: [x, y, z]}}`` (com in length units)."""

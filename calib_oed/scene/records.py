@@ -77,13 +77,22 @@ class ReflectorSpec:
     Attributes:
         name: Reflector name, unique in the scene.
         offset: Reflector centre in the tool frame, shape (3,) [m].
+        normal: Reflector axis in the tool frame, unit, shape (3,) (default tool z);
+            the incidence constraint measures the beam's angle to it.
     """
 
     name: str
     offset: np.ndarray
+    normal: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
 
     def __post_init__(self):
         object.__setattr__(self, "offset", _readonly(self.offset, f"reflector {self.name}", 3))
+        normal = np.array(self.normal, dtype=float)
+        norm = float(np.linalg.norm(normal)) if normal.shape == (3,) else 0.0
+        if not (np.isfinite(norm) and norm > 1e-12):
+            raise SceneError(f"expected a non-zero vector nx, ny, nz, got {self.normal!r}",
+                             key=f"reflector {self.name}.normal")
+        object.__setattr__(self, "normal", _readonly(normal / norm, f"reflector {self.name}.normal", 3))
 
 
 @dataclass(frozen=True, eq=False)
@@ -201,6 +210,9 @@ class Scene:
     cell: Cell = field(default_factory=Cell)
     feasibility: FeasibilitySettings = field(default_factory=FeasibilitySettings)
     compliance: ComplianceSpec | None = None
+    #: The optional ``program:`` block as written (file units), read by
+    #: :mod:`calib_oed.program.settings`; empty if the file has none.
+    program: dict = field(default_factory=dict)
 
 
 @dataclass(frozen=True, eq=False)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import copy
 import math
+import shutil
 from pathlib import Path
 
 import coal
@@ -592,7 +593,8 @@ def test_cell_and_feasibility_in_si():
     """Every new key converted to SI; the same scene in mm/deg and in m/rad gives the same."""
     data = valid()
     data.update(cell=copy.deepcopy(CELL_MM), feasibility=copy.deepcopy(FEASIBILITY_DEG_MM))
-    scenes = [scene_from_dict(data), scene_from_dict(si_file(data))]
+    # the slope x + z >= 1000 mm cuts through the robot: reading only, not the scene check
+    scenes = [scene_from_dict(data, check=False), scene_from_dict(si_file(data), check=False)]
     cell = scenes[0].cell
     np.testing.assert_allclose(cell.capsules[0].a, [1.75, -1.8, 0.55])
     assert cell.capsules[1].radius == pytest.approx(0.1)
@@ -677,3 +679,47 @@ def test_package_dirs_find_meshes_of_a_urdf_elsewhere(tmp_path):
     (tmp_path / "bad.yaml").write_text(yaml.safe_dump(base))
     with pytest.raises(SceneError, match=r"robot.package_dirs\[0\].*folder not found"):
         load_scene(tmp_path / "bad.yaml")
+
+
+XACRO_PACKAGE = Path(__file__).parents[1] / "model" / "data" / "calib_test_arm"
+
+
+def xacro_scene(robot: dict) -> dict:
+    return {
+        "version": 1, "name": "xacro_arm", "units": {"length": "mm", "angle": "deg"},
+        "robot": robot,
+        "tracker": {"position": [1500, -1500, 500], "rpy": [0, 0, 135], "sigma": 0.01},
+        "reflectors": [{"name": "smr0", "offset": [0, 0, 30]}],
+        "kpi": {"working_configurations": [{"name": "up", "q": [10, -30]}]},
+        "cell": {"halfspaces": [{"name": "floor", "z_min": -10}]},
+    }
+
+
+def test_robot_from_a_xacro_file_with_arguments(tmp_path, monkeypatch):
+    monkeypatch.delenv("ROS_PACKAGE_PATH", raising=False)
+    shutil.copytree(XACRO_PACKAGE, tmp_path / "ws" / "calib_test_arm")
+    # xacro arguments are passed as written (the xacro's own units), not converted by units:
+    data = xacro_scene({"xacro": "ws/calib_test_arm/urdf/arm.urdf.xacro",
+                        "args": {"upper_length": 0.6, "prefix": "r1_"}})
+    (tmp_path / "cell.yaml").write_text(yaml.safe_dump(data))
+    scene = load_scene(tmp_path / "cell.yaml")
+    assert scene.robot.joint_names == ("r1_joint_1", "r1_joint_2")
+    assert scene.robot.xacro_args == {"upper_length": "0.6", "prefix": "r1_"}
+    tool = scene.robot.model.frames[scene.robot.tool_frame_id]
+    np.testing.assert_allclose(tool.placement.translation, [0.6, 0, 0], atol=1e-12)
+    assert str((tmp_path / "ws").resolve()) in scene.robot.package_dirs
+
+
+@pytest.mark.parametrize(("robot", "key", "message"), [
+    ({"urdf": "arm.urdf.xacro"}, "robot.urdf", "goes under robot.xacro"),
+    ({"name": "kr16", "args": {"a": 1}}, "robot.args", "arguments are for a xacro file"),
+    ({"xacro": "arm.urdf.xacro", "args": [1]}, "robot.args", "expected a mapping"),
+    ({"xacro": "arm.urdf.xacro", "args": {"prefix": [1]}}, "robot.args.prefix", "expected a string"),
+    ({"xacro": "arm.urdf.xacro", "urdf": "x.urdf"}, "robot", "exactly one of"),
+    ({"xacro": "absent.urdf.xacro"}, "robot.xacro", "xacro file not found"),
+])
+def test_xacro_robot_errors(robot, key, message):
+    source = str(XACRO_PACKAGE / "urdf" / "cell.yaml")
+    with pytest.raises(SceneError, match=message) as err:
+        scene_from_dict(xacro_scene(robot), source=source)
+    assert err.value.key == key
