@@ -213,8 +213,9 @@ class IdentificationResult:
     def _free_estimates(self) -> list[ParameterEstimate]:
         return [self.estimate(n) for n in self.free_names]
 
-    def summary(self, top: int = 10) -> str:
-        """Human-readable report in mm and mrad."""
+    def summary(self, top: int = 10, outliers: bool = True) -> str:
+        """Human-readable report in mm and mrad (``outliers=False``: without the a-priori outlier list,
+        for callers that judge outliers against an estimated scale, :mod:`calib_oed.calibration.robust`)."""
         n_meas = sum(len(x) for x in self.point_residuals_mm)
         lines = [
             f"Identification: {self.status.value} ({self.method}, loss {self.loss}"
@@ -252,6 +253,8 @@ class IdentificationResult:
             lines.append(f"  {a} / {b}: {rho:+.3f}")
         if len(self.strong_correlations) > top:
             lines.append(f"  ... ({len(self.strong_correlations) - top} more)")
+        if not outliers:
+            return "\n".join(lines)
         lines.append(f"Outliers (|r|/sqrt(d) > {self.outlier_threshold:g} sigma): "
                      f"{len(self.outliers) or 'none'}")
         for o in self.outliers[:20]:

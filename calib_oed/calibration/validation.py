@@ -27,6 +27,7 @@ configuration :math:`q + c \circ \tau_g(q)` under the payload written there
 
 from __future__ import annotations
 
+import json
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -35,7 +36,7 @@ import numpy as np
 import pinocchio as pin
 
 from calib_oed.calibration.sensor_file import read_sensor_compliance, read_sensor_yaml
-from calib_oed.exceptions import ExportError, MeasurementFileError
+from calib_oed.exceptions import ExportError, MeasurementFileError, ParameterError
 from calib_oed.measurement.base import evaluate_setup
 from calib_oed.measurement.dataset import MeasurementSet
 from calib_oed.model.parameters import ParameterSpace
@@ -211,3 +212,69 @@ def validate_calibration(scene: Scene, calibration: str | os.PathLike, mset: Mea
         source=mset.source,
         files={k: str(v) for k, v in files.items()},
     )
+
+
+#: The default verdict threshold is this many times the identified residual scale times the noise floor.
+DEFAULT_RMS_FACTOR = 2.0
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """Pass or fail of a validation: calibrated RMS against a threshold [mm].
+
+    Attributes:
+        passed: ``rms_mm <= threshold_mm``.
+        basis: Where the threshold comes from (``--max-rms``, or the identified scale).
+    """
+
+    passed: bool
+    rms_mm: float
+    threshold_mm: float
+    basis: str
+
+    def line(self) -> str:
+        word = "PASS" if self.passed else "FAIL"
+        return (f"verdict: {word}: calibrated RMS {self.rms_mm:.4f} mm "
+                f"{'<=' if self.passed else '>'} {self.threshold_mm:.4f} mm ({self.basis})")
+
+    def to_dict(self) -> dict:
+        return {"passed": self.passed, "rms_mm": self.rms_mm, "threshold_mm": self.threshold_mm,
+                "basis": self.basis}
+
+
+def identified_sigma0(files: dict) -> float | None:
+    """sigma0 of the identification that wrote the calibration (``identification.json`` beside
+    the URDF, key ``fit.sigma0``, else ``sigma0``), or None when not recorded."""
+    path = Path(files["urdf"]).parent / "identification.json"
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+    value = (data.get("fit") or {}).get("sigma0", data.get("sigma0"))
+    return float(value) if isinstance(value, (int, float)) and np.isfinite(value) else None
+
+
+def judge(result: ValidationResult, max_rms_mm: float | None = None, sigma0: float | None = None,
+          factor: float = DEFAULT_RMS_FACTOR) -> Verdict:
+    """The verdict: ``max_rms_mm`` if given, else ``factor`` x max(sigma0, 1) x noise floor.
+
+    The calibrated RMS on new poses of a calibration whose residual scale was
+    :math:`\\hat\\sigma_0` is about :math:`\\hat\\sigma_0` times the noise floor (plus the
+    estimation error, a few per cent for a well-conditioned design), so twice that
+    fails only a calibration that does not carry over to the validation poses.
+
+    Raises:
+        ParameterError: a non-positive ``max_rms_mm``.
+    """
+    if max_rms_mm is not None:
+        if not (np.isfinite(max_rms_mm) and max_rms_mm > 0):
+            raise ParameterError(f"--max-rms must be a positive length in mm, got {max_rms_mm:g}")
+        threshold, basis = float(max_rms_mm), "--max-rms"
+    else:
+        s = 1.0 if sigma0 is None else max(float(sigma0), 1.0)
+        threshold = factor * s * result.noise_floor_mm
+        basis = (f"{factor:g} x max(sigma0, 1) x noise floor, sigma0 = {sigma0:.3f} from the "
+                 "identification" if sigma0 is not None else
+                 f"{factor:g} x noise floor: no identified sigma0 found beside the URDF")
+    rms = result.calibrated.rms_mm
+    return Verdict(bool(rms <= threshold), rms, threshold, basis)

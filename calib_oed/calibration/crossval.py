@@ -1,0 +1,201 @@
+r"""K-fold cross-validation over poses: the accuracy a calibration will have on poses it has not seen.
+
+Poses (distinct configurations; every reflector measured there goes with
+its pose) are split into :math:`K` folds; each fold is predicted by the
+calibration identified from the other :math:`K-1` (linear weighted least
+squares, outliers excluded), and the held-out position errors
+:math:`\lVert\eta_i - h(\hat p_{-f}, q_i)\rVert` [mm] pooled over all folds give
+the predicted RMS error on unseen poses.
+
+**Balanced folds** (:func:`balanced_folds`). A random split of sweep-structured
+data can hold out most of one joint's range, and the calibration then
+extrapolates. Every joint's values are cut into :math:`K` quantile bins; poses,
+in a seeded random order, go to the fold (among those not yet full) that has
+the fewest poses in the same bins, so each fold samples every joint's range.
+:func:`coverage_warnings` then checks, per fold and joint, that every held-out
+pose has a training pose within 15 % of the joint's measured range.
+
+**Uncertainty.** With :math:`e_p` the sum of squared held-out errors of pose
+:math:`p` and :math:`n_p` its rows, :math:`\mathrm{RMS}^2 = \sum e_p/\sum n_p`
+(a ratio estimator over independent poses); its standard error is
+:math:`\mathrm{sd}_p(e_p - \mathrm{RMS}^2 n_p)/(\sqrt P\,\bar n)`, and that of the
+RMS half of it divided by the RMS (delta method).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from calib_oed.calibration.identification import identify
+from calib_oed.exceptions import NotIdentifiableError, ParameterError
+from calib_oed.measurement.base import evaluate_setup
+from calib_oed.measurement.dataset import MeasurementSet
+from calib_oed.model.parameters import ParameterSpace
+
+MM_PER_M = 1e3
+#: A held-out pose farther than this fraction of a joint's measured range from every
+#: training pose gets a warning.
+COVERAGE_GAP = 0.15
+
+
+def pose_index(q: np.ndarray) -> np.ndarray:
+    """Pose number of every row (0-based, distinct configurations in order of first appearance)."""
+    _, first, inverse = np.unique(np.asarray(q), axis=0, return_index=True, return_inverse=True)
+    order = np.argsort(np.argsort(first))
+    return order[inverse.ravel()]
+
+
+def balanced_folds(poses: np.ndarray, k: int, seed: int | np.random.Generator = 0) -> np.ndarray:
+    """Fold (0..k-1) of every pose of ``poses`` (P, nq), balanced over each joint's quantiles."""
+    poses = np.asarray(poses, dtype=float)
+    n = poses.shape[0]
+    if not 2 <= k <= n:
+        raise ParameterError(f"cross-validation folds: K must be between 2 and the number of poses "
+                             f"({n}), got {k}")
+    rng = np.random.default_rng(seed)
+    ranks = np.argsort(np.argsort(poses, axis=0, kind="stable"), axis=0)
+    bins = ranks * k // n  # (P, nq): quantile bin of each joint value
+    counts = np.zeros((k, poses.shape[1], k), dtype=int)
+    size = np.zeros(k, dtype=int)
+    cap = -(-n // k)
+    fold = np.empty(n, dtype=int)
+    for i in rng.permutation(n):
+        open_ = np.flatnonzero(size < cap)
+        cost = counts[open_[:, None], np.arange(poses.shape[1]), bins[i]].sum(axis=1)
+        best = open_[np.lexsort((rng.random(open_.size), size[open_], cost))[0]]
+        fold[i] = best
+        counts[best, np.arange(poses.shape[1]), bins[i]] += 1
+        size[best] += 1
+    return fold
+
+
+def coverage_warnings(poses: np.ndarray, fold: np.ndarray, joint_names,
+                      gap: float = COVERAGE_GAP) -> list[str]:
+    """Folds whose held-out poses reach a part of a joint's range no training pose covers.
+
+    Per fold and joint: the largest distance from a held-out value to the nearest
+    training value; above ``gap`` times the joint's measured range, the warning
+    names the fold, the joint and that stretch [deg].
+    """
+    out = []
+    poses = np.asarray(poses, dtype=float)
+    span = np.ptp(poses, axis=0)
+    k = int(fold.max()) + 1
+    for f in range(k):
+        test, train = poses[fold == f], poses[fold != f]
+        for j, name in enumerate(joint_names):
+            if span[j] == 0 or train.shape[0] == 0:
+                continue
+            d = np.abs(test[:, j, None] - train[None, :, j]).min(axis=1)
+            i = int(np.argmax(d))
+            if d[i] > gap * span[j]:
+                out.append(f"fold {f + 1} of {k}: a held-out pose has {name} = "
+                           f"{np.degrees(test[i, j]):.0f} deg, {np.degrees(d[i]):.0f} deg from the "
+                           f"nearest training pose ({100 * d[i] / span[j]:.0f} % of the measured "
+                           "range): the calibration extrapolates there")
+    return out
+
+
+@dataclass(frozen=True, eq=False)
+class CrossValidation:
+    """Held-out errors of a K-fold cross-validation.
+
+    Attributes:
+        k: Folds. seed: Of the fold assignment.
+        fold: Fold of every measurement row (n,) (-1 for excluded outliers).
+        errors_mm: Held-out position error per row [mm] (NaN for excluded rows).
+        rms_mm, se_mm: Pooled held-out RMS and its standard error [mm].
+        fold_rms_mm: Per fold [mm].
+        noise_floor_mm: RMS a perfect model would show (tracker noise) [mm].
+        warnings: Coverage warnings (:func:`coverage_warnings`).
+    """
+
+    k: int
+    seed: int
+    fold: np.ndarray = field(repr=False)
+    errors_mm: np.ndarray = field(repr=False)
+    rms_mm: float
+    se_mm: float
+    fold_rms_mm: tuple[float, ...]
+    noise_floor_mm: float
+    warnings: tuple[str, ...]
+
+    def summary(self) -> str:
+        lines = [f"cross-validation, {self.k} folds balanced over the joint ranges (seed {self.seed}): "
+                 f"predicted position error on unseen poses RMS {self.rms_mm:.4f} ± {self.se_mm:.4f} mm "
+                 f"(standard error; noise floor {self.noise_floor_mm:.4f} mm, ratio "
+                 f"{self.rms_mm / self.noise_floor_mm:.2f})",
+                 "  per fold RMS [mm]: " + ", ".join(f"{r:.4f}" for r in self.fold_rms_mm)]
+        lines += [f"  warning: {w}" for w in self.warnings]
+        return "\n".join(lines)
+
+    def to_dict(self) -> dict:
+        return {"k": self.k, "seed": self.seed, "rms_mm": self.rms_mm, "se_mm": self.se_mm,
+                "fold_rms_mm": list(self.fold_rms_mm), "noise_floor_mm": self.noise_floor_mm,
+                "warnings": list(self.warnings)}
+
+
+def subset(mset: MeasurementSet, rows: np.ndarray) -> MeasurementSet:
+    """The rows ``rows`` (indices or mask) of a measurement set, lines kept."""
+    rows = np.flatnonzero(rows) if np.asarray(rows).dtype == bool else np.asarray(rows, dtype=int)
+    pick = (lambda a: None if a is None else a[rows])  # noqa: E731
+    return MeasurementSet(mset.joint_names, mset.q[rows], mset.reflector[rows], mset.positions[rows],
+                          pick(mset.rotations), pick(mset.sigma), mset.source, mset.lines[rows])
+
+
+def held_out_errors(space: ParameterSpace, mset: MeasurementSet, p: np.ndarray | None,
+                    sigma, sigma_angle) -> np.ndarray:
+    """Position error :math:`\\lVert\\eta - h(p, q)\\rVert` per row of ``mset`` [mm]."""
+    out = np.empty(mset.n)
+    for j, block in zip(mset.reflectors, mset.blocks(sigma=sigma, sigma_angle=sigma_angle), strict=True):
+        state = evaluate_setup(space, p, block.q, regressor=False, jacobian=False)
+        predicted = block.model.compute_values(state)
+        out[mset.reflector == j] = np.linalg.norm(block.values[:, :3] - predicted[:, :3], axis=1)
+    return out * MM_PER_M
+
+
+def cross_validate(space: ParameterSpace, mset: MeasurementSet, free, k: int, *, sigma, sigma_angle,
+                   exclude: np.ndarray | None = None, seed: int = 0) -> CrossValidation:
+    """K-fold cross-validation over the poses of ``mset`` (rows ``exclude`` left out).
+
+    Raises:
+        ParameterError: K not in 2..number of poses.
+        NotIdentifiableError: a fold's training poses do not determine the parameters
+            (the message names the fold; use fewer folds).
+    """
+    keep = np.ones(mset.n, bool) if exclude is None else ~np.asarray(exclude, bool)
+    data = subset(mset, keep)
+    pose = pose_index(data.q)
+    poses = data.q[np.unique(pose, return_index=True)[1]]
+    fold_of_pose = balanced_folds(poses, k, seed)
+    fold = fold_of_pose[pose]
+    errors = np.empty(data.n)
+    fold_rms = []
+    for f in range(k):
+        train, test = subset(data, fold != f), subset(data, fold == f)
+        try:
+            result = identify(space, train.blocks(sigma=sigma, sigma_angle=sigma_angle), free)
+        except NotIdentifiableError as exc:
+            raise NotIdentifiableError(exc.names, f"cross-validation fold {f + 1} of {k}: its "
+                                       f"{int((fold != f).sum())} training rows do not determine "
+                                       "them; use fewer folds (--cv)") from exc
+        e = held_out_errors(space, test, result.p, sigma, sigma_angle)
+        errors[fold == f] = e
+        fold_rms.append(float(np.sqrt(np.mean(e**2))))
+    e_pose = np.bincount(pose, errors**2)
+    n_pose = np.bincount(pose).astype(float)
+    ms = e_pose.sum() / n_pose.sum()
+    se_ms = np.std(e_pose - ms * n_pose, ddof=1) / (np.sqrt(e_pose.size) * n_pose.mean())
+    rms = float(np.sqrt(ms))
+    floor = float(np.sqrt(np.mean(np.concatenate([
+        (b.sigma[:, :3] ** 2).sum(axis=1) for b in data.blocks(sigma=sigma, sigma_angle=sigma_angle)]))))
+    all_fold = np.full(mset.n, -1)
+    all_fold[keep] = fold
+    all_err = np.full(mset.n, np.nan)
+    all_err[keep] = errors
+    return CrossValidation(k, int(seed) if isinstance(seed, (int, np.integer)) else 0, all_fold,
+                           all_err, rms, float(se_ms / (2 * rms)), tuple(fold_rms),
+                           floor * MM_PER_M, tuple(coverage_warnings(poses, fold_of_pose,
+                                                                     mset.joint_names)))

@@ -1,0 +1,68 @@
+"""K-fold cross-validation: balanced folds, coverage warnings, agreement with a validation set."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from calib_oed.calibration.crossval import (
+    balanced_folds,
+    coverage_warnings,
+    cross_validate,
+    held_out_errors,
+    pose_index,
+    subset,
+)
+from calib_oed.calibration.identification import identify
+from calib_oed.calibration.workflow import setup, simulated_measurements
+from calib_oed.exceptions import ParameterError
+from calib_oed.scene.reader import load_scene
+
+JOINTS = [f"j{i}" for i in range(1, 7)]
+
+
+def test_balanced_folds_cover_every_joint_quantile():
+    q = np.random.default_rng(0).uniform(-2, 2, size=(60, 6))
+    fold = balanced_folds(q, 5, seed=0)
+    assert np.bincount(fold).tolist() == [12] * 5
+    quantile = np.argsort(np.argsort(q, axis=0), axis=0) * 5 // 60
+    for j in range(6):  # each fold holds poses from at least 4 of every joint's 5 quantiles
+        assert all(len(set(quantile[fold == f, j])) >= 4 for f in range(5))
+    assert coverage_warnings(q, fold, JOINTS) == []
+    with pytest.raises(ParameterError, match="between 2"):
+        balanced_folds(q, 1)
+
+
+def test_a_sweep_split_in_blocks_is_warned_about():
+    """Joint sweeps, one joint after the other: contiguous folds hold out whole ranges."""
+    q = np.zeros((60, 6))
+    for j in range(6):
+        q[10 * j:10 * (j + 1), j] = np.linspace(-1, 1, 10)
+    contiguous = np.arange(60) * 5 // 60
+    warnings = coverage_warnings(q, contiguous, JOINTS)
+    assert warnings and "fold 1 of 5" in warnings[0] and "j1" in warnings[0]
+    assert coverage_warnings(q, balanced_folds(q, 5, seed=0), JOINTS) == []
+
+
+def test_pose_index_groups_rows_of_one_configuration():
+    q = np.array([[0.0, 1], [2, 3], [0, 1], [4, 5], [2, 3]])
+    assert pose_index(q).tolist() == [0, 1, 0, 2, 1]
+
+
+def test_cross_validation_predicts_the_validation_error():
+    """CV on 60 poses against 200 fresh poses with the full-data calibration (simulated)."""
+    s = setup(load_scene("fms_kr16"))
+    problem, tracker = s.problem, s.scene.tracker
+    mset, _ = simulated_measurements(s, problem.robot.random_configurations(260, 31), 32)
+    cal, val = subset(mset, np.arange(60)), subset(mset, np.arange(60, 260))
+    cv = cross_validate(problem.space, cal, problem.identifiability, 5, sigma=tracker.sigma,
+                        sigma_angle=tracker.sigma_angle, seed=0)
+    fit = identify(problem.space, cal.blocks(sigma=tracker.sigma, sigma_angle=tracker.sigma_angle),
+                   problem.identifiability)
+    e = held_out_errors(problem.space, val, fit.p, tracker.sigma, tracker.sigma_angle)
+    rms = np.sqrt(np.mean(e**2))
+    se = np.std(e**2, ddof=1) / np.sqrt(e.size) / (2 * rms)
+    assert abs(cv.rms_mm - rms) <= 2 * np.hypot(cv.se_mm, se), (cv.rms_mm, cv.se_mm, rms, se)
+    assert 1.0 < cv.rms_mm / cv.noise_floor_mm < 1.3 and cv.warnings == ()
+    assert np.all(cv.fold >= 0) and np.isfinite(cv.errors_mm).all() and len(cv.fold_rms_mm) == 5
+    assert "cross-validation, 5 folds" in cv.summary()

@@ -1,0 +1,99 @@
+"""identify and validate on real-data mistakes: sanity exit 2 before any file, outliers by file line,
+residuals.csv, cross-validation, the validation verdict (exit 3)."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import numpy as np
+import pytest
+
+from calib_oed.calibration.workflow import setup, simulated_measurements, write_measurement_file
+from calib_oed.cli import EXIT_BAD_INPUT, EXIT_OK, main
+from calib_oed.cli.calibration_commands import EXIT_VALIDATION_FAILED
+from calib_oed.scene.reader import load_scene
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    """60 calibration and 60 validation poses of one simulated kr16 (truth seed 5), files in mm."""
+    folder = tmp_path_factory.mktemp("id")
+    s = setup(load_scene("fms_kr16"))
+    q = s.problem.robot.random_configurations(120, 11)
+    mset, _ = simulated_measurements(s, q, 5)
+    from calib_oed.calibration.crossval import subset
+
+    cal, val = folder / "cal.csv", folder / "val.csv"
+    write_measurement_file(s, cal, subset(mset, np.arange(60)), "test calibration data")
+    write_measurement_file(s, val, subset(mset, np.arange(60, 120)), "test validation data")
+    return folder, cal, val
+
+
+def _variant(folder, cal, name, edit):
+    path = folder / name
+    path.write_text(edit(cal.read_text()))
+    return path
+
+
+@pytest.mark.parametrize("name, edit, cause", [
+    ("units.csv", lambda t: t.replace("length=mm", "length=m"), "1000 times too large"),
+    ("swapped.csv", lambda t: t.replace("reflector,x,y,z", "reflector,y,x,z"),
+     "column x holds y, y holds x"),
+])
+def test_data_mistakes_stop_with_exit_2_before_any_file(files, capsys, name, edit, cause):
+    folder, cal, _ = files
+    bad = _variant(folder, cal, name, edit)
+    out = folder / f"out_{name}"
+    assert main(["identify", "fms_kr16", str(bad), "-o", str(out)]) == EXIT_BAD_INPUT
+    err = capsys.readouterr().err
+    assert "registration RMS" in err and cause in err and "Traceback" not in err
+    assert len(err.strip().splitlines()) == 1
+    assert not out.exists()
+
+
+def test_outlier_flagged_by_line_and_validation_verdict(files, capsys):
+    folder, cal, val = files
+    rows = cal.read_text().splitlines()
+    header = next(i for i, r in enumerate(rows) if r.startswith("joint_a1"))
+    target = header + 1 + 23  # the 24th data row, 0-based index in the text
+    fields = rows[target].split(",")
+    fields[-3] = f"{float(fields[-3]) + 5.0:.6f}"  # x + 5 mm
+    rows[target] = ",".join(fields)
+    bad = folder / "outlier.csv"
+    bad.write_text("\n".join(rows) + "\n")
+    out = folder / "cal_out"
+    assert main(["identify", "fms_kr16", str(bad), "-o", str(out), "--cv", "4", "--json"]) == EXIT_OK
+    data = json.loads(capsys.readouterr().out)
+    fit = data["fit"]
+    assert [o["line"] for o in fit["outliers"]] == [target + 1]  # 1-based file line
+    (o,) = fit["outliers"]
+    assert o["reflector"] == "smr0" and o["weight"] == 0.0 and o["normalised"] > 100
+    assert o["after_mm"] > 4.0
+    table = list(csv.DictReader(r for r in (out / "residuals.csv").read_text().splitlines()
+                                if not r.startswith("#")))
+    assert len(table) == 60 and [int(r["line"]) for r in table if r["outlier"] == "1"] == [target + 1]
+    assert set(fit["per_reflector"]) == {"smr0"}
+    assert 0.8 < fit["sigma0"] < 1.2
+    cv = data["cross_validation"]
+    assert cv["k"] == 4 and cv["rms_mm"] > 0 and cv["warnings"] == []
+    # verdict: default threshold (2 x sigma0 x floor) passes, a tiny --max-rms fails with exit 3
+    assert main(["validate", "fms_kr16", str(out), str(val), "--json"]) == EXIT_OK
+    verdict = json.loads(capsys.readouterr().out)["verdict"]
+    assert verdict["passed"] and "sigma0" in verdict["basis"]
+    floor = 0.01 * np.sqrt(3)
+    assert verdict["rms_mm"] <= 1.2 * floor
+    assert main(["validate", "fms_kr16", str(out), str(val), "--max-rms", "0.001"]) \
+        == EXIT_VALIDATION_FAILED
+    assert "verdict: FAIL" in capsys.readouterr().out
+
+
+def test_validate_stops_on_a_unit_mistake(files, capsys):
+    folder, cal, val = files
+    out = folder / "cal_plain"
+    assert main(["identify", "fms_kr16", str(cal), "-o", str(out), "--loss", "linear"]) == EXIT_OK
+    text = capsys.readouterr().out
+    assert "reflector smr0" in text and "sigma0 =" in text and "worst-determined" in text
+    bad = _variant(folder, val, "val_units.csv", lambda t: t.replace("length=mm", "length=m"))
+    assert main(["validate", "fms_kr16", str(out), str(bad)]) == EXIT_BAD_INPUT
+    assert "1000 times too large" in capsys.readouterr().err
