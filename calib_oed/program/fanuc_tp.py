@@ -1,0 +1,53 @@
+"""FANUC TP (ASCII ``.ls``): ``J P[k] 100% FINE`` to positions in joint representation.
+
+Positions are written ``J1= .. deg`` ... ``J6= .. deg`` in the ``/POS`` section.
+**J2/J3 convention**: FANUC controllers show J3 measured from the horizontal
+(the J2/J3 interaction), :math:`J3_{FANUC} = J3 + J2` for the usual sign
+conventions, while a URDF's J3 is relative to the upper arm. No controller block
+exists yet, so the URDF's J3 is written unchanged, and the header says so:
+convert (and check the signs of) J3 before loading on a FANUC arm.
+TP comments hold 32 characters, so the header is cut into short ``!`` lines.
+"""
+
+from __future__ import annotations
+
+import textwrap
+
+from calib_oed.program.format_common import degrees, header_lines, require_six_axes, steps
+from calib_oed.program.records import Program
+
+#: What a FANUC user must know about J3, in the header.
+J2_J3_NOTE = ("J2/J3: J3 is the URDF angle relative to the upper arm, NOT the FANUC J3 "
+              "measured from the horizontal (J3_FANUC = J3 + J2, check signs): convert first")
+
+
+def write_tp(program: Program, name: str) -> dict[str, str]:
+    """``{name.ls: text}``; ``name`` is the TP program name."""
+    require_six_axes(program, "tp")
+    prog = name.upper()
+    all_steps = steps(program)
+    comments = []
+    for line in [*header_lines(program, "degrees (J1..J6)"), J2_J3_NOTE]:
+        comments += textwrap.wrap(line, 30)
+    body = [f"! {c} ;" for c in comments]
+    positions = {}
+    for step in all_steps:
+        if step.name not in positions:
+            positions[step.name] = (len(positions) + 1, step)
+        k = positions[step.name][0]
+        what = {"home": "home", "via": "via point"}.get(step.kind, f"pose {step.pose}")
+        body.append(f"J P[{k}:{what}] 100% FINE ;")
+        if step.kind == "pose":
+            body.append(f"! measure pose {step.pose} ;")
+            body.append(f"WAIT {program.dwell:6.2f}(sec) ;")
+    lines = [f"/PROG  {prog}", "/ATTR", "COMMENT\t\t= \"calib_oed\";", "DEFAULT_GROUP\t= 1,*,*,*,*;",
+             "/MN"]
+    lines += [f"{i:4d}:  {text}" for i, text in enumerate(body, start=1)]
+    lines.append("/POS")
+    for k, step in positions.values():
+        j = degrees(step.q)
+        lines += [f"P[{k}]{{", "   GP1:", "\tUF : 0, UT : 1,",
+                  f"\tJ1= {j[0]} deg,\tJ2= {j[1]} deg,\tJ3= {j[2]} deg,",
+                  f"\tJ4= {j[3]} deg,\tJ5= {j[4]} deg,\tJ6= {j[5]} deg", "};"]
+    lines.append("/END")
+    return {f"{name}.ls": "\n".join(lines) + "\n"}

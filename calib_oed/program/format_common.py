@@ -1,0 +1,81 @@
+"""What every program writer shares: the header text, the step list, angle formatting.
+
+Joint values are the URDF's joint angles: the scene has no controller block
+(joint signs, zero offsets, couplings such as FANUC's J2/J3) yet, so none is
+applied, and every file says so in its header. Angles are written in degrees
+with 4 decimals (1e-4 deg = 1.7 µrad), URScript's in radians with 6 decimals
+(URScript's unit). Pose numbers count from 1: "pose 12" is row 12 of the design.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from calib_oed.exceptions import ProgramError
+from calib_oed.program.records import Program
+
+#: Decimals of the angles written in degrees, and in radians (URScript, CSV).
+DEG_DECIMALS = 4
+RAD_DECIMALS = 6
+
+
+@dataclass(frozen=True)
+class Step:
+    """One target of the program.
+
+    Attributes:
+        kind: ``"home"``, ``"via"`` or ``"pose"``.
+        q: Joint values [rad], (nq,).
+        pose: Pose number (1-based row of the design) for measurement poses, else ``None``.
+        name: A target name unique in the program (``HOME``, ``P12``, ``V3``).
+    """
+
+    kind: str
+    q: np.ndarray
+    pose: int | None
+    name: str
+
+
+def steps(program: Program) -> list[Step]:
+    """The program's targets in order, named (home at both ends, via points numbered)."""
+    out, vias = [], 0
+    for kind, q, index in program.steps():
+        if kind == "via":
+            vias += 1
+            name = f"V{vias}"
+        elif kind == "pose":
+            name = f"P{index + 1}"
+        else:
+            name = "HOME"
+        out.append(Step(kind, np.asarray(q, dtype=float), None if index is None else index + 1, name))
+    return out
+
+
+def require_six_axes(program: Program, fmt: str) -> None:
+    """Controller languages here take 6 robot axes; other robots get the CSV."""
+    if len(program.joint_names) != 6:
+        raise ProgramError("format", fmt, f"writes 6-axis robots only; this robot has "
+                           f"{len(program.joint_names)} joints: use the csv format", ["csv"])
+
+
+def degrees(q: np.ndarray) -> list[str]:
+    """Joint values [rad] as degree strings with :data:`DEG_DECIMALS` decimals."""
+    return [f"{v:.{DEG_DECIMALS}f}" for v in np.rad2deg(np.asarray(q, dtype=float))]
+
+
+def header_lines(program: Program, units: str) -> list[str]:
+    """The header every file carries (without comment markers)."""
+    t = program.cycle_times
+    joints = ", ".join(program.joint_names)
+    return [
+        f"calib_oed measurement program, scene {program.scene}: {len(program.poses)} poses",
+        f"joint values: URDF joint angles in {units}, in the order {joints}",
+        "no controller block in the scene: no controller signs, zero offsets or axis",
+        "couplings are applied; check them against the controller before running",
+        f"at each measurement pose: dwell {program.dwell:.2f} s (settle, tracker measures)",
+        "pose N = row N of the design file (from 1); via points are not measured",
+        f"estimated cycle time {t['optimised']:.1f} s (design order {t['design order']:.1f} s)",
+        "every move checked collision-free against the scene's capsule model",
+    ]

@@ -1,0 +1,37 @@
+"""KUKA KRL: a ``.src`` with ``PTP`` moves to ``E6AXIS`` joint targets declared in the ``.dat``.
+
+Each target is ``DECL E6AXIS XNAME={A1 ..,A2 ..,...,A6 ..,E1 0.0,...,E6 0.0}`` [deg];
+each measurement pose is followed by ``WAIT SEC dwell`` and a comment naming it.
+"""
+
+from __future__ import annotations
+
+from calib_oed.program.format_common import degrees, header_lines, require_six_axes, steps
+from calib_oed.program.records import Program
+
+
+def write_krl(program: Program, name: str) -> dict[str, str]:
+    """``{name.src: text, name.dat: text}``; ``name`` is the KRL module name."""
+    require_six_axes(program, "krl")
+    module = name.upper()
+    all_steps = steps(program)
+    src = ["&ACCESS RVP", "&REL 1", f"DEF {module}( )"]
+    src += [f"; {line}" for line in header_lines(program, "degrees (A1..A6)")]
+    src += ["  BAS(#INITMOV, 0)", "  $VEL_AXIS[1]=100", "  $VEL_AXIS[2]=100", "  $VEL_AXIS[3]=100",
+            "  $VEL_AXIS[4]=100", "  $VEL_AXIS[5]=100", "  $VEL_AXIS[6]=100"]
+    for step in all_steps:
+        what = {"home": "home", "via": "via point (no measurement)"}.get(step.kind, f"pose {step.pose}")
+        src.append(f"  PTP X{step.name} ; {what}")
+        if step.kind == "pose":
+            src.append(f"  WAIT SEC {program.dwell:.2f} ; measure pose {step.pose}")
+    src.append("END")
+    dat = ["&ACCESS RVP", "&REL 1", f"DEFDAT {module}"]
+    seen = set()
+    for step in all_steps:
+        if step.name in seen:
+            continue
+        seen.add(step.name)
+        axes = ",".join(f"A{i + 1} {v}" for i, v in enumerate(degrees(step.q)))
+        dat.append(f"DECL E6AXIS X{step.name}={{{axes},E1 0.0,E2 0.0,E3 0.0,E4 0.0,E5 0.0,E6 0.0}}")
+    dat.append("ENDDAT")
+    return {f"{name}.src": "\n".join(src) + "\n", f"{name}.dat": "\n".join(dat) + "\n"}

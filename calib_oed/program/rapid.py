@@ -1,0 +1,34 @@
+"""ABB RAPID: a ``.mod`` with ``MoveAbsJ`` to ``jointtarget`` constants.
+
+``CONST jointtarget jNAME:=[[j1,..,j6],[9E9,9E9,9E9,9E9,9E9,9E9]];`` [deg], moves
+``MoveAbsJ jNAME\\NoEOffs, v1000, fine, tool0;``, ``WaitTime dwell;`` at each
+measurement pose with a comment naming it.
+"""
+
+from __future__ import annotations
+
+from calib_oed.program.format_common import degrees, header_lines, require_six_axes, steps
+from calib_oed.program.records import Program
+
+
+def write_rapid(program: Program, name: str) -> dict[str, str]:
+    """``{name.mod: text}``; ``name`` is the module name."""
+    require_six_axes(program, "rapid")
+    all_steps = steps(program)
+    lines = [f"MODULE {name}"]
+    lines += [f"  ! {line}" for line in header_lines(program, "degrees (robax rax_1..rax_6)")]
+    seen = set()
+    for step in all_steps:
+        if step.name in seen:
+            continue
+        seen.add(step.name)
+        lines.append(f"  CONST jointtarget j{step.name}:=[[{','.join(degrees(step.q))}],"
+                     "[9E9,9E9,9E9,9E9,9E9,9E9]];")
+    lines.append("  PROC main()")
+    for step in all_steps:
+        what = {"home": "home", "via": "via point (no measurement)"}.get(step.kind, f"pose {step.pose}")
+        lines.append(f"    MoveAbsJ j{step.name}\\NoEOffs, v1000, fine, tool0; ! {what}")
+        if step.kind == "pose":
+            lines.append(f"    WaitTime {program.dwell:.2f}; ! measure pose {step.pose}")
+    lines += ["  ENDPROC", "ENDMODULE"]
+    return {f"{name}.mod": "\n".join(lines) + "\n"}

@@ -1,0 +1,126 @@
+r"""How a measurement program is timed, checked and planned: :class:`ProgramSettings`.
+
+The defaults are what a calibration engineer would start with; a scene may
+override them in an optional ``program:`` block (in the file's units):
+
+.. code-block:: yaml
+
+    program:
+      home: [0, -90, 90, 0, 0, 0]        # joint angles; default: the KPI's first working configuration
+      dwell: 2.0                         # [s] settle + tracker measurement at every pose
+      velocity_scale: 1.0                # fraction of the URDF <limit velocity> used (0, 1]
+      acceleration_time: 0.5             # [s] from standstill to full speed, per joint
+      velocities: {joint_a1: 120}        # angle units / s, replaces the URDF's limit
+      accelerations: {joint_a1: 240}     # angle units / s², replaces velocity / acceleration_time
+      move_tolerance: 1                  # length unit: clearance margin a move may use up
+
+Everything in a :class:`ProgramSettings` is SI [m, rad, s].
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from calib_oed.exceptions import ProgramError
+from calib_oed.scene.fields import FieldReader
+from calib_oed.units import ANGLE_UNITS, LENGTH_UNITS
+
+#: Keys of the scene's ``program:`` block.
+PROGRAM_KEYS = ("home", "dwell", "velocity_scale", "acceleration_time", "velocities",
+                "accelerations", "move_tolerance")
+
+
+@dataclass(frozen=True, eq=False)
+class ProgramSettings:
+    """Timing, collision-check and planner settings of a measurement program.
+
+    Attributes:
+        home: Home configuration [rad], (nq,), where the program starts and ends; ``None``:
+            the scene's first KPI working configuration.
+        dwell: Settle and measure time at every measurement pose [s] (2 s).
+        velocity_scale: Fraction of each joint's velocity limit a move uses, in (0, 1].
+        acceleration_time: Time [s] a joint takes from standstill to its (scaled) velocity
+            limit when no acceleration is given: :math:`a_i = v_i / t_{acc}` (0.5 s, a
+            documented default: URDFs carry no acceleration limits).
+        velocities: Per-joint velocity limits [rad/s] replacing the URDF's, by joint name.
+        accelerations: Per-joint acceleration limits [rad/s²], by joint name.
+        move_tolerance: How much of the design's clearance margin a move may use up [m]
+            (1 mm): every move keeps each capsule row :math:`g \\ge -\\delta`, i.e. at least
+            ``margins.clearance - move_tolerance`` of true clearance; the measurement poses
+            keep the full margin.
+        planner_time: Time budget of the motion planner per blocked move [s].
+        planner_seed: Seed of the planner's random samples.
+        solver: Tour solver: ``"lkh"`` (LKH-3 through elkai) or ``"ortools"``.
+    """
+
+    home: np.ndarray | None = None
+    dwell: float = 2.0
+    velocity_scale: float = 1.0
+    acceleration_time: float = 0.5
+    velocities: dict = field(default_factory=dict)
+    accelerations: dict = field(default_factory=dict)
+    move_tolerance: float = 0.001
+    planner_time: float = 2.0
+    planner_seed: int = 0
+    solver: str = "lkh"
+
+    def __post_init__(self):
+        for name in ("dwell", "acceleration_time", "move_tolerance", "planner_time"):
+            value = getattr(self, name)
+            if not np.isfinite(value) or value < 0 or (name == "acceleration_time" and value == 0):
+                raise ProgramError(name, value, "expected a finite number > 0 (dwell, "
+                                   "move_tolerance: >= 0)")
+        if not 0 < self.velocity_scale <= 1:
+            raise ProgramError("velocity_scale", self.velocity_scale, "expected a number in (0, 1]")
+        for name in ("velocities", "accelerations"):
+            for joint, value in getattr(self, name).items():
+                if not (np.isfinite(value) and value > 0):
+                    raise ProgramError(f"{name}.{joint}", value, "expected a number > 0")
+        if self.solver not in SOLVERS:
+            raise ProgramError("solver", self.solver, "unknown tour solver", SOLVERS)
+
+
+#: Tour solvers :func:`calib_oed.program.tour.solve_tour` offers.
+SOLVERS = ("lkh", "ortools")
+
+
+def program_settings_from_scene(scene, **overrides) -> ProgramSettings:
+    """The settings of a scene's ``program:`` block (defaults where absent), then ``overrides``.
+
+    Raises:
+        SceneError: an unknown key, a bad value or an unknown joint, naming the key.
+    """
+    block = getattr(scene, "program", None) or {}
+    reader = FieldReader(str(scene.source) if scene.source else None)
+    reader.length = LENGTH_UNITS[scene.units.get("length", "m")]
+    reader.angle = ANGLE_UNITS[scene.units.get("angle", "rad")]
+    spec = reader.mapping(block, "program", (), PROGRAM_KEYS)
+    robot = scene.robot
+    joints = list(robot.joint_names)
+    values: dict = {}
+    if "home" in spec:
+        values["home"] = reader.vector(spec["home"], "program.home", len(joints), reader.angle,
+                                       what="one per joint: " + ", ".join(joints))
+    for key in ("dwell", "acceleration_time", "velocity_scale"):
+        if key in spec:
+            values[key] = reader.number(spec[key], f"program.{key}", positive=key != "dwell",
+                                        nonnegative=True)
+    if "move_tolerance" in spec:
+        values["move_tolerance"] = reader.number(spec["move_tolerance"], "program.move_tolerance",
+                                                 reader.length, nonnegative=True)
+    for key in ("velocities", "accelerations"):
+        table = reader.free_mapping(spec.get(key, {}), f"program.{key}")
+        for joint in table:
+            if joint not in joints:
+                raise reader.fail(f"program.{key}.{joint}", "unknown joint; the robot's joints "
+                                  f"are: {', '.join(joints)}")
+        if table:
+            values[key] = {j: reader.number(v, f"program.{key}.{j}", reader.angle, positive=True)
+                           for j, v in table.items()}
+    if "velocity_scale" in values and values["velocity_scale"] > 1:
+        raise reader.fail("program.velocity_scale", f"expected a number in (0, 1], got "
+                          f"{values['velocity_scale']!r}")
+    values.update({k: v for k, v in overrides.items() if v is not None})
+    return ProgramSettings(**values)

@@ -1,0 +1,129 @@
+r"""The order of the measurement poses: a closed tour from home through every pose.
+
+Node 0 is the home configuration, nodes :math:`1..n` the design's poses; the
+cost :math:`C_{ij}` [s] is the travel time of the move (direct, or through its
+planned via points), and a tour's cycle time adds the dwell at every pose:
+
+.. math::
+    T_{cycle} = \sum_{k=0}^{n} C_{\pi_k \pi_{k+1}} + n\, t_{dwell},
+    \qquad \pi_0 = \pi_{n+1} = 0.
+
+Orders compared: the design's (:math:`\pi = 0, 1, ..., n, 0`), nearest neighbour
+from home (always the cheapest next pose), and the optimised tour of a TSP
+solver: LKH-3 through ``elkai`` (``"lkh"``, the default, chosen by
+``bench/bench_program.py``: as short tours, in a fraction of the time) or
+OR-Tools routing with guided local search (``"ortools"``, optional: the
+``bench`` extra). A solver's tour is never returned worse than nearest
+neighbour: the better of the two is kept (and the choice reported).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from calib_oed.exceptions import OptionalDependencyError, ProgramError
+from calib_oed.program.settings import SOLVERS
+
+#: LKH runs per solve (elkai's default is 10): the build re-solves several times, each
+#: run of LKH-3 on 61 nodes is already near-optimal (bench/bench_program.py).
+RUNS = 1
+
+
+def tour_time(cost: np.ndarray, order: np.ndarray) -> float:
+    """Travel time [s] of the closed tour home -> ``order`` (pose nodes 1..n) -> home."""
+    nodes = np.concatenate([[0], np.asarray(order, dtype=int), [0]])
+    return float(cost[nodes[:-1], nodes[1:]].sum())
+
+
+def design_order(n: int) -> np.ndarray:
+    """The design's order: nodes 1..n."""
+    return np.arange(1, n + 1)
+
+
+def nearest_neighbour(cost: np.ndarray) -> np.ndarray:
+    """Greedy tour from home (node 0): always the cheapest unvisited node (ties: lowest index)."""
+    n = len(cost) - 1
+    left = np.ones(n + 1, dtype=bool)
+    left[0] = False
+    order, here = [], 0
+    for _ in range(n):
+        row = np.where(left, cost[here], np.inf)
+        here = int(np.argmin(row))
+        left[here] = False
+        order.append(here)
+    return np.array(order, dtype=int)
+
+
+def solve_tour(cost: np.ndarray, solver: str = "lkh", seed: int = 0,
+               time_limit: float = 1.0) -> tuple[np.ndarray, str]:
+    """The optimised order of the pose nodes 1..n and which order won.
+
+    Args:
+        cost: Move times [s], (n+1, n+1), node 0 = home.
+        solver: ``"lkh"`` or ``"ortools"``.
+        seed: Unused by LKH through elkai (deterministic); OR-Tools is deterministic too.
+        time_limit: OR-Tools' guided local search budget [s].
+
+    Returns:
+        The order (n,) and ``solver`` or ``"nearest neighbour"`` if the solver's tour was not better.
+    """
+    cost = np.asarray(cost, dtype=float)
+    n = len(cost) - 1
+    if solver not in SOLVERS:
+        raise ProgramError("solver", solver, "unknown tour solver", SOLVERS)
+    nn = nearest_neighbour(cost)
+    if n <= 2:
+        return nn, "nearest neighbour"
+    order = _lkh(cost) if solver == "lkh" else _ortools(cost, time_limit)
+    if tour_time(cost, order) > tour_time(cost, nn):
+        return nn, "nearest neighbour"
+    return order, solver
+
+
+def _rotate_to_home(tour: list[int]) -> np.ndarray:
+    tour = [int(k) for k in tour]
+    if len(tour) > 1 and tour[0] == tour[-1]:
+        tour = tour[:-1]
+    k = tour.index(0)
+    tour = tour[k:] + tour[:k]
+    return np.array(tour[1:], dtype=int)
+
+
+def _lkh(cost: np.ndarray) -> np.ndarray:
+    import elkai
+
+    # integer arc costs [ms]: LKH multiplies them by its precision (100) in C integers, so
+    # costs must stay far below 2**31 / 100 ms (build.UNREACHABLE is 1e3 s = 1e6 ms)
+    scaled = np.rint(np.minimum(cost, 1e3) * 1e3).astype(np.int64)
+    tour = elkai.DistanceMatrix(scaled.tolist()).solve_tsp(runs=RUNS)
+    order = _rotate_to_home(tour)
+    # a symmetric cost: both directions are the same tour; keep the one elkai gives
+    return order
+
+
+def _ortools(cost: np.ndarray, time_limit: float) -> np.ndarray:
+    try:
+        from ortools.constraint_solver import pywrapcp, routing_enums_pb2
+    except ImportError as exc:  # an optional dependency (the bench extra)
+        raise OptionalDependencyError("the OR-Tools tour solver", "ortools", "bench") from exc
+
+    scaled = np.rint(cost * 1e3).astype(np.int64)  # integer arc costs [ms]
+    manager = pywrapcp.RoutingIndexManager(len(cost), 1, 0)
+    routing = pywrapcp.RoutingModel(manager)
+
+    def arc(i, j):
+        return int(scaled[manager.IndexToNode(i), manager.IndexToNode(j)])
+
+    routing.SetArcCostEvaluatorOfAllVehicles(routing.RegisterTransitCallback(arc))
+    params = pywrapcp.DefaultRoutingSearchParameters()
+    params.first_solution_strategy = routing_enums_pb2.FirstSolutionStrategy.PATH_CHEAPEST_ARC
+    params.local_search_metaheuristic = routing_enums_pb2.LocalSearchMetaheuristic.GUIDED_LOCAL_SEARCH
+    params.time_limit.FromMilliseconds(max(1, int(time_limit * 1e3)))
+    solution = routing.SolveWithParameters(params)
+    if solution is None:
+        raise ProgramError("solver", "ortools", "OR-Tools found no tour")
+    index, tour = routing.Start(0), []
+    while not routing.IsEnd(index):
+        tour.append(manager.IndexToNode(index))
+        index = solution.Value(routing.NextVar(index))
+    return _rotate_to_home(tour)

@@ -1,0 +1,31 @@
+"""Universal Robots URScript: ``movej([q1, .., q6], a=.., v=..)`` in radians (URScript's unit).
+
+``a`` and ``v`` are the smallest joint acceleration and velocity limits of the
+program's timing (``movej`` scales its leading axis to them); each measurement
+pose is followed by ``sleep(dwell)`` and a comment naming it.
+"""
+
+from __future__ import annotations
+
+from calib_oed.program.format_common import RAD_DECIMALS, header_lines, require_six_axes, steps
+from calib_oed.program.records import Program
+
+
+def write_urscript(program: Program, name: str) -> dict[str, str]:
+    """``{name.script: text}``; ``movej``'s ``v`` [rad/s] and ``a`` [rad/s²] are the smallest
+    joint limits of the program's timing (URScript's defaults 1.05 and 1.4 if it has none)."""
+    require_six_axes(program, "urscript")
+    velocity = 1.05 if program.velocity is None else float(min(program.velocity))
+    acceleration = 1.4 if program.acceleration is None else float(min(program.acceleration))
+    lines = [f"# {line}" for line in header_lines(program, "radians (URScript's unit)")]
+    lines.append(f"def {name}():")
+    for step in steps(program):
+        values = ", ".join(f"{v:.{RAD_DECIMALS}f}" for v in step.q)
+        what = {"home": "home", "via": "via point (no measurement)"}.get(step.kind, f"pose {step.pose}")
+        lines.append(f"  # {what}")
+        lines.append(f"  movej([{values}], a={acceleration:.4f}, v={velocity:.4f})")
+        if step.kind == "pose":
+            lines.append(f"  sleep({program.dwell:.2f})  # measure pose {step.pose}")
+    lines.append("end")
+    lines.append(f"{name}()")
+    return {f"{name}.script": "\n".join(lines) + "\n"}

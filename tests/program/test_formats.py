@@ -1,0 +1,175 @@
+"""Every program format parsed with a small grammar: the joint values, dwells and pose
+comments round-trip (degrees to 1e-4 deg, URScript radians to 1e-6 rad)."""
+
+from __future__ import annotations
+
+import csv
+import io
+import re
+
+import numpy as np
+import pytest
+
+from calib_oed.exceptions import ProgramError
+from calib_oed.program.continuous import MoveCheck
+from calib_oed.program.format_common import steps
+from calib_oed.program.formats import FORMATS, program_texts, write_program
+from calib_oed.program.records import Move, Program
+
+NUM = r"(-?\d+\.\d+)"
+JOINTS = tuple(f"joint_a{i}" for i in range(1, 7))
+
+
+@pytest.fixture(scope="module")
+def program() -> Program:
+    """Home, three poses (design rows 3, 1, 2 in that order), one move through two via points."""
+    rng = np.random.default_rng(5)
+    home = np.zeros(6)
+    poses = rng.uniform(-2, 2, size=(3, 6))
+    vias = rng.uniform(-2, 2, size=(2, 6))
+    ok = MoveCheck(True, False, 3, 0.1, "self:a|b")
+    nodes = [0, 3, 1, 2, 0]
+    moves = []
+    for a, b in zip(nodes[:-1], nodes[1:], strict=True):
+        qa = home if a == 0 else poses[a - 1]
+        qb = home if b == 0 else poses[b - 1]
+        way = np.vstack([qa, vias, qb]) if (a, b) == (1, 2) else np.vstack([qa, qb])
+        moves.append(Move(a, b, way, 1.0, ok))
+    return Program("test", JOINTS, home, poses, np.array([2, 0, 1]), tuple(moves), 1.5,
+                   {"design order": 20.0, "nearest neighbour": 12.0, "optimised": 10.0}, "lkh")
+
+
+def _expected(program):
+    return [(s.kind, s.q, s.pose) for s in steps(program)]
+
+
+def _parse(lines, rules):
+    """Match every non-empty line against one rule; return (rule name, groups) per line."""
+    out = []
+    for line in lines:
+        if not line.strip():
+            continue
+        for name, rx in rules:
+            m = re.fullmatch(rx, line)
+            if m:
+                out.append((name, m.groups()))
+                break
+        else:
+            raise AssertionError(f"line not in the grammar: {line!r}")
+    return out
+
+
+def _kind(comment: str):
+    if comment == "home":
+        return "home", None
+    if comment.startswith("via point"):
+        return "via", None
+    m = re.fullmatch(r"pose (\d+)", comment)
+    assert m, comment
+    return "pose", int(m.group(1))
+
+
+def _check(parsed_steps, dwells, program, unit=np.rad2deg, tol=0.6e-4):
+    exp = _expected(program)
+    assert [(k, p) for k, _, p in parsed_steps] == [(k, p) for k, _, p in exp]
+    for (_, q, _), (_, qe, _) in zip(parsed_steps, exp, strict=True):
+        assert np.allclose(q, unit(qe), atol=tol, rtol=0)
+    assert dwells == [(program.dwell, p) for k, _, p in exp if k == "pose"]
+
+
+def test_krl(program):
+    files = program_texts(program, "krl", "calib_program")
+    dat = _parse(files["calib_program.dat"].splitlines(), [
+        ("head", r"&ACCESS RVP|&REL 1|DEFDAT CALIB_PROGRAM|ENDDAT"),
+        ("decl", r"DECL E6AXIS X(\w+)=\{" + ",".join(f"A{i} {NUM}" for i in range(1, 7))
+         + r",E1 0\.0,E2 0\.0,E3 0\.0,E4 0\.0,E5 0\.0,E6 0\.0\}")])
+    targets = {g[0]: np.array(g[1:], float) for name, g in dat if name == "decl"}
+    src = _parse(files["calib_program.src"].splitlines(), [
+        ("head", r"&ACCESS RVP|&REL 1|DEF CALIB_PROGRAM\( \)|END|  BAS\(#INITMOV, 0\)"
+         r"|  \$VEL_AXIS\[\d\]=100"),
+        ("comment", r"; .*"),
+        ("ptp", r"  PTP X(\w+) ; (.*)"),
+        ("wait", r"  WAIT SEC " + NUM + r" ; measure pose (\d+)")])
+    got = [(*_kind(g[1]), targets[g[0]]) for name, g in src if name == "ptp"]
+    dwells = [(float(g[0]), int(g[1])) for name, g in src if name == "wait"]
+    _check([(k, q, p) for k, p, q in got], dwells, program)
+    assert "; joint values: URDF joint angles in degrees" in files["calib_program.src"]
+
+
+def test_rapid(program):
+    text = program_texts(program, "rapid", "CalibProgram")["CalibProgram.mod"]
+    rows = _parse(text.splitlines(), [
+        ("head", r"MODULE CalibProgram|ENDMODULE|  PROC main\(\)|  ENDPROC"),
+        ("comment", r"  ! .*"),
+        ("target", r"  CONST jointtarget j(\w+):=\[\[" + ",".join([NUM] * 6)
+         + r"\],\[9E9,9E9,9E9,9E9,9E9,9E9\]\];"),
+        ("move", r"    MoveAbsJ j(\w+)\\NoEOffs, v1000, fine, tool0; ! (.*)"),
+        ("wait", r"    WaitTime " + NUM + r"; ! measure pose (\d+)")])
+    targets = {g[0]: np.array(g[1:], float) for name, g in rows if name == "target"}
+    got = [(*_kind(g[1]), targets[g[0]]) for name, g in rows if name == "move"]
+    dwells = [(float(g[0]), int(g[1])) for name, g in rows if name == "wait"]
+    _check([(k, q, p) for k, p, q in got], dwells, program)
+
+
+def test_fanuc_tp(program):
+    text = program_texts(program, "tp", "calib_program")["calib_program.ls"]
+    head, rest = text.split("/MN\n")
+    mn, pos = rest.split("/POS\n")
+    assert head.startswith("/PROG  CALIB_PROGRAM\n")
+    rows = _parse(mn.splitlines(), [
+        ("move", r"\s*\d+:  J P\[(\d+):([^\]]*)\] 100% FINE ;"),
+        ("wait", r"\s*\d+:  WAIT\s+" + NUM + r"\(sec\) ;"),
+        ("measure", r"\s*\d+:  ! measure pose (\d+) ;"),
+        ("comment", r"\s*\d+:  ! (.{1,30}) ;")])
+    assert any("J2/J3" in g[0] for name, g in rows if name == "comment")
+    blocks = re.findall(r"P\[(\d+)\]\{\n   GP1:\n\tUF : 0, UT : 1,\n"
+                        + r"\tJ1= {0} deg,\tJ2= {0} deg,\tJ3= {0} deg,\n\tJ4= {0} deg,\tJ5= {0} deg,"
+                        r"\tJ6= {0} deg\n\};".replace("{0}", NUM), pos)
+    positions = {int(b[0]): np.array(b[1:], float) for b in blocks}
+    assert pos.rstrip().endswith("/END") and len(positions) == pos.count("GP1:")
+    got = [(*_kind(g[1].replace("via point", "via point")), positions[int(g[0])])
+           for name, g in rows if name == "move"]
+    measured = [int(g[0]) for name, g in rows if name == "measure"]
+    dwells = [(float(g[0]), p) for (name, g), p in zip([r for r in rows if r[0] == "wait"], measured,
+                                                        strict=True)]
+    _check([(k, q, p) for k, p, q in got], dwells, program)
+
+
+def test_urscript(program):
+    text = program_texts(program, "urscript", "calib_program")["calib_program.script"]
+    rows = _parse(text.splitlines(), [
+        ("head", r"def calib_program\(\):|end|calib_program\(\)"),
+        ("what", r"  # (home|via point \(no measurement\)|pose \d+)"),
+        ("comment", r"# .*"),
+        ("move", r"  movej\(\[" + ", ".join([NUM] * 6) + r"\], a=" + NUM + ", v=" + NUM + r"\)"),
+        ("wait", r"  sleep\(" + NUM + r"\)  # measure pose (\d+)")])
+    whats = [_kind(g[0]) for name, g in rows if name == "what"]
+    qs = [np.array(g[:6], float) for name, g in rows if name == "move"]
+    dwells = [(float(g[0]), int(g[1])) for name, g in rows if name == "wait"]
+    _check([(k, q, p) for (k, p), q in zip(whats, qs, strict=True)], dwells, program,
+           unit=lambda q: q, tol=0.6e-6)
+    assert "radians" in text.splitlines()[1]
+
+
+def test_csv(program):
+    text = program_texts(program, "csv", "calib_program")["calib_program.csv"]
+    body = [line for line in text.splitlines() if not line.startswith("#")]
+    rows = list(csv.DictReader(io.StringIO("\n".join(body))))
+    deg = np.array([[float(r[f"{j}_deg"]) for j in JOINTS] for r in rows])
+    rad = np.array([[float(r[f"{j}_rad"]) for j in JOINTS] for r in rows])
+    assert np.allclose(np.rad2deg(rad), deg, atol=0.6e-4, rtol=0)
+    parsed = [(r["kind"], q, int(r["pose"]) if r["pose"] else None) for r, q in zip(rows, rad, strict=True)]
+    dwells = [(float(r["dwell_s"]), int(r["pose"])) for r in rows if r["kind"] == "pose"]
+    _check(parsed, dwells, program, unit=lambda q: q, tol=1e-10)
+
+
+def test_errors_and_files(program, tmp_path):
+    with pytest.raises(ProgramError, match="'krl', 'rapid', 'tp', 'urscript', 'csv'"):
+        program_texts(program, "jbi")
+    seven = Program("t", JOINTS + ("j7",), np.zeros(7), np.zeros((1, 7)), np.array([0]), (), 1.0,
+                    program.cycle_times, "lkh")
+    with pytest.raises(ProgramError, match="use the csv format"):
+        program_texts(seven, "rapid")
+    paths = write_program(program, "krl", tmp_path / "out")
+    assert sorted(p.name for p in paths) == ["calib_program.dat", "calib_program.src"]
+    assert set(FORMATS) == {"krl", "rapid", "tp", "urscript", "csv"}

@@ -1,0 +1,38 @@
+"""The scene's program block: units, defaults, errors naming the key."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from calib_oed.exceptions import ProgramError, SceneError
+from calib_oed.program.settings import ProgramSettings, program_settings_from_scene
+
+
+def test_block_in_file_units(kr16_scene):
+    block = {"home": [0, -90, 90, 0, 0, 0], "dwell": 1.5, "velocities": {"joint_a1": 90},
+             "move_tolerance": 2, "velocity_scale": 0.8}
+    s = program_settings_from_scene(dataclasses.replace(kr16_scene, program=block))
+    assert np.allclose(s.home, np.deg2rad([0, -90, 90, 0, 0, 0]))
+    assert s.dwell == 1.5 and s.velocity_scale == 0.8
+    assert s.velocities["joint_a1"] == pytest.approx(np.pi / 2)
+    assert s.move_tolerance == pytest.approx(0.002)  # mm in the file
+    assert program_settings_from_scene(kr16_scene).dwell == ProgramSettings().dwell
+
+
+@pytest.mark.parametrize("block, key", [({"dwel": 1}, "program.dwel"),
+                                        ({"velocities": {"a1": 1}}, "program.velocities.a1"),
+                                        ({"home": [0, 0]}, "program.home"),
+                                        ({"velocity_scale": 2}, "program.velocity_scale")])
+def test_bad_block_names_the_key(kr16_scene, block, key):
+    with pytest.raises(SceneError, match=key.replace(".", r"\.")):
+        program_settings_from_scene(dataclasses.replace(kr16_scene, program=block))
+
+
+def test_bad_settings():
+    with pytest.raises(ProgramError, match="solver.*'lkh', 'ortools'"):
+        ProgramSettings(solver="concorde")
+    with pytest.raises(ProgramError, match="dwell"):
+        ProgramSettings(dwell=-1.0)

@@ -1,0 +1,42 @@
+"""Tour solvers on a problem with a known optimum; nearest neighbour; tour times."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from calib_oed.exceptions import ProgramError
+from calib_oed.program.tour import design_order, nearest_neighbour, solve_tour, tour_time
+
+
+def _circle(n=16, seed=0):
+    """Points on a circle, shuffled: the optimal tour goes round (cost = the perimeter polygon)."""
+    angles = np.random.default_rng(seed).permutation(np.linspace(0, 2 * np.pi, n, endpoint=False))
+    xy = np.c_[np.cos(angles), np.sin(angles)]
+    cost = np.linalg.norm(xy[:, None] - xy[None], axis=2)
+    best = n * 2 * np.sin(np.pi / n)
+    return cost, best
+
+
+@pytest.mark.parametrize("solver", ["lkh", "ortools"])
+def test_solvers_find_the_known_optimum(solver):
+    if solver == "ortools":
+        pytest.importorskip("ortools", reason="OR-Tools is optional (the bench extra)")
+    cost, best = _circle()
+    order, who = solve_tour(cost, solver, time_limit=0.5)
+    assert sorted(order) == list(range(1, len(cost)))
+    assert tour_time(cost, order) == pytest.approx(best, rel=1e-3)
+    assert tour_time(cost, design_order(len(cost) - 1)) > 2 * best  # the shuffled order is bad
+
+
+def test_nearest_neighbour_and_tour_time():
+    cost = np.array([[0, 1, 5, 2], [1, 0, 1, 9], [5, 1, 0, 1], [2, 9, 1, 0]], float)
+    order = nearest_neighbour(cost)
+    assert list(order) == [1, 2, 3]
+    assert tour_time(cost, order) == 1 + 1 + 1 + 2
+    assert tour_time(cost, [3, 2, 1]) == 2 + 1 + 1 + 1
+
+
+def test_unknown_solver():
+    with pytest.raises(ProgramError, match="'lkh', 'ortools'"):
+        solve_tour(np.zeros((4, 4)), "concorde")
