@@ -25,15 +25,17 @@ if TYPE_CHECKING:
 ROOT = "calib_oed"
 #: Largest drawn half-axis the automatic ellipsoid scale aims at [m].
 DEFAULT_TARGET_HALF_AXIS = 0.05
-#: ``robot_drawing="auto"`` draws the design poses of a robot with meshes by their
-#: capsules when the meshes of all poses would take more than this in the page
-#: (every pose repeats them; UR5: 2.3 MB per pose) [bytes].
+#: ``robot_drawing="auto"`` draws the robot by its capsules when its meshes would
+#: take more than this in the page: one copy for all design poses (mesh reuse,
+#: :mod:`calib_oed.viz.instances`) and one per working configuration (UR10:
+#: 2.8 MB per copy) [bytes].
 MESH_BUDGET_BYTES = 25_000_000
 #: How the robot can be drawn.
 ROBOT_DRAWINGS = ("auto", "visual", "capsules")
 #: Colours, RGBA in [0, 1].
 COLORS: dict[str, tuple[float, float, float, float]] = {
     "ghost": (0.55, 0.65, 0.85, 0.35),       # feasible design pose
+    "selected": (0.15, 0.35, 0.85, 1.00),    # the design pose the selector shows (solid)
     "infeasible": (0.95, 0.15, 0.15, 0.45),  # design pose violating a constraint
     "kpi": (0.15, 0.75, 0.30, 1.00),         # working configuration
     "capsule": (0.30, 0.80, 0.95, 0.15),     # feasibility capsules around the visual geometry
@@ -57,12 +59,17 @@ def _node(name: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.+-]", "_", name) or "_"
 
 
+def color_int(kind: str) -> int:
+    """The ``0xRRGGBB`` integer of ``COLORS[kind]``."""
+    r, g, b, _ = COLORS[kind]
+    return (int(r * 255) << 16) + (int(g * 255) << 8) + int(b * 255)
+
+
 def _material(kind: str, **extra):
     import meshcat.geometry as mg
 
-    r, g, b, a = COLORS[kind]
-    color = (int(r * 255) << 16) + (int(g * 255) << 8) + int(b * 255)
-    return mg.MeshPhongMaterial(color=color, opacity=a, transparent=a < 1.0, **extra)
+    a = COLORS[kind][3]
+    return mg.MeshPhongMaterial(color=color_int(kind), opacity=a, transparent=a < 1.0, **extra)
 
 
 @functools.cache
@@ -169,8 +176,13 @@ class _Painter:
         self.points: list[np.ndarray] = [self.tracker.translation[None, :]]
         self.points += [np.array([c.a, c.b]) for c in s.scene.cell.capsules]
 
-    def pose(self, path: str, q: np.ndarray, color: str, geom, show_capsules: bool) -> str:
-        """Robot, capsules, reflectors and beams at ``q`` under ``path``; the beams' node."""
+    def pose(self, path: str, q: np.ndarray, color: str, geom, show_capsules: bool,
+             robot_elsewhere: bool = False) -> str:
+        """Robot, capsules, reflectors and beams at ``q`` under ``path``; the beams' node.
+
+        ``geom`` None draws the robot by its capsules (in ``color``, shown), unless
+        ``robot_elsewhere``: its visual geometry is drawn by the caller (mesh reuse).
+        """
         import meshcat.geometry as mg
         from pinocchio.visualize import MeshcatVisualizer
 
@@ -184,11 +196,12 @@ class _Painter:
         seg, omi = self.segments, self.data.oMi
         a = np.array([omi[int(j)].act(p) for j, p in zip(seg.body_a, seg.a_local, strict=True)])
         b = np.array([omi[int(j)].act(p) for j, p in zip(seg.body_b, seg.b_local, strict=True)])
-        capsule = _material(color if geom is None else "capsule")
+        drawn = geom is not None or robot_elsewhere
+        capsule = _material("capsule" if drawn else color)
         for i, (name, role) in enumerate(zip(seg.names, seg.roles, strict=True)):
             if role in ("robot", "reflector"):
                 _draw_capsule(node["capsules"][_node(name)], a[i], b[i], float(seg.radius[i]), capsule)
-        node["capsules"].set_property("visible", bool(show_capsules or geom is None))
+        node["capsules"].set_property("visible", bool(show_capsules or not drawn))
         beams = [i for i, role in enumerate(seg.roles) if role == "beam"]  # reflector -> tracker
         radius = 0.5 * self.s.scene.feasibility.reflector_radius
         for i, name in zip(beams, self.s.feasibility.reflector_names, strict=True):
@@ -246,6 +259,39 @@ class _Painter:
         _draw_text(self.vis[f"{kpi_path}/ellipsoid_label"],
                    f"{100 * e.level:g}% ellipsoid \u00d7{scale:g}", label_width, above, eye)
         return path
+
+
+def nice_length(length: float) -> float:
+    """The 1-2-5 number (..., 0.1, 0.2, 0.5, 1, 2, ...) at or below ``length`` > 0."""
+    power = 10.0 ** np.floor(np.log10(length))
+    return float(f"{power * max(m for m in (1.0, 2.0, 5.0) if m * power <= length * (1 + 1e-9)):.1g}")
+
+
+def draw_guides(vis, points: np.ndarray, eye: np.ndarray) -> tuple[str, str, float]:
+    """World axes at the origin (x red, y green, z blue, labelled "world x", ...) and a scale bar along
+    world x at the lower front corner of ``points`` (k, 3) [m], labelled in mm, both
+    :func:`nice_length` of a fifth of the scene's extent long; (axes node, bar node, length [m])."""
+    import meshcat.geometry as mg
+
+    extent = float(np.ptp(points, axis=0).max())
+    length = nice_length(0.2 * extent if extent > 0 else 1.0)
+    axes, thick = vis[f"{ROOT}/world_axes"], 0.015 * length
+    for k, (name, color) in enumerate(zip("xyz", (0xE02020, 0x20A020, 0x2040E0), strict=True)):
+        tip = np.zeros(3)
+        tip[k] = length
+        size = np.full(3, thick)
+        size[k] = length
+        axes[name].set_object(mg.Box(size), mg.MeshBasicMaterial(color=color))
+        axes[name].set_transform(_placement(np.eye(3), 0.5 * tip))
+        _draw_text(axes[f"label_{name}"], f"world {name}", 0.6 * length, tip * 1.15, eye)
+    low = points.min(axis=0)
+    bar = vis[f"{ROOT}/scale_bar"]
+    bar["bar"].set_object(mg.Box([length, 0.01 * length, 0.01 * length]),
+                          mg.MeshBasicMaterial(color=0x202020))
+    bar["bar"].set_transform(_placement(np.eye(3), low + [0.5 * length, 0.0, 0.0]))
+    _draw_text(bar["label"], f"{1e3 * length:g} mm", 1.2 * length,
+               low + [0.5 * length, 0.0, 0.15 * length], eye)
+    return f"{ROOT}/world_axes", f"{ROOT}/scale_bar", length
 
 
 def _camera(points: np.ndarray, center: np.ndarray, tracker: np.ndarray, obstacles: np.ndarray) -> np.ndarray:

@@ -7,9 +7,9 @@ and PDF backends. Lengths are plotted in mm; inputs are SI (m, m²) unless an
 argument says otherwise.
 
 - :func:`plot_kpi_ellipsoids` / :func:`plot_covariance_ellipses`: the paper's
-  Figure 7, the 95 % confidence region of the KPI (TCP position at a
-  working configuration) of several designs, projected onto the xy, xz and
-  yz planes. Drawn are the *marginal* ellipses
+  Figure 7, the 95 % confidence region of the KPI (a tool point at every
+  working configuration, in the world or tracker frame) of several designs,
+  projected onto the xy, xz and yz planes. Drawn are the *marginal* ellipses
   :math:`\{y : y^\top C_{JJ}^{-1} y \le \chi^2_2(\mathrm{level})\}` of the two
   plotted coordinates :math:`J` (each holds them with probability
   ``level``; :meth:`calib_oed.calibration.confidence.ConfidenceEllipsoid.marginal`),
@@ -24,8 +24,9 @@ from __future__ import annotations
 
 import math
 import os
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import scipy.stats
@@ -45,6 +46,8 @@ MRAD_PER_RAD = 1e3
 FIGURE_FORMATS = {".png": "png", ".svg": "svg", ".pdf": "pdf"}
 #: Coordinate planes of :func:`plot_covariance_ellipses`: name and the two axes.
 PLANES = (("xy", (0, 1)), ("xz", (0, 2)), ("yz", (1, 2)))
+#: Most tick intervals per axis of an ellipse panel (at most TICK_BINS + 1 labels).
+TICK_BINS = 4
 #: Normalised residuals beyond this [sigma] are counted in the edge bins of the histogram.
 HISTOGRAM_LIMIT = 6.0
 
@@ -64,6 +67,52 @@ def _problem(problem_or_setup) -> CalibrationProblem:
 
 
 # ------------------------------------------------------ confidence ellipses
+class _Curve(NamedTuple):
+    """One drawn ellipse: its ``gid``, legend label (None: not in the legend), colour, region."""
+
+    gid: str
+    label: str | None
+    color: str
+    ellipsoid: ConfidenceEllipsoid
+
+
+def _sigma_mm(covariances: Sequence[np.ndarray]) -> float:
+    r""":math:`\sigma = \sqrt{\sum_i \mathrm{tr}(C_i) / (3t)}` of t (3, 3) covariances [m²], in mm."""
+    return math.sqrt(sum(np.trace(c) for c in covariances) / (3.0 * len(covariances))) * MM_PER_M
+
+
+def _ellipse_figure(curves: Sequence[_Curve], level: float, title: str, legend_title: str) -> Figure:
+    """Three panels (:data:`PLANES`), one line per curve and panel, a legend below them."""
+    fig = Figure(figsize=(12.5, 4.8), layout="constrained")
+    axes = fig.subplots(1, 3)
+    for ax, (plane, dims) in zip(axes, PLANES, strict=True):
+        for c in curves:
+            xy = c.ellipsoid.projection(dims, kind="marginal").boundary(361) * MM_PER_M
+            ax.plot(xy[:, 0], xy[:, 1], color=c.color, lw=1.6 if c.label else 1.0, gid=c.gid,
+                    label=c.label if c.label else "_nolegend_")
+        ax.plot([0.0], [0.0], "+", color="0.3", ms=8)
+        ax.set_aspect("equal", adjustable="datalim")
+        # at most 5 labelled ticks per axis: a panel is ~4 inches wide, and matplotlib's
+        # automatic count (by font size only) lets labels like "-0.075" overlap
+        for axis in (ax.xaxis, ax.yaxis):
+            axis.set_major_locator(MaxNLocator(nbins=TICK_BINS, steps=[1, 2, 2.5, 5, 10]))
+        ax.set_xlabel(f"\u0394{plane[0]} [mm]")
+        ax.set_ylabel(f"\u0394{plane[1]} [mm]")
+        ax.set_title(f"{plane} plane: marginal {level:.0%} region")
+        ax.grid(True, alpha=0.3)
+    handles, labels = axes[0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="outside lower center", ncols=min(len(labels), 4), title=legend_title)
+    fig.suptitle(title)
+    return fig
+
+
+def _check_covariance(name: str, cov) -> np.ndarray:
+    cov = np.asarray(cov, dtype=float)
+    if cov.shape != (3, 3):
+        raise ShapeError(f"covariance of {name!r}", "(3, 3) [m^2]", cov.shape)
+    return cov
+
+
 def plot_covariance_ellipses(
     covariances: Mapping[str, np.ndarray],
     *,
@@ -95,79 +144,102 @@ def plot_covariance_ellipses(
     """
     if not covariances:
         raise ValueError("covariances: give at least one name -> (3, 3) covariance [m^2]")
-    ellipsoids = []
-    for name, cov in covariances.items():
-        cov = np.asarray(cov, dtype=float)
-        if cov.shape != (3, 3):
-            raise ShapeError(f"covariance of {name!r}", "(3, 3) [m^2]", cov.shape)
-        ellipsoids.append(ConfidenceEllipsoid(np.zeros(3), cov, level, str(name)))
-    fig = Figure(figsize=(12.5, 4.8), layout="constrained")
-    axes = fig.subplots(1, 3)
-    colors = _colors(len(ellipsoids))
-    for ax, (plane, dims) in zip(axes, PLANES, strict=True):
-        for e, color in zip(ellipsoids, colors, strict=True):
-            sigma_mm = math.sqrt(np.trace(e.covariance) / 3.0) * MM_PER_M
-            xy = e.projection(dims, kind="marginal").boundary(361) * MM_PER_M
-            ax.plot(xy[:, 0], xy[:, 1], color=color, lw=1.6, gid=e.name,
-                    label=f"{e.name}: \u03c3 = {sigma_mm:#.3g} mm")
-        ax.plot([0.0], [0.0], "+", color="0.3", ms=8)
-        ax.set_aspect("equal", adjustable="datalim")
-        ax.set_xlabel(f"\u0394{plane[0]} [mm]")
-        ax.set_ylabel(f"\u0394{plane[1]} [mm]")
-        ax.set_title(f"{plane} plane: marginal {level:.0%} region")
-        ax.grid(True, alpha=0.3)
-    handles, labels = axes[0].get_legend_handles_labels()
-    fig.legend(handles, labels, loc="outside lower center", ncols=min(len(labels), 4),
-               title="design: KPI \u03c3 = \u221a(tr C/3)")
-    fig.suptitle(title or f"{level:.0%} confidence regions, deviation from the estimate "
-                 f"(marginal ellipses, \u03c7\u00b2 with 2 degrees of freedom)")
-    return fig
+    curves = []
+    for (name, cov), color in zip(covariances.items(), _colors(len(covariances)), strict=True):
+        cov = _check_covariance(name, cov)
+        curves.append(_Curve(str(name), f"{name}: \u03c3 = {_sigma_mm([cov]):#.3g} mm", color,
+                             ConfidenceEllipsoid(np.zeros(3), cov, level, str(name))))
+    return _ellipse_figure(
+        curves, level,
+        title or f"{level:.0%} confidence regions, deviation from the estimate "
+                 "(marginal ellipses, \u03c7\u00b2 with 2 degrees of freedom)",
+        "design: KPI \u03c3 = \u221a(tr C/3)")
+
+
+def kpi_description(kpi, reflector_names: Sequence[str] | None = None) -> str:
+    """What a KPI is and in which frame, in words: ``"TCP position, world frame"``,
+    ``"centre of reflector 'smr0', tracker frame"``, ``"tool point (0, 0, 120) mm, world frame"``.
+
+    Args:
+        kpi: A :class:`~calib_oed.calibration.kpi.TcpKpi`.
+        reflector_names: Names of the scene's reflectors (else they are numbered).
+    """
+    if kpi.reflector is not None:
+        j = kpi.reflector
+        named = reflector_names is not None and j < len(reflector_names)
+        what = f"centre of reflector {reflector_names[j]!r}" if named else f"centre of reflector {j}"
+    elif not np.any(kpi.point):
+        what = "TCP position"
+    else:
+        what = "tool point ({}) mm".format(", ".join(f"{MM_PER_M * v:g}" for v in kpi.point))
+    return f"{what}, {kpi.frame} frame"
 
 
 def plot_kpi_ellipsoids(
     problem,
     designs: Mapping[str, np.ndarray],
     *,
-    kpi_index: int = 0,
+    kpi_index: int | None = None,
     level: float = 0.95,
 ) -> Figure:
     r"""The paper's Figure 7: KPI confidence regions of several designs, in mm.
 
-    For each design :math:`q`, the 3×3 block of working configuration
-    ``kpi_index`` of :math:`C_s(q)` (``problem.kpi_covariance``, [m²]) is drawn
-    by :func:`plot_covariance_ellipses` (marginal ellipses in the xy, xz and yz
-    planes of the world frame). To plot covariances you already have, call
-    that function directly.
+    For each design :math:`q` and KPI point :math:`i` (working configuration),
+    the 3×3 block :math:`C_i` of :math:`C_s(q)` (``problem.kpi_covariance``,
+    [m²], in the KPI's frame: world or tracker) is drawn as marginal ellipses
+    in the xy, xz and yz planes (as :func:`plot_covariance_ellipses`), one line
+    per point, in the design's colour. The legend gives per design
+    :math:`\sigma = \sqrt{\sum_i \mathrm{tr}(C_i)/(3t)}` [mm] over its t drawn
+    points; the title names the KPI point, its frame and the working configurations.
 
     Args:
-        problem: A :class:`~calib_oed.calibration.problem.CalibrationProblem` (or a
-            :class:`~calib_oed.calibration.workflow.Setup`).
+        problem: A :class:`~calib_oed.calibration.problem.CalibrationProblem`, or a
+            :class:`~calib_oed.calibration.workflow.Setup` (then reflectors are named).
         designs: Name (``"heuristic"``, ``"KPI-optimal"``, ...) to
             configurations (n, nq) [rad], or to a record with a ``q``
             attribute (:class:`~calib_oed.oed.result.Design`).
-        kpi_index: Which working configuration, 0 .. t-1.
+        kpi_index: One working configuration, 0 .. t-1; ``None``: all of them.
         level: Confidence level in (0, 1).
+
+    Returns:
+        A figure as :func:`plot_covariance_ellipses`; the line of design ``d``
+        at point ``w`` has ``gid`` ``d`` with one KPI point, else ``"d @ w"``.
 
     Raises:
         ValueError: ``kpi_index`` out of range (the message lists the
             working configurations).
     """
+    scene = getattr(problem, "scene", None)
+    reflector_names = [r.name for r in scene.reflectors] if scene is not None else None
     problem = _problem(problem)
     names = problem.kpi.names
-    if isinstance(kpi_index, bool) or not isinstance(kpi_index, (int, np.integer)) \
+    if kpi_index is None:
+        points = list(range(len(names)))
+    elif isinstance(kpi_index, bool) or not isinstance(kpi_index, (int, np.integer)) \
             or not 0 <= kpi_index < len(names):
         valid = ", ".join(f"{i} ({n})" for i, n in enumerate(names))
-        raise ValueError(f"kpi_index {kpi_index!r}: the working configurations are {valid}")
-    k = 3 * int(kpi_index)
-    covariances = {}
-    for name, q in designs.items():
+        raise ValueError(f"kpi_index {kpi_index!r}: the working configurations are {valid} "
+                         "(or None: all)")
+    else:
+        points = [int(kpi_index)]
+    if not designs:
+        raise ValueError("designs: give at least one name -> configurations (n, nq) [rad]")
+    curves = []
+    for (design, q), color in zip(designs.items(), _colors(len(designs)), strict=True):
         c_s = problem.kpi_covariance(np.asarray(getattr(q, "q", q), dtype=float))
-        covariances[name] = c_s[k : k + 3, k : k + 3]
-    return plot_covariance_ellipses(
-        covariances, level=level,
-        title=f"KPI '{names[kpi_index]}' (TCP position, world frame): {level:.0%} confidence "
-              "regions, deviation from the estimate (marginal ellipses, \u03c7\u00b2\u2082)",
-    )
+        blocks = [_check_covariance(design, c_s[3 * i : 3 * i + 3, 3 * i : 3 * i + 3]) for i in points]
+        over = f" (RMS over {len(points)} points)" if len(points) > 1 else ""
+        for k, (i, cov) in enumerate(zip(points, blocks, strict=True)):
+            gid = str(design) if len(points) == 1 else f"{design} @ {names[i]}"
+            label = f"{design}: \u03c3 = {_sigma_mm(blocks):#.3g} mm{over}" if k == 0 else None
+            curves.append(_Curve(gid, label, color, ConfidenceEllipsoid(np.zeros(3), cov, level, gid)))
+    shown = [names[i] for i in points]
+    where = ", ".join(shown[:3]) + (f", \u2026 ({len(shown)} points)" if len(shown) > 3 else "")
+    return _ellipse_figure(
+        curves, level,
+        f"KPI: {kpi_description(problem.kpi, reflector_names)}, at {where}\n{level:.0%} confidence "
+        "regions, deviation from the estimate (marginal ellipses, \u03c7\u00b2\u2082)",
+        "design: KPI \u03c3 = \u221a(mean tr C\u1d62/3)" if len(points) > 1 else "design: KPI \u03c3 = \u221a(tr C/3)")
 
 
 # --------------------------------------------------------------- residuals

@@ -2,18 +2,22 @@ r"""Meshcat inspection view of a calibration scene and design (a web page).
 
 One meshcat scene shows:
 
-- every design pose as a translucent ghost (red if it violates a feasibility
-  constraint), each in its subtree ``calib_oed/design/pose_<k>``: the robot's
-  URDF visual geometry, its feasibility capsules (hidden; toggle them in
-  meshcat's *Open Controls* panel), the reflectors and the laser beams to the
-  tracker. An animation steps through the poses, one per second, each alone
-  (*Animations → default → play*, or drag *time*); the page opens on the overlay;
+- every design pose (red if it violates a feasibility constraint): the
+  robot's URDF visual geometry, all poses in one node ``calib_oed/design/robots``
+  that holds the meshes once (:mod:`calib_oed.viz.instances`: a 60-pose UR10
+  design stays a few MB), and per pose a subtree ``calib_oed/design/pose_<k>``
+  with its feasibility capsules (hidden; toggle them in meshcat's *Open
+  Controls* panel), reflectors and laser beams to the tracker. A pose
+  selector (:mod:`calib_oed.viz.selector`: a list with per-pose labels, a
+  slider, arrow keys) shows one pose solid with its beams, the others faint;
+  the page opens on pose 0;
 - each working (KPI) configuration in its own colour, ``calib_oed/kpi/<name>``,
   with its capsules shown and, given a design, the confidence ellipsoid of the
   KPI at the TCP with a text board stating its drawing scale;
 - the tracker (a small cylinder with its frame triad), the cell's obstacle
   capsules and half-spaces (thin translucent plates clipped to the scene),
-  and a triad at the world frame (robot base).
+  the world axes (robot base; x red, y green, z blue, labelled) and a scale
+  bar labelled in mm.
 
 **The ellipsoid.** With :math:`C_i` the 3×3 block of the KPI covariance
 :math:`C_s` of the design (:meth:`~calib_oed.calibration.problem.CalibrationProblem.kpi_covariance`,
@@ -54,20 +58,25 @@ from calib_oed.calibration.confidence import (
     kpi_ellipsoids,
 )
 from calib_oed.exceptions import CalibOedError, ShapeError, ViewerSettingError
-from calib_oed.viz.draw import (  # COLORS, TRACKER_SIZE, ellipsoid_node_name: re-exported
-    COLORS,  # noqa: F401
+from calib_oed.viz.draw import (  # TRACKER_SIZE, ellipsoid_node_name: re-exported
+    COLORS,
     DEFAULT_TARGET_HALF_AXIS,
     MESH_BUDGET_BYTES,
     ROBOT_DRAWINGS,
     ROOT,
     TRACKER_SIZE,  # noqa: F401
     _camera,
+    _material,
     _node,
     _Painter,
     _placement,
     _visual_model,
+    color_int,
+    draw_guides,
     ellipsoid_node_name,  # noqa: F401
 )
+from calib_oed.viz.instances import RobotInstances, draw_instances
+from calib_oed.viz.selector import add_selector, pose_labels
 
 if TYPE_CHECKING:
     import meshcat
@@ -117,7 +126,12 @@ class ViewInfo:
         level: Confidence level :math:`1-\\alpha` of the ellipsoids.
         infeasible_poses: Design poses violating a feasibility constraint (drawn red).
         robot_drawing: How design poses are drawn: ``"visual"`` or ``"capsules"``.
-        animated: Whether the step-through animation is in the scene.
+        robots_path: The node holding every design pose's visual geometry (meshes
+            once, one group ``pose_<k>`` per pose), or ``None`` (capsules, no design).
+        selector: Whether the pose selector is in the page.
+        labels: Per design pose: feasibility and joint values (the selector's labels).
+        axes_path, scale_bar_path: World axes and scale bar.
+        scale_bar_length: Length of the scale bar and the axes [m].
         notes: What was left out, and why.
     """
 
@@ -132,7 +146,12 @@ class ViewInfo:
     level: float
     infeasible_poses: tuple[int, ...]
     robot_drawing: str
-    animated: bool
+    robots_path: str | None
+    selector: bool
+    labels: tuple[str, ...]
+    axes_path: str
+    scale_bar_path: str
+    scale_bar_length: float
     notes: tuple[str, ...] = ()
 
     @property
@@ -153,6 +172,9 @@ class ViewInfo:
             axes = ", ".join(f"{a:.4f}" for a in e.half_axes_mm)
             lines.append(f"{100 * self.level:g}% KPI ellipsoid {e.ellipsoid.name!r}: half-axes "
                          f"[{axes}] mm, drawn x{e.scale:g}")
+        if self.selector:
+            lines.append("pose selector: the list at the top left (hover a pose for its joints), "
+                         "the 'pose' slider under Open Controls, or the arrow keys; 'a' shows all poses")
         return "\n".join(lines + [f"note: {n}" for n in self.notes])
 
 
@@ -214,20 +236,14 @@ def world_ellipsoids(s: Setup, q_design: np.ndarray, level: float = 0.95) -> lis
 
 
 # ------------------------------------------------------------ drawing pieces
-def _animate(vis, pose_paths: Sequence[str], ghosts: bool) -> None:
-    """Pose k alone at second k, then (second n) the opening state; not playing at first."""
-    import meshcat.animation as ma
-
-    anim = ma.Animation(default_framerate=1)
-    n = len(pose_paths)
-    for k, path in enumerate(pose_paths):
-        keys = {0: k == 0, k: True, n: bool(ghosts or k == 0)}  # visibility steps (discrete track)
-        if k + 1 < n:
-            keys[k + 1] = False
-        for frame, visible in sorted(keys.items()):
-            with anim.at_frame(vis, frame) as f:
-                f[path].set_property("visible", "boolean", visible)
-    vis.set_animation(anim, play=False)
+def _pose_material(color: str, solid: bool):
+    """A design pose's material: faint (``COLORS[color]``), or solid when selected
+    (``COLORS["selected"]``; an infeasible pose stays red)."""
+    if not solid:
+        return _material(color)
+    material = _material("selected" if color == "ghost" else color)
+    material.opacity, material.transparent = 1.0, False
+    return material
 
 
 # ----------------------------------------------------------------- the view
@@ -240,7 +256,7 @@ def build_view(
     ellipsoid_scale: float | None = None,
     target_half_axis: float = DEFAULT_TARGET_HALF_AXIS,
     ghosts: bool = True,
-    animate: bool = True,
+    selector: bool = True,
     robot_drawing: str = "auto",
     camera: Sequence[float] | None = None,
 ) -> ViewInfo:
@@ -255,11 +271,12 @@ def build_view(
         ellipsoid_scale: Drawing scale :math:`f` (> 0); ``None``: :func:`display_scale`
             of the largest half-axis and ``target_half_axis``.
         target_half_axis: Largest drawn half-axis the automatic scale aims at [m], > 0.
-        ghosts: All design poses visible at once (else only the first; step with the animation).
-        animate: Add the step-through animation.
+        ghosts: The poses not selected are drawn faint (else hidden); the page opens on pose 0.
+        selector: Add the pose selector (list, slider, keys; :mod:`calib_oed.viz.selector`).
         robot_drawing: ``"visual"`` (URDF visual geometry), ``"capsules"`` (feasibility
             capsules), or ``"auto"``: visual, but capsules in the design poses when their
-            meshes would take more than :data:`MESH_BUDGET_BYTES`.
+            meshes (one copy for all design poses, one per working configuration)
+            would take more than :data:`MESH_BUDGET_BYTES`.
         camera: Camera position, world [m]; default: above the scene, across the beams.
 
     Raises:
@@ -268,8 +285,6 @@ def build_view(
         ViewerSettingError: a scale <= 0, an unknown ``robot_drawing``.
         ConfidenceLevelError: ``level`` not in (0, 1).
     """
-    from meshcat.geometry import triad
-
     q = _check_design(s, q_design)
     scale = _positive("ellipsoid_scale", ellipsoid_scale, allow_none=True)
     target = _positive("target_half_axis", target_half_axis)
@@ -285,10 +300,10 @@ def build_view(
     geom, mesh_bytes, note = (None, 0, "") if robot_drawing == "capsules" else _visual_model(s.problem.robot)
     notes += [note] if note else []
     design_geom = geom
-    page_bytes = mesh_bytes * (len(q) + len(s.scene.kpi.configurations))
+    page_bytes = mesh_bytes * (1 + len(s.scene.kpi.configurations))  # design poses share one copy
     if robot_drawing == "auto" and len(q) and page_bytes > MESH_BUDGET_BYTES:
         design_geom = None
-        notes.append(f"design poses drawn by their capsules: the robot's meshes in every pose would "
+        notes.append(f"design poses drawn by their capsules: the robot's meshes would "
                      f"take {page_bytes / 1e6:.0f} MB > {MESH_BUDGET_BYTES / 1e6:.0f} MB "
                      "(robot_drawing='visual' draws them anyway)")
     ellipsoids: list[ConfidenceEllipsoid] = []
@@ -306,16 +321,35 @@ def build_view(
     painter = _Painter(vis, s)
     pose_paths = [f"{ROOT}/design/pose_{k:03d}" for k in range(len(q))]
     kpi_paths = [f"{ROOT}/kpi/{_node(w.name)}" for w in s.scene.kpi.configurations]
-    beam_paths = []
+    beam_paths, colors = [], ["infeasible" if k in infeasible else "ghost" for k in range(len(q))]
+    instanced = design_geom is not None and len(q) > 0
     for k, (path, qk) in enumerate(zip(pose_paths, q, strict=True)):
-        color = "infeasible" if k in infeasible else "ghost"
-        beam_paths.append(painter.pose(path, qk, color, design_geom, show_capsules=False))
-        vis[path].set_property("visible", bool(ghosts or k == 0))
+        solid = not instanced and k == 0 and colors[k] == "ghost"  # capsules stand for the robot
+        beam_paths.append(painter.pose(path, qk, "selected" if solid else colors[k], None,
+                                       show_capsules=False, robot_elsewhere=instanced))
+        for part in ("beams", "reflectors"):  # the opening state: pose 0 selected
+            vis[path][part].set_property("visible", k == 0)
+        if not instanced:
+            vis[path].set_property("visible", bool(ghosts or k == 0))
+    robots_path = f"{ROOT}/design/robots" if instanced else None
+    if instanced:
+        robots = RobotInstances(s.problem.robot.model, design_geom, q,
+                                [_pose_material(c, k == 0) for k, c in enumerate(colors)],
+                                visible=[ghosts or k == 0 for k in range(len(q))])
+        draw_instances(vis[robots_path], robots)
+        if robots.skipped:
+            notes.append(f"visual geometry meshcat cannot draw, left out: {', '.join(robots.skipped)}")
+    labels, short = pose_labels(s.problem.robot.model, q, infeasible)
+    with_selector = bool(selector and len(q))
+    if with_selector:
+        add_selector(vis, f"{ROOT}/design", [p.rsplit("/", 1)[1] for p in pose_paths], labels, short,
+                     [(color_int(c), COLORS[c][3]) for c in colors],
+                     [color_int("selected" if c == "ghost" else c) for c in colors], infeasible,
+                     instanced=instanced, ghosts=ghosts)
     for path, w in zip(kpi_paths, s.scene.kpi.configurations, strict=True):
         beam_paths.append(painter.pose(path, np.asarray(w.q), "kpi", geom, show_capsules=True))
     obstacle_paths = painter.cell()
     tracker_path = painter.tracker_body()
-    vis[f"{ROOT}/world_frame"].set_object(triad(0.3))
 
     points = np.vstack(painter.points)
     center = 0.5 * (points.min(axis=0) + points.max(axis=0))
@@ -325,19 +359,18 @@ def build_view(
     label_width = 0.25 * float(np.linalg.norm(points.max(axis=0) - points.min(axis=0)))
     views = tuple(EllipsoidView(painter.ellipsoid(path, e, scale, eye, label_width), e, scale)
                   for path, e in zip(kpi_paths[:len(ellipsoids)], ellipsoids, strict=True))
+    axes_path, bar_path, bar_length = draw_guides(vis, points, eye)
 
     vis[ROOT].set_transform(_placement(np.eye(3), -center))
     for hidden in ("/Grid", "/Axes"):
         vis[hidden].set_property("visible", False)
     rel = eye - center  # meshcat's camera node is y-up: world (x, y, z) is (x, z, -y) there
     vis["/Cameras/default/rotated/<object>"].set_property("position", [rel[0], rel[2], -rel[1]])
-    animated = bool(animate and len(q) > 1)
-    if animated:
-        _animate(vis, pose_paths, ghosts)
     return ViewInfo(
         center=center, pose_paths=tuple(pose_paths), kpi_paths=tuple(kpi_paths),
         beam_paths=tuple(beam_paths), tracker_path=tracker_path, obstacle_paths=tuple(obstacle_paths),
         ellipsoids=views, ellipsoid_scale=scale if views else None, level=float(level),
         infeasible_poses=infeasible, robot_drawing="visual" if design_geom is not None else "capsules",
-        animated=animated, notes=tuple(notes),
+        robots_path=robots_path, selector=with_selector, labels=tuple(labels), axes_path=axes_path,
+        scale_bar_path=bar_path, scale_bar_length=bar_length, notes=tuple(notes),
     )

@@ -96,6 +96,113 @@ def test_covariance_ellipses_validate_their_input(kr16):
         plots.plot_kpi_ellipsoids(s.problem, {"h": q}, kpi_index=1)
 
 
+def _tick_label_gaps(fig) -> list[float]:
+    """Per panel, the smallest horizontal gap [pixels] between neighbouring x tick labels
+    shown inside the axis (negative: two labels overlap), after a real Agg draw."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    FigureCanvasAgg(fig).draw()
+    renderer = fig.canvas.get_renderer()
+    gaps = []
+    for ax in fig.axes:
+        lo, hi = sorted(ax.get_xlim())
+        shown = [t for t in ax.get_xticklabels() if t.get_visible() and t.get_text()
+                 and lo <= t.get_position()[0] <= hi]
+        boxes = sorted((t.get_window_extent(renderer) for t in shown), key=lambda b: b.x0)
+        assert len(boxes) >= 3, [t.get_text() for t in shown]  # a readable axis: >= 3 labels
+        gaps.append(min(b.x0 - a.x1 for a, b in zip(boxes[:-1], boxes[1:], strict=True)))
+    return gaps
+
+
+# sigma = 33 um isotropic made matplotlib's automatic ticks overlap by ~5 px in all
+# three panels (issue 21); the others are elongated variants and other magnitudes
+@pytest.mark.parametrize(("sigma", "stretch"), [
+    (3.3e-5, (1, 1, 1)), (3.3e-5, (1, 1, 3)), (3.3e-5, (2, 1, 1)), (1.2e-5, (1, 2, 1)),
+    (2e-4, (1, 1, 1)), (4.4e-6, (5, 1, 1)),
+])
+def test_ellipse_tick_labels_do_not_overlap(sigma, stretch):
+    cov = np.diag((sigma * np.array(stretch, dtype=float)) ** 2)
+    fig = plots.plot_covariance_ellipses({"a": cov, "b": 0.5 * cov})
+    gaps = _tick_label_gaps(fig)
+    assert min(gaps) > 2.0, gaps
+
+
+def _scene_with_kpi(**kpi):
+    """fms_kr16 with its KPI section changed (and a second working configuration)."""
+    import copy
+    from pathlib import Path
+
+    import yaml
+
+    from calib_oed.scene.reader import scene_from_dict
+
+    source = load_scene("fms_kr16").source
+    data = yaml.safe_load(Path(source).read_text())
+    data["kpi"] = {k: v for k, v in copy.deepcopy(data["kpi"]).items() if k != "point"} | kpi
+    data["kpi"]["working_configurations"].append({"name": "car_low", "q": [-9, -60, 110, -38, -30, 0]})
+    return setup(scene_from_dict(data, source=str(source)))
+
+
+def test_kpi_plot_names_the_kpi_and_frame_and_draws_every_point(kr16):
+    _, q = kr16
+    s = _scene_with_kpi(frame="tracker", reflector="smr0")
+    designs = {"30 poses": q, "20 poses": q[:20]}
+    fig = plots.plot_kpi_ellipsoids(s, designs)
+    title = fig.get_suptitle()
+    assert "centre of reflector 'smr0', tracker frame" in title and "car_side, car_low" in title
+    assert "TCP" not in title and "world" not in title
+    assert _title_fits(fig)
+    r2 = scipy.stats.chi2.ppf(0.95, 2)
+    names = s.problem.kpi.names
+    assert names == ("car_side", "car_low")
+    for ax, (i, j) in zip(fig.axes, [(0, 1), (0, 2), (1, 2)], strict=True):
+        drawn = {ln.get_gid() for ln in ax.get_lines() if ln.get_gid()}
+        assert drawn == {f"{d} @ {w}" for d in designs for w in names}  # one line per design and point
+        for d, qd in designs.items():
+            c_s = s.problem.kpi_covariance(qd)  # tracker frame [m^2]
+            for k, w in enumerate(names):
+                c = c_s[3 * k : 3 * k + 3, 3 * k : 3 * k + 3]
+                line = _line(ax, f"{d} @ {w}")
+                for data, axis in ((line.get_xdata(), i), (line.get_ydata(), j)):
+                    assert np.ptp(data) / 2 == pytest.approx(np.sqrt(r2 * c[axis, axis]) * 1e3, rel=1e-4)
+    legend = [t.get_text() for t in fig.legends[0].get_texts()]
+    sigma = np.sqrt(np.trace(s.problem.kpi_covariance(q)) / 6) * 1e3  # RMS over the 2 points
+    assert legend[0] == f"30 poses: \u03c3 = {sigma:#.3g} mm (RMS over 2 points)" and len(legend) == 2
+    # one point on request; a problem without its scene numbers the reflector
+    one = plots.plot_kpi_ellipsoids(s.problem, designs, kpi_index=1)
+    assert {ln.get_gid() for ln in one.axes[0].get_lines() if ln.get_gid()} == set(designs)
+    assert "centre of reflector 0, tracker frame, at car_low" in one.get_suptitle()
+    with pytest.raises(ValueError, match=r"0 \(car_side\), 1 \(car_low\)"):
+        plots.plot_kpi_ellipsoids(s.problem, designs, kpi_index=2)
+
+
+def _title_fits(fig) -> bool:
+    """Whether the figure title, drawn by Agg, lies within the figure (not clipped)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    FigureCanvasAgg(fig).draw()
+    box, page = fig._suptitle.get_window_extent(), fig.bbox
+    return page.x0 <= box.x0 and box.x1 <= page.x1 and page.y0 <= box.y0 and box.y1 <= page.y1
+
+
+def test_kpi_plot_title_fits_for_many_points(kr16):
+    """Thirty working configurations with long names: the title lists three and the count."""
+    _, q = kr16
+    s = _scene_with_kpi(working_configurations=[
+        {"name": f"gauge_point_on_the_side_{k:02d}", "q": [-9, -73 + k, 104, -38, -13, 0]} for k in range(29)])
+    fig = plots.plot_kpi_ellipsoids(s, {"30 poses": q})
+    title = fig.get_suptitle()
+    assert "gauge_point_on_the_side_02, \u2026 (30 points)" in title and "gauge_point_on_the_side_03" not in title
+    assert _title_fits(fig), title
+    assert len({ln.get_gid() for ln in fig.axes[0].get_lines() if ln.get_gid()}) == 30
+
+
+def test_kpi_description_of_a_tool_point(kr16):
+    s = _scene_with_kpi(point=[0, 0, 120])
+    assert plots.kpi_description(s.problem.kpi) == "tool point (0, 0, 120) mm, world frame"
+    assert plots.kpi_description(kr16[0].problem.kpi) == "TCP position, world frame"
+
+
 # --------------------------------------------------- pose contributions
 def test_leave_one_out_matches_a_direct_recomputation(kr16):
     """phi(M without pose i)/phi(M) - 1 from F_1 and numpy's inverse, for kpi and params."""

@@ -10,9 +10,9 @@ page, pixel by pixel.
 
 from __future__ import annotations
 
-import base64
 import contextlib
 import io
+import json
 import os
 import re
 import shutil
@@ -24,8 +24,8 @@ import numpy as np
 import pinocchio as pin
 import pytest
 import scipy.stats
-import umsgpack
 import yaml
+from page_commands import by_path, decode_commands, transform  # tests/viz/page_commands.py
 
 from calib_oed.calibration.workflow import heuristic_design, setup
 from calib_oed.exceptions import (
@@ -37,6 +37,7 @@ from calib_oed.exceptions import (
 )
 from calib_oed.scene.reader import load_scene, scene_from_dict
 from calib_oed.viz import sessions, viewer
+from calib_oed.viz.draw import color_int, nice_length
 
 N_POSES = 10  # the fewest round numbers of poses that determine fms_kr16's KPI (25 free parameters)
 CHROMIUM_FLAGS = (
@@ -51,21 +52,6 @@ CHROMIUM_FLAGS = (
 
 
 # ------------------------------------------------------------------ helpers
-def decode_commands(html: str) -> list[dict]:
-    """The meshcat commands embedded in a static page, in page order."""
-    blobs = re.findall(r'fetch\("data:application/octet-binary;base64,([A-Za-z0-9+/=]+)"\)', html)
-    return [umsgpack.unpackb(base64.b64decode(b)) for b in blobs]
-
-
-def by_path(commands: list[dict], kind: str) -> dict[str, dict]:
-    return {c["path"]: c for c in commands if c["type"] == kind}
-
-
-def transform(command: dict) -> np.ndarray:
-    """The 4x4 matrix of a set_transform command (meshcat sends it column-major)."""
-    return np.array(command["matrix"], dtype=float).reshape(4, 4).T
-
-
 def meshcat_children() -> list[int]:
     """Child processes of this test process running a meshcat server."""
     me, found = os.getpid(), []
@@ -123,8 +109,12 @@ def test_page_has_a_node_for_every_element(s, design, page):
         return [p for p in objects if p.startswith(f"/meshcat/{prefix}/")]
 
     assert len(info.pose_paths) == N_POSES
+    # every pose's URDF visual geometry (kr16: primitives) in one node: geometries once
+    assert info.robots_path == f"{viewer.ROOT}/design/robots" and not any("/robot/" in p for p in under(
+        f"{viewer.ROOT}/design"))
+    robots = objects[f"/meshcat/{info.robots_path}"]["object"]
+    assert [g["name"] for g in robots["object"]["children"]] == [p.rsplit("/", 1)[1] for p in info.pose_paths]
     for pose in info.pose_paths:
-        assert under(f"{pose}/robot/visuals"), pose  # URDF visual geometry (kr16: primitives)
         assert under(f"{pose}/capsules"), pose
         assert f"/meshcat/{pose}/reflectors/smr0" in objects
         assert f"/meshcat/{pose}/beams" in objects
@@ -142,14 +132,17 @@ def test_page_has_a_node_for_every_element(s, design, page):
                if c["type"] == "set_property" and c["property"] == "visible"}
     assert visible[f"/meshcat/{info.pose_paths[0]}/capsules"] is False
     assert visible[f"/meshcat/{info.kpi_paths[0]}/capsules"] is True
-    assert all(visible[f"/meshcat/{p}"] is True for p in info.pose_paths)  # ghosts overlay
-    # KPI pose in its own colour, design poses translucent
-    kpi_color = viewer.COLORS["kpi"]
-    ghost = [c for p, c in objects.items() if p.startswith(f"/meshcat/{info.pose_paths[0]}/robot/visuals/")]
+    # the page opens on pose 0: its beams and reflectors shown, the others' hidden
+    for k, p in enumerate(info.pose_paths):
+        assert visible[f"/meshcat/{p}/beams"] is (k == 0) and visible[f"/meshcat/{p}/reflectors"] is (k == 0)
+    # KPI pose in its own colour; design pose 0 solid, the others faint (ghosts)
     kpi = [c for p, c in objects.items() if p.startswith(f"/meshcat/{info.kpi_paths[0]}/robot/visuals/")]
-    assert all(c["object"]["materials"][0]["opacity"] < 1 for c in ghost)
-    assert {c["object"]["materials"][0]["color"] for c in kpi} == {
-        (int(kpi_color[0] * 255) << 16) + (int(kpi_color[1] * 255) << 8) + int(kpi_color[2] * 255)}
+    assert {c["object"]["materials"][0]["color"] for c in kpi} == {color_int("kpi")}
+    materials = {m["uuid"]: m for m in robots["materials"]}
+    opacity = [{materials[m["material"]]["opacity"] for m in g["children"]} for g in robots["object"]["children"]]
+    assert opacity == [{1.0}] + [{viewer.COLORS["ghost"][3]}] * (N_POSES - 1)
+    first = materials[robots["object"]["children"][0]["children"][0]["material"]]
+    assert first["color"] == color_int("selected") and first["transparent"] is False
 
 
 def test_beams_join_the_tracker_and_the_reflector_of_each_pose(s, design, page):
@@ -211,30 +204,41 @@ def test_ellipsoid_is_the_95_percent_region_of_the_kpi_covariance(s, design, pag
 
 
 def test_given_scale_and_level_are_used(s, design):
-    with sessions.open_viewer(s, design, ellipsoid_scale=1000, level=0.99, animate=False) as live:
+    with sessions.open_viewer(s, design, ellipsoid_scale=1000, level=0.99, selector=False) as live:
         info = live.info
     assert info.ellipsoid_scale == 1000.0 and info.level == 0.99
     assert info.ellipsoids[0].path.endswith("/ellipsoid_99pct_x1000")
     r2 = scipy.stats.chi2.ppf(0.99, df=3)
     eigenvalues = np.linalg.eigh(s.problem.kpi_covariance(design)[:3, :3])[0][::-1]
     np.testing.assert_allclose(info.half_axes_mm[0], np.sqrt(r2 * eigenvalues) * 1e3, rtol=1e-9)
-    assert not info.animated and not meshcat_children()
+    assert not info.selector and not meshcat_children()
 
 
-def test_step_through_animation_has_one_clip_per_pose(page):
+def test_selector_is_sent_with_the_pose_labels(s, design, page):
     _, info, _, commands = page
-    (anim,) = [c for c in commands if c["type"] == "set_animation"]
-    assert anim["options"]["play"] is False  # the page opens on the overlay
-    clips = {a["path"]: a["clip"] for a in anim["animations"]}
-    assert set(clips) == {f"/meshcat/{p}" for p in info.pose_paths}
-    n = info.n_poses
-    for k, p in enumerate(info.pose_paths):
-        (track,) = clips[f"/meshcat/{p}"]["tracks"]
-        assert track["name"] == ".visible" and track["type"] == "boolean"
-        keys = {key["time"]: key["value"] for key in track["keys"]}
-        shown = [t for t in range(n) if keys.get(t, keys[max(u for u in keys if u <= t)])]
-        assert shown == [k]  # pose k alone at second k
-        assert keys[n] is True  # then the overlay again
+    (control,) = [c for c in commands if c["type"] == "set_control"]
+    assert control["path"] == f"/meshcat/{viewer.ROOT}/design/selector" and control["name"] == "pose"
+    assert (control["value"], control["min"], control["max"], control["step"]) == (0, -1, N_POSES - 1, 1)
+    assert info.selector and len(info.labels) == N_POSES
+    degrees = ", ".join(f"{v:.1f}" for v in np.degrees(design[3]))  # kr16: six revolute joints
+    assert info.labels[3] == f"pose 3 (feasible): q = ({degrees}) deg"
+    assert all(label in control["callback"] for label in info.labels)
+    # the world axes and the scale bar: a 1-2-5 length, written on its label in mm
+    objects, transforms = by_path(commands, "set_object"), by_path(commands, "set_transform")
+    length = info.scale_bar_length
+    for k, a in enumerate("xyz"):  # a bar from the world origin along each axis, labelled
+        size = objects[f"/meshcat/{info.axes_path}/{a}"]["object"]["geometries"][0]
+        assert [size["width"], size["height"], size["depth"]][k] == pytest.approx(length)
+        np.testing.assert_allclose(transform(transforms[f"/meshcat/{info.axes_path}/{a}"])[:3, 3],
+                                   0.5 * length * np.eye(3)[k])
+        (text,) = objects[f"/meshcat/{info.axes_path}/label_{a}/text"]["object"]["textures"]
+        assert text["text"] == f"world {a}"
+    mantissa = length / 10 ** np.floor(np.log10(length))
+    assert np.isclose(mantissa, [1, 2, 5]).any()
+    (texture,) = objects[f"/meshcat/{info.scale_bar_path}/label/text"]["object"]["textures"]
+    assert texture["text"] == f"{1e3 * length:g} mm"
+    bar = objects[f"/meshcat/{info.scale_bar_path}/bar"]["object"]["geometries"][0]
+    assert bar["type"] == "BoxGeometry" and bar["width"] == pytest.approx(length)
 
 
 def test_ellipsoid_in_the_world_for_a_tracker_frame_kpi(s, design):
@@ -265,20 +269,27 @@ def test_scene_without_a_determined_kpi_is_drawn_without_ellipsoid(s, design):
 
 
 def test_capsule_drawing_and_first_pose_only(s, design):
-    html, info = sessions.static_html(s, design[:3], robot_drawing="capsules", ghosts=False, animate=False)
+    html, info = sessions.static_html(s, design[:3], robot_drawing="capsules", ghosts=False, selector=False)
     commands = decode_commands(html)
     paths = set(by_path(commands, "set_object"))
-    assert info.robot_drawing == "capsules" and not info.animated
-    assert not any("/robot/" in p for p in paths)  # no URDF geometry anywhere
-    assert not any(c["type"] == "set_animation" for c in commands)
+    assert info.robot_drawing == "capsules" and not info.selector and info.robots_path is None
+    assert not any("/robot/" in p or p.endswith("/robots") for p in paths)  # no URDF geometry anywhere
+    assert not any(c["type"] == "set_control" for c in commands)
     visible = {c["path"]: c["value"] for c in commands
                if c["type"] == "set_property" and c["property"] == "visible"}
     assert [visible[f"/meshcat/{p}"] for p in info.pose_paths] == [True, False, False]
     assert all(visible[f"/meshcat/{p}/capsules"] is True for p in info.pose_paths + info.kpi_paths)
-    ghost = viewer.COLORS["ghost"]
-    material = by_path(commands, "set_object")[f"/meshcat/{info.pose_paths[0]}/capsules/link_2_0/body"]
-    assert material["object"]["materials"][0]["opacity"] == ghost[3]
+    # pose 0 (the page opens on it) solid, the others faint
+    objects = by_path(commands, "set_object")
+    first, second = (objects[f"/meshcat/{p}/capsules/link_2_0/body"]["object"]["materials"][0]
+                     for p in info.pose_paths[:2])
+    assert (first["opacity"], first["color"]) == (1.0, color_int("selected"))
+    assert (second["opacity"], second["color"]) == (viewer.COLORS["ghost"][3], color_int("ghost"))
     assert not meshcat_children()
+
+
+def test_nice_length_is_the_1_2_5_number_at_or_below():
+    assert [nice_length(x) for x in (0.7, 1.0, 3.0, 0.19, 0.0999, 12.0)] == [0.5, 1.0, 2.0, 0.1, 0.05, 10.0]
 
 
 def test_display_scale_is_a_1_2_5_number():
@@ -346,12 +357,12 @@ def test_page_is_written_atomically(s, design, tmp_path, monkeypatch):
 
     monkeypatch.setattr("calib_oed.io.atomic.os.replace", fail)
     with pytest.raises((OSError, ExportError), match="disk full"):
-        sessions.write_static_html(target, s, design[:2], animate=False)
+        sessions.write_static_html(target, s, design[:2], selector=False)
     assert target.read_text() == "previous page"  # untouched, no temporary left behind
     assert [p.name for p in tmp_path.iterdir()] == ["view.html"]
     assert not meshcat_children()
     with pytest.raises(ExportError, match="does not exist"):
-        sessions.write_static_html(tmp_path / "missing" / "view.html", s, design[:2], animate=False)
+        sessions.write_static_html(tmp_path / "missing" / "view.html", s, design[:2], selector=False)
 
 
 def test_page_leaves_no_temporary_and_no_server(page):
@@ -442,3 +453,76 @@ def colour_counts(image: np.ndarray) -> dict[str, int]:
         "beams": (r > 170) & (g < 70) & (b < 70),
     }
     return {name: int(mask.sum()) for name, mask in masks.items()}
+
+
+#: Run in the page after it loaded: press keys and click the pose list like a user, and
+#: after each action read the three.js scene itself (robot groups' material opacity and
+#: colour, beam nodes' visibility), the selector's panel and meshcat's pose slider.
+PROBE = r"""<script>
+setTimeout(() => {
+  const find = (path) => {
+    let t = viewer.scene_tree;
+    for (const p of path) { t = t.children[p]; if (t === undefined) return null; }
+    return t;
+  };
+  const design = ["meshcat", "calib_oed", "design"];
+  const state = () => {
+    const groups = find(design.concat(["robots", "<object>"])).object.children;
+    const materials = groups.map((g) => { const m = []; g.traverse((o) => { if (o.material) m.push(o.material); }); return m; });
+    return {
+      opacity: materials.map((m) => [...new Set(m.map((x) => x.opacity))]),
+      color: materials.map((m) => [...new Set(m.map((x) => x.color.getHex()))]),
+      beams: groups.map((g) => find(design.concat([g.name, "beams"])).object.visible),
+      head: document.getElementById("calib-oed-pose-current").textContent,
+      marked: [...document.querySelectorAll("#calib-oed-poses li")].map((li) => li.style.background !== ""),
+      slider: viewer.gui_controllers.pose.getValue(),
+    };
+  };
+  const key = (k) => window.dispatchEvent(new KeyboardEvent("keydown", {key: k, bubbles: true}));
+  const out = {opened: state()};
+  key("ArrowRight"); out.right = state();
+  document.querySelectorAll("#calib-oed-poses li")[5].click(); out.click5 = state();
+  key("a"); out.all = state();
+  key("ArrowLeft"); out.left_from_all = state();
+  const pre = document.createElement("pre");
+  pre.id = "probe";
+  pre.textContent = JSON.stringify(out);
+  document.body.appendChild(pre);
+}, 3000);
+</script>"""
+
+
+def test_pose_selector_works_in_headless_chromium(chromium, page, tmp_path):
+    path, info, html, _ = page
+    probed = tmp_path / "probed.html"
+    probed.write_text(html.replace("</body>", PROBE + "</body>"), encoding="utf-8")
+    cmd = [chromium, *CHROMIUM_FLAGS, f"--user-data-dir={tmp_path / 'profile'}", "--dump-dom", probed.as_uri()]
+    run = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    found = re.search(r'<pre id="probe">(.*?)</pre>', run.stdout, re.S)
+    assert found, f"the probe did not run (exit {run.returncode}):\n{run.stderr[-2000:]}"
+    states = json.loads(found.group(1).replace("&quot;", '"').replace("&amp;", "&"))
+    faint, solid = viewer.COLORS["ghost"][3], color_int("selected")
+    for action, selected in (("opened", 0), ("right", 1), ("click5", 5), ("all", -1),
+                             ("left_from_all", N_POSES - 1)):
+        state = states[action]
+        assert state["slider"] == selected, action
+        assert state["opacity"] == [[1] if k == selected else [faint] for k in range(N_POSES)], action
+        assert state["color"] == [[solid] if k == selected else [color_int("ghost")]
+                                  for k in range(N_POSES)], action
+        assert state["beams"] == [selected in (-1, k) for k in range(N_POSES)], action
+        assert state["marked"] == [k == selected for k in range(N_POSES)], action
+        assert state["head"] == (info.labels[selected] if selected >= 0 else f"all {N_POSES} poses"), action
+
+
+def test_pose_selector_reaches_the_live_viewer(chromium, s, design, tmp_path):
+    """The live page (meshcat's server) gets the selector too: it replays the control."""
+    with sessions.open_viewer(s, design) as live:
+        cmd = [chromium, *CHROMIUM_FLAGS, f"--user-data-dir={tmp_path / 'profile'}", "--dump-dom", live.url]
+        run = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+        labels = live.info.labels
+    head = re.search(r'<div id="calib-oed-pose-current"[^>]*>(.*?)</div>', run.stdout)
+    assert head, f"no pose selector in the live page (exit {run.returncode}):\n{run.stderr[-2000:]}"
+    assert head.group(1) == labels[0]
+    items = re.search(r'<div id="calib-oed-poses".*?<ol[^>]*>(.*?)</ol>', run.stdout, re.S).group(1)
+    assert re.findall(r'<li [^>]*title="([^"]*)"', items) == list(labels)
+    assert not meshcat_children()
