@@ -15,8 +15,11 @@ $(STAMP): $(PY) pyproject.toml
 	$(PY) -m pip install --quiet -e '.[dev]'
 	touch $(STAMP)
 
+# the demo's files go to ./demo_out (overwritten each run); `make demo DEMO_OUT=DIR` picks another
+DEMO_OUT ?= demo_out
+
 demo: $(STAMP)
-	$(VENV)/bin/calib-oed demo
+	$(VENV)/bin/calib-oed demo -o $(DEMO_OUT)
 
 test: $(STAMP)
 	$(PY) -m pytest -q

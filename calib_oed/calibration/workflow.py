@@ -20,7 +20,7 @@ from calib_oed.calibration.export import export_calibration
 from calib_oed.calibration.identification import IdentificationResult, identify
 from calib_oed.calibration.problem import CalibrationProblem
 from calib_oed.calibration.simulation import draw_true_parameters, simulate_observations
-from calib_oed.exceptions import ExportError
+from calib_oed.exceptions import DesignError, ExportError, SceneError
 from calib_oed.feasibility.constraints import FeasibilityModel
 from calib_oed.feasibility.pairs import PairReport, feasibility_from_scene
 from calib_oed.feasibility.sampling import sample_feasible
@@ -62,14 +62,37 @@ class Setup:
         return [r.name for r in self.scene.reflectors]
 
 
-def setup(scene: Scene) -> Setup:
-    """Assemble problem and feasibility model of a scene."""
+def setup(scene: Scene | str | os.PathLike) -> Setup:
+    """Assemble problem and feasibility model of a scene: a loaded :class:`Scene`, a
+    shipped scene name (``"fms_kr16"``) or a scene file path.
+
+    Raises:
+        UnknownSceneError: a name that is no shipped scene (the message lists them).
+        SceneError: a missing or invalid scene file.
+    """
+    if isinstance(scene, (str, os.PathLike)):
+        from calib_oed.scene.reader import load_scene
+
+        scene = load_scene(scene)
+    elif not isinstance(scene, Scene):
+        raise SceneError(f"setup() takes a Scene, a shipped scene name or a scene file path, "
+                         f"not {type(scene).__name__}")
     return Setup(scene)
 
 
-def heuristic_design(s: Setup, n: int, seed: int) -> np.ndarray:
-    """The paper's heuristic design: n poses uniform in the joint ranges, kept if feasible."""
-    return sample_feasible(s.feasibility, n, seed)
+def heuristic_design(s: Setup, n: int, seed: int = 0) -> np.ndarray:
+    """The paper's heuristic design: n poses uniform in the joint ranges, kept if feasible.
+
+    Raises:
+        DesignError: ``n`` is not a whole number >= 1, or ``seed`` neither an integer >= 0
+            nor a ``numpy.random.Generator``.
+    """
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
+        raise DesignError("n", n, "a whole number of poses >= 1")
+    if not isinstance(seed, np.random.Generator) and (
+            isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0):
+        raise DesignError("seed", seed, "an integer >= 0 or a numpy Generator")
+    return sample_feasible(s.feasibility, int(n), seed)
 
 
 def simulated_measurements(s: Setup, q: np.ndarray, truth_seed: int) -> tuple[MeasurementSet, np.ndarray]:

@@ -21,10 +21,21 @@ from calib_oed.cli._common import (
     EXIT_BAD_INPUT,
     EXIT_INTERNAL,
     EXIT_OK,
+    EXIT_VALIDATION_FAILED,
     _apply_compliance,
     _length_mm,
     _non_negative_int,
+    _pose_count,
     _positive_int,
+    _seed,
+)
+from calib_oed.cli._contract import (
+    EXIT_INTERRUPTED,
+    OneLineParser,
+    check_outputs,
+    join_signed_values,
+    notes_as_lines,
+    sigterm_as_interrupt,
 )
 from calib_oed.cli.calibration_commands import (
     cmd_demo,
@@ -45,13 +56,15 @@ from calib_oed.cli.design_commands import (
     cmd_sequential,
     cmd_view,
 )
+from calib_oed.cli.program_commands import add_program_parser
 from calib_oed.exceptions import CalibOedError
 
-__all__ = ["EXIT_BAD_INPUT", "EXIT_INTERNAL", "EXIT_OK", "build_parser", "main"]
+__all__ = ["EXIT_BAD_INPUT", "EXIT_INTERNAL", "EXIT_INTERRUPTED", "EXIT_OK", "EXIT_VALIDATION_FAILED",
+           "build_parser", "main"]
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = OneLineParser(
         prog="calib-oed",
         description="Optimum experimental design for robot kinematic calibration.",
     )
@@ -73,39 +86,41 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--design", dest="design_option", metavar="FILE",
                        help="design file (same as DESIGN)" if positional else
                        "design file: design.yaml or CSV; default: -n random feasible poses")
-        p.add_argument("-n", type=_positive_int, default=60, help="random feasible poses (default 60)")
-        p.add_argument("--seed", type=int, default=0, help="seed of the random design (default 0)")
+        p.add_argument("-n", type=_pose_count, default=60, help="random feasible poses (default 60)")
+        p.add_argument("--seed", type=_seed, default=0, help="seed of the random design (default 0)")
 
     p = sub.add_parser("demo", help="the whole job on a scene: design, simulated calibration, "
                        "export, Monte Carlo")
     p.add_argument("scene", nargs="?", default=DEFAULT_SCENE, help=f"default {DEFAULT_SCENE}")
     design_args(p, positional=False)
-    p.add_argument("--truth-seed", type=int, default=1, help="seed of the simulated robot (default 1)")
+    p.add_argument("--truth-seed", type=_seed, default=1, help="seed of the simulated robot (default 1)")
     p.add_argument("-N", "--runs", type=_positive_int, default=200, help="Monte Carlo runs (default 200)")
-    p.add_argument("--mc-seed", type=int, default=0, help="Monte Carlo seed (default 0)")
+    p.add_argument("--mc-seed", type=_seed, default=0, help="Monte Carlo seed (default 0)")
     p.add_argument("--jobs", type=_positive_int, default=2, help="parallel workers (default 2)")
-    p.add_argument("-o", "--output", help="folder for the design and the calibrated URDF "
-                   "(default: a temporary folder)")
+    p.add_argument("-o", "--output", default="demo_out", metavar="DIR", help="folder for the design "
+                   "and the calibrated URDF, overwritten (default ./demo_out)")
     p.add_argument("--no-optimise", action="store_true", help="skip the design optimisation "
                    "(use the heuristic design)")
     p.add_argument("--pool", default="3000", metavar="N|FILE",
                    help="candidate pool of the designs' exchange start and certificate (default 3000)")
     p.add_argument("--iterations", type=_positive_int, help="limit the SQP iterations")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
-    p.set_defaults(func=cmd_demo)
+    p.set_defaults(func=cmd_demo, outputs={"output": "dir"})
 
     from calib_oed.oed.criteria import CRITERIA
 
     p = sub.add_parser("design", help="optimal measurement configurations: exchange start on a "
                        "feasible pool, SQP refinement, efficiency against a certified bound")
     scene_arg(p)
-    p.add_argument("-n", type=_positive_int, default=60, help="number of measurements (default 60)")
+    p.add_argument("-n", type=_pose_count, help="number of measurements (default 60, or the rows "
+                   "of a --start design file)")
     p.add_argument("--criterion", default="kpi", choices=CRITERIA,
                    help="kpi (default: the paper's KPI A-criterion), params (A on the parameter "
                    "covariance, mm and mrad), D, E, or an observability index O1..O5")
-    p.add_argument("--start", default="exchange", metavar="exchange|heuristic|CSV",
+    p.add_argument("--start", default="exchange", metavar="exchange|heuristic|DESIGN",
                    help="start design: the exchange algorithm's best poses of the candidate pool "
-                   "(default), random feasible poses (the paper's start), or a design CSV")
+                   "(default), random feasible poses (the paper's start), or a design file "
+                   "(design.yaml or CSV)")
     p.add_argument("--pool", default="3000", metavar="N|FILE",
                    help="candidate pool of the exchange start and the certificate: N random "
                    "feasible poses (default 3000), or a design CSV/YAML of your own candidate "
@@ -121,7 +136,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--hessian", choices=("exact", "bfgs"), default="exact",
                    help="SQP curvature: the exact Lagrangian Hessian (default; criteria kpi, "
                    "params, D) or damped BFGS")
-    p.add_argument("--seed", type=int, default=0, help="seed of the pool and the start (default 0)")
+    p.add_argument("--seed", type=_seed, default=0, help="seed of the pool and the start (default 0)")
     p.add_argument("--starts", type=_positive_int, default=1,
                    help="multi-start: keep the best of this many seeded starts (default 1)")
     p.add_argument("--no-collisions", action="store_true",
@@ -135,7 +150,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", metavar="DIR", help="write DIR/design.yaml and DIR/design.csv")
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
-    p.set_defaults(func=cmd_design)
+    p.set_defaults(func=cmd_design, outputs={"output": "dir"})
 
     p = sub.add_parser("evaluate", help="KPI sigma, criterion values, margins and mesh check of a design")
     scene_arg(p)
@@ -149,10 +164,10 @@ def build_parser() -> argparse.ArgumentParser:
                    "(criteria kpi, params, D; 10-60 s)")
     p.add_argument("--pool", type=_positive_int, default=3000,
                    help="feasible candidate poses of the certificate (default 3000)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the certificate's pool (default 0)")
+    p.add_argument("--seed", type=_seed, default=0, help="seed of the certificate's pool (default 0)")
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
-    p.set_defaults(func=cmd_evaluate)
+    p.set_defaults(func=cmd_evaluate, outputs={"plot": "dir"})
 
     p = sub.add_parser("compare", help="designs side by side: KPI variance, criteria, feasibility")
     scene_arg(p)
@@ -161,7 +176,7 @@ def build_parser() -> argparse.ArgumentParser:
                    "(.png, .svg or .pdf)")
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
-    p.set_defaults(func=cmd_compare)
+    p.set_defaults(func=cmd_compare, outputs={"plot": "file"})
 
     p = sub.add_parser("validate", help="residuals of a calibration on separate validation measurements")
     scene_arg(p)
@@ -171,6 +186,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--length-unit", choices=("m", "mm"), help="if the file states no units")
     p.add_argument("--angle-unit", choices=("rad", "deg"), help="if the file states no units")
     p.add_argument("--json", action="store_true", help="machine-readable output")
+    p.add_argument("--max-rms", type=float, metavar="MM", help="verdict: fail (exit 3) above this "
+                   "calibrated RMS [mm] (default: 2 x the identified sigma0 x the noise floor)")
+    p.add_argument("--max-registration-rms", type=float, default=10.0, metavar="MM",
+                   help="stop (exit 2) when the tracker pose fitted alone leaves more [mm] (default 10)")
     p.set_defaults(func=cmd_validate)
 
     p = sub.add_parser("view", help="the scene and a design in the browser (meshcat), or a static HTML")
@@ -187,7 +206,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--for", dest="seconds", type=float, metavar="SECONDS",
                    help="serve for this long, then stop (default: until Ctrl-C)")
     p.add_argument("--json", action="store_true", help="machine-readable output (with --html)")
-    p.set_defaults(func=cmd_view)
+    p.set_defaults(func=cmd_view, outputs={"html": "file"})
 
     p = sub.add_parser("feasibility", help="constraint pairs, a feasible design, margins, mesh check")
     scene_arg(p)
@@ -195,37 +214,43 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", metavar="CSV", help="write the design (joint names, rad)")
     p.add_argument("--no-mesh-check", action="store_true", help="skip the URDF mesh check")
     p.add_argument("--json", action="store_true", help="machine-readable output")
-    p.set_defaults(func=cmd_feasibility)
+    p.set_defaults(func=cmd_feasibility, outputs={"output": "file"})
 
     p = sub.add_parser("simulate", help="simulated tracker measurements of a random true robot")
     scene_arg(p)
     design_args(p)
-    p.add_argument("--truth-seed", type=int, default=1, help="seed of the simulated robot (default 1)")
+    p.add_argument("--truth-seed", type=_seed, default=1, help="seed of the simulated robot (default 1)")
     p.add_argument("-o", "--output", required=True, metavar="CSV", help="measurement file to write")
     p.add_argument("--truth", metavar="YAML", help="where to write the true parameters "
                    "(default: <output>_truth.yaml)")
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.add_argument("--quiet", action="store_true", help="print nothing")
-    p.set_defaults(func=cmd_simulate)
+    p.set_defaults(func=cmd_simulate, outputs={"output": "file", "truth": "file"})
 
     p = sub.add_parser("identify", help="identify the parameters from a measurement file")
     scene_arg(p)
     p.add_argument("measurements", help="measurement CSV (docs/data_format.md)")
     p.add_argument("-o", "--output", metavar="DIR", help="write calibrated URDF, sensor YAML, report")
-    p.add_argument("--loss", default="linear", choices=("linear", "huber", "soft_l1"),
-                   help="linear (default; Levenberg-Marquardt), or a robust loss")
+    p.add_argument("--loss", default="robust", choices=("robust", "linear", "huber", "soft_l1"),
+                   help="robust (default: outliers judged against the estimated residual scale and "
+                   "left out; docs/identification.md), linear (plain weighted least squares), or a "
+                   "robust scipy loss")
+    p.add_argument("--max-registration-rms", type=float, default=10.0, metavar="MM",
+                   help="stop (exit 2) when the tracker pose fitted alone leaves more [mm] (default 10)")
+    p.add_argument("--cv", type=_positive_int, metavar="K", help="K-fold cross-validation over the "
+                   "poses: the predicted error on unseen poses")
     p.add_argument("--length-unit", choices=("m", "mm"), help="if the file states no units")
     p.add_argument("--angle-unit", choices=("rad", "deg"), help="if the file states no units")
     p.add_argument("--truth", metavar="YAML", help="true parameters of a simulation: report TCP errors")
     p.add_argument("--plot", metavar="FILE", help="write the residual plot (.png, .svg or .pdf)")
     p.add_argument("--json", action="store_true", help="machine-readable output")
-    p.set_defaults(func=cmd_identify)
+    p.set_defaults(func=cmd_identify, outputs={"output": "dir", "plot": "file"})
 
     p = sub.add_parser("montecarlo", help="simulated calibrations against the predicted KPI covariance")
     scene_arg(p)
     design_args(p)
     p.add_argument("-N", "--runs", type=_positive_int, default=500, help="runs (default 500)")
-    p.add_argument("--mc-seed", type=int, default=0, help="Monte Carlo seed (default 0)")
+    p.add_argument("--mc-seed", type=_seed, default=0, help="Monte Carlo seed (default 0)")
     p.add_argument("--jobs", type=_positive_int, default=2, help="parallel workers (default 2)")
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -243,7 +268,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-figures", action="store_true", help="report without figures")
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
-    p.set_defaults(func=cmd_study)
+    p.set_defaults(func=cmd_study, outputs={"output": "dir"})
 
     p = sub.add_parser("sequential", help="sequential calibration of a simulated robot to a KPI "
                        "precision target, next to fixed and heuristic designs")
@@ -266,9 +291,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="stop after this many measured poses (default 120)")
     p.add_argument("--criterion", default="kpi", choices=CRITERIA, help="criterion of the proposals "
                    "(default kpi)")
-    p.add_argument("--truth-seed", type=int, default=1, help="seed of the simulated robot and its "
+    p.add_argument("--truth-seed", type=_seed, default=1, help="seed of the simulated robot and its "
                    "noise (default 1)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the designs and candidate pools (default 0)")
+    p.add_argument("--seed", type=_seed, default=0, help="seed of the designs and candidate pools (default 0)")
     p.add_argument("--follow-pose", action="store_true",
                    help="draw each batch's candidates near the last measured pose")
     p.add_argument("--no-compare", action="store_true", help="skip the fixed KPI-optimal and heuristic "
@@ -283,7 +308,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", metavar="DIR", help="write DIR/measured.csv and DIR/sequential.json")
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
-    p.set_defaults(func=cmd_sequential)
+    p.set_defaults(func=cmd_sequential, outputs={"output": "dir"})
+
+    add_program_parser(sub)
 
     p = sub.add_parser("scenes", help="list the shipped scenes")
     p.add_argument("--json", action="store_true", help="machine-readable output")
@@ -291,6 +318,10 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("robots", help="list the robots loadable by name")
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.set_defaults(func=cmd_robots)
+    for p in sub.choices.values():  # --quiet wherever --json is accepted
+        dests = {a.dest for a in p._actions}
+        if "json" in dests and "quiet" not in dests:
+            p.add_argument("--quiet", action="store_true", help="no progress output")
     for name in COMPLIANCE_COMMANDS:
         p = sub.choices[name]
         p.add_argument("--compliance", action="store_true", help="model joint compliance under "
@@ -302,14 +333,21 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Run the command line; returns the exit code."""
+    """Run the command line; returns the exit code (docs/cli.md)."""
     parser = build_parser()
     argv = list(sys.argv[1:] if argv is None else argv)
-    args = parser.parse_args(argv)
+    args = parser.parse_args(join_signed_values(argv, parser))
     args.argv = argv
     try:
-        _apply_compliance(args)
-        return args.func(args)
+        with sigterm_as_interrupt(), notes_as_lines():
+            check_outputs(args)  # before any work: a bad path costs nothing
+            _apply_compliance(args)
+            return args.func(args)
+    except KeyboardInterrupt:  # Ctrl-C or SIGTERM; a command that saves work says so itself
+        if args.debug:
+            traceback.print_exc()
+        print("calib-oed: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
     except BrokenPipeError:  # output piped into `head` and the like
         sys.stdout = open(os.devnull, "w")  # noqa: SIM115 - silence the flush at exit
         return EXIT_OK
@@ -322,10 +360,14 @@ def main(argv: list[str] | None = None) -> int:
         if args.debug:
             traceback.print_exc()
         print(
-            f"calib-oed: internal error: {type(exc).__name__}: {exc} (rerun with --debug)",
+            f"calib-oed: internal error: {type(exc).__name__}: {_one_line(str(exc))} (rerun with --debug)",
             file=sys.stderr,
         )
         return EXIT_INTERNAL
+
+
+def _one_line(text: str) -> str:
+    return "; ".join(part.strip() for part in text.splitlines() if part.strip())
 
 
 if __name__ == "__main__":

@@ -21,28 +21,105 @@ EXIT_INTERNAL = 1
 EXIT_BAD_INPUT = 2
 
 
+#: ``validate`` only: the calibrated error exceeds the threshold (docs/identification.md).
+EXIT_VALIDATION_FAILED = 3
+
+#: Stopped by Ctrl-C or SIGTERM (128 + SIGINT, the shell's convention).
+EXIT_INTERRUPTED = 130
+
+
 DEFAULT_SCENE = "fms_kr16"
 
 
+#: The most poses a command accepts with ``-n``: calibrations measure tens to a few hundred.
+MAX_POSES = 10_000
+
+
+def _integer(text: str, what: str) -> int:
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}") from None
+
+
 def _non_negative_int(text: str) -> int:
-    value = int(text)
+    value = _integer(text, "an integer >= 0")
     if value < 0:
         raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text}")
     return value
 
 
 def _positive_int(text: str) -> int:
-    value = int(text)
+    value = _integer(text, "an integer >= 1")
     if value < 1:
         raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text}")
     return value
 
 
+def _pose_count(text: str) -> int:
+    """``-n``: a number of poses, 1 .. :data:`MAX_POSES`."""
+    value = _integer(text, f"a whole number of poses, 1 to {MAX_POSES}")
+    if not 1 <= value <= MAX_POSES:
+        raise argparse.ArgumentTypeError(
+            f"expected a number of poses from 1 to {MAX_POSES} (a calibration measures tens to a few "
+            f"hundred), got {text}")
+    return value
+
+
+def _seed(text: str) -> int:
+    """A random seed: an integer >= 0 (numpy's ``default_rng`` takes no negative seed)."""
+    value = _integer(text, "a seed, an integer >= 0")
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected a seed, an integer >= 0, got {text}")
+    return value
+
+
+def _scene(scene_ref):
+    """A loaded scene: ``scene_ref`` is a shipped name, a scene file, or a loaded scene.
+
+    Raises:
+        SceneError: a folder given as the scene; numbers whose size says the
+            declared length unit is wrong (:func:`_check_magnitudes`).
+    """
+    from calib_oed.exceptions import SceneError
+    from calib_oed.scene.reader import load_scene, scene_names
+
+    if not isinstance(scene_ref, (str, os.PathLike)):
+        return scene_ref
+    if Path(scene_ref).is_dir():
+        inside = sorted(p.name for p in Path(scene_ref).glob("*.y*ml"))[:5]
+        raise SceneError(f"SCENE {os.fspath(scene_ref)} is a folder; give a scene file"
+                         + (f" (it holds {', '.join(inside)})" if inside else "")
+                         + f" or a shipped scene name ({', '.join(scene_names())})")
+    scene = load_scene(scene_ref)
+    _check_magnitudes(scene)
+    return scene
+
+
+#: Distances beyond which a scene's lengths are surely in the wrong unit [m]: no laser
+#: tracker measures beyond 160 m, no reflector sits 5 m from the flange.
+_MAX_TRACKER_DISTANCE, _MAX_REFLECTOR_OFFSET = 160.0, 5.0
+
+
+def _check_magnitudes(scene) -> None:
+    """Catch a unit mistake: numbers in mm with ``units: {length: m}`` put a tracker km away."""
+    from calib_oed.exceptions import SceneError
+
+    distance = float(np.linalg.norm(scene.tracker.placement().translation))
+    offsets = [float(np.linalg.norm(r.offset)) for r in scene.reflectors]
+    declared = (scene.units or {}).get("length", "m")
+    if distance > _MAX_TRACKER_DISTANCE or max(offsets, default=0.0) > _MAX_REFLECTOR_OFFSET:
+        raise SceneError(
+            f"the tracker is {distance:.4g} m from the robot base and the farthest reflector "
+            f"{max(offsets, default=0.0):.4g} m from the tool frame, with lengths declared in "
+            f"{declared!r}: are the numbers in mm? Then write `units: {{length: mm}}` (valid "
+            "length units: m, mm)", key="units.length", source=str(scene.source) if scene.source else None)
+
+
 def _problem(scene_ref):
     from calib_oed.calibration.problem import CalibrationProblem
-    from calib_oed.scene.reader import load_scene
 
-    scene = load_scene(scene_ref) if isinstance(scene_ref, (str, os.PathLike)) else scene_ref
+    scene = _scene(scene_ref)
     return scene, CalibrationProblem.from_scene(scene)
 
 
@@ -58,10 +135,9 @@ def _apply_compliance(args) -> None:
     import dataclasses
 
     from calib_oed.model.compliance import Compliance
-    from calib_oed.scene.reader import load_scene
     from calib_oed.scene.records import ComplianceSpec
 
-    scene = load_scene(args.scene)
+    scene = _scene(args.scene)
     payload = scene.compliance.payload if scene.compliance is not None else Compliance()
     if args.payload_kg is not None:
         if not args.payload_kg >= 0:
@@ -72,9 +148,8 @@ def _apply_compliance(args) -> None:
 
 def _setup(scene_ref):
     from calib_oed.calibration.workflow import setup
-    from calib_oed.scene.reader import load_scene
 
-    return setup(load_scene(scene_ref) if isinstance(scene_ref, (str, os.PathLike)) else scene_ref)
+    return setup(_scene(scene_ref))
 
 
 def _design(s, args):
@@ -107,10 +182,33 @@ def _sqp_settings(args):
     return settings
 
 
+def _bars(args) -> bool:
+    """Progress bars: not with --quiet or --json, and only on a terminal (a log gets plain lines)."""
+    return not (getattr(args, "quiet", False) or getattr(args, "json", False)) and sys.stderr.isatty()
+
+
+#: Seconds between plain progress lines when stderr is not a terminal.
+PROGRESS_LINE_SECONDS = 10.0
+
+
 def _progress(args, what: str):
-    """An SQP iteration callback drawing a tqdm bar (None when quiet)."""
+    """An SQP iteration callback: a tqdm bar on a terminal, a plain line every
+    :data:`PROGRESS_LINE_SECONDS` otherwise, nothing when quiet; and the bar (or None)."""
     if getattr(args, "quiet", False) or getattr(args, "json", False):
         return None, None
+    if not sys.stderr.isatty():
+        import time
+
+        last = [time.perf_counter()]
+
+        def line(record):
+            now = time.perf_counter()
+            if now - last[0] >= PROGRESS_LINE_SECONDS:
+                last[0] = now
+                print(f"{what}: iteration {record.iteration}, objective {record.objective:.4g}, "
+                      f"violation {record.violation:.1e}", file=sys.stderr, flush=True)
+
+        return line, None
     from tqdm import tqdm
 
     bar = tqdm(desc=what, unit=" it", leave=False, file=sys.stderr)
@@ -171,12 +269,34 @@ def _mesh_check(s, q):
 
 
 def _iterate(args, items, what: str):
-    """``items`` with a progress bar unless quiet or JSON."""
-    if getattr(args, "quiet", False) or getattr(args, "json", False) or len(items) < 2:
+    """``items`` with a progress bar on a terminal unless quiet or JSON."""
+    if not _bars(args) or len(items) < 2:
         return items
     from tqdm import tqdm
 
     return tqdm(items, desc=what, leave=False, file=sys.stderr)
+
+
+def _round_trip_text(error_m: float) -> str:
+    """The exported URDF's largest tool difference [m] for a report, in mm."""
+    if error_m < 1e-12:
+        return f"{error_m * 1e3:.1e} mm (floating-point round-off: the URDF reproduces the model)"
+    return f"{error_m * 1e3:.3g} mm"
+
+
+def _note_infeasible(s, q, what: str) -> None:
+    """A :class:`~calib_oed.exceptions.CalibOedNote` when poses of ``q`` violate the constraints."""
+    import warnings
+
+    from calib_oed.exceptions import CalibOedNote
+
+    bad = np.flatnonzero(~s.feasibility.compute(q, jacobian=False).feasible)
+    if bad.size:
+        warnings.warn(CalibOedNote(
+            f"{bad.size} of {len(q)} poses of the {what} violate the scene's constraints (collision, "
+            f"incidence or joint limits), poses {', '.join(str(int(i) + 1) for i in bad[:10])}"
+            f"{' ...' if bad.size > 10 else ''}: a real robot could not measure them "
+            "(`calib-oed feasibility` lists the margins)"), stacklevel=2)
 
 
 _LENGTH_UNITS_MM = {"mm": 1.0, "um": 1e-3, "µm": 1e-3, "m": 1e3}

@@ -11,8 +11,12 @@ import numpy as np
 from calib_oed.cli._common import (
     EXIT_INTERNAL,
     EXIT_OK,
+    EXIT_VALIDATION_FAILED,
+    _bars,
     _design,
+    _note_infeasible,
     _optimise,
+    _round_trip_text,
     _say,
     _setup,
 )
@@ -21,7 +25,6 @@ from calib_oed.cli._common import (
 def cmd_demo(args) -> int:
     """The whole job on one scene: feasible design, simulated data, identification,
     export with round trip, Monte Carlo validation."""
-    import tempfile
     import time
 
     from calib_oed.calibration.montecarlo import monte_carlo
@@ -61,7 +64,7 @@ def cmd_demo(args) -> int:
     q = final.q
     what = f"{final.method} {final.criterion} design of {final.n} poses"
     print(format_kpi_sigma(problem, problem.kpi_sigma(q), what))
-    out = args.output or tempfile.mkdtemp(prefix="calib_oed_demo_")
+    out = args.output
     files = write_design(out, final, problem.robot)
     print(f"wrote {files['yaml']} and {files['csv']}")
     print()
@@ -76,10 +79,11 @@ def cmd_demo(args) -> int:
     paths = export_result(s, result, out)
     err = round_trip_error(s, result.p, paths["urdf"])
     print(f"exported {paths['urdf']} and {paths['sensor']}; round trip: "
-          f"largest tool difference {err * 1e9:.3g} nm")
+          f"largest tool difference {_round_trip_text(err)}")
     print()
-    mc = monte_carlo(problem, q, args.runs, args.mc_seed, n_jobs=args.jobs, progress=not args.quiet)
+    mc = monte_carlo(problem, q, args.runs, args.mc_seed, n_jobs=args.jobs, progress=_bars(args))
     print(mc.summary())
+    print(f"\nthe demo's files are in {Path(out).resolve()} (overwritten by the next run)")
     return EXIT_OK
 
 
@@ -92,6 +96,7 @@ def cmd_simulate(args) -> int:
 
     s = _setup(args.scene)
     q, what = _design(s, args)
+    _note_infeasible(s, q, what)
     mset, p_true = simulated_measurements(s, q, args.truth_seed)
     write_measurement_file(s, args.output, mset,
                            f"simulated by calib_oed: scene {s.scene.name}, {what}, truth seed {args.truth_seed}")
@@ -106,21 +111,59 @@ def cmd_simulate(args) -> int:
     return EXIT_OK
 
 
+def _identify_fit(s, mset, args):
+    """Sanity registration, then the fit of ``--loss``; nothing written. Returns (sanity, blocks, robust)."""
+    from calib_oed.calibration.identification import identify
+    from calib_oed.calibration.robust import as_robust, identify_robust
+    from calib_oed.calibration.sanity import check_measurements
+
+    problem, tracker = s.problem, s.scene.tracker
+    sanity = check_measurements(problem.space, mset, args.max_registration_rms * 1e-3,
+                                s.reflector_names)
+    blocks = mset.blocks(sigma=tracker.sigma, sigma_angle=tracker.sigma_angle)
+    if args.loss == "robust":
+        return sanity, blocks, identify_robust(problem.space, blocks, problem.identifiability)
+    result = identify(problem.space, blocks, problem.identifiability, loss=args.loss)
+    return sanity, blocks, as_robust(result, blocks)
+
+
 def cmd_identify(args) -> int:
+    from calib_oed.calibration.crossval import cross_validate
+    from calib_oed.calibration.fit_report import (
+        fit_dict,
+        fit_report,
+        format_fit,
+        write_residuals_csv,
+    )
     from calib_oed.calibration.workflow import (
         export_result,
-        identify_measurements,
         read_scene_measurements,
         read_truth,
         round_trip_error,
         tcp_errors,
     )
+    from calib_oed.exceptions import ParameterError
 
+    if not args.max_registration_rms > 0:
+        raise ParameterError(f"--max-registration-rms must be a positive length in mm, got "
+                             f"{args.max_registration_rms:g}")
     s = _setup(args.scene)
     units = {k: v for k, v in (("length_unit", args.length_unit), ("angle_unit", args.angle_unit)) if v}
     mset = read_scene_measurements(s, args.measurements, **units)
-    result = identify_measurements(s, mset, loss=args.loss)
+    sanity, blocks, robust = _identify_fit(s, mset, args)
+    result = robust.result
+    report = fit_report(s.problem.space, mset, blocks, sanity, robust, s.reflector_names)
+    cv = None
+    if args.cv:
+        tracker = s.scene.tracker
+        cv = cross_validate(s.problem.space, mset, s.problem.identifiability, args.cv,
+                            sigma=tracker.sigma, sigma_angle=tracker.sigma_angle,
+                            exclude=report.outlier if robust.excluded else None)
     data = result.to_dict()
+    data["fit"] = fit_dict(report, robust, sanity)
+    data["outliers"] = data["fit"]["outliers"]  # by file line; the fit's own a-priori list is not used
+    if cv is not None:
+        data["cross_validation"] = cv.to_dict()
     if args.truth:
         p_true = read_truth(args.truth, s)
         data["tcp_error_mm"] = {
@@ -133,6 +176,8 @@ def cmd_identify(args) -> int:
         data["round_trip_m"] = round_trip_error(s, result.p, paths["urdf"])
         from calib_oed.io.atomic import atomic_write_text
 
+        data["files"]["residuals"] = str(write_residuals_csv(Path(paths["urdf"]).parent / "residuals.csv",
+                                                             report))
         atomic_write_text(Path(args.output) / "identification.json", json.dumps(data, indent=2))
     if args.plot:
         from calib_oed.viz.plots import plot_residuals, save_figure
@@ -141,32 +186,46 @@ def cmd_identify(args) -> int:
     if args.json:
         print(json.dumps(data, indent=2))
         return EXIT_OK
-    print(result.summary())
+    print(result.summary(outliers=False))
+    print(format_fit(report, robust, sanity))
+    if cv is not None:
+        print(cv.summary())
     if args.truth:
         for name, b, a in zip(s.problem.kpi.names, data["tcp_error_mm"]["before"],
                               data["tcp_error_mm"]["after"], strict=True):
             print(f"TCP error at {name} against the truth: before {b:.4f} mm, after {a:.4f} mm")
     if args.output:
-        print(f"wrote {data['files']['urdf']}, {data['files']['sensor']} and identification.json; "
-              f"round trip of the URDF: {data['round_trip_m'] * 1e9:.3g} nm")
+        print(f"wrote {data['files']['urdf']}, {data['files']['sensor']}, "
+              f"{data['files']['residuals']} and identification.json; "
+              f"round trip of the URDF: {_round_trip_text(data['round_trip_m'])}")
     if args.plot:
         print(f"wrote the residual plot {data['plot']}")
     return EXIT_OK
 
 
 def cmd_validate(args) -> int:
-    from calib_oed.calibration.validation import validate_calibration
+    from calib_oed.calibration.sanity import check_measurements
+    from calib_oed.calibration.validation import identified_sigma0, judge, validate_calibration
     from calib_oed.calibration.workflow import read_scene_measurements
+    from calib_oed.exceptions import ParameterError
 
+    if not args.max_registration_rms > 0:
+        raise ParameterError(f"--max-registration-rms must be a positive length in mm, got "
+                             f"{args.max_registration_rms:g}")
     s = _setup(args.scene)
     units = {k: v for k, v in (("length_unit", args.length_unit), ("angle_unit", args.angle_unit)) if v}
     mset = read_scene_measurements(s, args.measurements, **units)
+    check_measurements(s.problem.space, mset, args.max_registration_rms * 1e-3, s.reflector_names)
     result = validate_calibration(s.scene, args.calibrated, mset)
+    verdict = judge(result, args.max_rms, identified_sigma0(result.files))
     if args.json:
-        print(json.dumps(result.to_dict(), indent=2))
+        data = result.to_dict()
+        data["verdict"] = verdict.to_dict()
+        print(json.dumps(data, indent=2))
     else:
         print(result.summary())
-    return EXIT_OK
+        print(verdict.line())
+    return EXIT_OK if verdict.passed else EXIT_VALIDATION_FAILED
 
 
 def cmd_montecarlo(args) -> int:
@@ -175,7 +234,7 @@ def cmd_montecarlo(args) -> int:
     s = _setup(args.scene)
     q, what = _design(s, args)
     mc = monte_carlo(s.problem, q, args.runs, args.mc_seed, n_jobs=args.jobs,
-                     progress=not (args.quiet or args.json))
+                     progress=_bars(args))
     if args.json:
         data = mc.to_dict()
         data.update(scene=s.scene.name, design=what)
@@ -194,7 +253,7 @@ def cmd_study(args) -> int:
     config = load_study_config(args.config)
     command = "calib-oed " + " ".join(args.argv)
     result = run_study(config, args.output, n_jobs=args.jobs, scheduler=args.scheduler,
-                       progress=not (args.quiet or args.json), command=command)
+                       progress=_bars(args), command=command)
     paths = {} if args.no_report else write_report(result, figures=not args.no_figures)
     if args.json:
         data = result.summary()

@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
 
 from calib_oed.cli._common import (
     EXIT_INTERNAL,
+    EXIT_INTERRUPTED,
     EXIT_OK,
     _design,
     _iterate,
@@ -37,29 +39,45 @@ def cmd_identifiability(args) -> int:
 
 
 def cmd_design(args) -> int:
-    from calib_oed.io.design_file import read_design_csv
-    from calib_oed.oed.result import write_design
+    from calib_oed.exceptions import DesignError
+    from calib_oed.oed.result import read_design_file, write_design
 
     s = _setup(args.scene)
     start = args.start
     if args.start not in ("heuristic", "exchange"):
-        start = read_design_csv(args.start, s.problem.robot)
+        start = read_design_file(args.start, s.problem.robot)
+        if args.n is not None and args.n != len(start):
+            raise DesignError("n", args.n, f"--start {args.start} has {len(start)} poses and a start "
+                              f"file sets the design's size: drop -n, or give a start of {args.n} poses")
         args.n = len(start)
+    elif args.n is None:
+        args.n = 60
     # the KPI aggregate: --aggregate, else the scene's kpi.aggregate (for criterion kpi)
     aggregate = args.aggregate or (s.scene.kpi.aggregate if args.criterion == "kpi" else "mean")
     result = _optimise(s, args, args.criterion, start, aggregate)
     paths = write_design(args.output, result, s.problem.robot) if args.output else {}
+    code = EXIT_INTERRUPTED if result.interrupted else EXIT_OK
+    if paths and result.interrupted:  # the CSV goes to the controller: say it there too
+        from calib_oed.io.design_file import write_design_csv
+
+        write_design_csv(paths["csv"], s.problem.robot, result.q, comment=(
+            f"scene {result.scene}: INTERRUPTED {result.criterion}-optimal design of {result.n} poses, "
+            "the best feasible design when the run was stopped (Ctrl-C or SIGTERM)"))
     if args.json:
         data = result.to_dict()
         data["files"] = {k: str(v) for k, v in paths.items()}
         print(json.dumps(data, indent=2))
-        return EXIT_OK
+        return code
     print(result.summary())
     if paths:
-        print(f"wrote {paths['yaml']} and {paths['csv']}")
+        print(f"wrote {paths['yaml']} and {paths['csv']}"
+              + (" (marked interrupted in design.yaml)" if result.interrupted else ""))
     else:
         print("(no -o DIR given: nothing written)")
-    return EXIT_OK
+    if result.interrupted:
+        print("interrupted: the best feasible design found so far"
+              + (", written" if paths else "") + "; the certificate was skipped", file=sys.stderr)
+    return code
 
 
 def cmd_evaluate(args) -> int:
@@ -99,11 +117,14 @@ def cmd_evaluate(args) -> int:
         print(f"{len(result.kpi_names)} KPI points: mean variance {result.kpi_variance:.5g} mm² "
               f"(weighted as the scene says), max {result.kpi_max_variance:.5g} mm² "
               f"(sigma {np.sqrt(result.kpi_max_variance):.5f} mm) at {result.kpi_worst}")
+    unseen = {f.name for f in problem.identifiability.fixed if not f.redundant_with}
     for e in estimable:
-        if not e.estimable:
-            print(f"  note: {e.label} is not estimable: its value depends on the gauge parameters "
-                  f"{', '.join(e.gauge[:6])}{' ...' if len(e.gauge) > 6 else ''} "
-                  "(`calib-oed identifiability`); C_s is relative to that gauge")
+        if not e.estimable and unseen.isdisjoint(e.gauge):
+            print(f"  note: {e.label} is estimated relative to the robot base frame the calibration "
+                  "defines (the gauge, `calib-oed identifiability`); sigma is relative to that frame")
+        elif not e.estimable:
+            print(f"  note: {e.label} is NOT estimable: it depends on "
+                  f"{', '.join(n for n in e.gauge if n in unseen)}, which no measurement sees")
     print("criterion values (kpi, params: average variance [mm², params in mm and mrad]; D: log det C; "
           "E: largest eigenvalue [mm²]; O1..O5: observability indices, larger is better):")
     print("  " + ", ".join(f"{k} {v:.5g}" for k, v in result.criteria.items()))
@@ -130,7 +151,7 @@ def _evaluate_plots(s, q, args) -> dict[str, Path]:
     folder = Path(args.plot)
     folder.mkdir(parents=True, exist_ok=True)
     return {
-        "ellipsoid": save_figure(plot_kpi_ellipsoids(s.problem, {"design": q}), folder / "kpi_ellipsoid.png"),
+        "ellipsoid": save_figure(plot_kpi_ellipsoids(s, {"design": q}), folder / "kpi_ellipsoid.png"),
         "contributions": save_figure(plot_pose_contributions(s.problem, q, args.criterion),
                                      folder / "pose_contributions.png"),
     }
@@ -155,7 +176,7 @@ def cmd_compare(args) -> int:
     if args.plot:
         from calib_oed.viz.plots import plot_kpi_ellipsoids, save_figure
 
-        save_figure(plot_kpi_ellipsoids(s.problem, {k: d.q for k, d in designs.items()}), args.plot)
+        save_figure(plot_kpi_ellipsoids(s, {k: d.q for k, d in designs.items()}), args.plot)
     if args.json:
         print(json.dumps({"scene": s.scene.name,
                           "designs": {k: {**d.to_dict(), "file": str(p)}

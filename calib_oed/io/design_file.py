@@ -1,13 +1,19 @@
-"""Design files: one measurement configuration per row, header = URDF joint names, radians.
+"""Design files: one measurement configuration per row, header = URDF joint names.
 
-A plain CSV every robot controller tool can read::
+A plain CSV every robot controller tool can read (docs/data_format.md)::
 
-    # calib_oed design v1: configurations in rad (prismatic joints in m)
+    # calib_oed design v1
+    # units: angle=rad length=m
     joint_a1,joint_a2,joint_a3,joint_a4,joint_a5,joint_a6
     0.1234,-1.2,...
 
-Lines starting with ``#`` are comments. Columns may come in any order; every
-joint of the robot must be present, nothing else.
+Lines starting with ``#`` are comments, except the ``# units:`` line: the
+unit of the revolute joints, ``angle=rad`` or ``angle=deg``, and of the
+prismatic joints, ``length=m`` or ``length=mm``. Without it a design file is
+in rad and m (the files of calib_oed versions before the units line). Columns
+may come in any order; every joint of the robot must be present, nothing else.
+Repeated rows are allowed (a pose measured twice) and reported as a
+:class:`~calib_oed.exceptions.CalibOedNote`.
 """
 
 from __future__ import annotations
@@ -15,36 +21,87 @@ from __future__ import annotations
 import csv
 import io
 import os
+import re
+import warnings
 from pathlib import Path
 
 import numpy as np
 
-from calib_oed.exceptions import MeasurementFileError
+from calib_oed.exceptions import CalibOedNote, MeasurementFileError
 from calib_oed.io.atomic import atomic_write_text
+from calib_oed.io.repeats import describe_repeats, repeated_rows
 from calib_oed.model.robot import Robot
+from calib_oed.units import ANGLE_UNITS, LENGTH_UNITS
+
+_UNITS_RE = re.compile(r"#\s*units\s*:(.*)$", re.IGNORECASE)
+_DEFAULT_UNITS = {"angle": "rad", "length": "m"}
 
 
-def write_design_csv(path: str | os.PathLike, robot: Robot, q: np.ndarray, comment: str | None = None) -> Path:
-    """Write configurations ``q`` (n, nq) [rad] atomically."""
+def _prismatic(robot: Robot) -> np.ndarray:
+    return np.array([j.shortname().startswith("JointModelP") for j in robot.model.joints[1:]])
+
+
+def _to_si(robot: Robot, units: dict[str, str]) -> np.ndarray:
+    """Per-joint factor from the file's units to SI (rad, m), shape (nq,)."""
+    return np.where(_prismatic(robot), LENGTH_UNITS[units["length"]], ANGLE_UNITS[units["angle"]])
+
+
+def write_design_csv(path: str | os.PathLike, robot: Robot, q: np.ndarray, comment: str | None = None,
+                     angle_unit: str = "rad") -> Path:
+    """Write configurations ``q`` (n, nq) [rad, m] atomically, revolute joints in ``angle_unit``.
+
+    The ``# units:`` line states the units; prismatic joints are written in m.
+
+    Raises:
+        MeasurementFileError: ``angle_unit`` is not one of ``ANGLE_UNITS``.
+    """
+    if angle_unit not in ANGLE_UNITS:
+        raise MeasurementFileError(str(path), [(None, f"angle unit {angle_unit!r}; valid angle units are "
+                                                      f"{', '.join(map(repr, ANGLE_UNITS))}")],
+                                   kind="design file")
     q = robot.check_configurations(q, "design")
+    units = {"angle": angle_unit, "length": "m"}
+    values = q / _to_si(robot, units)
     buf = io.StringIO()
-    buf.write("# calib_oed design v1: configurations in rad (prismatic joints in m)\n")
+    buf.write("# calib_oed design v1\n")
+    buf.write(f"# units: angle={units['angle']} length={units['length']}\n")
     if comment:
         for line in comment.splitlines():
             buf.write(f"# {line}\n")
     writer = csv.writer(buf, lineterminator="\n")
     writer.writerow(robot.joint_names)
-    for row in q:
+    for row in values:
         writer.writerow([repr(float(v)) for v in row])
     return atomic_write_text(path, buf.getvalue())
 
 
+def _units_line(number: int, text: str, problems: list) -> dict[str, str]:
+    valid = {"angle": ANGLE_UNITS, "length": LENGTH_UNITS}
+    units: dict[str, str] = {}
+    for token in re.sub(r"\s*=\s*", "=", text).replace(",", " ").split():
+        key, sep, value = token.partition("=")
+        key, value = key.strip().lower(), value.strip()
+        if not sep or key not in valid:
+            problems.append((number, f"units: cannot read {token!r}; expected 'angle=<rad|deg> length=<m|mm>'"))
+        elif value not in valid[key]:
+            problems.append((number, f"units: unknown {key} unit {value!r}; valid {key} units are "
+                                     f"{', '.join(map(repr, valid[key]))}"))
+        elif key in units:
+            problems.append((number, f"units: {key} is given twice"))
+        else:
+            units[key] = value
+    return units
+
+
 def read_design_csv(path: str | os.PathLike, robot: Robot, check_limits: bool = True) -> np.ndarray:
-    """Read a design file; returns (n, nq) [rad] in the robot's joint order.
+    """Read a design file; returns (n, nq) [rad, m] in the robot's joint order.
+
+    Warns:
+        CalibOedNote: rows that repeat an earlier row (allowed: a pose measured twice).
 
     Raises:
-        MeasurementFileError: missing/unknown/duplicate joint columns, bad numbers,
-            out-of-limit values (with line numbers); nothing is half-read.
+        MeasurementFileError: missing/unknown/duplicate joint columns, a bad units
+            line, bad numbers, out-of-limit values (with line numbers); nothing is half-read.
     """
     source = str(path)
     try:
@@ -54,7 +111,18 @@ def read_design_csv(path: str | os.PathLike, robot: Robot, check_limits: bool = 
                                    kind="design file") from exc
     problems: list[tuple[int | None, str]] = []
     header, header_line, rows = None, None, []
+    units, units_line = dict(_DEFAULT_UNITS), None
     for number, line in enumerate(text.splitlines(), start=1):
+        directive = _UNITS_RE.match(line.strip())
+        if directive:
+            if units_line is not None:
+                problems.append((number, f"second '# units:' line (the first is line {units_line})"))
+            elif header is not None:
+                problems.append((number, "the '# units:' line must come before the column header"))
+            else:
+                units_line = number
+                units.update(_units_line(number, directive.group(1), problems))
+            continue
         if not line.strip() or line.lstrip().startswith("#"):
             continue
         fields = next(csv.reader([line]))
@@ -77,13 +145,15 @@ def read_design_csv(path: str | os.PathLike, robot: Robot, check_limits: bool = 
     if problems:
         raise MeasurementFileError(source, problems, kind="design file")
     order = [header.index(n) for n in names]
+    scale = _to_si(robot, units)
+    shown = np.where(_prismatic(robot), units["length"], units["angle"])
     q = np.empty((len(rows), len(names)))
     for k, (number, fields) in enumerate(rows):
         if len(fields) != len(header):
             problems.append((number, f"{len(fields)} fields, expected {len(header)}"))
             continue
         try:
-            vals = np.array([float(fields[i]) for i in order])
+            vals = np.array([float(fields[i]) for i in order]) * scale
         except ValueError:
             problems.append((number, "a value is not a number"))
             continue
@@ -93,11 +163,24 @@ def read_design_csv(path: str | os.PathLike, robot: Robot, check_limits: bool = 
         if check_limits:
             bad = np.flatnonzero((vals < robot.lower - 1e-9) | (vals > robot.upper + 1e-9))
             for i in bad:
-                problems.append((number, f"{names[i]} = {vals[i]:.6g} outside the limits "
-                                         f"[{robot.lower[i]:.6g}, {robot.upper[i]:.6g}] (rad, or m if prismatic)"))
+                problems.append((number, f"{names[i]} = {vals[i] / scale[i]:.6g} {shown[i]} outside the "
+                                         f"limits [{robot.lower[i] / scale[i]:.6g}, "
+                                         f"{robot.upper[i] / scale[i]:.6g}] {shown[i]}"
+                                         + ("" if units_line else " (no '# units:' line: read as rad and m; in degrees? "
+                                                                 "add '# units: angle=deg')")))
         q[k] = vals
     if not rows:
         problems.append((header_line, "no configurations after the header"))
     if problems:
         raise MeasurementFileError(source, problems, kind="design file")
+    _note_repeats(source, [number for number, _ in rows], q)
     return q
+
+
+def _note_repeats(source: str, lines: list[int], q: np.ndarray) -> None:
+    """A note naming the rows that repeat an earlier row exactly."""
+    repeats = repeated_rows(lines, q)
+    if repeats:
+        warnings.warn(CalibOedNote(
+            f"{source}: {len(repeats)} row(s) repeat an earlier row ({describe_repeats(repeats)}); "
+            "each is measured as often as it appears"), stacklevel=3)

@@ -18,13 +18,14 @@ import difflib
 import math
 import os
 import re
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
 from typing import IO, NoReturn
 
 import numpy as np
 
-from calib_oed.exceptions import MeasurementFileError
+from calib_oed.exceptions import CalibOedNote, MeasurementFileError
 from calib_oed.io.measurement_format import (
     _DIRECTIVE_RE,
     _VERSION_RE,
@@ -36,6 +37,7 @@ from calib_oed.io.measurement_format import (
     SIGMA_COLUMN,
     _reflector_names,
 )
+from calib_oed.io.repeats import describe_repeats, repeated_rows
 from calib_oed.measurement.dataset import MeasurementSet
 from calib_oed.model.robot import Robot
 from calib_oed.units import ANGLE_UNITS, LENGTH_UNITS
@@ -319,8 +321,20 @@ class _Reader:
         if SIGMA_COLUMN in columns:
             sigma = np.array([r[SIGMA_COLUMN] for r in rows]) * length
         reflector = np.array([r.get(REFLECTOR_COLUMN, 0) for r in rows], dtype=np.int64)
+        self.note_repeats([number for number, _ in data],
+                          np.column_stack([q, reflector, positions] + ([] if rotations is None else [rotations])))
         return MeasurementSet(self.robot.joint_names, q, reflector, positions, rotations, sigma,
                               self.where, np.array([number for number, _ in data]))
+
+    def note_repeats(self, lines: list[int], table: np.ndarray) -> None:
+        """A :class:`CalibOedNote` for rows identical to an earlier one (configuration,
+        reflector and measured values): a copied line rather than a repeated measurement."""
+        repeats = repeated_rows(lines, table)
+        if repeats:
+            warnings.warn(CalibOedNote(
+                f"{self.where}: {len(repeats)} row(s) identical to an earlier row, measured values "
+                f"included ({describe_repeats(repeats)}): copied lines? Each counts "
+                "as a measurement"), stacklevel=4)
 
 
 def read_measurements(

@@ -14,7 +14,21 @@ def test_identifiability_text(capsys):
     out = capsys.readouterr().out
     assert "free (identifiable): 25" in out
     assert "joint1.tx" in out and "redundant with" in out
-    assert "NOT estimable" in out  # the world-frame TCP depends on the base gauge
+    # the world-frame TCP depends on the gauge: stated positively, with its frame
+    assert "car_side: estimated relative to the robot base frame the calibration defines" in out
+    assert "NOT estimable" not in out
+
+
+def test_a_kpi_no_measurement_sees_is_not_estimable(capsys, tmp_path):
+    """Off the A6 axis, the TCP turns with A6's zero offset, which a reflector on the axis never sees."""
+    from importlib import resources
+
+    text = resources.files("calib_oed.scene.shipped").joinpath("fms_kr16.yaml").read_text()
+    scene = tmp_path / "off_axis.yaml"
+    scene.write_text(text.replace("  point: [0, 0, 0]  ", "  point: [100, 0, 0]"))
+    assert main(["identifiability", str(scene)]) == EXIT_OK
+    assert "car_side: NOT estimable (residual 0.41): it depends on joint6.rx, which no measurement " \
+        "sees" in capsys.readouterr().out
 
 
 def test_identifiability_json(capsys):
@@ -39,6 +53,8 @@ def test_demo_runs_the_whole_job(capsys, tmp_path):
     assert (tmp_path / "ur5_calibrated.urdf").is_file() and (tmp_path / "ur5_sensor.yaml").is_file()
     assert "C_p-optimal" in out and "KPI-optimal" in out and (tmp_path / "design.yaml").is_file()
     assert "KPI-optimal: " in out and "% of the best any 40-pose feasible design" in out
+    assert "round trip: largest tool difference" in out and " nm" not in out
+    assert out.rstrip().endswith(f"the demo's files are in {tmp_path.resolve()} (overwritten by the next run)")
 
 
 @pytest.mark.parametrize(
@@ -64,7 +80,7 @@ def test_scenes_and_robots(capsys):
 def test_demo_rejects_a_non_positive_pose_count(capsys):
     with pytest.raises(SystemExit) as exc:
         main(["demo", "-n", "0"])
-    assert exc.value.code == 2 and "expected an integer >= 1" in capsys.readouterr().err
+    assert exc.value.code == 2 and "expected a number of poses from 1 to 10000" in capsys.readouterr().err
 
 
 def test_demo_with_too_few_poses_says_so(capsys):

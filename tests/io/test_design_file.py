@@ -48,8 +48,8 @@ def test_round_trip_is_exact(kr16, tmp_path):
     np.testing.assert_array_equal(back, q)  # repr(float) round-trips bit for bit
     lines = path.read_text().splitlines()
     assert lines[0].startswith("# calib_oed design v1")
-    assert lines[1:3] == ["# scene fms_kr16", "# seed 4"]
-    assert lines[3] == ",".join(kr16.joint_names) == ",".join(JOINTS)
+    assert lines[1:4] == ["# units: angle=rad length=m", "# scene fms_kr16", "# seed 4"]
+    assert lines[4] == ",".join(kr16.joint_names) == ",".join(JOINTS)
 
 
 def test_a_single_configuration_is_one_row(kr16, tmp_path):
@@ -226,3 +226,53 @@ def test_bad_configurations_are_not_written(kr16, tmp_path):
     with pytest.raises(NonFiniteError):
         write_design_csv(tmp_path / "b.csv", kr16, np.full((2, 6), np.nan))
     assert list(tmp_path.iterdir()) == []
+
+
+# ----------------------------------------------------------------------------- units line
+
+
+def test_a_design_in_degrees_reads_as_radians(kr16, tmp_path):
+    q = kr16.random_configurations(5, 1)
+    path = write_design_csv(tmp_path / "deg.csv", kr16, q, angle_unit="deg")
+    assert "# units: angle=deg length=m" in path.read_text().splitlines()[1]
+    np.testing.assert_allclose(read_design_csv(path, kr16), q, rtol=1e-14, atol=1e-15)
+    by_hand = write_text(tmp_path, "# units: length=mm, angle = deg\n" + ",".join(JOINTS) + "\n10,-80,95,0,30,0\n")
+    np.testing.assert_allclose(read_design_csv(by_hand, kr16)[0], np.radians([10, -80, 95, 0, 30, 0]), rtol=1e-15)
+
+
+def test_without_a_units_line_a_design_is_in_radians(kr16, tmp_path):
+    path = write_text(tmp_path, ",".join(JOINTS) + "\n" + ROW + "\n")
+    np.testing.assert_array_equal(read_design_csv(path, kr16)[0], [float(v) for v in ROW.split(",")])
+    (line, message), = problems_of(write_text(tmp_path, ",".join(JOINTS) + "\n0.1,-80,1.5,0,0.3,-0.4\n", "d.csv"), kr16)
+    assert line == 2 and "joint_a2 = -80 rad outside" in message
+    assert "no '# units:' line: read as rad and m; in degrees? add '# units: angle=deg'" in message
+
+
+@pytest.mark.parametrize("units, fragment", [
+    ("# units: angle=grad", "unknown angle unit 'grad'; valid angle units are 'rad', 'deg'"),
+    ("# units: angle=deg angle=rad", "angle is given twice"),
+    ("# units: degrees", "cannot read 'degrees'"),
+])
+def test_bad_units_lines(kr16, tmp_path, units, fragment):
+    (line, message), = problems_of(write_text(tmp_path, f"{units}\n{','.join(JOINTS)}\n{ROW}\n"), kr16)
+    assert line == 1 and fragment in message
+
+
+def test_a_units_line_after_the_header_is_refused(kr16, tmp_path):
+    text = f"{','.join(JOINTS)}\n# units: angle=deg\n{ROW}\n"
+    (line, message), = problems_of(write_text(tmp_path, text), kr16)
+    assert line == 2 and "before the column header" in message
+
+
+def test_an_unknown_angle_unit_is_not_written(kr16, tmp_path):
+    with pytest.raises(MeasurementFileError, match="valid angle units are 'rad', 'deg'"):
+        write_design_csv(tmp_path / "d.csv", kr16, kr16.random_configurations(2, 0), angle_unit="grad")
+    assert not (tmp_path / "d.csv").exists()
+
+
+def test_repeated_rows_are_read_with_a_note(kr16, tmp_path):
+    from calib_oed.exceptions import CalibOedNote
+
+    path = write_text(tmp_path, "\n".join([",".join(JOINTS), ROW, "0,0,0,0,0,0", ROW, ROW]) + "\n")
+    with pytest.warns(CalibOedNote, match=r"2 row\(s\) repeat an earlier row \(line 4 = line 2, line 5 = line 2\)"):
+        assert read_design_csv(path, kr16).shape == (4, 6)

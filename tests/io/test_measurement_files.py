@@ -460,3 +460,20 @@ def test_file_values_match_the_model(tmp_path, name, pose):
         if pose:
             rot = pin.exp3(block.values[0, 3:])
             assert np.allclose(rot.T @ rot, np.eye(3))
+
+
+def test_rows_identical_to_an_earlier_row_are_a_note(kr16):
+    """A copied line (same configuration, reflector and measured values) is read, with a note;
+    the same configuration measured again (other values) is a repeated measurement, no note."""
+    from calib_oed.exceptions import CalibOedNote
+
+    again = GOOD.replace("1234.5678", "1234.5679")
+    with pytest.warns(CalibOedNote, match=r"<string>: 2 row\(s\) identical to an earlier row.*line 5 = line 3, "
+                                          r"line 6 = line 3"):
+        mset = read_text(kr16_text(GOOD, again, GOOD, GOOD), kr16)
+    assert mset.n == 4
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", CalibOedNote)
+        assert read_text(kr16_text(GOOD, again), kr16).n == 2

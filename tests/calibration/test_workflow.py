@@ -1,0 +1,40 @@
+"""The workflow's entry points take what a newcomer passes: a scene name or path, and
+counts that are checked (issue 21)."""
+
+from __future__ import annotations
+
+from importlib import resources
+
+import numpy as np
+import pytest
+
+from calib_oed import heuristic_design, load_scene, setup
+from calib_oed.exceptions import DesignError, SceneError, UnknownSceneError
+
+
+@pytest.fixture(scope="module")
+def kr16():
+    return setup("fms_kr16")
+
+
+def test_setup_takes_a_name_a_path_or_a_scene(kr16):
+    path = resources.files("calib_oed.scene.shipped").joinpath("fms_kr16.yaml")
+    for ref in (str(path), path, load_scene("fms_kr16")):
+        assert setup(ref).scene.name == kr16.scene.name == "fms_kr16"
+    with pytest.raises(UnknownSceneError, match="fms_kr16"):
+        setup("fms_kr61")
+    with pytest.raises(SceneError, match="not int"):
+        setup(3)
+
+
+@pytest.mark.parametrize("n", [2.5, 0, -1, "3", True])
+def test_heuristic_design_checks_the_count(kr16, n):
+    with pytest.raises(DesignError, match=f"n = {n!r}: a whole number of poses >= 1"):
+        heuristic_design(kr16, n, 0)
+
+
+def test_heuristic_design_checks_the_seed_and_takes_a_generator(kr16):
+    with pytest.raises(DesignError, match="seed = -3: an integer >= 0 or a numpy Generator"):
+        heuristic_design(kr16, 3, -3)
+    a = heuristic_design(kr16, 3, np.random.default_rng(5))
+    np.testing.assert_array_equal(a, heuristic_design(kr16, np.int64(3), 5))
