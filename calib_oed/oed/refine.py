@@ -40,6 +40,8 @@ def project_feasible(nlp: DesignProblem, x: np.ndarray, max_iterations: int = 50
     res = solve_sqp(distance, x, constraints=nlp.compute_constraints, bounds=nlp.bounds,
                     settings=SQPSettings(max_iterations=max_iterations, step_bound=0.05,
                                          tol_feasibility=0.1 * FEASIBILITY_TOL))
+    if res.status is SQPStatus.INTERRUPTED:  # Ctrl-C reaches the caller, as outside the SQP
+        raise KeyboardInterrupt
     return res.x
 
 

@@ -22,7 +22,7 @@ from calib_oed.feasibility.constraints import FEASIBILITY_TOL
 from calib_oed.oed.approximate import ApproximateDesign, information, solve_approximate
 from calib_oed.oed.objective import DesignObjective
 from calib_oed.oed.problem import DesignProblem
-from calib_oed.solver.sqp import SQPSettings, solve_sqp
+from calib_oed.solver.sqp import SQPSettings, SQPStatus, solve_sqp
 
 #: Starts per SQP of the local maximisation (its dense QP grows with the square of the starts).
 LOCAL_CHUNK = 8
@@ -111,6 +111,8 @@ def maximise_sensitivity(setup, objective: DesignObjective, gamma: np.ndarray, s
                     settings=SQPSettings(max_iterations=max_iterations, time_limit=time_limit,
                                          step_bound=0.2),
                     block_size=nq)
+    if res.status is SQPStatus.INTERRUPTED:  # Ctrl-C ends the certificate, not just this search
+        raise KeyboardInterrupt
     q = res.x.reshape(k, nq)
     values, _ = nlp.compute_constraint_rows(res.x, jacobian=False)
     lo, hi = nlp.bounds

@@ -183,3 +183,25 @@ def test_ctrl_c_keeps_the_best_feasible_design_so_far(kr16):
     assert d.solver["iterations"] == 3
     assert d.efficiency is None and "interrupted" in d.certificate["skipped"]
     assert not design(kr16, N, "kpi", pool=400, refine=False, certificate=False).interrupted
+
+
+def test_ctrl_c_in_the_certificate_keeps_the_design(kr16, monkeypatch):
+    """A KeyboardInterrupt inside the certificate's local SQP (which the SQP turns into its
+    status ``interrupted``) ends the certificate, not just that search: the refined design
+    is kept, marked interrupted, without an efficiency."""
+    from calib_oed.oed import sensitivity_maxima
+
+    real, calls = sensitivity_maxima.sensitivity_field, []
+
+    def interrupted_field(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 3:
+            raise KeyboardInterrupt
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(sensitivity_maxima, "sensitivity_field", interrupted_field)
+    d = design(kr16, N, "kpi", pool=400, settings=FEW)
+    assert len(calls) == 3  # the certificate stopped at the interrupt
+    assert d.interrupted and d.feasible and d.efficiency is None
+    assert d.solver["status"] != "interrupted"  # the design's own SQP ran to its end
+    assert "certificate" in d.certificate["skipped"]
