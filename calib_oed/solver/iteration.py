@@ -233,8 +233,10 @@ class _Run(_SubproblemMixin, _RestorationMixin):
             return self._record(k, stat, 0.0, delta, n_rows, step.status, qp_iter, backtracks, False)
         step_norm = float(np.max(np.abs(new.x - pt.x), initial=0.0))
         self._accept(new, self.lam)
-        if backtracks:
-            self.delta = max(s.min_step_bound, 0.5 * step_norm)
+        if backtracks:  # the model failed at this radius: shrink it as a failed search does,
+            # but not below the step accepted (halving the cut step instead collapsed the box
+            # to 1e-4 rad on curved collision rows, and regrowing it cost ~7 iterations a time)
+            self.delta = max(s.min_step_bound, 0.5 * step_norm, 0.1 * min(delta, d_norm))
         elif d_norm >= 0.99 * delta:
             self.delta = min(s.max_step_bound, 2.0 * delta)
         else:

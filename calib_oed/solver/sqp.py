@@ -59,7 +59,9 @@ far from active; :math:`f` scaled by the caller to O(1). One iteration at
    :math:`\phi(x + \alpha d) \le \phi(x) + \eta \alpha D` with the directional
    derivative :math:`D = \nabla f^\top d - \mu \sum_i \max(0, -c_i)` (same
    theorem). Trust region: after a backtrack
-   :math:`\Delta \leftarrow \max(\Delta_\min, \tfrac12 \|\alpha d\|_\infty)`; after a
+   :math:`\Delta \leftarrow \max(\Delta_\min, \tfrac12 \|\alpha d\|_\infty,
+   \tfrac1{10} \min(\Delta, \|d\|_\infty))` (the tenfold cut of a failed search, but
+   never below half the step accepted); after a
    full step that reached the edge, :math:`\Delta \leftarrow \min(2\Delta, \Delta_\max)`;
    after any other accepted step :math:`\Delta \leftarrow \min(\Delta, \kappa \|\alpha d\|_\infty)`
    (``step_bound_ratio``), so the box, and the rows kept, shrink with the steps.
