@@ -85,7 +85,8 @@ class CalibrationProblem:
                 for j in range(len(offsets))
             ]
         else:
-            models = [TrackerPosition(j, scene.tracker.sigma) for j in range(len(offsets))]
+            noise = scene.position_noise() if hasattr(scene, "position_noise") else None
+            models = [TrackerPosition(j, scene.tracker.sigma, noise) for j in range(len(offsets))]
         kpi = TcpKpi(
             np.array([w.q for w in scene.kpi.configurations]),
             point=scene.kpi.point,

@@ -10,7 +10,9 @@ One trial (paper §1.1, the experiment the covariance predicts):
    log-uniform in :data:`calib_oed.model.compliance.STIFFNESS_RANGE` (positive,
    1e6..1e7 N·m/rad);
 2. simulate :math:`\eta = h(p^\star, q) + \varepsilon`,
-   :math:`\varepsilon \sim N(0, \Sigma^2)` at the design :math:`q`;
+   :math:`\varepsilon \sim N(0, \Sigma^2)` at the design :math:`q`; a model with a
+   full error model (``model.noise``) draws :math:`\varepsilon_i \sim N(0, \Sigma_i)`,
+   :math:`\Sigma_i` evaluated at the TRUE positions :math:`h(p^\star, q_i)`;
 3. identify :math:`\hat p` from nominal (:func:`calib_oed.calibration.identification.identify`);
 4. KPI errors at the working configurations: before calibration
    :math:`s(0) - s(p^\star)` (the nominal model's error) and after
@@ -72,7 +74,11 @@ def simulate_observations(
     blocks = []
     for mdl in models:
         exact = mdl.compute_values(state)
-        noisy = exact + rng.normal(size=exact.shape) * mdl.sigma
+        noise = getattr(mdl, "noise", None)
+        if noise is None:
+            noisy = exact + rng.normal(size=exact.shape) * mdl.sigma
+        else:  # full covariance Sigma_i at the true positions
+            noisy = exact + noise.sample(exact, rng)
         blocks.append(ObservationBlock(mdl, q, noisy))
     return blocks
 

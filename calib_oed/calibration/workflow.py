@@ -142,13 +142,15 @@ def read_truth(path: str | os.PathLike, s: Setup) -> np.ndarray:
 
 def read_scene_measurements(s: Setup, path: str | os.PathLike, **units) -> MeasurementSet:
     """A measurement file of this scene's robot and reflectors."""
-    return read_measurements(path, s.problem.robot, s.reflector_names, **units)
+    return read_measurements(path, s.problem.robot, s.reflector_names,
+                             controller=s.scene.controller, **units)
 
 
 def identify_measurements(s: Setup, mset: MeasurementSet, loss: str = "linear") -> IdentificationResult:
     """Identify the scene's free parameters from measured data."""
     tracker = s.scene.tracker
-    blocks = mset.blocks(sigma=tracker.sigma, sigma_angle=tracker.sigma_angle)
+    blocks = mset.blocks(sigma=tracker.sigma, sigma_angle=tracker.sigma_angle,
+                         noise=s.scene.position_noise())
     return identify(s.problem.space, blocks, s.problem.identifiability, loss=loss)
 
 

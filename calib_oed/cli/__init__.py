@@ -148,6 +148,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="KPI of several points (criterion kpi): weighted mean variance, or the "
                    "worst-case variance max_i (epigraph SQP); default: the scene's kpi.aggregate")
     p.add_argument("-o", "--output", metavar="DIR", help="write DIR/design.yaml and DIR/design.csv")
+    p.add_argument("--controller", action="store_true", help="also write DIR/design_controller.csv "
+                   "in the controller's joint values and angle unit (the scene's controller: block)")
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_design, outputs={"output": "dir"})

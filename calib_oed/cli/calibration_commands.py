@@ -120,7 +120,8 @@ def _identify_fit(s, mset, args):
     problem, tracker = s.problem, s.scene.tracker
     sanity = check_measurements(problem.space, mset, args.max_registration_rms * 1e-3,
                                 s.reflector_names)
-    blocks = mset.blocks(sigma=tracker.sigma, sigma_angle=tracker.sigma_angle)
+    blocks = mset.blocks(sigma=tracker.sigma, sigma_angle=tracker.sigma_angle,
+                         noise=s.scene.position_noise())
     if args.loss == "robust":
         return sanity, blocks, identify_robust(problem.space, blocks, problem.identifiability)
     result = identify(problem.space, blocks, problem.identifiability, loss=args.loss)

@@ -43,6 +43,10 @@ def cmd_design(args) -> int:
     from calib_oed.oed.result import read_design_file, write_design
 
     s = _setup(args.scene)
+    controller = s.scene.controller
+    if getattr(args, "controller", False) and (controller is None or not args.output):
+        raise DesignError("controller", True, "needs -o DIR and a scene with a 'controller:' block "
+                          "(docs/scenes.md)" if controller is None else "needs -o DIR to write to")
     start = args.start
     if args.start not in ("heuristic", "exchange"):
         start = read_design_file(args.start, s.problem.robot)
@@ -63,6 +67,14 @@ def cmd_design(args) -> int:
         write_design_csv(paths["csv"], s.problem.robot, result.q, comment=(
             f"scene {result.scene}: INTERRUPTED {result.criterion}-optimal design of {result.n} poses, "
             "the best feasible design when the run was stopped (Ctrl-C or SIGTERM)"))
+    if paths and getattr(args, "controller", False):  # the controller's angles beside design.csv
+        from calib_oed.io.design_file import write_design_csv
+
+        paths["controller_csv"] = write_design_csv(
+            Path(args.output) / "design_controller.csv", s.problem.robot, result.q,
+            comment=f"scene {result.scene}: {result.criterion}-optimal design of {result.n} poses"
+            + (" (INTERRUPTED: the best feasible design when stopped)" if result.interrupted else ""),
+            angle_unit=controller.angle, controller=controller)
     if args.json:
         data = result.to_dict()
         data["files"] = {k: str(v) for k, v in paths.items()}
@@ -71,6 +83,8 @@ def cmd_design(args) -> int:
     print(result.summary())
     if paths:
         print(f"wrote {paths['yaml']} and {paths['csv']}"
+              + (f" and {paths['controller_csv']} (controller joint values)"
+                 if "controller_csv" in paths else "")
               + (" (marked interrupted in design.yaml)" if result.interrupted else ""))
     else:
         print("(no -o DIR given: nothing written)")

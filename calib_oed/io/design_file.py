@@ -12,7 +12,11 @@ unit of the revolute joints, ``angle=rad`` or ``angle=deg``, and of the
 prismatic joints, ``length=m`` or ``length=mm``. Without it a design file is
 in rad and m (the files of calib_oed versions before the units line). Columns
 may come in any order; every joint of the robot must be present, nothing else.
-Repeated rows are allowed (a pose measured twice) and reported as a
+A ``# joints: controller <name>`` line (before the header) says the values
+are controller joint values (the scene's ``controller:`` block,
+:mod:`calib_oed.model.controller`, :math:`q = A c + b`); written on request
+(``controller=``, ``calib-oed design --controller``) and mapped back to URDF
+joints on reading (an error without the block). Repeated rows are allowed (a pose measured twice) and reported as a
 :class:`~calib_oed.exceptions.CalibOedNote`.
 """
 
@@ -30,10 +34,12 @@ import numpy as np
 from calib_oed.exceptions import CalibOedNote, MeasurementFileError
 from calib_oed.io.atomic import atomic_write_text
 from calib_oed.io.repeats import describe_repeats, repeated_rows
+from calib_oed.model.controller import ControllerConvention
 from calib_oed.model.robot import Robot
 from calib_oed.units import ANGLE_UNITS, LENGTH_UNITS
 
 _UNITS_RE = re.compile(r"#\s*units\s*:(.*)$", re.IGNORECASE)
+_JOINTS_RE = re.compile(r"#\s*joints\s*:(.*)$", re.IGNORECASE)
 _DEFAULT_UNITS = {"angle": "rad", "length": "m"}
 
 
@@ -47,10 +53,13 @@ def _to_si(robot: Robot, units: dict[str, str]) -> np.ndarray:
 
 
 def write_design_csv(path: str | os.PathLike, robot: Robot, q: np.ndarray, comment: str | None = None,
-                     angle_unit: str = "rad") -> Path:
+                     angle_unit: str = "rad",
+                     controller: ControllerConvention | None = None) -> Path:
     """Write configurations ``q`` (n, nq) [rad, m] atomically, revolute joints in ``angle_unit``.
 
     The ``# units:`` line states the units; prismatic joints are written in m.
+    With ``controller`` the values are controller values
+    :math:`c = A^{-1}(q - b)`, stated by a ``# joints: controller <name>`` line.
 
     Raises:
         MeasurementFileError: ``angle_unit`` is not one of ``ANGLE_UNITS``.
@@ -61,10 +70,12 @@ def write_design_csv(path: str | os.PathLike, robot: Robot, q: np.ndarray, comme
                                    kind="design file")
     q = robot.check_configurations(q, "design")
     units = {"angle": angle_unit, "length": "m"}
-    values = q / _to_si(robot, units)
+    values = (q if controller is None else controller.to_controller(q)) / _to_si(robot, units)
     buf = io.StringIO()
     buf.write("# calib_oed design v1\n")
     buf.write(f"# units: angle={units['angle']} length={units['length']}\n")
+    if controller is not None:
+        buf.write(f"# joints: controller {controller.name}\n# {controller.describe()}\n")
     if comment:
         for line in comment.splitlines():
             buf.write(f"# {line}\n")
@@ -93,7 +104,8 @@ def _units_line(number: int, text: str, problems: list) -> dict[str, str]:
     return units
 
 
-def read_design_csv(path: str | os.PathLike, robot: Robot, check_limits: bool = True) -> np.ndarray:
+def read_design_csv(path: str | os.PathLike, robot: Robot, check_limits: bool = True,
+                    controller: ControllerConvention | None = None) -> np.ndarray:
     """Read a design file; returns (n, nq) [rad, m] in the robot's joint order.
 
     Warns:
@@ -111,7 +123,7 @@ def read_design_csv(path: str | os.PathLike, robot: Robot, check_limits: bool = 
                                    kind="design file") from exc
     problems: list[tuple[int | None, str]] = []
     header, header_line, rows = None, None, []
-    units, units_line = dict(_DEFAULT_UNITS), None
+    units, units_line, ctrl = dict(_DEFAULT_UNITS), None, None
     for number, line in enumerate(text.splitlines(), start=1):
         directive = _UNITS_RE.match(line.strip())
         if directive:
@@ -122,6 +134,10 @@ def read_design_csv(path: str | os.PathLike, robot: Robot, check_limits: bool = 
             else:
                 units_line = number
                 units.update(_units_line(number, directive.group(1), problems))
+            continue
+        joints = _JOINTS_RE.match(line.strip())
+        if joints and header is None:
+            ctrl = _joints_line(number, joints.group(1).split(), controller, problems)
             continue
         if not line.strip() or line.lstrip().startswith("#"):
             continue
@@ -160,6 +176,8 @@ def read_design_csv(path: str | os.PathLike, robot: Robot, check_limits: bool = 
         if not np.all(np.isfinite(vals)):
             problems.append((number, "NaN or infinite value"))
             continue
+        if ctrl is not None:
+            vals = ctrl.to_model(vals)
         if check_limits:
             bad = np.flatnonzero((vals < robot.lower - 1e-9) | (vals > robot.upper + 1e-9))
             for i in bad:
@@ -175,6 +193,25 @@ def read_design_csv(path: str | os.PathLike, robot: Robot, check_limits: bool = 
         raise MeasurementFileError(source, problems, kind="design file")
     _note_repeats(source, [number for number, _ in rows], q)
     return q
+
+
+def _joints_line(number: int, words: list[str], controller, problems: list):
+    """The convention of a ``# joints: urdf | controller <name>`` line (None: URDF)."""
+    if words == ["urdf"]:
+        return None
+    if not words or words[0].lower() != "controller" or len(words) > 2:
+        problems.append((number, f"joints: cannot read {' '.join(words)!r}; expected 'urdf' or "
+                                 "'controller <name>'"))
+    elif controller is None:
+        problems.append((number, "the values are in controller convention but no controller "
+                                 "convention is given: add a 'controller:' block to the scene "
+                                 "(docs/scenes.md)"))
+    elif len(words) == 2 and words[1] != controller.name:
+        problems.append((number, f"joints: file in the convention of controller {words[1]!r}, "
+                                 f"the scene's block is {controller.name!r}"))
+    else:
+        return controller
+    return None
 
 
 def _note_repeats(source: str, lines: list[int], q: np.ndarray) -> None:

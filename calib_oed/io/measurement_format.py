@@ -34,6 +34,13 @@ File format, version 1 (also in ``docs/data_format.md``)::
     ``length_unit=`` and ``angle_unit=`` of :func:`read_measurements` override
     it or stand in for it; without either the file is rejected.
   - ``# robot: <name>``: informative only (not checked).
+  - ``# joints: controller [<name>]``: the joint columns hold **controller**
+    values (signs, offsets, scales, couplings of the scene's ``controller:``
+    block, :mod:`calib_oed.model.controller`), in the file's angle unit; the
+    reader maps them to URDF joints, :math:`q = A c + b`, before checking
+    limits. ``<name>``, if given, must be the block's name. ``# joints: urdf``
+    (the default) says URDF joint values. A file never silently takes the
+    scene's block: without the directive the values are URDF angles.
 
 - The first other line is the **column header**. Columns, in any order, each
   at most once:
@@ -87,7 +94,7 @@ REFLECTOR_COLUMN = "reflector"
 SIGMA_COLUMN = "sigma"
 
 _VERSION_RE = re.compile(r"#\s*calib_oed\s+measurements\b\s*(.*)$", re.IGNORECASE)
-_DIRECTIVE_RE = re.compile(r"#\s*(units|robot)\s*:(.*)$", re.IGNORECASE)
+_DIRECTIVE_RE = re.compile(r"#\s*(units|robot|joints)\s*:(.*)$", re.IGNORECASE)
 
 
 def _reflector_names(names: Sequence[str]) -> tuple[str, ...]:

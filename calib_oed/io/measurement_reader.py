@@ -39,6 +39,7 @@ from calib_oed.io.measurement_format import (
 )
 from calib_oed.io.repeats import describe_repeats, repeated_rows
 from calib_oed.measurement.dataset import MeasurementSet
+from calib_oed.model.controller import ControllerConvention
 from calib_oed.model.robot import Robot
 from calib_oed.units import ANGLE_UNITS, LENGTH_UNITS
 
@@ -84,8 +85,11 @@ class _Reader:
     """One pass over a file's lines, collecting every problem."""
 
     def __init__(self, robot: Robot, reflector_names: tuple[str, ...], where: str,
-                 check_limits: bool):
+                 check_limits: bool, controller: ControllerConvention | None = None):
         self.robot = robot
+        self.controller = controller
+        self.joints_controller = False  # the file says '# joints: controller'
+        self.joints_line: int | None = None
         self.reflector_names = reflector_names
         self.where = where
         self.check_limits = check_limits
@@ -112,6 +116,8 @@ class _Reader:
                                  f"header (line {header[0]})")
                 elif directive and directive.re is _VERSION_RE:
                     self.version(number, directive.group(1).strip())
+                elif directive and directive.group(1).lower() == "joints":
+                    self.joints_directive(number, directive.group(2).strip())
                 elif directive and directive.group(1).lower() == "units":
                     if self.units_line is not None:
                         self.problem(number, f"second '# units:' line (the first is line "
@@ -154,6 +160,33 @@ class _Reader:
         if text.lower() != f"v{FORMAT_VERSION}":
             self.problem(number, f"unsupported format version {text!r}; this calib_oed reads "
                          f"'# calib_oed measurements v{FORMAT_VERSION}'")
+
+    def joints_directive(self, number: int, text: str) -> None:
+        """``# joints: urdf`` or ``# joints: controller [<name>]``."""
+        words = text.split()
+        if self.joints_line is not None:
+            self.problem(number, f"second '# joints:' line (the first is line {self.joints_line})")
+            return
+        self.joints_line = number
+        if words == ["urdf"]:
+            return
+        if not words or words[0].lower() != "controller" or len(words) > 2:
+            self.problem(number, f"joints: cannot read {text!r}; expected 'urdf' or "
+                         "'controller [<name>]'")
+        elif self.controller is None:
+            self.problem(number, "the joint values are in controller convention but no "
+                         "controller convention is given: add a 'controller:' block to the "
+                         "scene (docs/scenes.md) or pass controller=")
+        elif len(words) == 2 and words[1] != self.controller.name:
+            self.problem(number, f"joints: the file is in the convention of controller "
+                         f"{words[1]!r}, the scene's block is {self.controller.name!r}")
+        else:
+            self.joints_controller = True
+
+    def model_q(self, values: dict, scale: np.ndarray) -> np.ndarray:
+        """URDF joint values [rad, m] of a row's joint columns (file units, either convention)."""
+        raw = np.array([values[j] for j in self.robot.joint_names]) * scale
+        return self.controller.to_model(raw) if self.joints_controller else raw
 
     def units_directive(self, number: int, text: str) -> None:
         valid = {"length": LENGTH_UNITS, "angle": ANGLE_UNITS}
@@ -288,16 +321,16 @@ class _Reader:
     def check_values(self, values: dict, scales: tuple[float, float]) -> list[str]:
         length, angle = scales
         messages = []
-        if self.check_limits:
-            robot = self.robot
+        robot = self.robot
+        if self.check_limits and all(name in values for name in robot.joint_names):
+            q = self.model_q(values, np.where(self.prismatic, length, angle))
+            ctrl = " (URDF value, from the controller values)" if self.joints_controller else ""
             for k, name in enumerate(robot.joint_names):
-                if name not in values:
-                    continue
                 s = length if self.prismatic[k] else angle
                 lo, hi, unit = robot.lower[k], robot.upper[k], self.unit_of(self.prismatic[k])
-                if not lo - LIMIT_TOL <= values[name] * s <= hi + LIMIT_TOL:
-                    messages.append(f"{name} = {values[name]:.6g} {unit} is outside its limits "
-                                    f"[{lo / s:.6g}, {hi / s:.6g}] {unit}")
+                if not lo - LIMIT_TOL <= q[k] <= hi + LIMIT_TOL:
+                    messages.append(f"{name} = {q[k] / s:.6g} {unit}{ctrl} is outside its "
+                                    f"limits [{lo / s:.6g}, {hi / s:.6g}] {unit}")
         if SIGMA_COLUMN in values and values[SIGMA_COLUMN] <= 0:
             messages.append(f"sigma = {values[SIGMA_COLUMN]:.6g} {self.units['length']} must "
                             "be > 0")
@@ -312,7 +345,7 @@ class _Reader:
     def build(self, data, rows, columns, scales) -> MeasurementSet:
         length, angle = scales
         scale = np.where(self.prismatic, length, angle)
-        q = np.array([[r[j] for j in self.robot.joint_names] for r in rows]) * scale
+        q = np.array([self.model_q(r, scale) for r in rows])
         positions = np.array([[r[c] for c in POSITION_COLUMNS] for r in rows]) * length
         rotations = None
         if ROTATION_COLUMNS[0] in columns:
@@ -345,6 +378,7 @@ def read_measurements(
     length_unit: str | None = None,
     angle_unit: str | None = None,
     check_limits: bool = True,
+    controller: ControllerConvention | None = None,
 ) -> MeasurementSet:
     """Read a measurement file (format in the module docstring) into SI arrays.
 
@@ -356,6 +390,8 @@ def read_measurements(
         length_unit: ``"m"`` or ``"mm"``; overrides the file's ``# units:`` line.
         angle_unit: ``"rad"`` or ``"deg"``; overrides the file's ``# units:`` line.
         check_limits: Reject joint values outside ``robot.lower``/``robot.upper``.
+        controller: The scene's controller convention; used only when the file
+            says ``# joints: controller`` (an error without it).
 
     Raises:
         MeasurementFileError: the file cannot be read or has any problem; the
@@ -363,4 +399,4 @@ def read_measurements(
     """
     names = _reflector_names(reflector_names)
     text, where = _read_text(source)
-    return _Reader(robot, names, where, check_limits).read(text, length_unit, angle_unit)
+    return _Reader(robot, names, where, check_limits, controller).read(text, length_unit, angle_unit)

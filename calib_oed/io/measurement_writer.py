@@ -24,6 +24,7 @@ from calib_oed.io.measurement_format import (
     _reflector_names,
 )
 from calib_oed.measurement.dataset import MeasurementSet
+from calib_oed.model.controller import ControllerConvention
 from calib_oed.model.robot import Robot
 from calib_oed.units import ANGLE_UNITS, LENGTH_UNITS
 
@@ -37,6 +38,7 @@ def write_measurements(
     length_unit: str = "mm",
     angle_unit: str = "deg",
     comment: str | None = None,
+    controller: ControllerConvention | None = None,
 ) -> Path:
     """Write measurements in the file format of this module, atomically.
 
@@ -54,6 +56,8 @@ def write_measurements(
         length_unit: ``"m"`` or ``"mm"``.
         angle_unit: ``"rad"`` or ``"deg"``.
         comment: Free text written as ``#`` lines before the column header.
+        controller: Write controller joint values :math:`c = A^{-1}(q - b)`
+            (in ``angle_unit``) under a ``# joints: controller <name>`` line.
 
     Returns:
         The path written.
@@ -82,12 +86,15 @@ def write_measurements(
     length, angle = LENGTH_UNITS[length_unit], ANGLE_UNITS[angle_unit]
     prismatic = [j.shortname().startswith("JointModelP") for j in robot.model.joints[1:]]
     order = [mset.joint_names.index(j) for j in robot.joint_names]
-    q = mset.q[:, order] / np.where(prismatic, length, angle)
+    q = mset.q[:, order]
+    q = (q if controller is None else controller.to_controller(q)) / np.where(prismatic, length, angle)
 
     out = io.StringIO()
     out.write(f"# calib_oed measurements v{FORMAT_VERSION}\n")
     out.write(f"# units: length={length_unit} angle={angle_unit}\n")
     out.write(f"# robot: {robot.name}\n")
+    if controller is not None:
+        out.write(f"# joints: controller {controller.name}\n# {controller.describe()}\n")
     for line in (comment or "").splitlines():
         text = f"# {line}".rstrip()
         if _VERSION_RE.match(text) or _DIRECTIVE_RE.match(text):

@@ -15,7 +15,8 @@ from typing import Any
 
 import numpy as np
 
-from calib_oed.exceptions import NonFiniteError, ShapeError
+from calib_oed.exceptions import NonFiniteError, ParameterError, ShapeError
+from calib_oed.measurement.noise import TrackerNoise
 from calib_oed.measurement.observations import ObservationBlock
 from calib_oed.measurement.pose import DEFAULT_SIGMA_ANGLE, PoseMeasurement
 from calib_oed.measurement.position import DEFAULT_SIGMA, TrackerPosition
@@ -130,6 +131,7 @@ class MeasurementSet:
         self,
         sigma: float | np.ndarray = DEFAULT_SIGMA,
         sigma_angle: float | np.ndarray = DEFAULT_SIGMA_ANGLE,
+        noise: TrackerNoise | None = None,
     ) -> list[ObservationBlock]:
         """One observation block per reflector present, in :attr:`reflectors` order.
 
@@ -143,12 +145,20 @@ class MeasurementSet:
         Args:
             sigma: Position noise per tracker axis [m], scalar or (3,).
             sigma_angle: Rotation noise per axis [rad], scalar or (3,) (pose rows only).
+            noise: Full error model of position rows (``scene.position_noise()``); when
+                given, the fit whitens with its covariance and per-row sigmas are not used.
+
+        Raises:
+            ParameterError: ``noise`` with pose rows (it models positions only).
         """
+        if noise is not None and self.rotations is not None:
+            raise ParameterError("noise: the tracker error model applies to position rows only; "
+                                 "this file has pose rows (give noise=None)")
         out = []
         for j in self.reflectors:
             rows = self.reflector == j
             if self.rotations is None:
-                model = TrackerPosition(j, sigma)
+                model = TrackerPosition(j, sigma, noise)
                 values = self.positions[rows]
             else:
                 model = PoseMeasurement(j, sigma, sigma_angle)

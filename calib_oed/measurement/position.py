@@ -21,6 +21,7 @@ from __future__ import annotations
 import numpy as np
 
 from calib_oed.measurement.base import MeasurementModel, SetupState
+from calib_oed.measurement.noise import TrackerNoise
 from calib_oed.measurement.second_order import tool_point_param_config_hessian
 
 #: Default laser-tracker noise per axis [m] (0.01 mm).
@@ -28,20 +29,28 @@ DEFAULT_SIGMA = 1e-5
 
 
 class TrackerPosition(MeasurementModel):
-    """Reflector position measured by a laser tracker.
+    r"""Reflector position measured by a laser tracker.
 
     Args:
         reflector: Index j of the reflector (0-based).
         sigma: Noise standard deviation per tracker axis [m], scalar or (3,).
+        noise: Optional full error model (:class:`~calib_oed.measurement.noise.TrackerNoise`:
+            range-dependent radial/lateral noise and robot repeatability). When given,
+            identification, covariance and simulation use its 3×3 covariance
+            :math:`\Sigma_i` instead of ``sigma``; the design objective still uses ``sigma``.
     """
 
     dim = 3
     labels = ("x", "y", "z")
     units = ("m", "m", "m")
 
-    def __init__(self, reflector: int = 0, sigma: float | np.ndarray = DEFAULT_SIGMA):
+    def __init__(self, reflector: int = 0, sigma: float | np.ndarray = DEFAULT_SIGMA,
+                 noise: TrackerNoise | None = None):
         super().__init__(sigma)
         self.reflector = int(reflector)
+        if noise is not None and not isinstance(noise, TrackerNoise):
+            raise TypeError(f"noise: expected a TrackerNoise or None, got {type(noise).__name__}")
+        self.noise = noise
 
     @property
     def name(self) -> str:

@@ -10,7 +10,10 @@ component:
 
 with :math:`\Sigma = \mathrm{diag}(\sigma)` (paper eq. 6 and 24d). Multiplying
 by :math:`\Sigma^{-1}` makes the rows dimensionless, so :math:`F_1` has units
-[1/unit of the parameter] per column.
+[1/unit of the parameter] per column. A model with a full error model
+(``model.noise``, :class:`~calib_oed.measurement.noise.TrackerNoise`) is
+whitened per configuration by :math:`L_i^{-1}`, :math:`\Sigma_i = L_i L_i^\top`
+evaluated at the state's positions :math:`h(p, q_i)`, instead of the division by :math:`\sigma`.
 """
 
 from __future__ import annotations
@@ -37,10 +40,15 @@ def weighted_jacobian_from_state(
     models: Sequence[MeasurementModel], state: SetupState
 ) -> np.ndarray:
     r""":math:`F_1 = \Sigma^{-1}\partial h/\partial p` for an evaluated state, (m, n_p)."""
-    blocks = [
-        (mdl.compute_param_jacobian(state) / mdl.sigma[None, :, None]).reshape(-1, state.space.size)
-        for mdl in models
-    ]
+    blocks = []
+    for mdl in models:
+        jac = mdl.compute_param_jacobian(state)
+        noise = getattr(mdl, "noise", None)
+        if noise is None:
+            jac = jac / mdl.sigma[None, :, None]
+        else:
+            jac = np.einsum("nij,njk->nik", noise.whitening(mdl.compute_values(state)), jac)
+        blocks.append(jac.reshape(-1, state.space.size))
     return np.concatenate(blocks, axis=0)
 
 

@@ -234,4 +234,5 @@ def build_program(scene, q: np.ndarray, settings: ProgramSettings | None = None,
     stats["design_order_planned"] = plan_baselines
     stats["cpu_s"] = time.process_time() - start
     return Program(scene.name, tuple(robot.joint_names), home, q, order - 1, program_moves,
-                   settings.dwell, cycle, winner[0], stats, note, dyn.velocity, dyn.acceleration)
+                   settings.dwell, cycle, winner[0], stats, note, dyn.velocity, dyn.acceleration,
+                   scene.controller)

@@ -1,7 +1,8 @@
 """A CSV of the ordered program: every target with its joint angles in degrees and radians.
 
-Columns: ``step, kind, pose, dwell_s``, then ``<joint>_deg`` (URDF angles in
-degrees: no controller block yet) and ``<joint>_rad`` (URDF radians), one row
+Columns: ``step, kind, pose, dwell_s``, then ``<joint>_deg`` (joint values in
+degrees: the controller's if the scene has a ``controller:`` block, else the
+URDF's, as the header says) and ``<joint>_rad`` (the same in radians), one row
 per target (home, via point, measurement pose); ``#`` lines carry the header.
 """
 

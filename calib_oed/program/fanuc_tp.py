@@ -2,9 +2,13 @@
 
 Positions are written ``J1= .. deg`` ... ``J6= .. deg`` in the ``/POS`` section.
 **J2/J3 convention**: FANUC controllers show J3 measured from the horizontal
-(the J2/J3 interaction), :math:`J3_{FANUC} = J3 + J2` for the usual sign
-conventions, while a URDF's J3 is relative to the upper arm. No controller block
-exists yet, so the URDF's J3 is written unchanged, and the header says so:
+(the J2/J3 interaction), while a URDF's J3 is relative to the upper arm:
+:math:`q_3 = J3 + J2`, i.e. :math:`J3 = q_3 - J2`, in the sign conventions of
+ROS-Industrial's fanuc URDFs (``fanuc_driver``: ``J3_out = J3_in + J23_factor *
+J2_in`` on the controller's state, ``J23_factor`` 1 for the coupled arms). With a scene
+``controller:`` block (e.g. ``couplings: [{joint: 3, from: 2, ratio: 1}]``,
+docs/scenes.md) the positions are the controller's values and the header states
+the map; without one the URDF's J3 is written unchanged and the header says so:
 convert (and check the signs of) J3 before loading on a FANUC arm.
 TP comments hold 32 characters, so the header is cut into short ``!`` lines.
 """
@@ -18,7 +22,8 @@ from calib_oed.program.records import Program
 
 #: What a FANUC user must know about J3, in the header.
 J2_J3_NOTE = ("J2/J3: J3 is the URDF angle relative to the upper arm, NOT the FANUC J3 "
-              "measured from the horizontal (J3_FANUC = J3 + J2, check signs): convert first")
+              "measured from the horizontal (J3_FANUC = J3 - J2, check signs): convert first, "
+              "or add a controller: block to the scene")
 
 
 def write_tp(program: Program, name: str) -> dict[str, str]:
@@ -27,7 +32,8 @@ def write_tp(program: Program, name: str) -> dict[str, str]:
     prog = name.upper()
     all_steps = steps(program)
     comments = []
-    for line in [*header_lines(program, "degrees (J1..J6)"), J2_J3_NOTE]:
+    note = [] if program.controller is not None else [J2_J3_NOTE]
+    for line in [*header_lines(program, "degrees (J1..J6)"), *note]:
         comments += textwrap.wrap(line, 30)
     body = [f"! {c} ;" for c in comments]
     positions = {}

@@ -1,8 +1,9 @@
 """What every program writer shares: the header text, the step list, angle formatting.
 
-Joint values are the URDF's joint angles: the scene has no controller block
-(joint signs, zero offsets, couplings such as FANUC's J2/J3) yet, so none is
-applied, and every file says so in its header. Angles are written in degrees
+Joint values are the controller's when the scene has a ``controller:`` block
+(joint signs, zero offsets, scales, couplings such as FANUC's J2/J3:
+:math:`c = A^{-1}(q - b)`, :mod:`calib_oed.model.controller`), else the URDF's
+joint angles; every file's header says which. Angles are written in degrees
 with 4 decimals (1e-4 deg = 1.7 µrad), URScript's in radians with 6 decimals
 (URScript's unit). Pose numbers count from 1: "pose 12" is row 12 of the design.
 """
@@ -27,7 +28,8 @@ class Step:
 
     Attributes:
         kind: ``"home"``, ``"via"`` or ``"pose"``.
-        q: Joint values [rad], (nq,).
+        q: Joint values to write [rad], (nq,): controller values if the program has a
+            controller convention, else URDF angles.
         pose: Pose number (1-based row of the design) for measurement poses, else ``None``.
         name: A target name unique in the program (``HOME``, ``P12``, ``V3``).
     """
@@ -49,7 +51,10 @@ def steps(program: Program) -> list[Step]:
             name = f"P{index + 1}"
         else:
             name = "HOME"
-        out.append(Step(kind, np.asarray(q, dtype=float), None if index is None else index + 1, name))
+        q = np.asarray(q, dtype=float)
+        if program.controller is not None:
+            q = program.controller.to_controller(q)
+        out.append(Step(kind, q, None if index is None else index + 1, name))
     return out
 
 
@@ -69,11 +74,15 @@ def header_lines(program: Program, units: str) -> list[str]:
     """The header every file carries (without comment markers)."""
     t = program.cycle_times
     joints = ", ".join(program.joint_names)
+    ctrl = program.controller
+    convention = ([f"joint values: controller joint values in {units}, in the order {joints}",
+                   f"from the URDF angles q by the scene's {ctrl.describe()}"] if ctrl else
+                  [f"joint values: URDF joint angles in {units}, in the order {joints}",
+                   "no controller block in the scene: no controller signs, zero offsets or axis",
+                   "couplings are applied; check them against the controller before running"])
     return [
         f"calib_oed measurement program, scene {program.scene}: {len(program.poses)} poses",
-        f"joint values: URDF joint angles in {units}, in the order {joints}",
-        "no controller block in the scene: no controller signs, zero offsets or axis",
-        "couplings are applied; check them against the controller before running",
+        *convention,
         f"at each measurement pose: dwell {program.dwell:.2f} s (settle, tracker measures)",
         "pose N = row N of the design file (from 1); via points are not measured",
         f"estimated cycle time {t['optimised']:.1f} s (design order {t['design order']:.1f} s)",

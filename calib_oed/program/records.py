@@ -6,6 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from calib_oed.model.controller import ControllerConvention
 from calib_oed.program.continuous import MoveCheck
 from calib_oed.program.planner import PlannedPath
 
@@ -59,6 +60,8 @@ class Program:
         settings_note: How home, velocities and accelerations were chosen.
         velocity: Joint velocity limits of the timing [rad/s], (nq,), or ``None``.
         acceleration: Joint acceleration limits of the timing [rad/s²], (nq,), or ``None``.
+        controller: The scene's controller convention: the writers write controller
+            values :math:`c = A^{-1}(q - b)` instead of URDF angles; ``None``: URDF angles.
     """
 
     scene: str
@@ -74,6 +77,7 @@ class Program:
     settings_note: str = ""
     velocity: np.ndarray | None = None
     acceleration: np.ndarray | None = None
+    controller: ControllerConvention | None = None
 
     @property
     def cycle_time(self) -> float:

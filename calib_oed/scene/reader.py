@@ -24,7 +24,9 @@ from calib_oed.exceptions import (
     UnknownSceneError,
 )
 from calib_oed.feasibility.shapes import Cell, FeasibilitySettings
+from calib_oed.measurement.noise import TrackerNoise
 from calib_oed.model.compliance import Compliance
+from calib_oed.model.controller import controller_from_mapping
 from calib_oed.model.joint_path import sample_joint_path
 from calib_oed.model.robot import Robot, load_robot
 from calib_oed.scene.cell import read_cell, read_feasibility, reflector_normal
@@ -109,7 +111,7 @@ class SceneReader(FieldReader):
         top = self.mapping(data, None, ("version", "name", "units", "robot", "tracker",
                                         "reflectors", "kpi"),
                            ("description", "measurement", "generic_design", "cell",
-                            "feasibility", "program"))
+                            "feasibility", "program", "controller"))
         if top["version"] not in SUPPORTED_VERSIONS or isinstance(top["version"], bool):
             raise self.fail("version", f"unsupported scene file version {top['version']!r}; "
                             f"supported versions: {', '.join(map(str, SUPPORTED_VERSIONS))}")
@@ -130,7 +132,7 @@ class SceneReader(FieldReader):
             description=description,
             source=Path(self.source) if self.source else None,
             robot=robot,
-            tracker=self.tracker(top["tracker"]),
+            tracker=self.tracker(top["tracker"], top.get("measurement", "position")),
             reflectors=tuple(
                 ReflectorSpec(r["name"], self.vector(r["offset"], f"reflectors[{i}].offset", 3,
                                                      self.length),
@@ -151,12 +153,49 @@ class SceneReader(FieldReader):
                          if "feasibility" in top else FeasibilitySettings()),
             compliance=compliance,
             program=self.free_mapping(top.get("program", {}), "program"),
+            controller=(controller_from_mapping(top["controller"], robot.model.nq)
+                        if "controller" in top else None),
+            repeatability=self.repeatability(top),
         )
+
+    def repeatability(self, top) -> float:
+        """``robot.repeatability``: sigma at the reflector [length unit] -> [m]; 0 if absent."""
+        if "repeatability" not in top["robot"]:
+            return 0.0
+        value = self.number(top["robot"]["repeatability"], "robot.repeatability", self.length,
+                            nonnegative=True)
+        if value > 0 and top.get("measurement", "position") != "position":
+            raise self.fail("robot.repeatability", "applies to measurement: position only "
+                            f"(this scene measures {top.get('measurement')!r})")
+        if value > 0 and "noise" not in top["tracker"] and len(set(
+                np.atleast_1d(np.asarray(top["tracker"]["sigma"], dtype=float)).tolist())) > 1:
+            raise self.fail("robot.repeatability", "needs a scalar tracker.sigma or a "
+                            "tracker.noise block (a per-axis sigma has no range/direction model)")
+        return value
+
+    def tracker_noise(self, value, measurement) -> TrackerNoise:
+        """``tracker.noise: {radial: [r0, r1], lateral: [t0, t1]}``, sigma(d) = c0 + c1 d, d in m."""
+        spec = self.mapping(value, "tracker.noise", ("radial", "lateral"))
+        if measurement != "position":
+            raise self.fail("tracker.noise", "applies to measurement: position only "
+                            f"(this scene measures {measurement!r})")
+        pairs = {}
+        for key in ("radial", "lateral"):
+            where = f"tracker.noise.{key}"
+            pair = self.vector(spec[key], where, 2, self.length,
+                               what="[sigma at zero range, sigma per metre of range]")
+            if np.any(pair < 0):
+                raise self.fail(where, f"both coefficients must be >= 0, got {spec[key]!r}")
+            if pair[0] == 0:
+                raise self.fail(where, f"the first coefficient (sigma at zero range) must be "
+                                f"> 0, got {spec[key]!r}")
+            pairs[key] = pair
+        return TrackerNoise(pairs["radial"], pairs["lateral"])
 
     def robot(self, value) -> Robot:
         spec = self.mapping(value, "robot", (), ("name", "urdf", "xacro", "args", "tool_frame",
                                                  "joint_limits", "lock_joints", "package_dirs",
-                                                 "compliance"))
+                                                 "compliance", "repeatability"))
         given = [k for k in ("name", "urdf", "xacro") if k in spec]
         if len(given) != 1:
             raise self.fail("robot", "expected exactly one of 'name' (a robot name), 'urdf' "
@@ -254,8 +293,8 @@ class SceneReader(FieldReader):
             out.append(str(path.resolve()))
         return out or None
 
-    def tracker(self, value) -> TrackerSpec:
-        spec = self.mapping(value, "tracker", ("position", "rpy", "sigma"), ("sigma_angle",))
+    def tracker(self, value, measurement: str = "position") -> TrackerSpec:
+        spec = self.mapping(value, "tracker", ("position", "rpy", "sigma"), ("sigma_angle", "noise"))
         sigma_angle = (self.vector3_or_scalar(spec["sigma_angle"], "tracker.sigma_angle",
                                               self.angle)
                        if "sigma_angle" in spec else np.full(3, DEFAULT_SIGMA_ANGLE))
@@ -264,6 +303,8 @@ class SceneReader(FieldReader):
             rpy=self.vector(spec["rpy"], "tracker.rpy", 3, self.angle),
             sigma=self.vector3_or_scalar(spec["sigma"], "tracker.sigma", self.length),
             sigma_angle=sigma_angle,
+            noise=(self.tracker_noise(spec["noise"], measurement)
+                   if "noise" in spec else None),
         )
 
     def kpi(self, value, robot: Robot, reflector_names: list[str]) -> KpiSpec:

@@ -17,7 +17,9 @@ import pinocchio as pin
 
 from calib_oed.exceptions import NonFiniteError, SceneError, ShapeError
 from calib_oed.feasibility.shapes import Cell, FeasibilitySettings
+from calib_oed.measurement.noise import TrackerNoise
 from calib_oed.model.compliance import Compliance
+from calib_oed.model.controller import ControllerConvention
 from calib_oed.model.robot import Robot
 
 MEASUREMENTS = ("position", "pose")
@@ -51,12 +53,16 @@ class TrackerSpec:
         sigma: Standard deviation of the position noise along the tracker axes, shape (3,) [m].
         sigma_angle: Standard deviation of the rotation noise about the tracker axes,
             shape (3,) [rad]; used only by the 6-D pose measurement model.
+        noise: ``tracker.noise``: range-dependent radial/lateral error model
+            (:class:`~calib_oed.measurement.noise.TrackerNoise`, repeatability 0 here;
+            the robot's is :attr:`Scene.repeatability`), or None: isotropic ``sigma``.
     """
 
     position: np.ndarray
     rpy: np.ndarray
     sigma: np.ndarray
     sigma_angle: np.ndarray
+    noise: TrackerNoise | None = None
 
     def __post_init__(self):
         for name in ("position", "rpy", "sigma", "sigma_angle"):
@@ -213,6 +219,24 @@ class Scene:
     #: The optional ``program:`` block as written (file units), read by
     #: :mod:`calib_oed.program.settings`; empty if the file has none.
     program: dict = field(default_factory=dict)
+    #: ``robot.repeatability``: isotropic standard deviation at the reflector [m]; 0 if absent.
+    repeatability: float = 0.0
+
+    def position_noise(self) -> TrackerNoise | None:
+        """The full error model of each position measurement, or None (today's isotropic ``sigma``).
+
+        ``tracker.noise`` with the robot's repeatability; the isotropic ``sigma`` plus
+        the repeatability when only ``robot.repeatability`` is given.
+        """
+        if self.tracker.noise is not None:
+            return TrackerNoise(self.tracker.noise.radial, self.tracker.noise.lateral,
+                                self.repeatability)
+        if self.repeatability > 0:
+            return TrackerNoise.isotropic(float(self.tracker.sigma[0]), self.repeatability)
+        return None
+    #: The optional ``controller:`` block: controller joint conventions
+    #: (:mod:`calib_oed.model.controller`); None if the file has none.
+    controller: ControllerConvention | None = None
 
 
 @dataclass(frozen=True, eq=False)

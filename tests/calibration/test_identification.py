@@ -301,3 +301,58 @@ def test_summary_dict_and_estimates(noisy_result, fms):
     with pytest.raises(ValueError):
         res.p[0] = 1.0  # read-only
     assert res.f1.shape == (150, len(res.free_names)) and res.residuals.shape == (150,)
+
+
+# ------------------------------------------------------------------ full covariance (issue 19)
+def _fms_full_noise():
+    """fms_kr16 with the AT500-like tracker model (k = 2) and 0.011 mm repeatability."""
+    from dataclasses import replace
+
+    from calib_oed.measurement.noise import TrackerNoise
+
+    scene = load_scene("fms_kr16")
+    noise = TrackerNoise((5e-6, 1.5e-7), (7.5e-6, 3e-6))
+    scene = replace(scene, tracker=replace(scene.tracker, noise=noise), repeatability=1.1e-5)
+    return CalibrationProblem.from_scene(scene)
+
+
+def test_full_covariance_whitening_and_noise_factor():
+    """Sigma_i whitening: exact Jacobian of the frozen residual, chi-square noise factor ~ 1,
+    raw residuals h - eta, and Sigma_i re-evaluated at the estimate."""
+    problem = _fms_full_noise()
+    space, model = problem.space, problem.models[0]
+    free = problem.identifiability.free_indices
+    p_true = true_parameters(problem, 72)
+    q = problem.robot.random_configurations(100, 73)
+    exact = model.compute_values(evaluate_setup(space, p_true, q, jacobian=False))
+    eta = exact + model.noise.sample(exact, np.random.default_rng(71))
+    block = ObservationBlock(model, q, eta)
+    fun, jac = residual_function(space, [block], free)
+    x = p_true[free] + 1e-5
+    assert relative_error(jac(x), central_difference(fun, x, eps=1e-7)) < 1e-6
+    res = identify(space, [block], free)
+    assert res.status is IdentificationStatus.CONVERGED
+    # 300 values - 25 free: the noise factor's std is sqrt(2/275) = 0.085
+    assert 0.7 < res.noise_factor < 1.3
+    h = model.compute_values(evaluate_setup(space, res.p, q, jacobian=False))
+    np.testing.assert_allclose(res.block_residuals[0], h - eta, rtol=1e-9, atol=1e-15)
+    w = model.noise.whitening(h)  # Sigma_i at the estimate
+    np.testing.assert_allclose(res.residuals.reshape(-1, 3), np.einsum("nij,nj->ni", w, h - eta),
+                               rtol=1e-6, atol=1e-9)
+    # the isotropic model would misjudge the fit: its noise factor is far from 1
+    iso = identify(space, [ObservationBlock(TrackerPosition(0), q, eta)], free)
+    assert iso.noise_factor > 2.5
+
+
+def test_isotropic_noise_model_equals_the_sigma_path(fms):
+    from calib_oed.measurement.noise import TrackerNoise
+
+    space = fms.space
+    p_true = true_parameters(fms, 82)
+    q = fms.robot.random_configurations(40, 83)
+    plain = simulate(space, TrackerPosition(0, 1e-5), q, p_true, np.random.default_rng(81))
+    full = ObservationBlock(TrackerPosition(0, 1e-5, TrackerNoise.isotropic(1e-5)), q, plain.values)
+    free = fms.identifiability.free_indices
+    a, b = identify(space, [plain], free), identify(space, [full], free)
+    np.testing.assert_allclose(b.p, a.p, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(b.covariance, a.covariance, rtol=1e-8)

@@ -59,3 +59,22 @@ def test_calibration_trial_errors(problem):
     # same seed, same trial
     again = simulate_calibration(problem, q, 11)
     np.testing.assert_array_equal(again.p_est, trial.p_est)
+
+
+def test_simulated_noise_has_the_full_covariance(problem):
+    """With a TrackerNoise, eta - h ~ N(0, Sigma_i) at the TRUE positions: whitened draws are
+    N(0, I) (3000 draws: each entry of their covariance within 5 standard errors)."""
+    from calib_oed.measurement.noise import TrackerNoise
+
+    space = problem.space
+    noise = TrackerNoise((5e-6, 1.5e-7), (7.5e-6, 3e-6), 1.1e-5)
+    q = problem.robot.random_configurations(3000, 4)
+    p_true = draw_true_parameters(space, problem.identifiability.free_indices, 5)
+    exact = simulate_observations(space, [TrackerPosition(0, 1e-300)], q, p_true, 0)[0]
+    noisy = simulate_observations(space, [TrackerPosition(0, 1e-5, noise)], q, p_true, 6)[0]
+    z = np.einsum("nij,nj->ni", noise.whitening(exact.values), noisy.values - exact.values)
+    emp = z.T @ z / z.shape[0]
+    se = np.sqrt((1 + np.eye(3)) / z.shape[0])  # var(z_a z_b) = 1 + delta_ab
+    assert np.all(np.abs(emp - np.eye(3)) < 5 * se)
+    # the same draws whitened with the isotropic 0.01 mm are far from N(0, I)
+    assert np.mean((noisy.values - exact.values) ** 2) / 1e-10 > 2.0
