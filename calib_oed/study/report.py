@@ -330,7 +330,7 @@ def _figures(result: StudyResult, folder: Path, tables: dict) -> dict[str, Path]
         seed = case.designs["heuristic_median"].seed
         designs = {f"heuristic (median, seed {seed})": case.designs["heuristic_median"].q}
         designs |= {names.get(c, c): case.designs[design_label(c, flag)].q for c in plan.criteria}
-        fig = plot_kpi_ellipsoids(setup(case.case.spec.load_scene()).problem, designs)
+        fig = plot_kpi_ellipsoids(setup(case.case.spec.load_scene()), designs)
         fig.suptitle(f"{case.case.spec.robot} ({case.case.spec.scene_label}): "
                      + fig.get_suptitle(), fontsize=9)
         paths["figure7"] = save_figure(fig, folder / FIGURE7)
