@@ -263,6 +263,18 @@ def fit_capsule(
     return np.asarray(a), np.asarray(b), float(r)
 
 
+def check_margin(margin) -> float:
+    """A capsule inflation margin [m] as a float.
+
+    Raises:
+        ValueError: ``margin`` is negative or not finite.
+    """
+    margin = float(margin)
+    if not (np.isfinite(margin) and margin >= 0.0):
+        raise ValueError(f"capsule margin must be a finite length >= 0 [m], got {margin!r}")
+    return margin
+
+
 def fit_capsules(
     robot: Robot, geometry_model: pin.GeometryModel | None = None, margin: float = 0.0
 ) -> tuple[Capsule, ...]:
@@ -276,9 +288,7 @@ def fit_capsules(
         RobotLoadError: the collision meshes cannot be loaded.
         ValueError: ``margin`` is negative or not finite.
     """
-    margin = float(margin)
-    if not (np.isfinite(margin) and margin >= 0.0):
-        raise ValueError(f"capsule margin must be a finite length >= 0 [m], got {margin!r}")
+    margin = check_margin(margin)
     out = []
     for link, (pts, rad, axes) in link_geometry_points(robot, geometry_model).items():
         a, b, r = fit_capsule(pts, rad, axes)

@@ -57,6 +57,7 @@ from calib_oed.feasibility.capsules import (
     _local_balls,
     _perpendicular_basis,
     capsules_from_table,
+    check_margin,
     fit_capsule,
     link_geometry_points,
     link_names,
@@ -398,9 +399,7 @@ def fit_link_capsules(robot, geometry_model: pin.GeometryModel | None = None, ma
         RobotLoadError: the collision meshes cannot be loaded.
         ValueError: ``margin`` is negative or not finite.
     """
-    margin = float(margin)
-    if not (np.isfinite(margin) and margin >= 0.0):
-        raise ValueError(f"capsule margin must be a finite length >= 0 [m], got {margin!r}")
+    margin = check_margin(margin)
     geom = load_collision_model(robot) if geometry_model is None else geometry_model
     return tuple(c.inflated(margin) if margin else c for fit in fit_robot_links(robot, geom, settings)
                  for c in fit.capsules)

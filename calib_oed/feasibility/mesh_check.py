@@ -150,7 +150,7 @@ class MeshCheckReport:
         return "\n".join(lines)
 
 
-def _segment_shape(a: np.ndarray, b: np.ndarray, radius: float):
+def segment_shape(a: np.ndarray, b: np.ndarray, radius: float):
     """coal capsule (or sphere) of the segment a-b and its placement in the world."""
     axis = b - a
     length = float(np.linalg.norm(axis))
@@ -161,7 +161,8 @@ def _segment_shape(a: np.ndarray, b: np.ndarray, radius: float):
     return coal.Capsule(radius, length), pin.SE3(rot, centre)
 
 
-def _distance(g1, M1, g2, M2) -> float:
+def shape_distance(g1, M1, g2, M2) -> float:
+    """Signed distance [m] of two coal shapes at their world placements (negative: penetration depth)."""
     return float(coal.distance(g1, M1, g2, M2, coal.DistanceRequest(), coal.DistanceResult()))
 
 
@@ -245,7 +246,7 @@ def check_design_meshes(
     kinds += ["robot"] * len(robot_pairs)
     moving = [k for k in range(len(objs)) if joints[k] != 0]
     cap_names, half_names = _obstacle_names(cell)
-    cell_shapes = [_segment_shape(c.a, c.b, c.radius) for c in cell.capsules]
+    cell_shapes = [segment_shape(c.a, c.b, c.radius) for c in cell.capsules]
     solids = solid_collision_objects(cell)  # boxes, cylinders, meshes: checked like the capsules
     cap_names += [s[0] for s in solids]
     cell_shapes += [s[1:3] for s in solids]
@@ -273,17 +274,17 @@ def check_design_meshes(
         pin.updateGeometryPlacements(model, data, geom, gdata)
         oMg = gdata.oMg
         row = [
-            _distance(objs[k].geometry, oMg[k], objs[m].geometry, oMg[m]) for k, m in robot_pairs
+            shape_distance(objs[k].geometry, oMg[k], objs[m].geometry, oMg[m]) for k, m in robot_pairs
         ]
-        row += [_distance(objs[k].geometry, oMg[k], *cell_shapes[o]) for k, o in cell_pairs]
+        row += [shape_distance(objs[k].geometry, oMg[k], *cell_shapes[o]) for k, o in cell_pairs]
         if beams is not None:
             tracker, offsets, radius = beams
             oMf = pin.updateFramePlacement(model, data, tool_id)
             for c in offsets:
                 start = oMf.act(c)
-                beam, M = _segment_shape(start, tracker, radius)
-                row += [_distance(objs[k].geometry, oMg[k], beam, M) for k in beam_geoms]
-                row += [_distance(beam, M, *cell_shapes[o]) for o in range(len(cap_names))]
+                beam, M = segment_shape(start, tracker, radius)
+                row += [shape_distance(objs[k].geometry, oMg[k], beam, M) for k in beam_geoms]
+                row += [shape_distance(beam, M, *cell_shapes[o]) for o in range(len(cap_names))]
                 row += [
                     float(min(h.signed_distance(start), h.signed_distance(tracker)) - radius)
                     for h in cell.halfspaces

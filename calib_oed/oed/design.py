@@ -153,7 +153,6 @@ CERTIFICATE_STARTS = 8
 #: Most re-solves of the certificate's local search (``certify``'s default); the record says
 #: when the search stopped there instead of finding no better pose.
 CERTIFICATE_ROUNDS = 30
-_CERT_INTERRUPTED = "interrupted during the certificate"
 
 
 def _start_designs(s: Setup, objective: DesignObjective, n: int, start, seed: int, n_starts: int,
@@ -273,8 +272,10 @@ def design(
         if interrupted:
             cert = {"skipped": "interrupted before the certificate"}
         elif certificate:
-            cert = _certificate(s, q, criterion, aggregate, cands, seed, collisions)
-            interrupted = cert.get("skipped") == _CERT_INTERRUPTED
+            try:
+                cert = _certificate(s, q, criterion, aggregate, cands, seed, collisions)
+            except KeyboardInterrupt:  # the design is kept; only its efficiency is lost
+                cert, interrupted = {"skipped": "interrupted during the certificate"}, True
         else:
             cert = {"skipped": "not asked for (--no-certificate)"}
     record = {} if result is None else result.to_dict()
@@ -320,8 +321,6 @@ def _certificate(s: Setup, q: np.ndarray, criterion, aggregate: str, cands: Cand
                     local_rounds=CERTIFICATE_ROUNDS, collisions=collisions)
     except CertificateError as exc:
         return {"skipped": str(exc)}
-    except KeyboardInterrupt:  # the design is kept; only its efficiency is lost
-        return {"skipped": _CERT_INTERRUPTED}
     return {"efficiency": float(c.efficiency), "lower_bound": float(c.bound),
             # the search ended by finding no better local maximum (else: at its round limit,
             # and the bound is only as good as the maxima found so far)

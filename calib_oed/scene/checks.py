@@ -39,7 +39,9 @@ import pinocchio as pin
 
 from calib_oed.exceptions import CalibOedError, SceneError
 from calib_oed.feasibility.capsules import load_collision_model
+from calib_oed.feasibility.mesh_check import segment_shape, shape_distance
 from calib_oed.feasibility.shapes import Cell
+from calib_oed.feasibility.solids import solid_collision_objects
 from calib_oed.units import LENGTH_UNITS
 
 #: Overlap [m] accepted: URDF collision meshes are approximations of the real
@@ -103,7 +105,7 @@ def scene_violations(scene) -> list[Violation]:
     for wc in kpi.configurations:
         out += _configuration(scene, geom, obstacles, head, wc)
     for name, _, shape, placement in obstacles:
-        depth = -_distance(*head, shape, placement)
+        depth = -shape_distance(*head, shape, placement)
         if depth > CONTACT_TOLERANCE:
             out.append(Violation("tracker", f"tracker head / {name}", depth, "exact"))
     return out
@@ -113,45 +115,16 @@ def cell_obstacles(cell: Cell) -> list[tuple[str, tuple[str, ...], object, coal.
     """Every obstacle of ``cell`` as (name, ignored links, coal shape, world placement)."""
     out = []
     for k, cap in enumerate(cell.capsules):
-        out.append((cap.name or f"obstacle#{k}", tuple(getattr(cap, "ignore_links", ())),
-                    *segment_shape(cap.a, cap.b, cap.radius)))
+        out.append((cap.name or f"obstacle#{k}", cap.ignore_links,
+                    *segment_shape(np.asarray(cap.a, dtype=float), np.asarray(cap.b, dtype=float),
+                                   cap.radius)))
     for k, hs in enumerate(cell.halfspaces):
-        out.append((hs.name or f"halfspace#{k}", tuple(getattr(hs, "ignore_links", ())),
+        out.append((hs.name or f"halfspace#{k}", hs.ignore_links,
                     coal.Halfspace(np.asarray(hs.normal, dtype=float), float(hs.offset)),
                     coal.Transform3s()))
-    for k, solid in enumerate(getattr(cell, "solids", ())):
-        out.append((solid.name or f"solid#{k}", tuple(getattr(solid, "ignore_links", ())),
-                    *_coal_solid(solid)))
+    for k, (name, shape, placement, ignored) in enumerate(solid_collision_objects(cell)):
+        out.append((name or f"solid#{k}", ignored, shape, placement))
     return out
-
-
-def segment_shape(a: np.ndarray, b: np.ndarray, radius: float):
-    """coal capsule (a sphere if ``a == b``) of the segment a-b [m] and its world placement."""
-    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
-    axis = b - a
-    length = float(np.linalg.norm(axis))
-    if length < 1e-12:
-        return coal.Sphere(radius), coal.Transform3s(np.eye(3), a)
-    rot = pin.Quaternion.FromTwoVectors(np.array([0.0, 0.0, 1.0]), axis / length).matrix()
-    return coal.Capsule(radius, length), coal.Transform3s(rot, 0.5 * (a + b))
-
-
-def _coal_solid(solid):
-    """coal shape and world placement of a box, cylinder or mesh obstacle (its convex hull)."""
-    if hasattr(solid, "size"):
-        return coal.Box(*np.asarray(solid.size, dtype=float)), coal.Transform3s(solid.rotation, solid.center)
-    if hasattr(solid, "length"):
-        return (coal.Cylinder(float(solid.radius), float(solid.length)),
-                coal.Transform3s(solid.rotation, solid.center))
-    points = coal.StdVec_Vec3s()
-    for v in solid.vertices:
-        points.append(np.asarray(v, dtype=float))
-    return coal.Convex.convexHull(points, False, ""), coal.Transform3s()
-
-
-def _distance(g1, M1, g2, M2) -> float:
-    """Signed distance [m] of two coal shapes (negative: penetration depth)."""
-    return float(coal.distance(g1, M1, g2, M2, coal.DistanceRequest(), coal.DistanceResult()))
 
 
 def _transform(placement: pin.SE3) -> coal.Transform3s:
@@ -184,8 +157,8 @@ def _configuration(scene, geom, obstacles, head, wc) -> list[Violation]:
             if i == j or parents[i] == j or parents[j] == i or frozenset((links[k], links[m])) in excluded:
                 continue
             hit(f"{links[k]} / {links[m]}",
-                -_distance(objs[k].geometry, placements[k], objs[m].geometry, placements[m]))
-        hit(f"{links[k]} / tracker head", -_distance(objs[k].geometry, placements[k], *head))
+                -shape_distance(objs[k].geometry, placements[k], objs[m].geometry, placements[m]))
+        hit(f"{links[k]} / tracker head", -shape_distance(objs[k].geometry, placements[k], *head))
         if joints[k] == 0:
             continue  # the fixed base: the floor it stands on is not an obstacle to it
         if joints[k] == tool_body:
@@ -193,7 +166,7 @@ def _configuration(scene, geom, obstacles, head, wc) -> list[Violation]:
         for name, ignored, shape, placement in obstacles:
             if links[k] not in ignored:
                 hit(f"{links[k]} / {name}",
-                    -_distance(objs[k].geometry, placements[k], shape, placement))
+                    -shape_distance(objs[k].geometry, placements[k], shape, placement))
     out = [Violation(where, pair, depth, "URDF collision geometry") for pair, depth in worst.items()]
     tool = pin.updateFramePlacement(model, data, robot.tool_frame_id)
     if kpi.reflector is None:
@@ -205,13 +178,13 @@ def _configuration(scene, geom, obstacles, head, wc) -> list[Violation]:
         tracker = np.asarray(scene.tracker.position, dtype=float)
         beam = segment_shape(centre, tracker, scene.feasibility.beam_radius)
         for name, _, shape, placement in obstacles:
-            depth = -_distance(*beam, shape, placement)
+            depth = -shape_distance(*beam, shape, placement)
             if depth > CONTACT_TOLERANCE:
                 out.append(Violation(where, f"laser beam of {reflector.name} / {name}", depth, "exact"))
     for label, x, radius in points:
         ball = (coal.Sphere(max(radius, 1e-9)), coal.Transform3s(np.eye(3), x))
         for name, _, shape, placement in obstacles:
-            depth = -_distance(*ball, shape, placement)
+            depth = -shape_distance(*ball, shape, placement)
             if depth > CONTACT_TOLERANCE:
                 out.append(Violation(where, f"{label} / {name}", depth, "exact"))
     return out
