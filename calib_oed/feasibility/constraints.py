@@ -43,6 +43,7 @@ import scipy.sparse
 from calib_oed.exceptions import ShapeError
 from calib_oed.feasibility.bodies import BodyStates, compute_body_states
 from calib_oed.feasibility.curvature import lagrangian_hessian
+from calib_oed.feasibility.hulls import HullPairs
 from calib_oed.feasibility.segments import closest_parameters
 from calib_oed.feasibility.shapes import Capsule, Cell, FeasibilitySettings
 from calib_oed.feasibility.solids import SolidPairs, solid_candidates, solid_rows
@@ -170,8 +171,10 @@ class FeasibilityModel:
         solid_pairs: ``(segment, solid)`` pairs against the cell's boxes, cylinders and
             meshes, (S, 2), or ``None`` for every candidate (:func:`solid_candidates`).
         solid_kinds: Kind of each solid pair (``"obstacle"`` or ``"beam"``).
+        hull_pairs: Self link pairs checked on convex pieces of their geometry, kind
+            ``"self"`` (:class:`calib_oed.feasibility.hulls.HullPairs`), or ``None``.
 
-    Rows per pose, in order: joint, incidence, solid, capsule pairs, half-space pairs.
+    Rows per pose, in order: joint, incidence, solid, hull, capsule pairs, half-space pairs.
     """
 
     def __init__(
@@ -190,6 +193,7 @@ class FeasibilityModel:
         reflector_normals: np.ndarray | None = None,
         solid_pairs: np.ndarray | None = None,
         solid_kinds: Sequence[str] | None = None,
+        hull_pairs=None,
     ):
         self.robot = robot
         self.segments = segments
@@ -222,6 +226,7 @@ class FeasibilityModel:
         solid_pairs = np.asarray(solid_pairs, dtype=int).reshape(-1, 2)
         self.solid_kinds = tuple(solid_kinds or ())
         self.solid_pairs = SolidPairs(cell, solid_pairs, segments.radius[solid_pairs[:, 0]])
+        self.hull_pairs = HullPairs({}, ()) if hull_pairs is None else hull_pairs
         if self.halfspace_pairs.size:
             hs = cell.halfspaces
             self._hs_normal = np.array([hs[h].normal for h in self.halfspace_pairs[:, 1]])
@@ -249,6 +254,8 @@ class FeasibilityModel:
         for (i, o), kind in zip(self.solid_pairs.pairs, self.solid_kinds, strict=True):
             kinds.append(kind)
             labels.append(f"{kind}:{names[i]}|{self.cell.solids[o].name}")
+        kinds += ["self"] * len(self.hull_pairs)
+        labels += self.hull_pairs.labels
         for (i, j), kind in zip(self.pairs, self.pair_kinds, strict=True):
             kinds.append(kind)
             labels.append(f"{kind}:{names[i]}|{names[j]}")
@@ -287,7 +294,8 @@ class FeasibilityModel:
         fns = [fn for kind, fn in (("joint", self._joint_rows), ("incidence", self._incidence_rows)) if kind in asked]
         computed = asked
         if capsule_kinds & asked:  # these give every capsule kind: keep the asked ones below
-            fns += [lambda q, st, jac: solid_rows(self, st, jac), self._pair_rows, self._halfspace_rows]
+            fns += [lambda q, st, jac: solid_rows(self, st, jac), self._hull_rows, self._pair_rows,
+                    self._halfspace_rows]
             computed = asked | capsule_kinds
         parts_v, parts_j = zip(*(fn(q, states, jacobian) for fn in fns), strict=True)
         rows = self.row_mask(asked)
@@ -374,6 +382,9 @@ class FeasibilityModel:
         w = -(z - np.einsum("nki,nki->nk", z, u)[..., None] * u) / length
         d_pt = states.directional_jacobian(body, c, w)
         return values, d_rot + d_pt
+
+    def _hull_rows(self, q, states: BodyStates, jacobian):
+        return self.hull_pairs.rows(states, self.settings.margins.clearance, jacobian)
 
     def _pair_rows(self, q, states: BodyStates, jacobian):
         n = q.shape[0]

@@ -53,7 +53,8 @@ segment's witness is an end point (a mesh face, a cylinder cap); it omits the
 solid's own curvature at edges, vertices and the cylinder's rim (a term
 :math:`J^\top(I - uu^\top)J/\rho`, :math:`\rho` the radius of curvature
 plus the distance), so there it is the Hessian of a valid local model, not of
-the row.
+the row. Self rows on convex pieces of two links (:mod:`calib_oed.feasibility.hulls`)
+use the same model with both witness points moving.
 """
 
 from __future__ import annotations
@@ -214,7 +215,7 @@ def _requests(model, pose, row, nq):
         body = np.stack([seg.body_a[i], seg.body_b[i]], 1)
         local = np.stack([seg.a_local[i], seg.b_local[i]], 1)
         out.append(("solid", sel, np.repeat(pose[sel], 2), body.ravel(), local.reshape(-1, 3)))
-    k += ns  # the capsule and half-space rows follow the solid rows
+    k += ns + len(model.hull_pairs)  # the hull rows (own path), then capsule and half-space rows
     sel = np.flatnonzero((r >= k) & (r < k + p))
     if sel.size:  # four end points per pair: a1, b1, a2, b2
         ij = model.pairs[r[sel] - k]
@@ -250,7 +251,7 @@ def _row_hessians(model, kind, states, pose, index, x, jx, omega):
     if kind == "solid":
         return solid_hessians(model.solid_pairs, index - len(model.reflector_names), x.reshape(-1, 2, 3),
                               jx.reshape(-1, 2, 3, jx.shape[-1]), omega.reshape(-1, 2, 3, jx.shape[-1]))
-    first = len(model.reflector_names) + len(model.solid_pairs) + len(model.pairs)
+    first = len(model.reflector_names) + len(model.solid_pairs) + len(model.hull_pairs) + len(model.pairs)
     hs = model.halfspace_pairs[(index - first) // 2, 1]
     normal = np.array([model.cell.halfspaces[h].normal for h in hs]).reshape(-1, 3)
     return point_hessian_along(omega, jx, normal)
@@ -308,6 +309,15 @@ def lagrangian_hessian(model, q: np.ndarray, lam: np.ndarray, states: BodyStates
         states = compute_body_states(model.robot.model, q[used], jacobian=True)
     else:
         local_pose = pose
+    first = 2 * nq + len(model.reflector_names) + len(model.solid_pairs)
+    hull = (row >= first) & (row < first + len(model.hull_pairs))
+    if np.any(hull):  # convex-piece rows: the tangent-plane model of their own module
+        sel = np.flatnonzero(hull)
+        hess = model.hull_pairs.hessians(states, local_pose[sel], row[sel] - first)
+        np.add.at(out, pose[sel], lam[pose[sel], row[sel], None, None] * hess)
+        pose, row, local_pose = pose[~hull], row[~hull], local_pose[~hull]
+        if pose.size == 0:
+            return out
     groups = _requests(model, local_pose, row, nq)
     # every point of every group in one batch
     x, jx, omega = body_points(states, *(np.concatenate([g[m] for g in groups]) for m in (2, 3, 4)))

@@ -15,6 +15,14 @@ reported loudly, since such a pair could never be satisfied). Sampling cannot
 prove a pair harmless; the drop is reported with the sampled range so a user
 can see it, and the independent mesh check (:mod:`calib_oed.feasibility.mesh_check`)
 catches what the capsule model misses.
+
+Self pairs checked on convex pieces of the link geometry
+(:mod:`calib_oed.feasibility.hulls`, one row per link pair instead of the capsule
+rows): with ``link_fit: hulls`` every pair of links at most three joints apart,
+and with every fit to the URDF geometry a link pair whose capsules the sampling
+pass never finds separated by the margin (their rows would reject every
+configuration). The pieces' rows get the same sampling pass: never closer than
+``prune_distance``, or never separated by the margin (a housing), drops them.
 """
 
 from __future__ import annotations
@@ -85,7 +93,7 @@ class PairReport:
         for reason, count in by_reason.items():
             lines.append(f"dropped {count}: {reason}")
         for d in self.dropped:
-            if d.reason.startswith("overlapping"):
+            if d.reason.startswith(("overlapping", "never separated")):
                 lines.append(f"  WARNING {d.label}: {d.reason}")
         return "\n".join(lines)
 
@@ -157,6 +165,67 @@ def _candidates(robot: Robot, seg: SegmentTable, cell: Cell, excluded: Sequence[
     return pairs, kinds, hs_pairs, hs_kinds, dropped
 
 
+def _prune_reason(lo: float, hi: float, samples: int, distance: float) -> str | None:
+    """Why the sampling pass drops a pair with clearance range [lo, hi] [m], or ``None``."""
+    if hi - lo < 1e-9:
+        if lo < 0:
+            return f"overlapping in every configuration ({lo * 1e3:.1f} mm, constant)"
+        return f"constant clearance ({lo * 1e3:.1f} mm)"
+    if hi < 0:
+        return (f"overlapping in every one of {samples} samples "
+                f"(clearance {lo * 1e3:.1f} to {hi * 1e3:.1f} mm): capsules too coarse?")
+    if lo > distance:
+        return f"never closer than {distance * 1e3:.0f} mm in {samples} samples"
+    return None
+
+
+def _hull_link_pairs(robot: Robot, seg: SegmentTable, pairs, kinds, hi: np.ndarray,
+                     settings: FeasibilitySettings) -> dict[frozenset, str]:
+    """Link pairs whose self rows are checked on convex pieces, and why: with
+    ``link_fit: hulls`` those at most three joints apart; with every fit those with a
+    capsule pair never separated by the margin in the sampling pass (``hi`` its
+    largest clearance [m], NaN without the pass)."""
+    from calib_oed.feasibility.mesh_pairs import _path_joints
+
+    parents, margin = list(robot.model.parents), settings.margins.clearance
+    out: dict[frozenset, str] = {}
+    for k, (i, j) in enumerate(pairs):
+        if kinds[k] != "self" or seg.roles[i] != "robot" or seg.roles[j] != "robot":
+            continue
+        key = frozenset((seg.links[i], seg.links[j]))
+        joints = len(_path_joints(parents, int(seg.body_a[i]), int(seg.body_a[j])))
+        if settings.link_fit == "hulls" and joints <= 3:
+            out[key] = f"links {joints} joints apart"
+        elif hi[k] < margin and key not in out:
+            out[key] = (f"their capsules {seg.names[i]}, {seg.names[j]} are never separated by the "
+                        f"{margin * 1e3:.0f} mm margin (largest clearance {hi[k] * 1e3:.1f} mm)")
+    return out
+
+
+def _prune_hulls(hulls, robot: Robot, q: np.ndarray, settings: FeasibilitySettings):
+    """The sampling pass on convex-piece rows: the link pairs kept, and the dropped ones
+    (never closer than the prune distance, or never separated by the margin: a housing
+    the pieces, like the meshes they enclose, cannot clear)."""
+    from calib_oed.feasibility.bodies import compute_body_states
+
+    dist = hulls.closest(compute_body_states(robot.model, q, jacobian=False)).dist
+    lo, hi = dist.min(axis=0), dist.max(axis=0)
+    margin, n = settings.margins.clearance, len(q)
+    kept, dropped = [], []
+    for h, (label, pair) in enumerate(zip(hulls.labels, hulls.link_pairs, strict=True)):
+        span = f"clearance {lo[h] * 1e3:.1f} to {hi[h] * 1e3:.1f} mm"
+        if hi[h] <= margin:
+            reason = (f"never separated by the {margin * 1e3:.0f} mm margin on convex pieces of the link "
+                      f"geometry in {n} samples ({span}): a housing?")
+        elif lo[h] > settings.prune_distance:
+            reason = f"never closer than {settings.prune_distance * 1e3:.0f} mm in {n} samples ({span})"
+        else:
+            kept.append(pair)
+            continue
+        dropped.append(DroppedPair(label, reason, float(lo[h]), float(hi[h])))
+    return kept, dropped
+
+
 def build_feasibility_model(
     robot: Robot,
     cell: Cell,
@@ -168,6 +237,7 @@ def build_feasibility_model(
     prune: bool = True,
     reflector_normals: np.ndarray | None = None,
     mesh_pairs: bool | None = None,
+    hulls: bool | None = None,
 ) -> tuple[FeasibilityModel, PairReport]:
     """Assemble the feasibility model of a cell and report the pair selection.
 
@@ -187,6 +257,11 @@ def build_feasibility_model(
         mesh_pairs: Drop the self pairs decided on the collision meshes
             (:mod:`calib_oed.feasibility.mesh_pairs`); default: with the split fit
             to the URDF geometry (no ``capsules``, no scene table).
+        hulls: Check on convex pieces of the link geometry
+            (:mod:`calib_oed.feasibility.hulls`) the self pairs whose capsules the
+            pruning pass never finds separated by the margin and, with
+            ``settings.link_fit == "hulls"``, every self pair of links at most three
+            joints apart; default: when the capsules are fitted to the URDF geometry.
     """
     reflector_offsets = np.asarray(reflector_offsets, dtype=float).reshape(-1, 3)
     if reflector_names is None:
@@ -195,9 +270,12 @@ def build_feasibility_model(
     from calib_oed.feasibility.link_fit import fitted_robot_capsules
     from calib_oed.feasibility.mesh_pairs import dropped_mesh_pairs
 
-    split = settings.link_fit == "split"
+    split = settings.link_fit in ("split", "hulls")
+    fitted = capsules is None and settings.robot_capsules is None
     if mesh_pairs is None:
-        mesh_pairs = capsules is None and settings.robot_capsules is None and split
+        mesh_pairs = fitted and split
+    if hulls is None:
+        hulls = fitted
     if capsules is None:
         capsules = fitted_robot_capsules(robot, settings) if split else robot_capsules(robot, settings)
     links = set(link_names(robot))
@@ -222,33 +300,50 @@ def build_feasibility_model(
         hs = rows[:, len(pairs):].reshape(len(q), len(hs_pairs), 2).min(axis=2)
         raw = np.concatenate([rows[:, :len(pairs)], hs], axis=1)
         lo, hi = raw.min(axis=0), raw.max(axis=0)
-        keep = np.ones(raw.shape[1], dtype=bool)
         labels = list(model.labels[first_pair:first_pair + len(pairs)])
         labels += [lbl.replace(".a|", "|") for lbl in model.labels[first_pair + len(pairs)::2]]
-        for k in range(raw.shape[1]):
-            reason = None
-            if hi[k] - lo[k] < 1e-9:
-                reason = f"constant clearance ({lo[k] * 1e3:.1f} mm)"
-                if lo[k] < 0:
-                    reason = f"overlapping in every configuration ({lo[k] * 1e3:.1f} mm, constant)"
-            elif hi[k] < 0:
-                reason = (f"overlapping in every one of {samples} samples "
-                          f"(clearance {lo[k] * 1e3:.1f} to {hi[k] * 1e3:.1f} mm): capsules too coarse?")
-            elif lo[k] > settings.prune_distance:
-                reason = f"never closer than {settings.prune_distance * 1e3:.0f} mm in {samples} samples"
-            if reason:
-                keep[k] = False
-                dropped.append(DroppedPair(labels[k], reason, float(lo[k]), float(hi[k])))
+        reasons = [_prune_reason(lo[k], hi[k], samples, settings.prune_distance) for k in range(raw.shape[1])]
         solid_pairs, solid_kinds, solid_dropped = prune_solid_pairs(model, values, settings.prune_distance)
         dropped += [DroppedPair(*d) for d in solid_dropped]
-        kp, kh = keep[: len(pairs)], keep[len(pairs):]
-        pairs = [p for p, k in zip(pairs, kp, strict=True) if k]
-        kinds = [p for p, k in zip(kinds, kp, strict=True) if k]
-        hs_pairs = [p for p, k in zip(hs_pairs, kh, strict=True) if k]
-        hs_kinds = [p for p, k in zip(hs_kinds, kh, strict=True) if k]
-        model = FeasibilityModel(robot, seg, np.array(pairs), kinds, np.array(hs_pairs), hs_kinds, *args,
-                                 reflector_normals=reflector_normals, solid_pairs=solid_pairs,
-                                 solid_kinds=solid_kinds)
+    else:
+        lo = hi = np.full(len(pairs) + len(hs_pairs), np.nan)
+        reasons, solid_pairs, solid_kinds = [None] * len(lo), None, None
+        labels = [f"{kind}:{seg.names[i]}|{seg.names[j]}" for (i, j), kind in zip(pairs, kinds, strict=True)]
+        labels += [f"{kind}:{seg.names[i]}|{cell.halfspaces[h].name}" for (i, h), kind in zip(hs_pairs, hs_kinds,
+                                                                                             strict=True)]
+    keep = np.array([r is None for r in reasons], dtype=bool)
+    why = _hull_link_pairs(robot, seg, pairs, kinds, hi, settings) if hulls else {}
+    converted: set[frozenset] = set()
+    for k, (i, j) in enumerate(pairs):
+        key = frozenset((seg.links[i], seg.links[j]))
+        if kinds[k] == "self" and key in why and not (reasons[k] or "").startswith("never closer"):
+            keep[k] = False
+            converted.add(key)
+            reasons[k] = f"checked on convex pieces of the link geometry: {why[key]}"
+    for k, reason in enumerate(reasons):
+        if reason:
+            dropped.append(DroppedPair(labels[k], reason, float(lo[k]), float(hi[k])))
+    kp, kh = keep[: len(pairs)], keep[len(pairs):]
+    pairs = [p for p, k in zip(pairs, kp, strict=True) if k]
+    kinds = [p for p, k in zip(kinds, kp, strict=True) if k]
+    hs_pairs = [p for p, k in zip(hs_pairs, kh, strict=True) if k]
+    hs_kinds = [p for p, k in zip(hs_kinds, kh, strict=True) if k]
+    hull_pairs = None
+    if converted:
+        from calib_oed.feasibility.capsules import load_collision_model
+        from calib_oed.feasibility.hulls import HullPairs, link_pieces
+
+        order = {n: i for i, n in enumerate(link_names(robot))}
+        chosen = sorted((tuple(sorted(p, key=order.__getitem__)) for p in converted),
+                        key=lambda p: (order[p[0]], order[p[1]]))
+        pieces = link_pieces(robot, load_collision_model(robot), links={n for p in chosen for n in p})
+        if samples > 0:
+            chosen, hull_dropped = _prune_hulls(HullPairs(pieces, chosen), robot, q, settings)
+            dropped += hull_dropped
+        hull_pairs = HullPairs(pieces, chosen)
+    model = FeasibilityModel(robot, seg, np.array(pairs), kinds, np.array(hs_pairs), hs_kinds, *args,
+                             reflector_normals=reflector_normals, solid_pairs=solid_pairs,
+                             solid_kinds=solid_kinds, hull_pairs=hull_pairs)
     counts = {k: v for k, v in model.count_per_pose().items()}
     checked = tuple(dict.fromkeys(
         lbl.replace(".a|", "|").replace(".b|", "|")

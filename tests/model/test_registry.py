@@ -22,7 +22,6 @@ import pytest
 
 from calib_oed import load_robot
 from calib_oed.calibration.workflow import setup
-from calib_oed.exceptions import SamplingError
 from calib_oed.feasibility.mesh_check import check_design_meshes
 from calib_oed.feasibility.sampling import sample_feasible
 from calib_oed.model.registry import EXAMPLE_ROBOTS, OWN_ROBOTS, robot_names
@@ -32,15 +31,6 @@ from calib_oed.solver.settings import SQPSettings
 
 NOTIONAL = "notional_l650_m600"  # the paper's arm stands for the pattern
 FAST = ("kr16", "kr300", "kr500", NOTIONAL, "ur3")
-# Fail in the fitted link geometry, whose fix is issue 17 items 1-2 (feasibility/capsules.py,
-# pairs.py); the sampling error names the pair. Measured 2026-11-24 04:40 UTC with the link
-# geometry then in the tree (mesh distances: check_design_meshes, 1000 seeded configurations):
-KNOWN = {
-    "ur10": "self:base_link#0|upper_arm_link#0 blocks every draw (capsule clearance -38.3 to "
-            "0.7 mm, margin 10 mm): 0 of 503,808 draws feasible",
-    "z1": "self:link04#0|link06#0 blocks every draw (capsule clearance -1.5 to 0.2 mm, margin "
-          "10 mm) although the meshes stay 14.7 to 16.2 mm apart",
-}
 
 
 def listed() -> list[str]:
@@ -79,16 +69,18 @@ def test_the_cases_cover_every_listed_robot():
     assert set(OWN_ROBOTS) | set(EXAMPLE_ROBOTS) | {NOTIONAL} == set(listed())
 
 
-def _case(name: str):
-    marks = [] if name in FAST else [pytest.mark.slow]
-    if name in KNOWN:
-        marks.append(pytest.mark.xfail(reason=KNOWN[name], raises=SamplingError, strict=False))
-    return pytest.param(name, marks=marks, id=name)
+def _case(name: str, fit: str = "default"):
+    marks = [] if name in FAST and fit == "default" else [pytest.mark.slow]
+    return pytest.param(name, fit, marks=marks, id=name if fit == "default" else f"{name}-{fit}")
 
 
-@pytest.mark.parametrize("name", [_case(n) for n in listed()])
-def test_every_listed_robot_designs_in_a_simple_cell(name):
-    scene = scene_from_dict(simple_cell(name))
+@pytest.mark.parametrize(("name", "fit"), [_case(n) for n in listed()] + [_case(n, "hulls") for n in listed()])
+def test_every_listed_robot_designs_in_a_simple_cell(name, fit):
+    """With the default link geometry and with ``feasibility: {link_fit: hulls}`` (slow set)."""
+    spec = simple_cell(name)
+    if fit != "default":
+        spec["feasibility"] = {"link_fit": fit}
+    scene = scene_from_dict(spec)
     s = setup(scene)
     pool = sample_feasible(s.feasibility, 60, 0)
     d = design(s, n=10, pool=pool, seed=0, certificate=False,
