@@ -165,6 +165,8 @@ def _provenance(space: ParameterSpace, p: np.ndarray, where: str, changed, name:
         f"  Parameter vector: {space.size} parameters (tracker pose 6, reflector offsets "
         f"{3 * space.n_reflectors}, joints {n_joint}"
         + (f", joint compliances {space.n_joints} (in the sensor YAML)" if space.compliance is not None else "")
+        + (f", joint gains and couplings {space.gain_slice.stop - space.gain_slice.start} (in the sensor YAML)"
+           if space.joint_gains is not None else "")
         + f"); applied here: the {n_joint} joint "
         f"parameters ({nonzero} non-zero), changing the <origin> of {len(changed)} of "
         f"{space.n_joints} joints.",

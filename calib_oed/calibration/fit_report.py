@@ -33,11 +33,11 @@ from calib_oed.calibration.sanity import SanityReport
 from calib_oed.io.atomic import atomic_write_text
 from calib_oed.measurement.base import evaluate_setup
 from calib_oed.measurement.dataset import MeasurementSet
-from calib_oed.model.parameters import ParameterSpace
+from calib_oed.model.parameters import ParameterSpace, report_scale_of, report_unit_of
 
 #: Posterior standard deviation above which a parameter is called implausibly determined
-#: [m for lengths, rad for angles]: 1 mm, 1 mrad.
-PLAUSIBLE_STD = {"m": 1e-3, "rad": 1e-3}
+#: [m for lengths, rad for angles, 1 for gains]: 1 mm, 1 mrad, 1 %.
+PLAUSIBLE_STD = {"m": 1e-3, "rad": 1e-3, "rad/rad": 1e-2, "m/m": 1e-2}
 
 
 @dataclass(frozen=True, eq=False)
@@ -149,8 +149,8 @@ def worst_determined(robust: RobustIdentification, top: int = 5) -> list[dict]:
     rows = []
     for name, unit, s in zip(res.free_names, res.units, post, strict=True):
         bound = PLAUSIBLE_STD.get(unit)
-        scale = 1e-3 if unit in ("m", "rad") else 1e-6
-        rows.append({"name": name, "std": float(s), "report_unit": {"m": "mm", "rad": "mrad"}.get(unit, unit),
+        scale = report_scale_of(unit)
+        rows.append({"name": name, "std": float(s), "report_unit": report_unit_of(unit),
                      "std_report": float(s / scale), "implausible": bool(bound is not None and s > bound),
                      "ratio": float(s / bound) if bound else 0.0})
     rows.sort(key=lambda r: -r["ratio"])

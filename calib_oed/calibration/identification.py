@@ -47,6 +47,7 @@ import numpy as np
 import scipy.optimize
 
 from calib_oed.calibration.covariance import information_cholesky, parameter_covariance
+from calib_oed.calibration.gain_gauge import gains_the_data_fix
 from calib_oed.calibration.identification_result import (
     IdentificationResult,
     IdentificationStatus,
@@ -314,7 +315,9 @@ def identify(
         blocks: Measured data; blocks with equal ``q`` share one kinematics pass.
         free: An :class:`~calib_oed.model.identifiability.IdentifiabilityReport`
             (its free parameters), or parameter names or indices.
-        p0: Start and value of the fixed parameters (SI); nominal by default.
+        p0: Start and value of the fixed parameters (SI); nominal by default. Joint gains
+            and coupling ratios the data cannot separate are held at it too, and named in
+            ``message`` (:mod:`calib_oed.calibration.gain_gauge`).
         loss: ``"linear"``, ``"huber"`` or ``"soft_l1"``.
         f_scale: Where a robust loss turns from quadratic to linear [sigma].
         method: ``"lm"`` (default for the linear loss) or ``"trf"`` (default
@@ -336,6 +339,13 @@ def identify(
                             outlier_threshold)
     free_idx = _free_indices(space, free)
     res = _Residuals(space, blocks, free_idx, space.check(p0, "p0").copy())
+    unseen = [] if space.joint_gains is None else gains_the_data_fix(
+        space, res.jac(res.p0[free_idx]) * space.unit_scale[free_idx], free_idx)
+    if unseen:  # gains the data cannot separate are held at nominal (calibration/gain_gauge.py)
+        drop = {space.index(f.name) for f in unseen}
+        free_idx = np.array([i for i in free_idx if i not in drop], dtype=int)
+        free_idx.setflags(write=False)
+        res = _Residuals(space, blocks, free_idx, res.p0)
     free_names = tuple(space.names[i] for i in free_idx)
     scale = space.unit_scale[free_idx]
     x0 = res.p0[free_idx]
@@ -355,7 +365,8 @@ def identify(
         sol.njev = None if sol.njev is None or njev is None else sol.njev + njev
     x = np.asarray(sol.x, dtype=float)
     r, f1 = res.fun(x), res.jac(x)
-    message = str(sol.message)
+    message = str(sol.message) + "".join(
+        f"; {f.name} held at nominal, the data cannot separate it: {f.reason}" for f in unseen)
     cov, cond, note = _uncertainty(f1 * scale, scale, free_names)
     if note:
         message += f" (covariance not available: {note})"

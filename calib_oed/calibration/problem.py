@@ -78,7 +78,8 @@ class CalibrationProblem:
         offsets = np.array([r.offset for r in scene.reflectors])
         compliance = getattr(scene, "compliance", None)
         space = ParameterSpace(scene.robot, scene.tracker.placement(), offsets,
-                               compliance=compliance.model() if compliance is not None else None)
+                               compliance=compliance.model() if compliance is not None else None,
+                               joint_gains=getattr(scene, "joint_gains", None))
         if scene.measurement == "pose":
             models = [
                 PoseMeasurement(j, scene.tracker.sigma, scene.tracker.sigma_angle)

@@ -47,13 +47,14 @@ def classical_count(problem: CalibrationProblem) -> tuple[int, str] | None:
     parameters add the tracker pose (6) and the reflector offset (3), which
     play the roles of the base and tool parameters, so the rules compare
     with our rank directly. Returns None for set-ups the rule does not cover
-    (several reflectors, joint compliance modelled).
+    (several reflectors, joint compliance or joint gains modelled).
     """
     model = problem.robot.model
     kinds = [j.shortname() for j in model.joints[1:]]
     n_r = sum(k.startswith("JointModelR") for k in kinds)
     n_p = len(kinds) - n_r
-    if len(problem.models) != 1 or problem.space.compliance is not None:
+    space = problem.space
+    if len(problem.models) != 1 or space.compliance is not None or space.joint_gains is not None:
         return None
     if isinstance(problem.models[0], PoseMeasurement):
         return 4 * n_r + 2 * n_p + 6, f"4R + 2P + 6 = 4*{n_r} + 2*{n_p} + 6 (pose measurements)"
@@ -72,9 +73,10 @@ def identifiability_dict(
     comp = problem.space.compliance
     out["compliance"] = None if comp is None else {
         "payload_kg": comp.payload_mass, "payload_com_m": comp.payload_com.tolist(),
-        "parameters": [problem.space.names[i] for i in range(problem.space.compliance_slice.start,
-                                                              problem.space.size)],
+        "parameters": list(problem.space.names[problem.space.compliance_slice]),
     }
+    if problem.space.joint_gains is not None:  # the key only when gains are identified
+        out["joint_gains"] = list(problem.space.names[problem.space.gain_slice])
     out["classical_count"] = None if classical is None else {
         "count": classical[0], "rule": classical[1]
     }
@@ -106,6 +108,9 @@ def format_identifiability(
     )
     if space.compliance is not None:
         lines.append(f"  {space.compliance.describe()}")
+    if space.joint_gains is not None:
+        lines.append(f"  joint gains and coupling ratios identified: "
+                     f"{', '.join(space.names[space.gain_slice])}")
     lines.append(
         f"  parameters: {len(report.names)}; free (identifiable): {report.rank}; "
         f"fixed: {len(report.fixed)}; rank tolerance {report.tol:g}"

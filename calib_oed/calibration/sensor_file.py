@@ -2,8 +2,9 @@ r"""The identified sensor set-up as a YAML file: write it, read it back.
 
 A URDF describes the robot only; the identified tracker pose
 :math:`T_{W,T}` and reflector offsets :math:`c_j` (and, when modelled, the
-joint compliances) go to a small YAML file (:func:`write_sensor_yaml`, read
-back by :func:`read_sensor_yaml` and :func:`read_sensor_compliance`), next to
+joint compliances and the joint gains) go to a small YAML file (:func:`write_sensor_yaml`,
+read back by :func:`read_sensor_yaml`, :func:`read_sensor_compliance` and
+:func:`read_sensor_gains`), next to
 the calibrated URDF (:mod:`calib_oed.calibration.export`).
 
 Files are written atomically (:func:`calib_oed.io.atomic.atomic_write_text`):
@@ -23,6 +24,7 @@ from calib_oed._version import __version__
 from calib_oed.calibration.export_files import _write
 from calib_oed.exceptions import CalibOedError, ExportError
 from calib_oed.model.compliance import Compliance
+from calib_oed.model.joint_map import JointGains
 from calib_oed.model.parameters import ParameterSpace
 
 #: Version tag of the sensor YAML layout.
@@ -77,6 +79,18 @@ def sensor_yaml_text(space: ParameterSpace, p: np.ndarray | None) -> str:
                                                   strict=True))
             ],
         }
+        if comp.link_masses is not None:  # the arm's weight the compliances were identified under
+            data["compliance"]["link_masses_kg"] = _floatlist(comp.link_masses)
+            data["compliance"]["link_coms_m"] = [_floatlist(c) for c in comp.link_coms]
+    if space.joint_gains is not None:  # nor for encoder scales and coupling ratios
+        gains = space.joint_gains
+        values = p[space.gain_slice]
+        data["joint_gains"] = {
+            "joints": [{"joint": robot.joint_names[i - 1], "number": i, "gain": float(v) + 0.0}
+                       for i, v in zip(gains.joints, values, strict=False)],
+            "couplings": [{"joint": j, "from": f, "ratio": float(v) + 0.0}
+                          for (j, f), v in zip(gains.couplings, values[len(gains.joints):], strict=True)],
+        }
     header = (
         f"# Sensor set-up identified by calib_oed {__version__} for robot "
         f"{robot.name!r} ({space.size} parameters).\n"
@@ -90,6 +104,9 @@ def sensor_yaml_text(space: ParameterSpace, p: np.ndarray | None) -> str:
         + ("# compliance: the identified joint compliances c = 1/k (rad/(N*m)) and stiffnesses\n"
            "#   (N*m/rad; null where c <= 0), with the payload they were identified under.\n"
            if space.compliance is not None else "")
+        + ("# joint_gains: the identified gains g (the joint moves (1 + g) q for a command q) and\n"
+           "#   coupling ratios k (joint 'joint' moves k q_from more), on the URDF's joint values.\n"
+           if space.joint_gains is not None else "")
     )
     body = yaml.safe_dump(data, sort_keys=False, default_flow_style=None, width=1000)
     return header + body
@@ -194,10 +211,50 @@ def read_sensor_compliance(path: str | os.PathLike, joint_names) -> tuple[Compli
     com = _array(path, section, "payload_com_m", (3,), "compliance.")
     c = np.array([_array(path, j, "compliance_si", (), f"compliance.joints[{i}].")
                   for i, j in enumerate(joints)], dtype=float)
+    masses = coms = None
+    if "link_masses_kg" in section:
+        masses = _array(path, section, "link_masses_kg", (len(joints),), "compliance.")
+        coms = _array(path, section, "link_coms_m", (len(joints), 3), "compliance.")
     try:
-        return Compliance(mass, com), c
+        return Compliance(mass, com, link_masses=masses, link_coms=coms), c
     except CalibOedError as exc:
         raise ExportError(f"{path}: compliance: {exc}") from exc
+
+
+def read_sensor_gains(path: str | os.PathLike, joint_names) -> tuple[JointGains, np.ndarray] | None:
+    """The joint gains and coupling ratios of a sensor file, or None if it has none.
+
+    Returns the :class:`~calib_oed.model.joint_map.JointGains` layout and its
+    values (gains, then couplings) [1], in the order of ``ParameterSpace.gain_slice``.
+
+    Raises:
+        ExportError: a malformed section or joints that are not the robot's.
+    """
+    path = Path(path)
+    try:
+        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
+        raise ExportError(f"{path}: cannot read the sensor file: {exc}") from exc
+    section = data.get("joint_gains") if isinstance(data, dict) else None
+    if section is None:
+        return None
+    rows = [section.get(k) if isinstance(section, dict) else None for k in ("joints", "couplings")]
+    if not all(isinstance(r, list) and all(isinstance(e, dict) for e in r) for r in rows):
+        raise ExportError(f"{path}: joint_gains.joints and joint_gains.couplings must be lists of mappings")
+    names = list(joint_names)
+    for i, e in enumerate(rows[0]):
+        if e.get("number") not in range(1, len(names) + 1) or e.get("joint") != names[e["number"] - 1]:
+            raise ExportError(f"{path}: joint_gains.joints[{i}] is {e.get('joint')!r} (number "
+                              f"{e.get('number')!r}); the robot's joints are {names}")
+    values = [_array(path, e, "gain", (), f"joint_gains.joints[{i}].") for i, e in enumerate(rows[0])]
+    values += [_array(path, e, "ratio", (), f"joint_gains.couplings[{i}].") for i, e in enumerate(rows[1])]
+    try:
+        layout = JointGains(tuple(e["number"] for e in rows[0]),
+                            tuple((e.get("joint"), e.get("from")) for e in rows[1]))
+        layout.check(len(names))
+    except (CalibOedError, TypeError, ValueError) as exc:
+        raise ExportError(f"{path}: joint_gains: {exc}") from exc
+    return layout, np.array(values, dtype=float)
 
 
 def _array(path: Path, data: dict, key: str, shape: tuple[int, ...], prefix: str) -> np.ndarray:

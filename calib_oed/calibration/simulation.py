@@ -8,7 +8,7 @@ One trial (paper §1.1, the experiment the covariance predicts):
    so the truth lies in the gauge the estimate is expressed in; free joint
    compliances (when modelled) are :math:`1/k` with the stiffness :math:`k`
    log-uniform in :data:`calib_oed.model.compliance.STIFFNESS_RANGE` (positive,
-   1e6..1e7 N·m/rad);
+   1e6..1e7 N·m/rad); free joint gains and coupling ratios normal, default 1e-3;
 2. simulate :math:`\eta = h(p^\star, q) + \varepsilon`,
    :math:`\varepsilon \sim N(0, \Sigma^2)` at the design :math:`q`; a model with a
    full error model (``model.noise``) draws :math:`\varepsilon_i \sim N(0, \Sigma_i)`,
@@ -42,11 +42,13 @@ def draw_true_parameters(
     rng: np.random.Generator | int,
     sigma_length: float = 0.5e-3,
     sigma_angle: float = 0.5e-3,
+    sigma_gain: float = 1e-3,
 ) -> np.ndarray:
     """A true robot and sensor: free parameters perturbed, fixed ones zero, (n_p,) SI.
 
     Geometric parameters normal (``sigma_length`` [m], ``sigma_angle`` [rad]);
-    free compliances from :func:`calib_oed.model.compliance.draw_compliance`.
+    free compliances from :func:`calib_oed.model.compliance.draw_compliance`;
+    free joint gains and coupling ratios normal (``sigma_gain`` [1]).
     """
     rng = np.random.default_rng(rng)
     free = np.asarray(free, dtype=int)
@@ -54,9 +56,12 @@ def draw_true_parameters(
     sd = np.array([sigma_length if space.parameters[i].unit == "m" else sigma_angle for i in geo])
     p = np.zeros(space.size)
     p[geo] = rng.normal(size=geo.size) * sd
-    comp = free[free >= space.compliance_slice.start]
+    comp = free[(free >= space.compliance_slice.start) & (free < space.compliance_slice.stop)]
     if comp.size:  # drawn after the geometric ones: the rigid case's draws are unchanged
         p[comp] = draw_compliance(rng, comp.size)
+    gains = free[free >= space.gain_slice.start]
+    if gains.size:  # drawn last: the draws without gains are unchanged
+        p[gains] = rng.normal(size=gains.size) * sigma_gain
     return p
 
 

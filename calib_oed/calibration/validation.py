@@ -35,7 +35,11 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from calib_oed.calibration.sensor_file import read_sensor_compliance, read_sensor_yaml
+from calib_oed.calibration.sensor_file import (
+    read_sensor_compliance,
+    read_sensor_gains,
+    read_sensor_yaml,
+)
 from calib_oed.exceptions import ExportError, MeasurementFileError, ParameterError
 from calib_oed.measurement.base import evaluate_setup
 from calib_oed.measurement.dataset import MeasurementSet
@@ -190,6 +194,7 @@ def validate_calibration(scene: Scene, calibration: str | os.PathLike, mset: Mea
                           f"robot's {list(robot.joint_names)}")
     tracker, offsets = read_sensor_yaml(files["sensor"])
     compliance = read_sensor_compliance(files["sensor"], robot.joint_names)
+    gains = read_sensor_gains(files["sensor"], robot.joint_names)
     if len(offsets) != len(scene.reflectors) or max(mset.reflectors) >= len(offsets):
         raise MeasurementFileError(mset.source, [(None, f"the data use reflectors {list(mset.reflectors)}, "
                                                         f"the calibration has {len(offsets)}")],
@@ -199,11 +204,15 @@ def validate_calibration(scene: Scene, calibration: str | os.PathLike, mset: Mea
     nominal_space = ParameterSpace(robot, scene.tracker.placement(),
                                    np.array([r.offset for r in scene.reflectors]))
     calibrated_space = ParameterSpace(calibrated, tracker, offsets,
-                                      compliance=None if compliance is None else compliance[0])
+                                      compliance=None if compliance is None else compliance[0],
+                                      joint_gains=None if gains is None else gains[0])
     p_calibrated = None
-    if compliance is not None:  # the deflection under gravity on top of the calibrated URDF
+    if compliance is not None or gains is not None:  # deflection and gains on top of the URDF
         p_calibrated = calibrated_space.zeros()
-        p_calibrated[calibrated_space.compliance_slice] = compliance[1]
+        if compliance is not None:
+            p_calibrated[calibrated_space.compliance_slice] = compliance[1]
+        if gains is not None:
+            p_calibrated[calibrated_space.gain_slice] = gains[1]
     floor = float(np.sqrt(np.mean(np.concatenate([(b.sigma[:, :3] ** 2).sum(axis=1) for b in blocks]))))
     return ValidationResult(
         nominal=_errors(nominal_space, mset, blocks, "nominal"),

@@ -142,7 +142,7 @@ def _apply_compliance(args) -> None:
     if args.payload_kg is not None:
         if not args.payload_kg >= 0:
             raise CalibOedError(f"--payload-kg: expected a mass >= 0 kg, got {args.payload_kg:g}")
-        payload = Compliance(args.payload_kg, payload.payload_com)
+        payload = dataclasses.replace(payload, payload_mass=args.payload_kg)  # keeps the scene's link masses
     args.scene = dataclasses.replace(scene, compliance=ComplianceSpec(True, payload))
 
 
@@ -159,7 +159,7 @@ def _design(s, args):
 
     path = getattr(args, "design", None) or getattr(args, "design_option", None)
     if path:
-        return read_design_file(path, s.problem.robot), f"design file {path}"
+        return read_design_file(path, s.problem.robot, controller=s.scene.controller), f"design file {path}"
     q = heuristic_design(s, args.n, args.seed)
     return q, f"{args.n} random feasible poses (seed {args.seed})"
 
@@ -232,7 +232,7 @@ def _pool(s, args):
     if not Path(text).exists():
         raise CalibOedError(f"--pool {text}: neither a number of candidates nor an existing "
                             "design file (CSV with joint-name header, or design.yaml)")
-    return read_design_file(text, s.problem.robot)
+    return read_design_file(text, s.problem.robot, controller=s.scene.controller)
 
 
 def _optimise(s, args, criterion: str, start, aggregate: str = "mean"):

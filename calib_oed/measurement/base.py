@@ -19,8 +19,10 @@ derivatives along :math:`q_{eff}` and in the right perturbations
 :math:`\epsilon` as before, and hands them to the state's chain helpers
 (:meth:`SetupState.fill_joint_columns`, :meth:`SetupState.chain_config`,
 :meth:`SetupState.finish_param_config`), which add the compliance columns and
-the factor :math:`D = \partial q_{eff}/\partial q`. Without compliance they
-change nothing.
+the factor :math:`D = \partial q_{eff}/\partial q`. Joint gains and coupling
+ratios (:mod:`calib_oed.model.joint_map`) go the same way: :math:`q_{eff}` gains
+:math:`\sum_m\theta_m E_m q`, their columns are :math:`(\partial h/\partial q_{eff})\,E_m q`.
+Without compliance and gains they change nothing.
 """
 
 from __future__ import annotations
@@ -33,6 +35,7 @@ import numpy as np
 import pinocchio as pin
 
 from calib_oed.exceptions import ShapeError
+from calib_oed.model.joint_map import config_chain_term, effective_configurations, parameter_columns
 from calib_oed.model.kinematics import (
     ToolKinematics,
     compute_tool_kinematics,
@@ -60,6 +63,8 @@ class SetupState:
             ``kin`` is then evaluated at :math:`q_{eff} = q + c\circ\tau_g`.
         torque_q: :math:`\partial\tau_g/\partial q` (n, nv, nv), with
             compliance and ``jacobian=True``, else None.
+        gain_columns: :math:`[E_1 q, \dots]` at the commanded configurations
+            (n, nv, n_gains) when joint gains or couplings are identified, else None.
     """
 
     space: ParameterSpace
@@ -70,10 +75,16 @@ class SetupState:
     joint_jr: np.ndarray | None
     torque: np.ndarray | None = None
     torque_q: np.ndarray | None = None
+    gain_columns: np.ndarray | None = None
 
     @property
     def n(self) -> int:
         return self.kin.n
+
+    @property
+    def rigid(self) -> bool:
+        """True when the kinematics run at the commanded q (no compliance, no gains)."""
+        return self.torque is None and self.gain_columns is None
 
     @cached_property
     def regressor_q(self) -> np.ndarray:
@@ -101,14 +112,21 @@ class SetupState:
     @cached_property
     def config_chain(self) -> np.ndarray | None:
         r""":math:`D = \partial q_{eff}/\partial q = I + \mathrm{diag}(c)\,\partial\tau_g/\partial q`,
-        (n, nv, nv), or None without compliance (:math:`D = I`)."""
-        if self.torque is None:
+        (n, nv, nv), or None without compliance and gains (:math:`D = I`); gains add
+        :math:`\sum_m\theta_m E_m`."""
+        if self.rigid:
             return None
-        if self.torque_q is None:
-            raise ValueError("configuration derivatives with compliance need the gravity torque "
-                             "derivatives: evaluate the set-up with jacobian=True")
-        c = self.p[self.space.compliance_slice]
-        return np.eye(self.torque.shape[1])[None] + c[None, :, None] * self.torque_q
+        if self.torque is None:
+            d = np.broadcast_to(np.eye(self.kin.q.shape[1]), (self.n,) + (self.kin.q.shape[1],) * 2)
+        else:
+            if self.torque_q is None:
+                raise ValueError("configuration derivatives with compliance need the gravity torque "
+                                 "derivatives: evaluate the set-up with jacobian=True")
+            c = self.p[self.space.compliance_slice]
+            d = np.eye(self.torque.shape[1])[None] + c[None, :, None] * self.torque_q
+        if self.gain_columns is not None:
+            d = d + config_chain_term(self.space.gain_basis, self.p[self.space.gain_slice])[None]
+        return d
 
     def chain_config(self, d_qeff: np.ndarray) -> np.ndarray:
         r"""A derivative along :math:`q_{eff}` (last axis nv) to one along :math:`q`: times :math:`D`."""
@@ -121,19 +139,23 @@ class SetupState:
         r""":math:`(\partial h/\partial\epsilon_i)\,S_i` per joint: (n, d, 6 n_j, ...) -> (n, d, n_j, ...)."""
         n, d = d_eps.shape[:2]
         blocks = d_eps.reshape(n, d, -1, 6, *d_eps.shape[3:])
-        return np.einsum("ndjk...,jk->ndj...", blocks, self.space.gravity.axes)
+        return np.einsum("ndjk...,jk->ndj...", blocks, self.space.joint_axes)
 
     def fill_joint_columns(self, out: np.ndarray, d_eps: np.ndarray) -> None:
         r"""Write the joint (and compliance) columns of :math:`\partial h/\partial p` into ``out``.
 
         ``d_eps`` (n, d, 6 n_j) is :math:`\partial h/\partial\epsilon`; joint
         columns :meth:`joint_param_sensitivity`, compliance columns
-        :math:`(\partial h/\partial\epsilon_i)\,S_i\,\tau_i = (\partial h/\partial q_{eff,i})\,\tau_i`.
+        :math:`(\partial h/\partial\epsilon_i)\,S_i\,\tau_i = (\partial h/\partial q_{eff,i})\,\tau_i`,
+        gain and coupling columns :math:`(\partial h/\partial q_{eff})\,E_m q`.
         """
         space = self.space
         out[..., space.joints_slice] = self.joint_param_sensitivity(d_eps)
         if self.torque is not None:
             out[..., space.compliance_slice] = self._along_axes(d_eps) * self.torque[:, None, :]
+        if self.gain_columns is not None:
+            out[..., space.gain_slice] = np.einsum("ndi,nim->ndm", self._along_axes(d_eps),
+                                                   self.gain_columns)
 
     def finish_param_config(self, mixed: np.ndarray, d_eps: np.ndarray,
                             d_eps_q: np.ndarray) -> np.ndarray:
@@ -145,17 +167,25 @@ class SetupState:
         its derivative along :math:`q_{eff}`. Geometric columns times :math:`D`;
         compliance column ``i`` along :math:`q_k`:
         :math:`\sum_l H_{il} D_{lk}\,\tau_i + (\partial h/\partial q_{eff,i})\,\partial\tau_i/\partial q_k`
-        with :math:`H_{il} = (\partial^2 h/\partial\epsilon_i\,\partial q_{eff,l})\,S_i`.
+        with :math:`H_{il} = (\partial^2 h/\partial\epsilon_i\,\partial q_{eff,l})\,S_i`;
+        gain or coupling column ``m`` along :math:`q_k`:
+        :math:`\sum_{il} H_{il} D_{lk}\,(E_m q)_i + \sum_i (\partial h/\partial q_{eff,i})\,(E_m)_{ik}`.
         """
-        if self.torque is None:
+        if self.rigid:
             return mixed
         d = self.config_chain
         out = np.einsum("ndpl,nlk->ndpk", mixed, d)
         hess = np.einsum("ndil,nlk->ndik", self._along_axes(d_eps_q), d)
         first = self._along_axes(d_eps)  # (n, d, nj)
-        out[:, :, self.space.compliance_slice, :] = (
-            hess * self.torque[:, None, :, None] + first[:, :, :, None] * self.torque_q[:, None]
-        )
+        if self.torque is not None:
+            out[:, :, self.space.compliance_slice, :] = (
+                hess * self.torque[:, None, :, None] + first[:, :, :, None] * self.torque_q[:, None]
+            )
+        if self.gain_columns is not None:
+            out[:, :, self.space.gain_slice, :] = (
+                np.einsum("ndik,nim->ndmk", hess, self.gain_columns)
+                + np.einsum("ndi,imk->ndmk", first, self.space.gain_basis)
+            )
         return out
 
     def tracker_point_sensitivity(self, y: np.ndarray) -> np.ndarray:
@@ -263,7 +293,7 @@ class SetupState:
         d_eps = np.einsum("nab,nbcq->nacq", rot, d_eps)
         out[:, :, space.joints_slice, :] = self.joint_param_config_sensitivity(d_eps)
         first = None
-        if self.torque is not None:  # dh/d(eps) before the J_r chain, for the compliance columns
+        if not self.rigid:  # dh/d(eps) before the J_r chain, for the compliance and gain columns
             first = np.einsum("nab,nbc->nac", rot, lk)
         if reflector is not None:
             # R [w_k]x e_m = R (w_k x e_m)
@@ -301,16 +331,22 @@ def evaluate_setup(
     r"""Perturb the robot and the sensor by ``p`` and run the kinematics at ``q`` (n, nq).
 
     With compliance modelled the kinematics run at :math:`q + c\circ\tau_g(q)`,
-    and the state carries :math:`\tau_g` (and its derivative when ``jacobian``).
+    and the state carries :math:`\tau_g` (and its derivative when ``jacobian``);
+    with joint gains they run at :math:`q_{eff}` plus :math:`\sum_m\theta_m E_m q`
+    (:mod:`calib_oed.model.joint_map`), :math:`\tau_g` still at the commanded q.
     """
     p = space.check(p)
     q = space.robot.check_configurations(q)
     model = space.perturbed_model(p)
-    torque = torque_q = None
+    torque = torque_q = gains = None
+    q_cmd = q
     if space.gravity is not None:
         torque = space.gravity.torques(q)
         torque_q = space.gravity.torque_derivatives(q) if jacobian else None
         q = q + p[space.compliance_slice] * torque
+    if space.gain_basis is not None:
+        gains = parameter_columns(q_cmd, space.gain_basis)
+        q = q + (effective_configurations(q_cmd, space.gain_basis, p[space.gain_slice]) - q_cmd)
     kin = compute_tool_kinematics(
         model, space.robot.tool_frame_id, q, regressor=regressor, jacobian=jacobian
     )
@@ -323,6 +359,7 @@ def evaluate_setup(
         joint_jr=space.joint_exp_jacobians(p),
         torque=torque,
         torque_q=torque_q,
+        gain_columns=gains,
     )
 
 

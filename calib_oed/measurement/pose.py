@@ -34,7 +34,7 @@ import pinocchio as pin
 
 from calib_oed.measurement.base import MeasurementModel, SetupState, skew
 from calib_oed.measurement.position import DEFAULT_SIGMA, TrackerPosition
-from calib_oed.measurement.second_order import joint_rows_hessian
+from calib_oed.measurement.second_order import joint_rows_hessian, with_joint_gains
 from calib_oed.model.kinematics import log_jacobian_derivative, log_jacobian_second_derivative
 
 #: Default rotation noise per axis [rad] (0.01 mrad).
@@ -188,8 +188,8 @@ class PoseMeasurement(MeasurementModel):
 
         (``docs/derivations.md`` §13), times the right Jacobians :math:`J_r`.
         """
-        if state.torque is not None:
-            return None
+        if not state.rigid:  # joint gains from the rigid rows; None with compliance
+            return with_joint_gains(self, state)
         space, kin = state.space, state.kin
         n, nv = state.n, kin.jacobian.shape[2]
         out = np.zeros((n, 6, space.size, nv, nv))

@@ -22,7 +22,7 @@ import numpy as np
 
 from calib_oed.measurement.base import MeasurementModel, SetupState
 from calib_oed.measurement.noise import TrackerNoise
-from calib_oed.measurement.second_order import tool_point_param_config_hessian
+from calib_oed.measurement.second_order import tool_point_param_config_hessian, with_joint_gains
 
 #: Default laser-tracker noise per axis [m] (0.01 mm).
 DEFAULT_SIGMA = 1e-5
@@ -37,7 +37,8 @@ class TrackerPosition(MeasurementModel):
         noise: Optional full error model (:class:`~calib_oed.measurement.noise.TrackerNoise`:
             range-dependent radial/lateral noise and robot repeatability). When given,
             identification, covariance and simulation use its 3×3 covariance
-            :math:`\Sigma_i` instead of ``sigma``; the design objective still uses ``sigma``.
+            :math:`\Sigma_i` instead of ``sigma``, and so does the design objective
+            (:mod:`calib_oed.oed.whitening`).
     """
 
     dim = 3
@@ -76,8 +77,12 @@ class TrackerPosition(MeasurementModel):
 
         None with compliance; ``out``: a zeroed (n, 3, n_p, nv, nv) array to write into.
         """
-        if state.torque is not None:
-            return None
+        if not state.rigid:
+            full = with_joint_gains(self, state)
+            if out is None or full is None:
+                return full
+            out[...] = full
+            return out
         offset = state.reflector_offset(self.reflector)
         return tool_point_param_config_hessian(state, offset, "tracker", reflector=self.reflector,
                                                out=out)

@@ -25,9 +25,23 @@ Reflector columns :math:`R\,(\Omega_l\Omega_k + \Omega_{kl})`; tracker columns
 :math:`L(X) = X_v + X_\omega \times c`. In the tracker frame :math:`R` is
 :math:`R_T^\top R`. Rigid kinematics only: with joint compliance the models
 return None instead.
+
+**Joint gains** (no compliance, :func:`with_joint_gains`): the kinematics run at
+:math:`q_{eff} = Dq`, :math:`D = I + \sum_m\theta_m E_m` constant, so the geometric
+rows' second derivative is the rigid one along :math:`q_{eff}` times :math:`D` on both
+sides; a gain row :math:`\sum_i G_i(q_{eff})\,(E_m q)_i`, with
+:math:`G_i = (\partial h/\partial\epsilon_i)S_i` (joint columns before :math:`J_r`), has
+
+.. math::
+    \partial_{kl} = \sum_{iab} G_{i,ab}D_{ak}D_{bl}(E_mq)_i
+      + \sum_{ia} G_{i,a}\big(D_{ak}(E_m)_{il} + D_{al}(E_m)_{ik}\big),
+
+both pieces from the rigid formulas at :math:`J_r = I` contracted with the axes :math:`S_i`.
 """
 
 from __future__ import annotations
+
+import dataclasses
 
 import numpy as np
 import pinocchio as pin
@@ -97,10 +111,11 @@ def tool_point_param_config_hessian(
     See the module docstring; ``frame`` and ``reflector`` as in
     :meth:`SetupState.tool_point_param_jacobian`; ``out``, if given, is a
     zeroed (n, 3, n_p, nv, nv) array written and returned. Rigid kinematics only
-    (raises ``ValueError`` on a state with compliance).
+    (raises ``ValueError`` on a state with compliance or joint gains).
     """
-    if state.torque is not None:
-        raise ValueError("second configuration derivatives are not available with joint compliance")
+    if not state.rigid:
+        raise ValueError("second configuration derivatives are not available with joint compliance "
+                         "or joint gains")
     space, kin = state.space, state.kin
     c = np.asarray(offset, dtype=float)
     n, nv = state.n, kin.jacobian.shape[2]
@@ -127,4 +142,41 @@ def tool_point_param_config_hessian(
         if np.any(delta):
             trk = trk @ pin.Jexp6(delta)
         out[:, :, space.tracker_slice] = np.moveaxis(trk, (1, 2), (3, 4))
+    return out
+
+
+def _rigid_view(state: SetupState, eps: bool) -> SetupState:
+    """The state without its gains (kinematics stay at q_eff); ``eps``: joint columns before J_r."""
+    view = dataclasses.replace(state, gain_columns=None, **({"joint_jr": None} if eps else {}))
+    for key in ("regressor_q", "jacobian_q"):  # the kinematics' derivatives are shared
+        if key in state.__dict__:
+            view.__dict__[key] = state.__dict__[key]
+    return view
+
+
+def with_joint_gains(model, state: SetupState) -> np.ndarray | None:
+    r""":math:`\partial^3 h/\partial p\,\partial q_k\,\partial q_l` of ``model`` with joint gains, (n, d, n_p, nv, nv).
+
+    From the model's rigid second derivative (module docstring); None with compliance too.
+    """
+    if state.torque is not None:
+        return None
+    space = state.space
+    state.regressor_q, state.jacobian_q  # noqa: B018 -- computed once here, shared by both views
+    out = model.compute_param_config_hessian(_rigid_view(state, eps=False))
+    eps = _rigid_view(state, eps=True)
+    d = state.config_chain[0]  # constant: I + sum theta_m E_m
+    out = np.einsum("ndpab,ak,bl->ndpkl", out, d, d)
+    joints = space.joints_slice
+    n, dim = out.shape[:2]
+    axes = space.joint_axes
+    g_ab = np.einsum("ndjcab,jc->ndjab", model.compute_param_config_hessian(eps)[:, :, joints]
+                     .reshape(n, dim, -1, 6, *out.shape[3:]), axes)
+    g_a = np.einsum("ndjca,jc->ndja", model.compute_param_config_jacobian(eps)[:, :, joints]
+                    .reshape(n, dim, -1, 6, out.shape[3]), axes)
+    g_ab = np.einsum("ndiab,ak,bl->ndikl", g_ab, d, d)
+    g_k = np.einsum("ndia,ak->ndik", g_a, d)
+    lever = np.einsum("ndik,iml->ndmkl", g_k, space.gain_basis)
+    out[:, :, space.gain_slice] = (np.einsum("ndikl,nim->ndmkl", g_ab, state.gain_columns)
+                                   + lever + np.swapaxes(lever, 3, 4))
     return out

@@ -11,7 +11,8 @@ commanded angle by the spring deflection, so the kinematics run at
 with :math:`g(q)` Pinocchio's generalized gravity
 (``pin.computeGeneralizedGravity``, the torque the motors hold) and
 :math:`\tau_g` the torque gravity exerts on each joint. :math:`\tau_g` is
-evaluated on the **nominal** model (URDF inertias, nominal geometry) at the
+evaluated on the **nominal** model (URDF inertias, or link masses given in the
+scene instead, or none at all: the payload alone; nominal geometry) at the
 **commanded** :math:`q`, with the payload added to the link that carries the
 tool frame; the geometric parameters and the deflection itself do not change
 it (their effect on the torque is second order: a 1 mm or 1 mrad error changes
@@ -48,10 +49,17 @@ class Compliance:
     Attributes:
         payload_mass: Payload mass [kg] (0: the arm's own weight only).
         payload_com: Payload centre of mass in the tool frame, (3,) [m].
+        link_masses: None (default): the arm weighs what the URDF's inertias say.
+            Else (n,) [kg], one per joint base to tip: the link moved by joint ``i``
+            is a point mass at ``link_coms[i]`` in joint ``i``'s frame, replacing the
+            URDF's inertia (for a URDF without inertias); all zeros: the payload alone.
+        link_coms: (n, 3) [m], the point masses' positions; None: the joint origins.
     """
 
     payload_mass: float = 0.0
     payload_com: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    link_masses: np.ndarray | None = None
+    link_coms: np.ndarray | None = None
 
     def __post_init__(self):
         mass = float(self.payload_mass)
@@ -65,11 +73,37 @@ class Compliance:
         com.setflags(write=False)
         object.__setattr__(self, "payload_mass", mass)
         object.__setattr__(self, "payload_com", com)
+        if self.link_masses is None:
+            if self.link_coms is not None:
+                raise ParameterError("link centres of mass need link masses (link_masses)")
+            return
+        masses = np.array(self.link_masses, dtype=float)
+        if masses.ndim != 1 or not np.all(np.isfinite(masses)) or np.any(masses < 0):
+            raise ParameterError(f"link masses must be finite numbers >= 0 kg, one per joint, "
+                                 f"got {self.link_masses!r}")
+        coms = np.zeros((masses.size, 3)) if self.link_coms is None else np.array(self.link_coms, dtype=float)
+        if coms.shape != (masses.size, 3):
+            raise ShapeError("link centres of mass", f"({masses.size}, 3)", coms.shape)
+        if not np.all(np.isfinite(coms)):
+            raise NonFiniteError("link centres of mass")
+        for arr, name in ((masses, "link_masses"), (coms, "link_coms")):
+            arr.setflags(write=False)
+            object.__setattr__(self, name, arr)
+
+    @property
+    def arm_weight(self) -> str:
+        """Where the arm's own weight comes from: ``"urdf"``, ``"scene"`` or ``"none"`` (payload alone)."""
+        if self.link_masses is None:
+            return "urdf"
+        return "scene" if np.any(self.link_masses > 0) else "none"
 
     def describe(self) -> str:
         """One line for reports (kg, mm)."""
         com = np.round(self.payload_com * 1e3, 1).tolist()
-        return f"joint compliance modelled, payload {self.payload_mass:g} kg at {com} mm in the tool frame"
+        arm = {"urdf": "", "none": "; the arm's own weight ignored (payload alone)",
+               "scene": f"; link masses from the scene, {float(np.sum(self.link_masses)):g} kg in all"
+               if self.link_masses is not None else ""}[self.arm_weight]
+        return f"joint compliance modelled, payload {self.payload_mass:g} kg at {com} mm in the tool frame{arm}"
 
 
 class GravityLoad:
@@ -84,6 +118,14 @@ class GravityLoad:
     def __init__(self, model: pin.Model, tool_frame_id: int, compliance: Compliance):
         self.model = model.copy()
         frame = self.model.frames[tool_frame_id]
+        if compliance.link_masses is not None:
+            n = self.model.njoints - 1
+            if compliance.link_masses.size != n:
+                raise ParameterError(f"link masses: expected {n} (one per joint), got "
+                                     f"{compliance.link_masses.size}")
+            for i in range(1, n + 1):  # point masses replace the URDF's inertias
+                self.model.inertias[i] = pin.Inertia(float(compliance.link_masses[i - 1]),
+                                                     np.array(compliance.link_coms[i - 1]), np.zeros((3, 3)))
         if compliance.payload_mass > 0:
             payload = pin.Inertia(compliance.payload_mass, np.array(compliance.payload_com),
                                   np.zeros((3, 3)))

@@ -13,7 +13,11 @@ Order (binding, see ``docs/conventions.md``):
    ([m] then [rad]);
 4. only when joint compliance is modelled (:mod:`calib_oed.model.compliance`), one
    compliance per joint ``joint{i}.c`` [rad/(N·m)] ([m/N] for a prismatic
-   joint), base to tip: the kinematics run at :math:`q + c \circ \tau_g(q)`.
+   joint), base to tip: the kinematics run at :math:`q + c \circ \tau_g(q)`;
+5. only when joint gains are identified (:mod:`calib_oed.model.joint_map`), one gain
+   ``joint{i}.gain`` per chosen joint, then one ratio ``joint{j}.coupling{f}`` per
+   coupling [rad/rad] ([m/m] for a prismatic joint): the kinematics run at
+   :math:`q_{eff} = q + \sum_m \theta_m E_m q` (plus the compliance deflection).
 
 The nominal value of every parameter is 0. Applying a parameter vector never
 mutates the nominal model.
@@ -29,6 +33,7 @@ import pinocchio as pin
 
 from calib_oed.exceptions import NonFiniteError, ShapeError, UnknownParameterError
 from calib_oed.model.compliance import Compliance, GravityLoad
+from calib_oed.model.joint_map import JointGains
 from calib_oed.model.robot import Robot
 
 _TWIST = ("tx", "ty", "tz", "rx", "ry", "rz")
@@ -40,12 +45,19 @@ ANGLE_SCALE = 1e-3
 #: Scale of one compliance unit: 1e-6 rad/(N·m) = 1 mrad/(kN·m) (1e-6 m/N = 1 mm/kN).
 COMPLIANCE_SCALE = 1e-6
 
+#: Scale of one gain or coupling-ratio unit: 1e-3 (1 mrad per rad of joint motion).
+GAIN_SCALE = 1e-3
+
 #: SI unit of a parameter -> (SI value of one report unit, report unit).
 REPORT_UNITS = {
     "m": (LENGTH_SCALE, "mm"),
     "rad": (ANGLE_SCALE, "mrad"),
     "rad/(N*m)": (COMPLIANCE_SCALE, "mrad/kNm"),
     "m/N": (COMPLIANCE_SCALE, "mm/kN"),
+    "rad/rad": (GAIN_SCALE, "mrad/rad"),
+    "m/m": (GAIN_SCALE, "mm/m"),
+    "rad/m": (GAIN_SCALE, "mrad/m"),
+    "m/rad": (GAIN_SCALE, "mm/rad"),
 }
 
 
@@ -66,6 +78,8 @@ class Group(str, Enum):
     REFLECTOR = "reflector"
     JOINT = "joint"
     COMPLIANCE = "compliance"
+    GAIN = "gain"
+    COUPLING = "coupling"
 
 
 @dataclass(frozen=True)
@@ -75,8 +89,9 @@ class Parameter:
     Attributes:
         index: Position in the parameter vector.
         name: ``"tracker.tx"``, ``"reflector0.z"``, ``"joint3.rz"``.
-        unit: ``"m"``, ``"rad"``, or for a compliance ``"rad/(N*m)"`` (``"m/N"``).
-        group: Tracker, reflector, joint or compliance.
+        unit: ``"m"``, ``"rad"``, for a compliance ``"rad/(N*m)"`` (``"m/N"``), for a
+            gain or coupling ratio ``"rad/rad"`` (``"m/m"``, ``"rad/m"``, ``"m/rad"``).
+        group: Tracker, reflector, joint, compliance, gain or coupling.
         owner: Index of the reflector or joint (0 for the tracker).
         description: Human-readable meaning (with the URDF joint name).
     """
@@ -109,10 +124,12 @@ class ParameterSpace:
             tool frame, shape (k, 3) [m].
         compliance: Model joint compliance with this payload (one parameter
             per joint after the geometric ones); None: rigid joints (default).
+        joint_gains: Identify these joint gains and coupling ratios (after the
+            compliances, :mod:`calib_oed.model.joint_map`); None: none (default).
     """
 
     def __init__(self, robot: Robot, tracker_placement: pin.SE3, reflector_offsets: np.ndarray,
-                 compliance: Compliance | None = None):
+                 compliance: Compliance | None = None, joint_gains: JointGains | None = None):
         offsets = np.asarray(reflector_offsets, dtype=float)
         if offsets.ndim == 1:
             offsets = offsets[None, :]
@@ -134,6 +151,13 @@ class ParameterSpace:
         #: Gravity torques of the nominal robot with the payload (None without compliance).
         self.gravity = (GravityLoad(robot.model, robot.tool_frame_id, compliance)
                         if compliance is not None else None)
+        if joint_gains is not None:
+            if not isinstance(joint_gains, JointGains):
+                raise TypeError("joint_gains must be a calib_oed.model.joint_map.JointGains or None")
+            joint_gains.check(self.n_joints)
+        self.joint_gains = joint_gains
+        #: :math:`E_m` of the gains and couplings, (n, n_gains, n) (None without them).
+        self.gain_basis = joint_gains.basis(self.n_joints) if joint_gains is not None else None
         self.parameters = tuple(self._build())
         self.names = tuple(p.name for p in self.parameters)
         self._index = {n: i for i, n in enumerate(self.names)}
@@ -161,19 +185,35 @@ class ParameterSpace:
                 yield Parameter(idx, f"joint{i}.{c}", unit, Group.JOINT, i,
                                 f"placement of joint {i} ({jname}) in its parent, component {c}")
                 idx += 1
-        if self.compliance is None:
+        if self.compliance is not None:
+            for i, jname in enumerate(self.robot.joint_names, start=1):
+                prismatic = self._prismatic(i)
+                yield Parameter(idx, f"joint{i}.c", "m/N" if prismatic else "rad/(N*m)",
+                                Group.COMPLIANCE, i,
+                                f"compliance of joint {i} ({jname}): deflection per gravity "
+                                f"{'force' if prismatic else 'torque'}")
+                idx += 1
+        if self.joint_gains is None:
             return
-        for i, jname in enumerate(self.robot.joint_names, start=1):
-            prismatic = self.robot.model.joints[i].shortname().startswith("JointModelP")
-            yield Parameter(idx, f"joint{i}.c", "m/N" if prismatic else "rad/(N*m)",
-                            Group.COMPLIANCE, i,
-                            f"compliance of joint {i} ({jname}): deflection per gravity "
-                            f"{'force' if prismatic else 'torque'}")
+        names = self.robot.joint_names
+        for i in self.joint_gains.joints:
+            unit = "m/m" if self._prismatic(i) else "rad/rad"
+            yield Parameter(idx, f"joint{i}.gain", unit, Group.GAIN, i,
+                            f"gain (relative encoder scale error) of joint {i} ({names[i - 1]})")
             idx += 1
+        for j, f in self.joint_gains.couplings:
+            unit = f"{'m' if self._prismatic(j) else 'rad'}/{'m' if self._prismatic(f) else 'rad'}"
+            yield Parameter(idx, f"joint{j}.coupling{f}", unit, Group.COUPLING, j,
+                            f"coupling ratio error: joint {j} ({names[j - 1]}) moves by it times "
+                            f"joint {f} ({names[f - 1]})")
+            idx += 1
+
+    def _prismatic(self, i: int) -> bool:
+        return self.robot.model.joints[i].shortname().startswith("JointModelP")
 
     @property
     def size(self) -> int:
-        """Number of parameters :math:`n_p = 6 + 3k + 6n` (+ n with compliance)."""
+        """Number of parameters :math:`n_p = 6 + 3k + 6n` (+ n with compliance, + gains and couplings)."""
         return len(self.parameters)
 
     @property
@@ -195,7 +235,26 @@ class ParameterSpace:
     def compliance_slice(self) -> slice:
         """Slice of the joint compliances (empty when compliance is not modelled)."""
         start = self.joints_slice.stop
-        return slice(start, self.size)
+        return slice(start, start + (self.n_joints if self.compliance is not None else 0))
+
+    @property
+    def gain_slice(self) -> slice:
+        """Slice of the joint gains and coupling ratios (empty when not identified), the last entries."""
+        return slice(self.compliance_slice.stop, self.size)
+
+    @property
+    def joint_axes(self) -> np.ndarray:
+        r"""Motion axis :math:`S_i` of every joint in its own frame, (n, 6) (constant for 1-DoF joints)."""
+        if self.gravity is not None:
+            return self.gravity.axes
+        if not hasattr(self, "_axes"):
+            model = self.robot.model
+            data = model.createData()
+            pin.forwardKinematics(model, data, pin.neutral(model))
+            axes = np.array([np.asarray(data.joints[i].S).reshape(6) for i in range(1, model.njoints)])
+            axes.setflags(write=False)
+            self._axes = axes
+        return self._axes
 
     def joint_slice(self, i: int) -> slice:
         """Slice of joint ``i``'s 6 parameters (1-based, Pinocchio joint index)."""
@@ -268,9 +327,11 @@ class ParameterSpace:
         )
 
     def random(self, rng: np.random.Generator | int, sigma_length: float = 0.5e-3,
-               sigma_angle: float = 0.5e-3, sigma_compliance: float = 1e-6) -> np.ndarray:
-        """Random parameters, normal with the given standard deviations [m], [rad], [rad/(N·m)]."""
+               sigma_angle: float = 0.5e-3, sigma_compliance: float = 1e-6,
+               sigma_gain: float = 1e-3) -> np.ndarray:
+        """Random parameters, normal with the given standard deviations [m], [rad], [rad/(N·m)], [1]."""
         rng = np.random.default_rng(rng)
         table = {"m": sigma_length, "rad": sigma_angle}
-        sd = np.array([table.get(p.unit, sigma_compliance) for p in self.parameters])
+        sd = np.array([sigma_gain if p.group in (Group.GAIN, Group.COUPLING)
+                       else table.get(p.unit, sigma_compliance) for p in self.parameters])
         return rng.normal(size=self.size) * sd

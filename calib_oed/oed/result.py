@@ -216,12 +216,15 @@ def write_design(folder: str | os.PathLike, design: Design, robot: Robot) -> dic
     return {"yaml": yaml_path, "csv": csv_path}
 
 
-def read_design_file(path: str | os.PathLike, robot: Robot, check_limits: bool = True) -> np.ndarray:
+def read_design_file(path: str | os.PathLike, robot: Robot, check_limits: bool = True,
+                     controller=None) -> np.ndarray:
     """Configurations (n, nq) [rad] of a design file, in ``robot``'s joint order.
 
     Accepts what :func:`write_design` writes: ``design.yaml`` (its
     ``joint_names`` and ``configurations_rad``) or a design CSV (header = joint
-    names, rad), recognised by the suffix (``.yaml``/``.yml``, else CSV).
+    names, rad), recognised by the suffix (``.yaml``/``.yml``, else CSV). A CSV in
+    controller joint values (``# joints: controller <name>``) is mapped to URDF joints
+    with ``controller``, the scene's :class:`~calib_oed.model.controller.ControllerConvention`.
 
     Raises:
         MeasurementFileError: unreadable file, not a calib_oed design, joint
@@ -232,7 +235,7 @@ def read_design_file(path: str | os.PathLike, robot: Robot, check_limits: bool =
         raise MeasurementFileError(str(path), [(None, "is a folder; give its design.yaml or design.csv")],
                                    kind="design file")
     if path.suffix.lower() not in (".yaml", ".yml"):
-        return read_design_csv(path, robot, check_limits=check_limits)
+        return read_design_csv(path, robot, check_limits=check_limits, controller=controller)
     source = str(path)
 
     def fail(message: str) -> MeasurementFileError:

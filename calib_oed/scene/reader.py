@@ -25,20 +25,19 @@ from calib_oed.exceptions import (
 )
 from calib_oed.feasibility.shapes import Cell, FeasibilitySettings
 from calib_oed.measurement.noise import TrackerNoise
-from calib_oed.model.compliance import Compliance
 from calib_oed.model.controller import controller_from_mapping
 from calib_oed.model.joint_path import sample_joint_path
 from calib_oed.model.robot import Robot, load_robot
 from calib_oed.scene.cell import read_cell, read_feasibility, reflector_normal
 from calib_oed.scene.checks import check_scene
 from calib_oed.scene.fields import FieldReader
+from calib_oed.scene.joint_keys import read_compliance, read_joint_gains
 from calib_oed.scene.records import (
     DEFAULT_SIGMA_ANGLE,
     KPI_AGGREGATES,
     KPI_FRAMES,
     MEASUREMENTS,
     SUPPORTED_VERSIONS,
-    ComplianceSpec,
     GenericDesignSpec,
     KpiSpec,
     ReflectorSpec,
@@ -124,8 +123,12 @@ class SceneReader(FieldReader):
         if not isinstance(description, str):
             raise self.fail("description", f"expected a string, got {description!r}")
         robot = self.robot(top["robot"])
-        compliance = (self.compliance(top["robot"]["compliance"])
+        compliance = (read_compliance(self, top["robot"]["compliance"], robot.model.nq)
                       if "compliance" in top["robot"] else None)
+        controller = (controller_from_mapping(top["controller"], robot.model.nq)
+                      if "controller" in top else None)
+        joint_gains = (read_joint_gains(self, top["robot"]["joint_gains"], robot.model.nq, controller)
+                       if "joint_gains" in top["robot"] else None)
         gd = self.mapping(top.get("generic_design", {}), "generic_design", (), ("n", "seed"))
         return Scene(
             name=self.string(top["name"], "name"),
@@ -153,8 +156,8 @@ class SceneReader(FieldReader):
                          if "feasibility" in top else FeasibilitySettings()),
             compliance=compliance,
             program=self.free_mapping(top.get("program", {}), "program"),
-            controller=(controller_from_mapping(top["controller"], robot.model.nq)
-                        if "controller" in top else None),
+            controller=controller,
+            joint_gains=joint_gains,
             repeatability=self.repeatability(top),
         )
 
@@ -195,7 +198,7 @@ class SceneReader(FieldReader):
     def robot(self, value) -> Robot:
         spec = self.mapping(value, "robot", (), ("name", "urdf", "xacro", "args", "tool_frame",
                                                  "joint_limits", "lock_joints", "package_dirs",
-                                                 "compliance", "repeatability"))
+                                                 "compliance", "repeatability", "joint_gains"))
         given = [k for k in ("name", "urdf", "xacro") if k in spec]
         if len(given) != 1:
             raise self.fail("robot", "expected exactly one of 'name' (a robot name), 'urdf' "
@@ -265,17 +268,6 @@ class SceneReader(FieldReader):
                                 f"got {v!r}")
         return {str(k): ("true" if v is True else "false" if v is False else str(v))
                 for k, v in args.items()}
-
-    def compliance(self, value) -> ComplianceSpec:
-        """``robot.compliance: {enabled: true, payload: {mass: kg, com: [x, y, z]}}`` (com in length units)."""
-        spec = self.mapping(value, "robot.compliance", (), ("enabled", "payload"))
-        enabled = spec.get("enabled", True)
-        if not isinstance(enabled, bool):
-            raise self.fail("robot.compliance.enabled", f"expected true or false, got {enabled!r}")
-        load = self.mapping(spec.get("payload", {}), "robot.compliance.payload", (), ("mass", "com"))
-        mass = self.number(load.get("mass", 0.0), "robot.compliance.payload.mass", nonnegative=True)
-        com = self.vector(load.get("com", [0, 0, 0]), "robot.compliance.payload.com", 3, self.length)
-        return ComplianceSpec(enabled, Compliance(mass, com))
 
     def package_dirs(self, value) -> list[str] | None:
         """``robot.package_dirs``: folders searched for ``package://`` meshes, relative to the file."""

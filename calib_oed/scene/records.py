@@ -20,6 +20,7 @@ from calib_oed.feasibility.shapes import Cell, FeasibilitySettings
 from calib_oed.measurement.noise import TrackerNoise
 from calib_oed.model.compliance import Compliance
 from calib_oed.model.controller import ControllerConvention
+from calib_oed.model.joint_map import JointGains
 from calib_oed.model.robot import Robot
 
 MEASUREMENTS = ("position", "pose")
@@ -237,6 +238,9 @@ class Scene:
     #: The optional ``controller:`` block: controller joint conventions
     #: (:mod:`calib_oed.model.controller`); None if the file has none.
     controller: ControllerConvention | None = None
+    #: ``robot.joint_gains``: joint gains and coupling ratios to identify
+    #: (:mod:`calib_oed.model.joint_map`); None if the file has none or disables them.
+    joint_gains: JointGains | None = None
 
 
 @dataclass(frozen=True, eq=False)

@@ -1,0 +1,92 @@
+"""Scene keys for the optional joint parameters: ``robot.compliance`` and ``robot.joint_gains``.
+
+Both sit under ``robot:`` and are read after the robot (they need its joint
+count) and, for the couplings, the ``controller:`` block. Units follow the
+file's ``units:`` (lengths of centres of mass); masses are in kg.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from calib_oed.model.compliance import Compliance
+from calib_oed.model.controller import ControllerConvention
+from calib_oed.model.joint_map import JointGains
+from calib_oed.scene.fields import FieldReader
+from calib_oed.scene.records import ComplianceSpec
+
+
+def read_compliance(reader: FieldReader, value, n: int) -> ComplianceSpec:
+    """``robot.compliance: {enabled, payload: {mass, com}, links}`` for a robot with ``n`` joints.
+
+    ``links`` says where the arm's own weight comes from: ``urdf`` (default: the
+    URDF's inertias), ``none`` (the payload alone: no link weighs anything) or a
+    list of ``n`` entries ``{mass: kg, com: [x, y, z]}``, one per joint, base to
+    tip: the link moved by that joint as a point mass at ``com`` in the joint's
+    frame (file length units; default the joint origin). A scene list replaces
+    the URDF's inertias (use it when the URDF has none).
+    """
+    key = "robot.compliance"
+    spec = reader.mapping(value, key, (), ("enabled", "payload", "links"))
+    enabled = spec.get("enabled", True)
+    if not isinstance(enabled, bool):
+        raise reader.fail(f"{key}.enabled", f"expected true or false, got {enabled!r}")
+    load = reader.mapping(spec.get("payload", {}), f"{key}.payload", (), ("mass", "com"))
+    mass = reader.number(load.get("mass", 0.0), f"{key}.payload.mass", nonnegative=True)
+    com = reader.vector(load.get("com", [0, 0, 0]), f"{key}.payload.com", 3, reader.length)
+    links = spec.get("links", "urdf")
+    masses = coms = None
+    if links == "none":
+        masses = np.zeros(n)
+    elif isinstance(links, list):
+        if len(links) != n:
+            raise reader.fail(f"{key}.links", f"expected {n} entries (one per joint, base to tip), "
+                              f"got {len(links)}")
+        masses, coms = np.zeros(n), np.zeros((n, 3))
+        for i, entry in enumerate(links):
+            where = f"{key}.links[{i}]"
+            entry = reader.mapping(entry, where, ("mass",), ("com",))
+            masses[i] = reader.number(entry["mass"], f"{where}.mass", nonnegative=True)
+            coms[i] = reader.vector(entry.get("com", [0, 0, 0]), f"{where}.com", 3, reader.length)
+    elif links != "urdf":
+        raise reader.fail(f"{key}.links", "expected 'urdf' (the URDF's inertias), 'none' (the payload "
+                          f"alone) or a list of {n} entries {{mass: kg, com: [x, y, z]}}, got {links!r}")
+    return ComplianceSpec(enabled, Compliance(mass, com, link_masses=masses, link_coms=coms))
+
+
+def read_joint_gains(reader: FieldReader, value, n: int,
+                     controller: ControllerConvention | None) -> JointGains | None:
+    """``robot.joint_gains: {enabled, joints, couplings}``; None when disabled.
+
+    ``joints``: ``all`` (default) or a list of joint numbers 1..n with a gain
+    each; ``couplings``: false (default) or true, one ratio per coupling of the
+    scene's ``controller:`` block (which must then list some). ``true`` alone is
+    short for ``{}`` (every joint's gain, no couplings).
+    """
+    key = "robot.joint_gains"
+    if value is True:
+        value = {}
+    spec = reader.mapping(value, key, (), ("enabled", "joints", "couplings"))
+    enabled = spec.get("enabled", True)
+    if not isinstance(enabled, bool):
+        raise reader.fail(f"{key}.enabled", f"expected true or false, got {enabled!r}")
+    joints = spec.get("joints", "all")
+    if joints == "all":
+        joints = list(range(1, n + 1))
+    elif not isinstance(joints, list) or any(
+            isinstance(i, bool) or not isinstance(i, int) or not 1 <= i <= n for i in joints):
+        raise reader.fail(f"{key}.joints", f"expected 'all' or a list of joint numbers 1..{n}, "
+                          f"got {joints!r}")
+    couplings = spec.get("couplings", False)
+    if not isinstance(couplings, bool):
+        raise reader.fail(f"{key}.couplings", f"expected true or false, got {couplings!r}")
+    pairs = ()
+    if couplings:
+        if controller is None or not controller.couplings:
+            raise reader.fail(f"{key}.couplings", "true needs a controller: block with couplings "
+                              "(e.g. {joint: 3, from: 2, ratio: 1} for FANUC's J2/J3); this scene has "
+                              + ("none" if controller is None else "a controller without couplings"))
+        pairs = tuple((c.joint, c.source) for c in controller.couplings)
+    if not joints and not pairs:
+        raise reader.fail(key, "expected at least one joint or couplings: true")
+    return JointGains(tuple(joints), pairs) if enabled else None
