@@ -66,6 +66,59 @@ def sigma_from_mpe(a: float, b: float, k: float = 2.0) -> tuple[float, float]:
     return float(a) / k, float(b) / k
 
 
+def _inverse_sqrt(sigma, slope: float, rho2: float) -> tuple:
+    r""":math:`v^{-1/2}` and its first two derivatives in d, :math:`v = \sigma(d)^2 + \rho^2`,
+    :math:`\sigma = c_0 + c_1 d` (``slope`` :math:`c_1`)."""
+    v = sigma**2 + rho2
+    v1, v2 = 2 * sigma * slope, 2 * slope**2
+    return v**-0.5, -0.5 * v**-1.5 * v1, 0.75 * v**-2.5 * v1**2 - 0.5 * v**-1.5 * v2
+
+
+def _over_d2(f: tuple, d: np.ndarray) -> tuple:
+    """:math:`f/d^2` and its first two derivatives in d from those of f."""
+    f0, f1, f2 = f
+    return f0 / d**2, f1 / d**2 - 2 * f0 / d**3, f2 / d**2 - 4 * f1 / d**3 + 6 * f0 / d**4
+
+
+def _radial_field(y, d, u, p: tuple, s: tuple, order: int) -> tuple:
+    r"""A matrix field :math:`A(y) = p(d)\,I + s(d)\,yy^\top` and its derivatives in y.
+
+    ``p``, ``s``: the functions and their first two derivatives in d, each (n,).
+    With :math:`\partial_k d = u_k`, :math:`\partial_l u_k = (\delta_{kl} - u_k u_l)/d`:
+
+    .. math::
+        \partial_k A = p' u_k I + s' u_k\, yy^\top + s\,(e_k y^\top + y e_k^\top),
+
+        \partial_{kl} A = \big(p'' u_k u_l + p'\,\partial_l u_k\big) I
+          + \big(s'' u_k u_l + s'\,\partial_l u_k\big) yy^\top
+          + s' u_k (e_l y^\top + y e_l^\top) + s' u_l (e_k y^\top + y e_k^\top)
+          + s\,(e_k e_l^\top + e_l e_k^\top).
+
+    Returns ``(A, dA, ddA)`` up to ``order``: (n, 3, 3), [i, a, b, k], [i, a, b, k, l].
+    """
+    (p0, p1, p2), (s0, s1, s2) = p, s
+    eye = np.eye(3)
+    yy = y[:, :, None] * y[:, None, :]  # [i, a, b]
+    field = p0[:, None, None] * eye + s0[:, None, None] * yy
+    if order < 1:
+        return (field,)
+    ey = eye[None, :, :, None] * y[:, None, None, :]  # (e_k y^T)_ab as [i, k, a, b]
+    sym = np.moveaxis(ey + np.swapaxes(ey, 2, 3), 1, 3)  # e_k y^T + y e_k^T as [i, a, b, k]
+    first = ((p1[:, None] * u)[:, None, None, :] * eye[None, :, :, None]
+             + (s1[:, None] * u)[:, None, None, :] * yy[..., None] + s0[:, None, None, None] * sym)
+    if order < 2:
+        return field, first
+    uu = u[:, :, None] * u[:, None, :]  # [i, k, l]
+    du = (eye - uu) / d[:, None, None]  # d u_k / d y_l
+    second = ((p2[:, None, None] * uu + p1[:, None, None] * du)[:, None, None] * eye[None, :, :, None, None]
+              + (s2[:, None, None] * uu + s1[:, None, None] * du)[:, None, None] * yy[..., None, None])
+    second += s1[:, None, None, None, None] * (u[:, None, None, :, None] * sym[:, :, :, None, :]
+                                                + u[:, None, None, None, :] * sym[:, :, :, :, None])
+    ekel = eye[:, None, :, None] * eye[None, :, None, :]  # (e_k e_l^T)_ab as [k, l, a, b]
+    second += s0[:, None, None, None, None] * np.transpose(ekel + np.swapaxes(ekel, 2, 3), (2, 3, 0, 1))
+    return field, first, second
+
+
 def _pair(value, what: str) -> tuple[float, float]:
     arr = np.asarray(value, dtype=float)
     if arr.shape != (2,):
@@ -147,6 +200,45 @@ class TrackerNoise:
         out += (sr**2 - st**2)[:, None, None, None] * duu
         out += (2 * st * t1)[:, None, None, None] * np.eye(3)[None, :, :, None] * u[:, None, None, :]
         return out
+
+    def covariance_second_derivative(self, y) -> np.ndarray:
+        r""":math:`\partial^2\Sigma/\partial y_k\partial y_l`, (n, 3, 3, 3, 3) indexed [i, a, b, k, l] [1].
+
+        :math:`\Sigma = b(d)\,I + g(d)\,yy^\top` with :math:`b = \sigma_t^2 + \rho^2`,
+        :math:`g = (\sigma_r^2 - \sigma_t^2)/d^2` (:func:`_radial_field`).
+        """
+        y, d, u = self._geometry(y)
+        (r0, r1), (t0, t1) = self.radial, self.lateral
+        sr, st = r0 + r1 * d, t0 + t1 * d
+        b = (st**2 + self.repeatability**2, 2 * st * t1, np.full_like(d, 2 * t1**2))
+        a = (sr**2 - st**2, 2 * (sr * r1 - st * t1), np.full_like(d, 2 * (r1**2 - t1**2)))
+        return _radial_field(y, d, u, b, _over_d2(a, d), 2)[2]
+
+    def symmetric_whitening(self, y, order: int = 0):
+        r""":math:`W = \Sigma^{-1/2}` (n, 3, 3) [1/m], symmetric, and its derivatives in ``y``.
+
+        .. math::
+            W = \beta(d)\,I + (\alpha(d) - \beta(d))\,u u^\top,\qquad
+            \alpha = (\sigma_r^2 + \rho^2)^{-1/2},\quad \beta = (\sigma_t^2 + \rho^2)^{-1/2},
+
+        so :math:`W^\top W = \Sigma^{-1}` (it differs from :meth:`whitening`, the
+        inverse Cholesky factor, by a rotation per position, which leaves
+        :math:`F^\top F` unchanged). The design objective uses it for its closed-form
+        derivatives (:func:`_radial_field`): ``order`` 1 adds :math:`\partial W/\partial y_k`
+        (n, 3, 3, 3) [i, a, b, k] [1/m²], ``order`` 2 also
+        :math:`\partial^2 W/\partial y_k\partial y_l` (n, 3, 3, 3, 3) [1/m³].
+
+        Returns:
+            ``(W, dW or None, ddW or None)``.
+        """
+        y, d, u = self._geometry(y)
+        (r0, r1), (t0, t1) = self.radial, self.lateral
+        rho2 = self.repeatability**2
+        alpha = _inverse_sqrt(r0 + r1 * d, r1, rho2)
+        beta = _inverse_sqrt(t0 + t1 * d, t1, rho2)
+        diff = tuple(x - z for x, z in zip(alpha, beta, strict=True))
+        out = _radial_field(y, d, u, beta, _over_d2(diff, d), order)
+        return out[0], (out[1] if order >= 1 else None), (out[2] if order >= 2 else None)
 
     def cholesky(self, y) -> np.ndarray:
         r"""Lower-triangular :math:`L` with :math:`\Sigma = L L^\top`, (n, 3, 3) [m]."""

@@ -7,6 +7,12 @@ each pose contributes the rows
     \tilde F_j(q_j) = \Sigma^{-1}\,\frac{\partial h}{\partial p_f}(p, q_j)\,D
     \in \mathbb{R}^{d \times n_f}
 
+(:math:`\Sigma = \mathrm{diag}(\sigma)`; a model with a full error model,
+``mdl.noise``, uses :math:`W(y_j) = \Sigma_j(q_j)^{-1/2}` in place of
+:math:`\Sigma^{-1}`, and its q-derivatives include those of :math:`W`:
+:mod:`calib_oed.oed.whitening`; models without it take the isotropic code
+path unchanged)
+
 of the weighted sensitivity on the free parameters :math:`p_f` (gauge rule),
 unit-scaled by :math:`D = \mathrm{diag}(u_f)` so that parameters are in mm
 and mrad (``ParameterSpace.unit_scale``). The information matrix and the
@@ -49,6 +55,13 @@ from calib_oed.measurement import evaluate_setup
 from calib_oed.oed.criteria import ACriterion, make_criterion
 from calib_oed.oed.criterion_base import Criterion
 from calib_oed.oed.hessian import coupling_factor, has_exact_hessian, structured_hessian
+from calib_oed.oed.whitening import (
+    NoisePieces,
+    whitened_row_derivatives,
+    whitened_row_hessians,
+    whitened_rows,
+    whitening_pieces,
+)
 from calib_oed.solver.result import StructuredHessian
 
 #: KPI entries of :math:`P`: metres to millimetres.
@@ -124,6 +137,7 @@ class DesignObjective:
         # first-order pieces (and the kinematic state) of the last few designs: the SQP
         # asks for value, gradient and curvature at the same point
         self._cache: dict[bytes, tuple] = {}
+        self._noise_memo: dict = {}  # whitening pieces of the last state (:meth:`_whitening`)
 
     @property
     def n_free(self) -> int:
@@ -163,19 +177,36 @@ class DesignObjective:
         return evaluate_setup(self.problem.space, self.p, q, regressor=True,
                               jacobian=second_order)
 
+    def _whitening(self, mdl, state, order: int) -> NoisePieces:
+        """:func:`calib_oed.oed.whitening.whitening_pieces` of a model with ``mdl.noise``,
+        kept for the last state (value, gradient and Hessian of one design share them)."""
+        memo = self._noise_memo
+        if memo.get("state") is not state:
+            memo.clear()
+            memo["state"] = state
+        done, known = memo.get(id(mdl), (-1, None))
+        if done < order:
+            memo[id(mdl)] = (order, whitening_pieces(mdl, state, self.free, order, known))
+        return memo[id(mdl)][1]
+
     def _rows(self, state) -> np.ndarray:
-        blocks = [
-            mdl.compute_param_jacobian(state)[:, :, self.free] / mdl.sigma[None, :, None]
-            for mdl in self.problem.models
-        ]
+        blocks = []
+        for mdl in self.problem.models:
+            if getattr(mdl, "noise", None) is None:  # the isotropic model, unchanged
+                jac = mdl.compute_param_jacobian(state)[:, :, self.free]
+                blocks.append(jac / mdl.sigma[None, :, None])
+            else:
+                blocks.append(whitened_rows(self._whitening(mdl, state, 0)))
         return np.concatenate(blocks, axis=1) * self.scale  # (n, d, n_f)
 
     def _row_derivatives(self, state) -> np.ndarray:
-        blocks = [
-            mdl.compute_param_config_jacobian(state)[:, :, self.free, :]
-            / mdl.sigma[None, :, None, None]
-            for mdl in self.problem.models
-        ]
+        blocks = []
+        for mdl in self.problem.models:
+            if getattr(mdl, "noise", None) is None:
+                d_jac = mdl.compute_param_config_jacobian(state)[:, :, self.free, :]
+                blocks.append(d_jac / mdl.sigma[None, :, None, None])
+            else:
+                blocks.append(whitened_row_derivatives(self._whitening(mdl, state, 1)))
         return np.concatenate(blocks, axis=1) * self.scale[:, None]  # (n, d, n_f, nv)
 
     def _row_hessians(self, state) -> np.ndarray | None:
@@ -189,8 +220,12 @@ class DesignObjective:
                                + dd.shape[3:])
             rows = slice(start, start + mdl.dim)
             start += mdl.dim
-            factor = self.scale[None, :] / mdl.sigma[:, None]  # (d, n_f)
-            np.multiply(dd[:, :, self.free], factor[None, :, :, None, None], out=out[:, rows])
+            if getattr(mdl, "noise", None) is None:
+                factor = self.scale[None, :] / mdl.sigma[:, None]  # (d, n_f)
+                np.multiply(dd[:, :, self.free], factor[None, :, :, None, None], out=out[:, rows])
+            else:
+                block = whitened_row_hessians(self._whitening(mdl, state, 2), dd[:, :, self.free])
+                out[:, rows] = block * self.scale[None, None, :, None, None]
         return out  # (n, d, n_f, nv, nv)
 
     def compute_blocks(self, q: np.ndarray) -> np.ndarray:
@@ -202,7 +237,9 @@ class DesignObjective:
 
         .. math::
             \frac{\partial\tilde F_j}{\partial q_{j,k}}
-              = \Sigma^{-1}\,\frac{\partial^2 h}{\partial p_f\,\partial q_{j,k}}(p, q_j)\,D,
+              = \Sigma^{-1}\,\frac{\partial^2 h}{\partial p_f\,\partial q_{j,k}}(p, q_j)\,D
+              \quad\Big(\text{full error model: }
+              \big(W\,\partial_k J + \partial_k W\,J\big) D\Big),
 
         the mixed derivative of the measurement models
         (``compute_param_config_jacobian``), weighted and unit-scaled as the

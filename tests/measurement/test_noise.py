@@ -147,3 +147,29 @@ def test_measurement_set_blocks_carry_the_noise_model(robot):
     pose = MeasurementSet.from_arrays(robot, q, positions, rotations=np.zeros((5, 3)))
     with pytest.raises(ParameterError, match="position rows only"):
         pose.blocks(noise=NOISE)
+
+
+def test_symmetric_whitening_is_the_inverse_square_root(points):
+    cov = NOISE.covariance(points)
+    w = NOISE.symmetric_whitening(points)[0]
+    np.testing.assert_allclose(w, np.swapaxes(w, 1, 2), rtol=0, atol=0)
+    np.testing.assert_allclose(w @ cov @ w, np.broadcast_to(np.eye(3), cov.shape), atol=1e-12)
+    # the same information as the Cholesky whitening of the identification
+    chol_w = NOISE.whitening(points)
+    np.testing.assert_allclose(np.swapaxes(w, 1, 2) @ w, np.swapaxes(chol_w, 1, 2) @ chol_w,
+                               rtol=1e-12)
+
+
+def test_second_derivatives_match_finite_differences(points):
+    """d2Sigma/dy2 and the symmetric whitening's first and second y-derivatives."""
+    dd_cov = NOISE.covariance_second_derivative(points)
+    w, d_w, dd_w = NOISE.symmetric_whitening(points, order=2)
+    np.testing.assert_array_equal(d_w, NOISE.symmetric_whitening(points, order=1)[1])
+    for i, y in enumerate(points):
+        numeric = central_difference(lambda x: NOISE.covariance_derivative(x[None, :])[0], y, 1e-6)
+        assert relative_error(dd_cov[i], numeric) < 1e-6
+        numeric = central_difference(lambda x: NOISE.symmetric_whitening(x[None, :])[0][0], y, 1e-6)
+        assert relative_error(d_w[i], numeric) < 1e-6
+        numeric = central_difference(lambda x: NOISE.symmetric_whitening(x[None, :], 1)[1][0], y,
+                                     1e-6)
+        assert relative_error(dd_w[i], numeric) < 1e-6
