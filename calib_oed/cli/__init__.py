@@ -207,6 +207,8 @@ def build_parser() -> argparse.ArgumentParser:
                    "meshes of all poses would make the page too large)")
     p.add_argument("--for", dest="seconds", type=float, metavar="SECONDS",
                    help="serve for this long, then stop (default: until Ctrl-C)")
+    p.add_argument("--program", metavar="DIR", help="animate the measurement program written by "
+                   "`calib-oed program SCENE DESIGN --format csv -o DIR` (its CSV, or the CSV file)")
     p.add_argument("--json", action="store_true", help="machine-readable output (with --html)")
     p.set_defaults(func=cmd_view, outputs={"html": "file"})
 

@@ -49,7 +49,7 @@ def cmd_design(args) -> int:
                           "(docs/scenes.md)" if controller is None else "needs -o DIR to write to")
     start = args.start
     if args.start not in ("heuristic", "exchange"):
-        start = read_design_file(args.start, s.problem.robot)
+        start = read_design_file(args.start, s.problem.robot, controller=s.scene.controller)
         if args.n is not None and args.n != len(start):
             raise DesignError("n", args.n, f"--start {args.start} has {len(start)} poses and a start "
                               f"file sets the design's size: drop -n, or give a start of {args.n} poses")
@@ -186,7 +186,8 @@ def cmd_compare(args) -> int:
         labels = [str(p) for p in args.designs]
     designs = {}
     for label, path in _iterate(args, list(zip(labels, args.designs, strict=True)), "designs"):
-        designs[label] = evaluate_design(s, read_design_file(path, s.problem.robot), "kpi", method="given")
+        designs[label] = evaluate_design(s, read_design_file(path, s.problem.robot, controller=s.scene.controller),
+                                         "kpi", method="given")
     if args.plot:
         from calib_oed.viz.plots import plot_kpi_ellipsoids, save_figure
 
@@ -216,15 +217,24 @@ def cmd_view(args) -> int:
     if args.design:
         from calib_oed.oed.result import read_design_file
 
-        q = read_design_file(args.design, s.problem.robot)
+        q = read_design_file(args.design, s.problem.robot, controller=s.scene.controller)
     options = {"ellipsoid_scale": args.scale, "level": args.level, "robot_drawing": args.drawing}
+    if args.program:
+        from calib_oed.program.csv_format import read_program_csv
+
+        robot = s.problem.robot
+        options["program"] = read_program_csv(args.program, robot.joint_names, s.scene.controller)
     if args.html:
         view = write_static_html(args.html, s, q, **options)
         if args.json:
             print(json.dumps({"html": str(view.path), "poses": view.info.n_poses,
                               "ellipsoid_scale": view.info.ellipsoid_scale,
                               "ellipsoid_half_axes_mm": np.asarray(view.info.half_axes_mm).tolist(),
-                              "notes": list(view.info.notes)}, indent=2))
+                              "notes": list(view.info.notes),
+                              "program": None if view.info.program is None else {
+                                  "targets": view.info.program.n_targets,
+                                  "poses": view.info.program.n_poses, "via_points": view.info.program.n_via,
+                                  "animation_s": view.info.program.duration}}, indent=2))
             return EXIT_OK
         print(view.info.summary())
         print(f"wrote {view.path} (self-contained: opens offline in a browser)")

@@ -28,6 +28,11 @@ def add_program_parser(sub) -> None:
     p.add_argument("--dwell", type=float, metavar="SECONDS", help="settle and measure time per "
                    "pose (default: the scene's program.dwell, else 2 s)")
     p.add_argument("--solver", choices=("lkh", "ortools"), help="tour solver (default lkh)")
+    p.add_argument("--strict", action="store_true", help="stop with an error when a pose cannot "
+                   "be reached from home (default: leave it out, named in the output and the files)")
+    p.add_argument("--wrap", action="store_true", help="measure each pose at the joint values whole "
+                   "turns away that are nearest home (same robot geometry; joints with more than "
+                   "360 deg of range)")
     p.add_argument("--name", default="calib_program", help="program/module name (default "
                    "calib_program)")
     p.add_argument("-o", "--output", metavar="DIR", help="write the program files into DIR")
@@ -68,9 +73,10 @@ def cmd_program(args) -> int:
     if not args.name.isidentifier():
         raise ProgramError("--name", args.name, "a program name must be an identifier "
                            "(letters, digits, _)")
-    q = read_design_file(args.design, scene.robot)
+    q = read_design_file(args.design, scene.robot, controller=scene.controller)
     settings = program_settings_from_scene(scene, home=_home(args.home, scene.robot),
-                                           dwell=args.dwell, solver=args.solver)
+                                           dwell=args.dwell, solver=args.solver,
+                                           skip_unreachable=not args.strict, wrap=args.wrap)
     _say(args, f"ordering and checking {len(q)} poses of {args.design} in scene {scene.name!r} ...")
     program = build_program(scene, q, settings)
     program_texts(program, args.format, args.name)  # the format's checks, before writing
@@ -80,6 +86,7 @@ def cmd_program(args) -> int:
                 "poses": len(q), "order": [int(k) + 1 for k in program.order],
                 "cycle_time_s": program.cycle_times, "solver": program.solver,
                 "dwell_s": program.dwell, "stats": program.stats,
+                "not_measured": [{"pose": k + 1, "why": why} for k, why in program.skipped],
                 "files": [str(p) for p in paths]}
         print(json.dumps(data, indent=2))
         return EXIT_OK

@@ -15,7 +15,10 @@ The steps (docs/program.md):
    (:mod:`calib_oed.program.planner`) and cost their planned path's time; solve
    again, until nothing changes. Each round checks a new move or plans a new
    one, and there are finitely many: this ends. The same for nearest neighbour;
-   the better of the two is the program.
+   the better of the two is the program;
+4. a move of that tour nothing connects: a pose home does not reach (direct or
+   planned) is left out with why (``skip_unreachable``, else a :class:`ProgramError`
+   names it), two poses home reaches both are joined through home; back to 3.
 
 Every move of the returned program is certified and priced with its planned
 path. The design order's cycle time uses planned paths with ``plan_baselines``,
@@ -30,12 +33,12 @@ import time
 import numpy as np
 
 from calib_oed.exceptions import ProgramError
-from calib_oed.program.continuous import MoveChecker, overlapping_pairs
+from calib_oed.program.continuous import MoveChecker
 from calib_oed.program.planner import plan_move
 from calib_oed.program.records import Move, Program
 from calib_oed.program.settings import ProgramSettings
 from calib_oed.program.timing import JointDynamics
-from calib_oed.program.tour import design_order, nearest_neighbour, solve_tour, tour_time
+from calib_oed.program.tour import nearest_neighbour, solve_tour, tour_time
 
 #: Cost [s] of a move no plan connects: the tour avoids it if it can (more than any
 #: tour of direct moves takes; small enough for LKH's integer arithmetic).
@@ -43,12 +46,15 @@ UNREACHABLE = 1e3
 
 
 def move_checker(scene, settings: ProgramSettings) -> MoveChecker:
-    """The continuous check of a scene: its capsule model without the sampling pass's pruning."""
+    """The continuous check of a scene: the design's model (every collision row it keeps),
+    plus the pairs its sampling pass dropped as never close in the samples (a sample proves
+    nothing about a move), from the model without the pass."""
     from calib_oed.feasibility.pairs import feasibility_from_scene
 
-    _, report = feasibility_from_scene(scene)
+    design, report = feasibility_from_scene(scene)
     full, _ = feasibility_from_scene(scene, prune=False)
-    return MoveChecker(full, settings.move_tolerance, overlapping_pairs(report))
+    far = frozenset(d.label for d in report.dropped if d.reason.startswith("never closer"))
+    return MoveChecker(design, settings.move_tolerance, extra=full, extra_rows=far)
 
 
 def home_configuration(scene, settings: ProgramSettings) -> tuple[np.ndarray, str]:
@@ -114,8 +120,14 @@ class _Moves:
         self.known[(a, b)] = Move(a, b, plan.waypoints, cost, move.direct, plan)
         return self.get(i, j)
 
-    def settle(self, solve, limit: int) -> np.ndarray:
-        """Re-solve until the tour's moves are all checked and its blocked ones planned."""
+    def settle(self, solve_sub, limit: int, keep: np.ndarray) -> np.ndarray:
+        """Re-solve until the tour's moves are all checked and its blocked ones planned; the
+        tour visits home and the nodes ``keep`` (the poses not left out)."""
+        sub = np.concatenate([[0], keep])
+
+        def solve(cost):
+            return sub[solve_sub(cost[np.ix_(sub, sub)])]
+
         order = solve(self.cost)
         for _ in range(limit):
             edges = _edges(order)
@@ -137,6 +149,16 @@ class _Moves:
                     self.plan(i, j)
             order = solve(self.cost)
         return order
+
+    def via_home(self, i: int, j: int) -> None:
+        """Connect poses ``i`` and ``j`` through home (both reached from home by certified paths)."""
+        a, b = min(i, j), max(i, j)
+        first, second = self.plan(a, 0), self.plan(0, b)
+        old = self.known[(a, b)]
+        way = np.vstack([first.waypoints, second.waypoints[1:]])
+        cost = first.time + second.time
+        self.cost[a, b] = self.cost[b, a] = cost
+        self.known[(a, b)] = Move(a, b, way, cost, old.direct, old.plan)
 
     def lower_bound(self, order: np.ndarray) -> float:
         """Travel time of a tour with unplanned blocked moves at their direct time (a lower bound)."""
@@ -172,6 +194,9 @@ def build_program(scene, q: np.ndarray, settings: ProgramSettings | None = None,
     checker = checker or move_checker(scene, settings)
     dyn = JointDynamics.from_robot(robot, settings)
     home, note = home_configuration(scene, settings)
+    wrapped: tuple[int, ...] = ()
+    if settings.wrap:
+        q, wrapped = nearest_turns(robot, q, home, scene.feasibility.margins.joint)
     nodes = np.vstack([home, q])
     clearance = checker.clearance(nodes)
     for k in np.flatnonzero(clearance < -settings.move_tolerance):
@@ -183,7 +208,6 @@ def build_program(scene, q: np.ndarray, settings: ProgramSettings | None = None,
                            "model: choose another --home")
     moves = _Moves(nodes, checker, dyn, settings, scene.feasibility.margins.joint)
     n = len(q)
-    dwell = n * settings.dwell
     limit = 10 * n + 10
     winner = [settings.solver]
 
@@ -192,20 +216,22 @@ def build_program(scene, q: np.ndarray, settings: ProgramSettings | None = None,
         winner[0] = who
         return order
 
-    order = moves.settle(solver, limit)
-    nn = moves.settle(nearest_neighbour, limit)
-    if tour_time(moves.cost, nn) < tour_time(moves.cost, order):
-        order, winner[0] = nn, "nearest neighbour"
-    design = design_order(n)
+    keep = np.arange(1, n + 1)
+    skipped: dict[int, str] = {}
+    while True:
+        order = moves.settle(solver, limit, keep)
+        nn = moves.settle(nearest_neighbour, limit, keep)
+        if tour_time(moves.cost, nn) < tour_time(moves.cost, order):
+            order, winner[0] = nn, "nearest neighbour"
+        dead = [e for e in _edges(order) if moves.cost[e] >= UNREACHABLE]
+        if not dead:
+            break
+        keep = _resolve_unreachable(moves, dead, keep, skipped, settings, nodes)
+    design = keep  # the design's order of the poses measured
+    dwell = len(keep) * settings.dwell
     for i, j in _edges(design):  # without plan_baselines only the first batch of samples
         moves.plan(i, j) if plan_baselines else moves.screen(i, j)
     program_moves = tuple(moves.get(i, j) for i, j in _edges(order))
-    for m in program_moves:
-        if m.time >= UNREACHABLE:
-            what = f"pose {m.end if m.end else m.start}"
-            raise ProgramError(what, m.direct.worst_row, "no collision-free move to or from it "
-                               f"was found (planner: {m.plan.status if m.plan else '-'}); raise "
-                               "program planner time or drop the pose")
     known = list(moves.known.values())
     blocked = [m for m in known if m.plan is not None]
     screened_blocked = sum(1 for e in moves.screened if e not in moves.known
@@ -232,7 +258,69 @@ def build_program(scene, q: np.ndarray, settings: ProgramSettings | None = None,
         (not moves.known[e].direct.verified) if e in moves.known else bool(moves.cost[e] >= UNREACHABLE)
         for e in ((min(i, j), max(i, j)) for i, j in _edges(design)))
     stats["design_order_planned"] = plan_baselines
+    stats["wrapped_poses"] = [k + 1 for k in wrapped]
     stats["cpu_s"] = time.process_time() - start
     return Program(scene.name, tuple(robot.joint_names), home, q, order - 1, program_moves,
                    settings.dwell, cycle, winner[0], stats, note, dyn.velocity, dyn.acceleration,
-                   scene.controller)
+                   scene.controller, tuple(sorted((k - 1, why) for k, why in skipped.items())))
+
+
+def _resolve_unreachable(moves: _Moves, dead, keep, skipped: dict[int, str], settings, nodes) -> np.ndarray:
+    """Deal with the tour's moves no certified path connects: a pose home cannot reach
+    (direct move or planned path) is left out (or, without ``skip_unreachable``, a
+    :class:`ProgramError` names it); two poses home reaches both are joined through home."""
+    out = set(int(k) for k in keep)
+    for i, j in dead:
+        lost = [p for p in (i, j) if p and moves.plan(0, p).time >= UNREACHABLE]
+        if not lost:
+            moves.via_home(i, j)
+            continue
+        for p in lost:
+            move = moves.get(0, p)
+            why = (f"no certified path from home found: direct move blocked ({move.direct.worst_row} "
+                   f"{move.direct.min_sampled * 1e3:.1f} mm), planner: "
+                   f"{move.plan.status if move.plan else '-'} in {settings.planner_time:g} s"
+                   + _wrap_hint(nodes[p], nodes[0], moves.checker.robot))
+            if not settings.skip_unreachable:
+                raise ProgramError(f"pose {p}", move.direct.worst_row, why + "; leave it out "
+                                   "(skip_unreachable) or raise program.planner_time")
+            skipped[p] = why
+            out.discard(p)
+    if not out:
+        raise ProgramError("poses", sorted(skipped), "no pose can be reached from home")
+    return np.array(sorted(out), dtype=int)
+
+
+def nearest_turns(robot, q: np.ndarray, home: np.ndarray, margin: float = 0.0) -> tuple[np.ndarray, tuple[int, ...]]:
+    """Each pose with every revolute joint moved by whole turns (within the limits less
+    ``margin``) to the value nearest home [rad]; and the (0-based) poses that changed.
+
+    Revolute joints only (a full turn of a prismatic joint is not the same geometry)."""
+    out = np.array(q, dtype=float, copy=True)
+    lo, hi = robot.lower + margin, robot.upper - margin
+    model = robot.model
+    revolute = [model.joints[j].idx_q for j in range(1, model.njoints)
+                if model.joints[j].nq == 1 and model.joints[j].shortname().startswith(
+                    ("JointModelRX", "JointModelRY", "JointModelRZ", "JointModelRevoluteUnaligned"))]
+    for i in revolute:
+        for k in (-2, -1, 1, 2):
+            x = np.asarray(q, float)[:, i] + 2 * np.pi * k
+            better = (x >= lo[i]) & (x <= hi[i]) & (np.abs(x - home[i]) < np.abs(out[:, i] - home[i]))
+            out[better, i] = x[better]
+    changed = tuple(int(k) for k in np.flatnonzero(np.any(np.abs(out - q) > 0, axis=1)))
+    return out, changed
+
+
+def _wrap_hint(q: np.ndarray, home: np.ndarray, robot) -> str:
+    """A note when a joint of the pose is a full turn from a value nearer home (same geometry)."""
+    turns = []
+    for i, name in enumerate(robot.joint_names):
+        for k in (-2, -1, 1, 2):
+            x = q[i] + 2 * np.pi * k
+            if robot.lower[i] <= x <= robot.upper[i] and abs(x - home[i]) < abs(q[i] - home[i]):
+                turns.append(f"{name} {np.rad2deg(q[i]):.1f} deg (= {np.rad2deg(x):.1f})")
+                break
+    if not turns:
+        return ""
+    return ("; the same robot geometry is nearer home with " + ", ".join(turns)
+            + ": the design's joint values may lie where home cannot wind to (e.g. through the table)")

@@ -24,12 +24,14 @@ the others, evaluating all new midpoints in one batch. It ends
 - **unverified**: an interval shorter than ``min_step`` or the evaluation budget
   still uncertified (a grazing contact at exactly :math:`-\delta`): treated as blocked.
 
-Rows checked: every candidate pair of the capsule model *without* the sampling
-pass that prunes pairs "never closer than 100 mm in 2000 samples" (sampling
-proves nothing about a move), except pairs the pass found overlapping in every
-sample (a capsule model too coarse to separate them; the design ignores them
-too). Joint limits need no check: the segment between two configurations inside
-the box of limits stays inside. Laser beam and incidence rows are evaluated at
+Rows checked: every collision row of the design's model (the rows the design
+keeps: capsule pairs, half-spaces, solids, rows on the link geometry), plus the
+pairs its sampling pass dropped as "never closer than 100 mm in 2000 samples"
+(sampling proves nothing about a move), from the model built without the pass;
+a pair the pass dropped for another reason stays out, as in the design. Their
+Lipschitz constants come from the rows' labels (:func:`row_bounds`). Joint
+limits need no check: the segment between two configurations inside the box
+of limits stays inside. Laser beam and incidence rows are evaluated at
 the same samples and *reported* (line of sight lost during the move: the tracker
 re-locks), not enforced.
 """
@@ -80,16 +82,22 @@ class MoveChecker:
     """Continuous collision checks of moves against a feasibility model.
 
     Args:
-        feasibility: The capsule model (built without pruning, see the module docstring).
+        feasibility: The design's model (with the sampling pass): every one of its collision
+            rows is checked, the same rows the design keeps (capsule pairs, half-spaces,
+            solids, rows on convex pieces of the link geometry, ...).
         tolerance: :math:`\\delta` [m], the margin a move may use up.
-        ignore: Row labels not checked (pairs overlapping in every sample).
+        ignore: Row labels not checked.
         min_step: Shortest interval in :math:`t` the bisection splits.
         max_evaluations: Evaluation budget per move.
+        extra: The same scene's model without the sampling pass, for ``extra_rows``.
+        extra_rows: Labels of pairs the sampling pass dropped as "never closer than ..."
+            (a sample proves nothing about a move): their rows of ``extra`` are checked too.
     """
 
     def __init__(self, feasibility: FeasibilityModel, tolerance: float = 0.001,
                  ignore: frozenset[str] = frozenset(), min_step: float = 1e-6,
-                 max_evaluations: int = 20000):
+                 max_evaluations: int = 20000, extra: FeasibilityModel | None = None,
+                 extra_rows: frozenset[str] = frozenset()):
         self.feasibility = feasibility
         self.robot = feasibility.robot
         self.tolerance = float(tolerance)
@@ -104,32 +112,19 @@ class MoveChecker:
                                     for k, b in zip(kinds, base, strict=True)])
         self._sight = np.array([k in SIGHT_KINDS for k in kinds])
         self.labels = tuple(labels)
-        self._lipschitz = self._row_bounds(mask)[self._collision]
+        collision = [lbl for lbl, c in zip(labels, self._collision, strict=True) if c]
+        self.extra = extra
+        self._extra_cols = np.zeros(0, dtype=int)
+        if extra is not None:
+            have = {_base_label(lbl) for lbl in collision}
+            self._extra_cols = np.array([r for r, (k, lbl) in enumerate(zip(extra.kinds, extra.labels, strict=True))
+                                         if k in COLLISION_KINDS and _base_label(lbl) in extra_rows
+                                         and _base_label(lbl) not in have and _base_label(lbl) not in ignore],
+                                        dtype=int)
+            collision += [extra.labels[r] for r in self._extra_cols]
+        self.collision_labels = tuple(collision)
+        self._lipschitz, self._segments = row_bounds(self.robot, feasibility.segments, self.collision_labels)
         self._ends = EndpointBounds(self.robot, feasibility.segments)
-        self.collision_labels = tuple(str(x) for x in np.array(labels)[self._collision])
-
-    def _row_bounds(self, mask: np.ndarray) -> np.ndarray:
-        """Per row, the vector :math:`\\rho_a + \\rho_b` (rows of ``mask``), (m, nv); sets
-        ``self._segments``: each row's segments (m, 2), -1 for none, and -2 where the row
-        layout is not known (the global fallback bound only)."""
-        f = self.feasibility
-        rho = segment_speed_bounds(self.robot, f.segments)
-        moving = rho.max(axis=0)
-        full = np.zeros((len(f.kinds), rho.shape[1]))
-        segs = np.full((len(f.kinds), 2), -2)
-        # a fallback that holds for any row between the robot and a fixed or moving set
-        full[:] = 2.0 * moving
-        first = 2 * self.robot.model.nq + len(f.reflector_names)
-        n_pairs, n_hs = len(f.pairs), len(f.halfspace_pairs)
-        if len(f.kinds) == first + n_pairs + 2 * n_hs:  # the layout of constraints.py
-            for r, (i, j) in enumerate(f.pairs):
-                full[first + r] = rho[i] + rho[j]
-                segs[first + r] = (i, j)
-            for r, (i, _h) in enumerate(f.halfspace_pairs):
-                full[first + n_pairs + 2 * r: first + n_pairs + 2 * r + 2] = rho[i]
-                segs[first + n_pairs + 2 * r: first + n_pairs + 2 * r + 2] = (i, -1)
-        self._segments = segs[mask][self._collision]
-        return full[mask]
 
     # ---------------------------------------------------------------- evaluation
     def rows(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -143,7 +138,11 @@ class MoveChecker:
         values = self.feasibility.compute_from_states(q, states, jacobian=False,
                                                       kinds=COLLISION_KINDS + SIGHT_KINDS).values
         d = self._ends.distances(states) if distances else None
-        return values[:, self._collision], values[:, self._sight], d
+        g = values[:, self._collision]
+        if len(self._extra_cols):
+            more = self.extra.compute_from_states(q, states, jacobian=False).values[:, self._extra_cols]
+            g = np.concatenate([g, more], axis=1)
+        return g, values[:, self._sight], d
 
     def _interval_lipschitz(self, lip, d_a, d_b, h, dq_abs, growth) -> np.ndarray:
         """Per interval and row, the smaller of the move's constant and the local one, (I, m)."""
@@ -227,6 +226,49 @@ class MoveChecker:
         sight_labels = np.array(self.labels)[self._sight]
         lost = tuple(str(x) for x in sight_labels[np.any(alls < 0, axis=0)]) if alls.shape[1] else ()
         return MoveCheck(verified, collision, evaluations, min_sampled, worst, lost)
+
+
+def row_bounds(robot, segments, labels) -> tuple[np.ndarray, np.ndarray]:
+    r"""Per collision row, the vector :math:`\rho_a + \rho_b` of its Lipschitz constant (m, nv),
+    and its segments (m, 2) (-1: a fixed set; -2: the row's bound only, no local tightening).
+
+    Read from the row's label ``kind:A|B`` (``A.a``/``A.b``: an end point of segment ``A``):
+    a side naming a segment contributes :math:`\rho` of that segment (0 if world-fixed); a
+    side naming a robot link (rows on the link's geometry, e.g. convex pieces) contributes
+    :math:`\max_k(\rho_k + r_k)` over the link's capsules, which enclose its geometry (a
+    point within :math:`r_k` of an axis is at most :math:`r_k` farther from every joint);
+    any other side is a world-fixed set (half-space, solid: 0). A row whose label cannot be
+    read takes :math:`2\max_k(\rho_k + r_k)`, valid for any distance between robot parts
+    or to a fixed set.
+    """
+    rho = segment_speed_bounds(robot, segments)
+    names = {str(n): k for k, n in enumerate(segments.names)}
+    grown = rho + np.asarray(segments.radius, dtype=float)[:, None] * (rho.max(axis=1, keepdims=True) > 0)
+    links: dict[str, np.ndarray] = {}
+    for k, link in enumerate(getattr(segments, "links", [None] * len(segments))):
+        if link is not None and str(segments.roles[k]) in ("robot", "reflector"):
+            links[str(link)] = np.maximum(links.get(str(link), 0.0), grown[k])
+    fallback = 2.0 * grown.max(axis=0) if len(grown) else np.zeros(robot.model.nv)
+    bounds = np.zeros((len(labels), rho.shape[1]))
+    segs = np.full((len(labels), 2), -1)
+    for r, label in enumerate(labels):
+        body = label.split(":", 1)[-1]
+        sides = body.split("|", 1)
+        if len(sides) != 2:
+            bounds[r], segs[r] = fallback, (-2, -2)
+            continue
+        for c, side in enumerate(sides):
+            name = side[:-2] if side.endswith((".a", ".b")) and side[:-2] in names else side
+            if name in names:
+                bounds[r] += rho[names[name]]
+                segs[r, c] = names[name]
+            elif name in links:
+                bounds[r] += links[name]
+                segs[r] = (-2, -2)
+        if np.all(segs[r] == -1) and not any(s in links for s in sides):
+            bounds[r], segs[r] = fallback, (-2, -2)  # neither side known: any distance
+    segs[np.any(segs == -2, axis=1)] = -2
+    return bounds, segs
 
 
 def _base_label(label: str) -> str:

@@ -87,4 +87,6 @@ def header_lines(program: Program, units: str) -> list[str]:
         "pose N = row N of the design file (from 1); via points are not measured",
         f"estimated cycle time {t['optimised']:.1f} s (design order {t['design order']:.1f} s)",
         "every move checked collision-free against the scene's capsule model",
-    ]
+    ] + [f"pose {k + 1} NOT MEASURED: {why}" for k, why in program.skipped] + (
+        [f"poses {program.stats['wrapped_poses']}: joint values whole turns from the design's "
+         "(--wrap: the same robot geometry, nearer home)"] if program.stats.get("wrapped_poses") else [])

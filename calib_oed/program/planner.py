@@ -52,7 +52,8 @@ class PlannedPath:
 
 
 def plan_move(checker: MoveChecker, q0: np.ndarray, q1: np.ndarray, time_limit: float = 2.0,
-              seed: int = 0, joint_margin: float = 0.0) -> PlannedPath:
+              seed: int = 0, joint_margin: float = 0.0, step: float = 0.5,
+              span: float = np.pi) -> PlannedPath:
     """A certified path from ``q0`` to ``q1`` through via points (see the module docstring).
 
     Args:
@@ -61,6 +62,12 @@ def plan_move(checker: MoveChecker, q0: np.ndarray, q1: np.ndarray, time_limit: 
         time_limit: OMPL's planning time [s].
         seed: The process-wide OMPL seed (used on the first call only).
         joint_margin: Margin kept inside the joint limits by the via points [rad].
+        step: RRT-Connect's range, the longest edge it adds [rad, joint-space norm]:
+            short edges find their way along obstacles (OMPL's default, a fifth of the
+            box's diagonal, is metres of travel in a ±360° box).
+        span: The box searched: the joint limits (less the margin), cut to ``span`` [rad]
+            around the start and goal on each joint (a path winding a joint further is
+            never shorter).
     """
     from ompl import base as ob
     from ompl import geometric as og
@@ -78,8 +85,8 @@ def plan_move(checker: MoveChecker, q0: np.ndarray, q1: np.ndarray, time_limit: 
     space = ob.RealVectorStateSpace(nq)
     bounds = ob.RealVectorBounds(nq)
     for i in range(nq):
-        lo = min(robot.lower[i] + joint_margin, q0[i], q1[i])
-        hi = max(robot.upper[i] - joint_margin, q0[i], q1[i])
+        lo = min(max(robot.lower[i] + joint_margin, min(q0[i], q1[i]) - span), q0[i], q1[i])
+        hi = max(min(robot.upper[i] - joint_margin, max(q0[i], q1[i]) + span), q0[i], q1[i])
         bounds.setLow(i, float(lo))
         bounds.setHigh(i, float(hi))
     space.setBounds(bounds)
@@ -110,6 +117,7 @@ def plan_move(checker: MoveChecker, q0: np.ndarray, q1: np.ndarray, time_limit: 
     pdef = ob.ProblemDefinition(si)
     pdef.setStartAndGoalStates(start, goal)
     planner = og.RRTConnect(si)
+    planner.setRange(float(step))
     planner.setProblemDefinition(pdef)
     planner.setup()
     status = str(planner.solve(float(time_limit)))

@@ -62,6 +62,7 @@ class Program:
         acceleration: Joint acceleration limits of the timing [rad/s²], (nq,), or ``None``.
         controller: The scene's controller convention: the writers write controller
             values :math:`c = A^{-1}(q - b)` instead of URDF angles; ``None``: URDF angles.
+        skipped: Poses left out (design index, 0-based; why): no certified path from home.
     """
 
     scene: str
@@ -78,6 +79,7 @@ class Program:
     velocity: np.ndarray | None = None
     acceleration: np.ndarray | None = None
     controller: ControllerConvention | None = None
+    skipped: tuple[tuple[int, str], ...] = ()
 
     @property
     def cycle_time(self) -> float:
@@ -102,7 +104,7 @@ class Program:
         st = self.stats
         t = self.cycle_times
         lines = [
-            f"program for scene {self.scene!r}: {len(self.poses)} poses, home and back, "
+            f"program for scene {self.scene!r}: {len(self.order)} of {len(self.poses)} poses, home and back, "
             f"dwell {self.dwell:.2f} s per pose",
             "estimated cycle time [s] (moves at the joint velocity/acceleration limits, via points "
             "stopped at, plus dwells):",
@@ -126,6 +128,11 @@ class Program:
             "re-locks before the pose is measured)",
             f"built in {st['cpu_s']:.2f} s CPU",
         ]
+        if st.get("wrapped_poses"):
+            lines.append(f"poses measured at joint values whole turns from the design's (--wrap): "
+                         f"{st['wrapped_poses']}")
+        for k, why in self.skipped:
+            lines.append(f"NOT MEASURED: pose {k + 1}: {why}")
         if self.settings_note:
             lines.append(self.settings_note)
         return "\n".join(lines)

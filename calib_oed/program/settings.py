@@ -53,6 +53,11 @@ class ProgramSettings:
         planner_time: Time budget of the motion planner per blocked move [s].
         planner_seed: Seed of the planner's random samples.
         solver: Tour solver: ``"lkh"`` (LKH-3 through elkai) or ``"ortools"``.
+        skip_unreachable: Leave out (with a note) a pose no certified path from home reaches
+            (else a :class:`~calib_oed.exceptions.ProgramError` names it).
+        wrap: Measure each pose at the joint values a whole number of turns away that are
+            nearest home, on joints whose range allows it (the same robot geometry; a
+            different measurement only for a model with non-periodic joint terms).
     """
 
     home: np.ndarray | None = None
@@ -65,6 +70,8 @@ class ProgramSettings:
     planner_time: float = 2.0
     planner_seed: int = 0
     solver: str = "lkh"
+    skip_unreachable: bool = True
+    wrap: bool = False
 
     def __post_init__(self):
         for name in ("dwell", "acceleration_time", "move_tolerance", "planner_time"):

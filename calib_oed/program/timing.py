@@ -81,10 +81,40 @@ class JointDynamics:
         q = np.asarray(q, dtype=float)
         return self.move_time(q[:, None, :], q[None, :, :])
 
+    def acceleration_phase(self, q0: np.ndarray, q1: np.ndarray) -> tuple[float, float]:
+        r"""``(T, t_a)`` [s] of the move ``q0 -> q1``: its time and the length of its acceleration
+        (and deceleration) phase, those of its slowest joint, :math:`t_a = \min(v_i/a_i, T/2)`."""
+        t = self.joint_times(np.asarray(q1, float) - np.asarray(q0, float))
+        i = int(np.argmax(t))
+        total = float(t[i])
+        return total, min(float(self.velocity[i] / self.acceleration[i]), 0.5 * total)
+
     def path_time(self, waypoints: np.ndarray) -> float:
         """Time [s] of a path through ``waypoints`` (k, nq), stopping at each."""
         w = np.asarray(waypoints, dtype=float)
         return float(self.move_time(w[:-1], w[1:]).sum()) if len(w) > 1 else 0.0
+
+
+def move_fraction(t: np.ndarray, total: float, t_acc: float) -> np.ndarray:
+    r"""How far along a synchronised PTP move the joints are at times ``t`` [s], in [0, 1].
+
+    Every joint follows its slowest joint's rest-to-rest trapezoid scaled to its own
+    distance, so :math:`q(t) = q_0 + s(t)(q_1 - q_0)` on the straight joint-space segment
+    (the one the continuous check certifies), with :math:`T` = ``total``,
+    :math:`t_a` = ``t_acc`` (:math:`t_a = T/2`: a triangle):
+
+    .. math::
+        s(t) = \begin{cases} t^2 / (2 t_a (T - t_a)) & t \le t_a \\
+        (t - t_a/2) / (T - t_a) & t_a < t \le T - t_a \\
+        1 - (T - t)^2 / (2 t_a (T - t_a)) & T - t_a < t \end{cases}
+    """
+    t = np.clip(np.asarray(t, dtype=float), 0.0, total)
+    if total <= 0.0:
+        return np.ones_like(t)
+    ta = min(max(t_acc, 1e-12), 0.5 * total)
+    k = 1.0 / (2.0 * ta * (total - ta))
+    return np.where(t <= ta, k * t * t, np.where(t <= total - ta, (t - 0.5 * ta) / (total - ta),
+                                                 1.0 - k * (total - t) ** 2))
 
 
 def _index(names: list[str], joint: str, what: str) -> int:

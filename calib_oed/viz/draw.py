@@ -45,6 +45,8 @@ COLORS: dict[str, tuple[float, float, float, float]] = {
     "halfspace": (0.55, 0.55, 0.55, 0.22),
     "tracker": (0.20, 0.20, 0.22, 1.00),
     "ellipsoid": (0.90, 0.10, 0.85, 0.75),
+    "program": (1.00, 0.55, 0.00, 1.00),     # the robot running the program (animated), its TCP path
+    "via": (0.10, 0.10, 0.10, 1.00),         # via points of the program
 }
 TRACKER_SIZE = (0.25, 0.10)  # drawn tracker head: height, radius [m]
 
@@ -162,6 +164,48 @@ def _visual_model(robot) -> tuple[pin.GeometryModel | None, int, str]:
     return geom, page_bytes, ""
 
 
+def solid_points(solid) -> np.ndarray:
+    """Points that span a solid obstacle, world [m]: box corners, cylinder rim points, mesh vertices."""
+    from calib_oed.feasibility.shapes import Box, Cylinder
+
+    if isinstance(solid, Box):
+        corners = np.array(np.meshgrid([-1, 1], [-1, 1], [-1, 1])).reshape(3, -1).T * solid.half
+        return solid.center + corners @ solid.rotation.T
+    if isinstance(solid, Cylinder):
+        u, v, w = solid.rotation.T
+        ends = [solid.center + s * 0.5 * solid.length * w + solid.radius * d
+                for s in (-1, 1) for d in (u, -u, v, -v)]
+        return np.array(ends)
+    return np.asarray(solid.vertices, dtype=float)
+
+
+def solid_drawing(solid):
+    """A meshcat geometry of a solid obstacle and its node transform (world [m]).
+
+    Boxes and cylinders as meshcat primitives (a meshcat cylinder's axis is its y, the
+    scene's is the cylinder's own z); a mesh as the convex hull of its vertices, the
+    shape the feasibility check uses (:class:`~calib_oed.feasibility.shapes.MeshObstacle`).
+    """
+    import meshcat.geometry as mg
+    from scipy.spatial import ConvexHull
+
+    from calib_oed.feasibility.shapes import Box, Cylinder
+
+    if isinstance(solid, Box):
+        return mg.Box(solid.size.tolist()), _placement(solid.rotation, solid.center)
+    if isinstance(solid, Cylinder):
+        rotation = solid.rotation @ _turn([0.0, 1.0, 0.0], [0.0, 0.0, 1.0])
+        return mg.Cylinder(solid.length, solid.radius), _placement(rotation, solid.center)
+    v = np.asarray(solid.vertices, dtype=float)
+    hull = ConvexHull(v)
+    faces = hull.simplices.copy()
+    centroid = v[hull.vertices].mean(axis=0)
+    normal = np.cross(v[faces[:, 1]] - v[faces[:, 0]], v[faces[:, 2]] - v[faces[:, 0]])
+    inward = np.einsum("ij,ij->i", normal, v[faces[:, 0]] - centroid) < 0
+    faces[inward] = faces[inward][:, ::-1]  # counter-clockwise seen from outside
+    return mg.TriangularMeshGeometry(v, faces), np.eye(4)
+
+
 class _Painter:
     """Draws the parts of one scene into a visualizer."""
 
@@ -175,6 +219,7 @@ class _Painter:
         #: Points the view must show, world [m]: capsule ends, tracker, obstacles.
         self.points: list[np.ndarray] = [self.tracker.translation[None, :]]
         self.points += [np.array([c.a, c.b]) for c in s.scene.cell.capsules]
+        self.points += [solid_points(x) for x in s.scene.cell.solids]
 
     def pose(self, path: str, q: np.ndarray, color: str, geom, show_capsules: bool,
              robot_elsewhere: bool = False) -> str:
@@ -214,13 +259,19 @@ class _Painter:
         return f"{path}/beams"
 
     def cell(self) -> list[str]:
-        """Obstacle capsules, and half-space plates clipped to the scene's points."""
+        """Obstacle capsules and spheres, boxes, cylinders, meshes (their convex hulls, the
+        shape the check uses), and half-space plates clipped to the scene's points."""
         import meshcat.geometry as mg
 
         paths = []
         for cap in self.s.scene.cell.capsules:
             paths.append(f"{ROOT}/cell/{_node(cap.name)}")
             _draw_capsule(self.vis[paths[-1]], cap.a, cap.b, cap.radius, _material("obstacle"))
+        for solid in self.s.scene.cell.solids:
+            paths.append(f"{ROOT}/cell/{_node(solid.name)}")
+            shape, placement = solid_drawing(solid)
+            self.vis[paths[-1]].set_object(shape, _material("obstacle"))
+            self.vis[paths[-1]].set_transform(placement)
         points = np.vstack(self.points)
         middle, margin, thickness = 0.5 * (points.min(axis=0) + points.max(axis=0)), 0.3, 0.01
         for hs in self.s.scene.cell.halfspaces:

@@ -74,8 +74,10 @@ from calib_oed.viz.draw import (  # TRACKER_SIZE, ellipsoid_node_name: re-export
     color_int,
     draw_guides,
     ellipsoid_node_name,  # noqa: F401
+    solid_points,
 )
 from calib_oed.viz.instances import RobotInstances, draw_instances
+from calib_oed.viz.program_view import ProgramView, check_program, draw_program
 from calib_oed.viz.selector import add_selector, pose_labels
 
 if TYPE_CHECKING:
@@ -133,6 +135,7 @@ class ViewInfo:
         axes_path, scale_bar_path: World axes and scale bar.
         scale_bar_length: Length of the scale bar and the axes [m].
         notes: What was left out, and why.
+        program: The animated measurement program (:mod:`calib_oed.viz.program_view`), or ``None``.
     """
 
     center: np.ndarray
@@ -153,6 +156,7 @@ class ViewInfo:
     scale_bar_path: str
     scale_bar_length: float
     notes: tuple[str, ...] = ()
+    program: ProgramView | None = None
 
     @property
     def n_poses(self) -> int:
@@ -175,6 +179,8 @@ class ViewInfo:
         if self.selector:
             lines.append("pose selector: the list at the top left (hover a pose for its joints), "
                          "the 'pose' slider under Open Controls, or the arrow keys; 'a' shows all poses")
+        if self.program is not None:
+            lines.append(self.program.summary())
         return "\n".join(lines + [f"note: {n}" for n in self.notes])
 
 
@@ -259,6 +265,7 @@ def build_view(
     selector: bool = True,
     robot_drawing: str = "auto",
     camera: Sequence[float] | None = None,
+    program=None,
 ) -> ViewInfo:
     """Draw scene ``s`` and design ``q_design`` into a meshcat visualizer.
 
@@ -278,6 +285,9 @@ def build_view(
             meshes (one copy for all design poses, one per working configuration)
             would take more than :data:`MESH_BUDGET_BYTES`.
         camera: Camera position, world [m]; default: above the scene, across the beams.
+        program: A measurement program read back (:class:`~calib_oed.program.csv_format.ProgramTargets`):
+            a robot runs it, animated (:mod:`calib_oed.viz.program_view`); its measurement
+            poses must be the design's rows.
 
     Raises:
         ShapeError, NonFiniteError: ``q_design`` is not finite (n, nq) with n >= 1,
@@ -295,6 +305,8 @@ def build_view(
     eye = None if camera is None else np.asarray(camera, dtype=float)
     if eye is not None and (eye.shape != (3,) or not np.all(np.isfinite(eye))):
         raise ShapeError("camera", "(3,) finite [m]", np.shape(camera))
+    if program is not None:
+        check_program(s.problem.robot, program, q)
 
     notes: list[str] = []
     geom, mesh_bytes, note = (None, 0, "") if robot_drawing == "capsules" else _visual_model(s.problem.robot)
@@ -350,11 +362,19 @@ def build_view(
         beam_paths.append(painter.pose(path, np.asarray(w.q), "kpi", geom, show_capsules=True))
     obstacle_paths = painter.cell()
     tracker_path = painter.tracker_body()
+    shown = None
+    if program is not None:
+        from calib_oed.program.settings import program_settings_from_scene
+        from calib_oed.program.timing import JointDynamics
+
+        dyn = JointDynamics.from_robot(s.problem.robot, program_settings_from_scene(s.scene))
+        shown = draw_program(vis, s, program.q, program.kinds, dyn, geom)
 
     points = np.vstack(painter.points)
     center = 0.5 * (points.min(axis=0) + points.max(axis=0))
     if eye is None:
-        obstacles = np.array([0.5 * (c.a + c.b) for c in s.scene.cell.capsules]).reshape(-1, 3)
+        obstacles = np.array([0.5 * (c.a + c.b) for c in s.scene.cell.capsules]
+                             + [solid_points(x).mean(axis=0) for x in s.scene.cell.solids]).reshape(-1, 3)
         eye = _camera(points, center, painter.tracker.translation, obstacles)
     label_width = 0.25 * float(np.linalg.norm(points.max(axis=0) - points.min(axis=0)))
     views = tuple(EllipsoidView(painter.ellipsoid(path, e, scale, eye, label_width), e, scale)
@@ -372,5 +392,5 @@ def build_view(
         ellipsoids=views, ellipsoid_scale=scale if views else None, level=float(level),
         infeasible_poses=infeasible, robot_drawing="visual" if design_geom is not None else "capsules",
         robots_path=robots_path, selector=with_selector, labels=tuple(labels), axes_path=axes_path,
-        scale_bar_path=bar_path, scale_bar_length=bar_length, notes=tuple(notes),
+        scale_bar_path=bar_path, scale_bar_length=bar_length, notes=tuple(notes), program=shown,
     )

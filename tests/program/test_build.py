@@ -57,3 +57,72 @@ def test_bad_pose_and_home_are_named(kr16_scene, kr16_poses, kr16_checker):
         build_program(kr16_scene, bad, ProgramSettings(), checker=kr16_checker)
     with pytest.raises(ProgramError, match="home"):
         build_program(kr16_scene, kr16_poses, ProgramSettings(home=bad[4]), checker=kr16_checker)
+
+
+class _StubMoves:
+    """Moves between home (0) and poses 1..3: pose 2 has no path from home; 1 and 3 have."""
+
+    def __init__(self, robot):
+        from types import SimpleNamespace
+
+        from calib_oed.program.build import UNREACHABLE
+        from calib_oed.program.continuous import MoveCheck
+
+        self.checker = SimpleNamespace(robot=robot)
+        self.joined: list[tuple[int, int]] = []
+        blocked = MoveCheck(False, True, 3, -0.05, "self:a|b")
+        self.moves = {p: SimpleNamespace(time=UNREACHABLE if p == 2 else 1.0, direct=blocked,
+                                         plan=SimpleNamespace(status="Timeout")) for p in (1, 2, 3)}
+
+    def plan(self, i, j):
+        return self.moves[j or i]
+
+    def get(self, i, j):
+        return self.moves[j or i]
+
+    def via_home(self, i, j):
+        self.joined.append((i, j))
+
+
+def test_an_unreachable_pose_is_left_out_and_named(kr16_scene):
+    """A pose home cannot reach is left out with why (or named in an error); two poses home
+    reaches both are joined through home, never left out."""
+    from calib_oed.program.build import _resolve_unreachable
+    from calib_oed.program.settings import ProgramSettings
+
+    robot = kr16_scene.robot
+    nodes = np.zeros((4, robot.nq))
+    nodes[2, 3] = np.deg2rad(300.0)  # a joint a full turn from a value nearer home (A4: +-350 deg)
+    moves, skipped = _StubMoves(robot), {}
+    keep = _resolve_unreachable(moves, [(1, 3), (3, 2)], np.array([1, 2, 3]), skipped, ProgramSettings(), nodes)
+    assert keep.tolist() == [1, 3] and moves.joined == [(1, 3)] and list(skipped) == [2]
+    assert "no certified path from home" in skipped[2] and "Timeout" in skipped[2]
+    assert "joint_a4 300.0 deg (= -60.0)" in skipped[2]
+    with pytest.raises(ProgramError, match="pose 2"):
+        _resolve_unreachable(_StubMoves(robot), [(3, 2)], np.array([1, 2, 3]), {},
+                             ProgramSettings(skip_unreachable=False), nodes)
+
+
+def test_whole_turns_nearest_home_keep_the_geometry():
+    """--wrap: every revolute joint moved by whole turns to the value nearest home, within the
+    limits; the robot's placements (Pinocchio) are unchanged."""
+    import pinocchio as pin
+
+    from calib_oed.program.build import nearest_turns
+    from calib_oed.scene.reader import load_scene
+
+    robot = load_scene("ur5_table").robot
+    rng = np.random.default_rng(2)
+    q = rng.uniform(robot.lower, robot.upper, size=(20, robot.nq))
+    home = np.deg2rad([15, -60, 90, -120, -90, 0])
+    w, changed = nearest_turns(robot, q, home, np.deg2rad(1))
+    turns = (w - q) / (2 * np.pi)
+    assert np.allclose(turns, np.round(turns)) and changed
+    assert np.all(np.abs(w - home) <= np.abs(q - home) + 1e-12)
+    wide = robot.upper - robot.lower >= 2 * np.pi + 2 * np.deg2rad(1)  # all but the elbow (+-180 deg)
+    assert wide.sum() == 5 and np.all(np.abs(w - home)[:, wide] <= np.pi + 1e-12)  # within half a turn
+    data_q, data_w = robot.model.createData(), robot.model.createData()
+    for a, b in zip(q, w, strict=True):
+        pin.framesForwardKinematics(robot.model, data_q, a)
+        pin.framesForwardKinematics(robot.model, data_w, b)
+        assert all(x.isApprox(y, 1e-9) for x, y in zip(data_q.oMf, data_w.oMf, strict=True))

@@ -79,3 +79,39 @@ def test_interval_constants_bound_the_slopes_inside(kr16_checker, kr16_poses):
         g, _ = ch.rows(q0 + t[:, None] * (q1 - q0))
         slope = np.abs(np.diff(g, axis=0)).max(axis=0) / (t[1] - t[0])
         assert np.all(slope <= local[k] + 1e-9)
+
+
+def test_the_check_keeps_every_row_of_the_design_and_the_far_pairs(kr16_scene, kr16_checker):
+    """The design's collision rows, plus those its sampling pass dropped as never close; a row
+    the sampling pass dropped for another reason stays out, as in the design."""
+    from calib_oed.feasibility.pairs import feasibility_from_scene
+
+    design, report = feasibility_from_scene(kr16_scene)
+    rows = {lbl for lbl, k in zip(design.labels, design.kinds, strict=True) if k in ("self", "obstacle")}
+    checked = set(kr16_checker.collision_labels)
+    assert rows <= checked
+    far = {d.label for d in report.dropped if d.reason.startswith("never closer")}
+    others = {d.label for d in report.dropped} - far
+    base = {lbl.replace(".a|", "|").replace(".b|", "|") for lbl in checked - rows}
+    assert far and base == far and not base & others
+
+
+def test_row_bounds_read_from_labels(kr16_scene, kr16_checker):
+    """Capsule pair: rho_a + rho_b; end point against a half-space: rho_a; a row on two links'
+    geometry: each link's largest rho + r; an unreadable label: the global bound."""
+    from calib_oed.program.continuous import row_bounds
+    from calib_oed.program.motion_bound import segment_speed_bounds
+
+    seg = kr16_checker.feasibility.segments
+    robot = kr16_scene.robot
+    rho = segment_speed_bounds(robot, seg)
+    names = list(seg.names)
+    i, j = names.index("link_2#0"), names.index("link_6#0")
+    grown = rho + seg.radius[:, None] * (rho.max(axis=1, keepdims=True) > 0)
+    links = {ln: grown[[k for k, x in enumerate(seg.links) if x == ln]].max(axis=0) for ln in ("link_2", "link_6")}
+    labels = ["self:link_2#0|link_6#0", "obstacle:link_6#0.b|floor", "self:link_2|link_6", "weird"]
+    bounds, segs = row_bounds(robot, seg, labels)
+    assert np.allclose(bounds[0], rho[i] + rho[j]) and segs[0].tolist() == [i, j]
+    assert np.allclose(bounds[1], rho[j]) and segs[1].tolist() == [j, -1]
+    assert np.allclose(bounds[2], links["link_2"] + links["link_6"]) and segs[2].tolist() == [-2, -2]
+    assert np.all(bounds[2] >= bounds[0]) and np.allclose(bounds[3], 2 * grown.max(axis=0))

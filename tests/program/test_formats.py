@@ -173,3 +173,20 @@ def test_errors_and_files(program, tmp_path):
     paths = write_program(program, "krl", tmp_path / "out")
     assert sorted(p.name for p in paths) == ["calib_program.dat", "calib_program.src"]
     assert set(FORMATS) == {"krl", "rapid", "tp", "urscript", "csv"}
+
+
+def test_csv_reads_back_for_the_viewer(program, tmp_path):
+    from calib_oed.program.csv_format import read_program_csv
+
+    (path,) = write_program(program, "csv", tmp_path)
+    back = read_program_csv(tmp_path, JOINTS)  # the folder: its one CSV
+    expected = _expected(program)
+    assert back.path == path and back.kinds == tuple(k for k, _, _ in expected)
+    assert np.allclose(back.q, [q for _, q, _ in expected], rtol=0, atol=1e-10)
+    assert back.poses.tolist() == [p or 0 for _, _, p in expected]
+    assert back.dwell.tolist() == [program.dwell if k == "pose" else 0.0 for k, _, _ in expected]
+    with pytest.raises(ProgramError, match="joint_a1_deg"):
+        read_program_csv(path, ("a", "b", "c", "d", "e", "f"))
+    write_program(program, "krl", tmp_path / "krl")
+    with pytest.raises(ProgramError, match="--format csv"):
+        read_program_csv(tmp_path / "krl", JOINTS)

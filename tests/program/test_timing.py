@@ -51,3 +51,30 @@ def test_limits_from_the_urdf_and_overrides(kr16_scene):
     assert dyn.velocity[0] == pytest.approx(0.5) and dyn.acceleration[5] == pytest.approx(3.0)
     with pytest.raises(ProgramError, match="joint_a1"):
         JointDynamics.from_robot(robot, ProgramSettings(velocities={"joint_x": 1.0}))
+
+
+@pytest.mark.parametrize("q1", [[0.4, 2.0], [0.05, 0.02], [-1.5, 0.3]])
+def test_move_fraction_keeps_every_joint_within_its_limits_and_ends_on_time(q1):
+    """Synchronised PTP: q(t) = q0 + s(t) Δ; central differences of q(t) stay within v and a,
+    the slowest joint reaches them (time-optimal), and s runs 0 -> 1 in exactly T."""
+    from calib_oed.program.timing import move_fraction
+
+    dyn = JointDynamics(np.array([1.0, 3.0]), np.array([2.0, 6.0]))
+    q0, q1 = np.zeros(2), np.array(q1)
+    total, t_acc = dyn.acceleration_phase(q0, q1)
+    assert total == pytest.approx(dyn.move_time(q0, q1))
+    h = 1e-5
+    t = np.linspace(h, total - h, 4001)
+    s = move_fraction(t, total, t_acc)
+    speed = (move_fraction(t + h, total, t_acc) - move_fraction(t - h, total, t_acc)) / (2 * h)
+    accel = (move_fraction(t + h, total, t_acc) - 2 * s + move_fraction(t - h, total, t_acc)) / h**2
+    qdot, qddot = np.abs(speed[:, None] * q1), np.abs(accel[:, None] * q1)
+    assert move_fraction(np.array([0.0, total]), total, t_acc) == pytest.approx([0.0, 1.0], abs=1e-12)
+    assert np.all(np.diff(s) >= 0)
+    assert np.all(qdot <= dyn.velocity * (1 + 1e-6))
+    kinks = np.min(np.abs(t[:, None] - [t_acc, total - t_acc]), axis=1) > 2 * h  # second differences
+    assert np.all(qddot[kinks] <= dyn.acceleration * (1 + 1e-4))
+    slow = int(np.argmax(dyn.joint_times(q1 - q0)))
+    assert qddot[kinks, slow].max() == pytest.approx(dyn.acceleration[slow], rel=1e-4)
+    assert qdot[:, slow].max() == pytest.approx(min(dyn.velocity[slow], dyn.acceleration[slow] * total / 2),
+                                                rel=1e-4)
