@@ -98,6 +98,68 @@ def modify_dense(h, method: str = "abs", rel_floor: float = 1e-8) -> tuple[np.nd
     return 0.5 * (out + out.T), int(changed.sum())
 
 
+def augment_active(blocks, A, active, at_bound, weight: float = 1.0) -> tuple[np.ndarray, int]:
+    r"""Blocks :math:`D_j + \rho_j \sum_{r} \hat a_r \hat a_r^\top + \rho_j \sum_{i} e_i e_i^\top`: curvature along active rows.
+
+    For the rows ``active`` (multiplier > 0 in the last QP) whose Jacobian row
+    :math:`a_r` (of ``A``, CSR (m, n)) lies within one diagonal block, and the
+    variables ``at_bound`` (on a bound), the block :math:`D_j` gains
+    :math:`\rho_j \hat a_r \hat a_r^\top` (:math:`\hat a_r = a_r / \|a_r\|`) and
+    :math:`\rho_j e_i e_i^\top`, with :math:`\rho_j = w \max(\|D_j\|_F, \epsilon)`.
+
+    While those rows stay active, the QP's steps satisfy :math:`a_r^\top d = -c_r`
+    and :math:`d_i = \text{bound} - x_i`, so the added terms are constant on the
+    QP's feasible set and do not change its solution; but a block whose
+    curvature is negative only across the active rows (the reduced Hessian on
+    their null space being positive definite, as at a strict local minimum)
+    becomes positive definite and needs no eigenvalue modification, which would
+    otherwise change the curvature along the constraint surface too and slow
+    the SQP to linear convergence (the augmented-Lagrangian convexification:
+    Nocedal & Wright, *Numerical Optimization*, 2nd ed., 2006, §17.3 and
+    Theorem 12.6's reduced-Hessian condition; Debreu's lemma).
+
+    Returns:
+        ``(blocks, n_rows)``: the new (b, s, s) blocks and the rows added.
+    """
+    blocks = np.array(blocks, dtype=float)
+    s = blocks.shape[1]
+    rho = weight * np.maximum(np.sqrt(np.einsum("jab,jab->j", blocks, blocks)), 1e-12)
+    rows = np.flatnonzero(active)
+    added = 0
+    if rows.size:
+        sub = A[rows].tocsr() if hasattr(A, "tocsr") else np.asarray(A)[rows]
+        if hasattr(sub, "indptr"):
+            for k in range(sub.shape[0]):
+                cols = sub.indices[sub.indptr[k]:sub.indptr[k + 1]]
+                vals = sub.data[sub.indptr[k]:sub.indptr[k + 1]]
+                if cols.size == 0:
+                    continue
+                j = cols[0] // s
+                if np.any(cols // s != j):
+                    continue  # spans blocks: its outer product would leave the block structure
+                norm = float(np.linalg.norm(vals))
+                if norm <= 0.0:
+                    continue
+                a = np.zeros(s)
+                a[cols - j * s] = vals / norm
+                blocks[j] += rho[j] * np.outer(a, a)
+                added += 1
+        else:
+            for a_full in sub:
+                nz = np.flatnonzero(a_full)
+                if nz.size == 0 or np.any(nz // s != nz[0] // s):
+                    continue
+                j = nz[0] // s
+                a = a_full[j * s:(j + 1) * s]
+                blocks[j] += rho[j] * np.outer(a, a) / float(a @ a)
+                added += 1
+    for i in np.flatnonzero(at_bound):
+        j = i // s
+        blocks[j, i - j * s, i - j * s] += rho[j]
+        added += 1
+    return blocks, added
+
+
 def check_structured(h, n: int) -> StructuredHessian:
     r"""``h`` as a :class:`StructuredHessian` of size :math:`n`, or ``ValueError`` saying what is wrong.
 

@@ -57,6 +57,7 @@ class _Run(_SubproblemMixin, _RestorationMixin):
         self.delta = s.step_bound
         self.mu = s.penalty_margin
         self.lam = np.zeros(m)  # multipliers of all rows, 0 for rows not in the QP
+        self.lam_previous = self.lam  # of the QP before (the active set seen twice)
         self.nu = np.zeros(n)  # box multipliers of the last QP (warm start)
         self.qp = QPSolver(n, s)
         self.max_rows = s.qp_row_limit(n)
@@ -202,6 +203,7 @@ class _Run(_SubproblemMixin, _RestorationMixin):
                     return self._qp_failed(k, delta, rows, step, qp_iter)
         self.delta = delta
         self.restoration_run = 0
+        self.lam_previous = self.lam
         self.lam = np.zeros(pt.c.size)
         self.lam[rows] = step.lam
         self.nu = step.nu

@@ -31,7 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from calib_oed.solver.hessian import check_structured, positive_definite
+from calib_oed.solver.hessian import augment_active, check_structured, positive_definite
 from calib_oed.solver.lifted import LiftedQPWorkspace
 from calib_oed.solver.polish import polish
 from calib_oed.solver.qp import (
@@ -163,12 +163,23 @@ class _SubproblemMixin:
             else:
                 h = check_structured(h, pt.x.size)
                 self._init_bfgs(h.blocks.shape[1])
+                if s.active_curvature > 0:  # before the modification (augment_active)
+                    active = self._active_rows()
+                    at_bound = ((pt.x - self.lb <= s.tol_feasibility)
+                                | (self.ub - pt.x <= s.tol_feasibility))
+                    blocks, _ = augment_active(h.blocks, pt.A, active, at_bound,
+                                               s.active_curvature)
+                    h = StructuredHessian(blocks, h.low_rank)
                 self._exact = positive_definite(h, s.hessian_modification, s.hessian_modification_scope,
                                                 s.hessian_eigenvalue_floor)
         except Exception as exc:  # noqa: BLE001 (the caller's function: any failure means "use BFGS")
             self._fallback(f"lagrangian_hessian failed: {type(exc).__name__}: {exc}")
         self.p.times["hessian"] += time.perf_counter() - t
         return self._exact
+
+    def _active_rows(self):
+        """Rows with a positive multiplier in each of the last two QPs (the active set as it settles)."""
+        return (self.lam > 0) & (self.lam_previous > 0)
 
     def _dense_bfgs(self):
         r""":math:`B = H_0 + \mathrm{blkdiag}(R_1..R_b)` (structured) or the BFGS matrix itself, cached."""

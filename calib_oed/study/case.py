@@ -128,12 +128,13 @@ def _certified_rows(s, plan, rows, heuristic, optimal):
     (:meth:`~calib_oed.study.results.CaseResult.check` verifies it); the certificate is that of the
     KPI-optimal design (with collisions if planned, else the first).
     """
-    from calib_oed.feasibility.sampling import sample_feasible
     from calib_oed.oed.certificate import certify
+    from calib_oed.oed.starts import candidate_pool
 
     cp = plan.certificate
     feasible = [d.q for d in (*heuristic, *optimal.values()) if d.feasible]
-    pool = np.vstack([sample_feasible(s.feasibility, cp.pool, cp.seed, max_draws=50_000_000), *feasible])
+    # the same draw as the exchange start's pool when pool and seed agree (drawn once per set-up)
+    pool = np.vstack([candidate_pool(s, cp.pool, cp.seed).q, *feasible])
     kpi = [optimal[k] for k in (design_label("kpi", True), design_label("kpi", False)) if k in optimal]
     q = kpi[0].q if kpi else next(iter(optimal.values())).q if optimal else heuristic[0].q
     cert = certify(s, q, "kpi", pool=pool, local_starts=cp.local_starts)

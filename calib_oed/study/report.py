@@ -73,7 +73,9 @@ def case_table(result: StudyResult, collisions: bool = True) -> list[dict]:
 
     Also ``case_id``, ``robot``, ``lambda_mm``, ``mu_mm``; with a certificate in
     the plan, ``bound`` (the certified lower bound on V for n feasible poses
-    [mm²]) and ``efficiency`` (bound / V of the KPI-optimal design [1]).
+    [mm²]) and ``efficiency``, ``params_efficiency``, ``heuristic_efficiency``
+    (bound / V of the KPI-optimal, the C_p-optimal and the median heuristic
+    design [1]).
     Missing designs and values are NaN.
     """
     rows = []
@@ -81,16 +83,23 @@ def case_table(result: StudyResult, collisions: bool = True) -> list[dict]:
         heuristic = case.row("heuristic_median").kpi_avg_variance_mm2
         params, kpi = _value(case, "params", collisions), _value(case, "kpi", collisions)
         spec = case.case.spec
-        try:
-            efficiency = case.row("optimal", "kpi", collisions).kpi_efficiency
-        except KeyError:
-            efficiency = math.nan
+        efficiency = _efficiency(case, "kpi", collisions)
         rows.append({"case_id": case.case_id, "robot": spec.robot, "lambda_mm": spec.lambda_mm,
                      "mu_mm": spec.mu_mm, "heuristic": heuristic, "params": params, "kpi": kpi,
                      "vs_heuristic": improvement_pct(kpi, heuristic),
                      "vs_params": improvement_pct(kpi, params),
-                     "bound": case.row("heuristic_median").kpi_bound_mm2, "efficiency": efficiency})
+                     "bound": case.row("heuristic_median").kpi_bound_mm2, "efficiency": efficiency,
+                     "params_efficiency": _efficiency(case, "params", collisions),
+                     "heuristic_efficiency": case.row("heuristic_median").kpi_efficiency})
     return rows
+
+
+def _efficiency(case: CaseResult, criterion: str, collisions: bool) -> float:
+    """bound / V of the optimised design [1], NaN without a certificate or such a design."""
+    try:
+        return case.row("optimal", criterion, collisions).kpi_efficiency
+    except KeyError:
+        return math.nan
 
 
 def minmax_table(result: StudyResult, collisions: bool = True) -> dict[str, dict[str, float]]:
@@ -159,7 +168,8 @@ def _case_md(rows: list[dict]) -> str:
                "KPI-opt vs heuristic", "KPI-opt vs C_p-opt"]
     certified = any(math.isfinite(r.get("bound", math.nan)) for r in rows)
     if certified:
-        header += ["lower bound [mm²]", "KPI-opt efficiency"]
+        header += ["lower bound [mm²]", "heuristic efficiency", "C_p-opt efficiency",
+                   "KPI-opt efficiency"]
     body = []
     for r in rows:
         first = ([r["robot"], str(r["lambda_mm"] or "—"), str(r["mu_mm"] or "—")] if notional
@@ -167,7 +177,8 @@ def _case_md(rows: list[dict]) -> str:
         cells = first + [_v(r["heuristic"]), _v(r["params"]), _v(r["kpi"]),
                          _p(r["vs_heuristic"]), _p(r["vs_params"])]
         if certified:
-            cells += [_v(r["bound"]), _p(100.0 * r["efficiency"])]
+            cells += [_v(r["bound"]), *(_p(100.0 * r[k]) for k in
+                                        ("heuristic_efficiency", "params_efficiency", "efficiency"))]
         body.append(cells)
     return _md(header, body)
 
