@@ -20,6 +20,15 @@ pose has a training pose within 15 % of the joint's measured range.
 (a ratio estimator over independent poses); its standard error is
 :math:`\mathrm{sd}_p(e_p - \mathrm{RMS}^2 n_p)/(\sqrt P\,\bar n)`, and that of the
 RMS half of it divided by the RMS (delta method).
+
+**Noise floor** (:func:`noise_floor`): the RMS position error a perfect model
+would show, :math:`\sqrt{\mathrm{mean}_i\, E\lVert e_i\rVert^2}` with
+:math:`E\lVert e_i\rVert^2 = \mathrm{tr}\,\Sigma_i` [m²]: :math:`\sum_a \sigma_a^2`
+for the isotropic ``sigma``, and with the scene's tracker error model and
+repeatability (``scene.position_noise()``) :math:`\Sigma_i` evaluated at the measured
+position in the tracker frame, :math:`\sigma_r^2 + 2\sigma_t^2 + 3\rho^2`
+(range-dependent). The cross-validation and ``calib-oed validate`` report the held-out
+RMS against it.
 """
 
 from __future__ import annotations
@@ -108,7 +117,7 @@ class CrossValidation:
         errors_mm: Held-out position error per row [mm] (NaN for excluded rows).
         rms_mm, se_mm: Pooled held-out RMS and its standard error [mm].
         fold_rms_mm: Per fold [mm].
-        noise_floor_mm: RMS a perfect model would show (tracker noise) [mm].
+        noise_floor_mm: RMS a perfect model would show (measurement noise, :func:`noise_floor`) [mm].
         warnings: Coverage warnings (:func:`coverage_warnings`).
     """
 
@@ -145,11 +154,26 @@ def subset(mset: MeasurementSet, rows: np.ndarray) -> MeasurementSet:
                           pick(mset.rotations), pick(mset.sigma), mset.source, mset.lines[rows])
 
 
+def noise_floor(mset: MeasurementSet, blocks) -> float:
+    """RMS position error [m] a perfect model shows on ``mset``: :math:`\\sqrt{\\mathrm{mean}_i\\,
+    \\mathrm{tr}\\,\\Sigma_i}` (module docstring), ``blocks`` = ``mset.blocks(...)``."""
+    var = np.empty(mset.n)
+    for j, block in zip(mset.reflectors, blocks, strict=True):
+        noise = getattr(block.model, "noise", None)
+        if noise is None:
+            var[mset.reflector == j] = (block.sigma[:, :3] ** 2).sum(axis=1)
+        else:  # Sigma_i at the measured position (tracker frame)
+            var[mset.reflector == j] = np.trace(noise.covariance(block.values[:, :3]), axis1=1, axis2=2)
+    return float(np.sqrt(np.mean(var)))
+
+
 def held_out_errors(space: ParameterSpace, mset: MeasurementSet, p: np.ndarray | None,
-                    sigma, sigma_angle) -> np.ndarray:
-    """Position error :math:`\\lVert\\eta - h(p, q)\\rVert` per row of ``mset`` [mm]."""
+                    sigma, sigma_angle, noise=None) -> np.ndarray:
+    """Position error :math:`\\lVert\\eta - h(p, q)\\rVert` per row of ``mset`` [mm]
+    (``noise``: ``scene.position_noise()``, only to build the blocks)."""
     out = np.empty(mset.n)
-    for j, block in zip(mset.reflectors, mset.blocks(sigma=sigma, sigma_angle=sigma_angle), strict=True):
+    for j, block in zip(mset.reflectors, mset.blocks(sigma=sigma, sigma_angle=sigma_angle, noise=noise),
+                        strict=True):
         state = evaluate_setup(space, p, block.q, regressor=False, jacobian=False)
         predicted = block.model.compute_values(state)
         out[mset.reflector == j] = np.linalg.norm(block.values[:, :3] - predicted[:, :3], axis=1)
@@ -157,8 +181,12 @@ def held_out_errors(space: ParameterSpace, mset: MeasurementSet, p: np.ndarray |
 
 
 def cross_validate(space: ParameterSpace, mset: MeasurementSet, free, k: int, *, sigma, sigma_angle,
-                   exclude: np.ndarray | None = None, seed: int = 0) -> CrossValidation:
+                   noise=None, exclude: np.ndarray | None = None, seed: int = 0) -> CrossValidation:
     """K-fold cross-validation over the poses of ``mset`` (rows ``exclude`` left out).
+
+    ``sigma``, ``sigma_angle``, ``noise``: the measurement model of the fits and of the
+    noise floor, as :meth:`~calib_oed.measurement.dataset.MeasurementSet.blocks`
+    (``noise``: ``scene.position_noise()``, the tracker error model with repeatability).
 
     Raises:
         ParameterError: K not in 2..number of poses.
@@ -176,12 +204,13 @@ def cross_validate(space: ParameterSpace, mset: MeasurementSet, free, k: int, *,
     for f in range(k):
         train, test = subset(data, fold != f), subset(data, fold == f)
         try:
-            result = identify(space, train.blocks(sigma=sigma, sigma_angle=sigma_angle), free)
+            result = identify(space, train.blocks(sigma=sigma, sigma_angle=sigma_angle, noise=noise),
+                              free)
         except NotIdentifiableError as exc:
             raise NotIdentifiableError(exc.names, f"cross-validation fold {f + 1} of {k}: its "
                                        f"{int((fold != f).sum())} training rows do not determine "
                                        "them; use fewer folds (--cv)") from exc
-        e = held_out_errors(space, test, result.p, sigma, sigma_angle)
+        e = held_out_errors(space, test, result.p, sigma, sigma_angle, noise)
         errors[fold == f] = e
         fold_rms.append(float(np.sqrt(np.mean(e**2))))
     e_pose = np.bincount(pose, errors**2)
@@ -189,8 +218,7 @@ def cross_validate(space: ParameterSpace, mset: MeasurementSet, free, k: int, *,
     ms = e_pose.sum() / n_pose.sum()
     se_ms = np.std(e_pose - ms * n_pose, ddof=1) / (np.sqrt(e_pose.size) * n_pose.mean())
     rms = float(np.sqrt(ms))
-    floor = float(np.sqrt(np.mean(np.concatenate([
-        (b.sigma[:, :3] ** 2).sum(axis=1) for b in data.blocks(sigma=sigma, sigma_angle=sigma_angle)]))))
+    floor = noise_floor(data, data.blocks(sigma=sigma, sigma_angle=sigma_angle, noise=noise))
     all_fold = np.full(mset.n, -1)
     all_fold[keep] = fold
     all_err = np.full(mset.n, np.nan)

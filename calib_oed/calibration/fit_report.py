@@ -159,9 +159,10 @@ def worst_determined(robust: RobustIdentification, top: int = 5) -> list[dict]:
 
 SIGMA0_MEANING = (
     "sigma0 = RMS weighted residual of the kept measurements: 1 = residuals as large as the stated "
-    "tracker sigma; clearly above 1: the model does not explain everything (model error such as "
-    "gravity or gear play, or sigma understated); the residual scale judged outliers and the "
-    "a-posteriori std use it")
+    "noise (tracker sigma, or the scene's tracker error model with the robot's repeatability); "
+    "clearly above 1: the model does not explain everything (model error such as gravity or gear "
+    "play, or the noise understated); the residual scale judged outliers and the a-posteriori std "
+    "use it")
 
 
 def format_fit(report: FitReport, robust: RobustIdentification, sanity: SanityReport,

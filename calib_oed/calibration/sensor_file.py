@@ -127,6 +127,15 @@ def write_sensor_yaml(space: ParameterSpace, p: np.ndarray | None,
     return _write(path, sensor_yaml_text(space, p))
 
 
+
+def _load(path: Path) -> dict:
+    """The sensor file's YAML mapping ({} if it is not a mapping); ExportError if unreadable."""
+    try:
+        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
+        raise ExportError(f"cannot read sensor file {path}: {exc}") from exc
+    return data if isinstance(data, dict) else {}
+
 def read_sensor_yaml(path: str | os.PathLike) -> tuple[pin.SE3, np.ndarray]:
     r"""Read a sensor file written by :func:`write_sensor_yaml`.
 
@@ -140,11 +149,8 @@ def read_sensor_yaml(path: str | os.PathLike) -> tuple[pin.SE3, np.ndarray]:
             the SI values (a hand edit of one copy only).
     """
     path = Path(path)
-    try:
-        data = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
-        raise ExportError(f"cannot read sensor file {path}: {exc}") from exc
-    if not isinstance(data, dict) or data.get("format") != SENSOR_FORMAT:
+    data = _load(path)
+    if data.get("format") != SENSOR_FORMAT:
         raise ExportError(f"{path}: not a calib_oed sensor file (expected format: {SENSOR_FORMAT})")
     tracker = data.get("tracker")
     reflectors = data.get("reflectors")
@@ -191,11 +197,7 @@ def read_sensor_compliance(path: str | os.PathLike, joint_names) -> tuple[Compli
         ExportError: a malformed section or joints that are not the robot's.
     """
     path = Path(path)
-    try:
-        data = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
-        raise ExportError(f"cannot read sensor file {path}: {exc}") from exc
-    section = data.get("compliance") if isinstance(data, dict) else None
+    section = _load(path).get("compliance")
     if section is None:
         return None
     joints = section.get("joints") if isinstance(section, dict) else None
@@ -231,11 +233,7 @@ def read_sensor_gains(path: str | os.PathLike, joint_names) -> tuple[JointGains,
         ExportError: a malformed section or joints that are not the robot's.
     """
     path = Path(path)
-    try:
-        data = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
-        raise ExportError(f"{path}: cannot read the sensor file: {exc}") from exc
-    section = data.get("joint_gains") if isinstance(data, dict) else None
+    section = _load(path).get("joint_gains")
     if section is None:
         return None
     rows = [section.get(k) if isinstance(section, dict) else None for k in ("joints", "couplings")]

@@ -15,8 +15,12 @@ in the tracker frame, and the position error is :math:`\|r_k\|` [mm in
 reports]; 6-D probe rows also have a rotation residual
 :math:`\log_3(R_{\mathrm{pred}}^\top R_{\mathrm{meas}})` [mrad]. With a perfect
 model the errors are measurement noise alone: their RMS is then the *noise
-floor* :math:`\sqrt{\sum_a \sigma_a^2}` per row (3 axes), which the report
-shows next to the measured RMS.
+floor* :math:`\sqrt{\mathrm{mean}_k\,\mathrm{tr}\,\Sigma_k}`, which the report
+shows next to the measured RMS: :math:`\sqrt{\sum_a \sigma_a^2}` with the isotropic
+``tracker.sigma`` (3 axes), and with the scene's tracker error model and the robot's
+repeatability (``scene.position_noise()``, position data) the covariance
+:math:`\Sigma_k` of each row at its measured position, :math:`\sigma_r^2 +
+2\sigma_t^2 + 3\rho^2` (:func:`~calib_oed.calibration.crossval.noise_floor`).
 
 A calibration identified with joint compliance modelled keeps the
 compliances in the sensor YAML (a URDF has no place for them); the
@@ -35,6 +39,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
+from calib_oed.calibration.crossval import noise_floor
 from calib_oed.calibration.sensor_file import (
     read_sensor_compliance,
     read_sensor_gains,
@@ -86,8 +91,8 @@ class ValidationResult:
     Attributes:
         nominal: Errors of the scene's nominal model.
         calibrated: Errors of the calibrated files.
-        noise_floor_mm: RMS position error a perfect model would show: the
-            tracker noise :math:`\\sqrt{\\sum_a \\sigma_a^2}` [mm].
+        noise_floor_mm: RMS position error a perfect model would show:
+            :math:`\\sqrt{\\mathrm{mean}_k\\,\\mathrm{tr}\\,\\Sigma_k}` [mm] (module docstring).
         source: The measurement file.
         files: The calibrated URDF and sensor YAML used.
     """
@@ -200,7 +205,8 @@ def validate_calibration(scene: Scene, calibration: str | os.PathLike, mset: Mea
                                                         f"the calibration has {len(offsets)}")],
                                    kind="measurement file")
     sigma, sigma_angle = scene.tracker.sigma, scene.tracker.sigma_angle
-    blocks = mset.blocks(sigma=sigma, sigma_angle=sigma_angle)
+    noise = scene.position_noise() if mset.rotations is None else None
+    blocks = mset.blocks(sigma=sigma, sigma_angle=sigma_angle, noise=noise)
     nominal_space = ParameterSpace(robot, scene.tracker.placement(),
                                    np.array([r.offset for r in scene.reflectors]))
     calibrated_space = ParameterSpace(calibrated, tracker, offsets,
@@ -213,7 +219,7 @@ def validate_calibration(scene: Scene, calibration: str | os.PathLike, mset: Mea
             p_calibrated[calibrated_space.compliance_slice] = compliance[1]
         if gains is not None:
             p_calibrated[calibrated_space.gain_slice] = gains[1]
-    floor = float(np.sqrt(np.mean(np.concatenate([(b.sigma[:, :3] ** 2).sum(axis=1) for b in blocks]))))
+    floor = noise_floor(mset, blocks)
     return ValidationResult(
         nominal=_errors(nominal_space, mset, blocks, "nominal"),
         calibrated=_errors(calibrated_space, mset, blocks, "calibrated", p_calibrated),

@@ -159,7 +159,7 @@ def cmd_identify(args) -> int:
         tracker = s.scene.tracker
         cv = cross_validate(s.problem.space, mset, s.problem.identifiability, args.cv,
                             sigma=tracker.sigma, sigma_angle=tracker.sigma_angle,
-                            exclude=report.outlier if robust.excluded else None)
+                            noise=s.scene.position_noise(), exclude=report.outlier if robust.excluded else None)
     data = result.to_dict()
     data["fit"] = fit_dict(report, robust, sanity)
     data["outliers"] = data["fit"]["outliers"]  # by file line; the fit's own a-priori list is not used

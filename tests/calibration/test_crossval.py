@@ -10,6 +10,7 @@ from calib_oed.calibration.crossval import (
     coverage_warnings,
     cross_validate,
     held_out_errors,
+    noise_floor,
     pose_index,
     subset,
 )
@@ -53,16 +54,36 @@ def test_cross_validation_predicts_the_validation_error():
     """CV on 60 poses against 200 fresh poses with the full-data calibration (simulated)."""
     s = setup(load_scene("fms_kr16"))
     problem, tracker = s.problem, s.scene.tracker
+    noise = s.scene.position_noise()  # the shipped tracker error model + repeatability
     mset, _ = simulated_measurements(s, problem.robot.random_configurations(260, 31), 32)
     cal, val = subset(mset, np.arange(60)), subset(mset, np.arange(60, 260))
     cv = cross_validate(problem.space, cal, problem.identifiability, 5, sigma=tracker.sigma,
-                        sigma_angle=tracker.sigma_angle, seed=0)
-    fit = identify(problem.space, cal.blocks(sigma=tracker.sigma, sigma_angle=tracker.sigma_angle),
-                   problem.identifiability)
-    e = held_out_errors(problem.space, val, fit.p, tracker.sigma, tracker.sigma_angle)
+                        sigma_angle=tracker.sigma_angle, noise=noise, seed=0)
+    fit = identify(problem.space, cal.blocks(sigma=tracker.sigma, sigma_angle=tracker.sigma_angle,
+                                             noise=noise), problem.identifiability)
+    e = held_out_errors(problem.space, val, fit.p, tracker.sigma, tracker.sigma_angle, noise)
     rms = np.sqrt(np.mean(e**2))
     se = np.std(e**2, ddof=1) / np.sqrt(e.size) / (2 * rms)
     assert abs(cv.rms_mm - rms) <= 2 * np.hypot(cv.se_mm, se), (cv.rms_mm, cv.se_mm, rms, se)
     assert 1.0 < cv.rms_mm / cv.noise_floor_mm < 1.3 and cv.warnings == ()
     assert np.all(cv.fold >= 0) and np.isfinite(cv.errors_mm).all() and len(cv.fold_rms_mm) == 5
     assert "cross-validation, 5 folds" in cv.summary()
+
+
+def test_noise_floor_is_the_rms_error_of_a_perfect_model_against_monte_carlo():
+    """sqrt(mean tr Sigma_i) of the shipped scene's tracker model + repeatability equals the RMS of
+    |e| for e ~ N(0, Sigma_i) drawn at the measured positions (400 rows x 100 draws); the
+    isotropic sigma gives sqrt(3) sigma exactly."""
+    s = setup(load_scene("fms_kr16"))
+    tracker, noise = s.scene.tracker, s.scene.position_noise()
+    mset, _ = simulated_measurements(s, s.problem.robot.random_configurations(400, 41), 42)
+    floor = noise_floor(mset, mset.blocks(noise=noise))
+    rng = np.random.default_rng(43)
+    sq = np.concatenate([np.sum(noise.sample(mset.positions, rng) ** 2, axis=1) for _ in range(100)])
+    se = np.std(sq, ddof=1) / np.sqrt(sq.size)  # of the mean squared norm
+    assert abs(np.mean(sq) - floor**2) < 4 * se, (np.mean(sq), floor**2, se)
+    assert 4 * se < 0.02 * floor**2  # the check resolves 2 %
+    # the anisotropic, range-dependent floor is not the isotropic one of the same scene
+    iso = noise_floor(mset, mset.blocks(sigma=tracker.sigma))
+    assert iso == pytest.approx(np.sqrt(3) * 1e-5, rel=1e-12)
+    assert floor > 1.5 * iso

@@ -59,10 +59,13 @@ def true_parameters(problem, seed):
 
 
 def simulate(space, model, q, p, rng=None):
-    """An observation block of ``model`` at ``q``, exact at ``p``, plus noise of the model's sigma."""
+    """An observation block of ``model`` at ``q``, exact at ``p``, plus noise of the model's
+    sigma, or of its full error model (``model.noise``: the shipped scenes' tracker + repeatability)."""
     values = model.compute_values(evaluate_setup(space, p, q, jacobian=False))
     if rng is not None:
-        values = values + model.sigma * rng.normal(size=values.shape)
+        noise = getattr(model, "noise", None)
+        values = values + (model.sigma * rng.normal(size=values.shape) if noise is None
+                           else noise.sample(values, rng))
     return ObservationBlock(model, q, values)
 
 
@@ -164,7 +167,7 @@ def test_noise_factor_and_gradient_with_noise(fms):
     q = problem.robot.random_configurations(100, 53)
     res = identify(space, [simulate(space, problem.models[0], q, p_true, rng)],
                    problem.identifiability)
-    print(f"100 poses, sigma 0.01 mm: noise factor {res.noise_factor:.3f}, rms {res.rms_mm:.4f} mm, "
+    print(f"100 poses, tracker error model + repeatability: noise factor {res.noise_factor:.3f}, rms {res.rms_mm:.4f} mm, "
           f"gradient {res.check():.1e} (distance {distance_to_stationary_point(res):.1e}), "
           f"{res.nfev} evaluations")
     assert res.status is IdentificationStatus.CONVERGED
@@ -206,7 +209,8 @@ def test_robust_loss_resists_and_reports_outliers(fms, loss):
     bad = [5, 23, 47]
     values = np.array(block.values)
     direction = rng.normal(size=(3, 3))
-    values[bad] += 2e-3 * direction / np.linalg.norm(direction, axis=1)[:, None]  # +2 mm
+    # +4 mm: ~200 sigma of the scene's noise (lateral tracker + repeatability ~ 20 um at 3 m)
+    values[bad] += 4e-3 * direction / np.linalg.norm(direction, axis=1)[:, None]
     blocks = [ObservationBlock(block.model, q, values)]
     linear = identify(space, blocks, problem.identifiability)
     robust = identify(space, blocks, problem.identifiability, loss=loss)
@@ -216,7 +220,7 @@ def test_robust_loss_resists_and_reports_outliers(fms, loss):
     assert robust.status is IdentificationStatus.CONVERGED and robust.method == "trf"
     assert e_rob < e_lin / 5
     assert [(o.block, o.row) for o in robust.outliers] == [(0, r) for r in bad]
-    assert all(o.norm > 100 for o in robust.outliers)  # 2 mm = 200 sigma
+    assert all(o.norm > 100 for o in robust.outliers)  # 4 mm ~ 200 sigma
     assert {(0, r) for r in bad} <= {(o.block, o.row) for o in linear.outliers}
     assert robust.noise_factor_inliers < 1.5 < robust.noise_factor
     assert robust.std_posterior == pytest.approx(robust.std * np.sqrt(robust.noise_factor_inliers))

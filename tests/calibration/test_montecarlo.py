@@ -80,7 +80,7 @@ def fms_full():
     return s, heuristic_design(s, 30, 4)
 
 
-def test_full_covariance_prediction_matches_simulation(fms_full, fms):
+def test_full_covariance_prediction_matches_simulation(fms_full):
     """600 runs under the anisotropic, range-dependent model with repeatability.
 
     Bands at 4 standard errors: ratio s.e. ~0.035 at N = 600 (measured 0.028 at N = 1000),
@@ -95,7 +95,12 @@ def test_full_covariance_prediction_matches_simulation(fms_full, fms):
     assert abs(mc.coverage[0] - 0.95) < 4 * np.sqrt(0.95 * 0.05 / 600)
     axis_ratio = mc.empirical_axis_msq[0] / mc.predicted_axis_msq[0]
     assert np.all((axis_ratio > 0.7) & (axis_ratio < 1.3))
-    # the isotropic 0.01 mm prediction of the same design is far off under this noise
-    iso_s, _ = fms
+    # the isotropic 0.01 mm prediction of the same design (the scene without tracker.noise
+    # and repeatability) is far off under this noise
+    from dataclasses import replace
+
+    scene = s.scene
+    iso_s = setup(replace(scene, tracker=replace(scene.tracker, noise=None), repeatability=0.0))
+    assert iso_s.scene.position_noise() is None and np.all(iso_s.scene.tracker.sigma == 1e-5)
     iso = iso_s.problem.kpi_covariance(q)[:3, :3]
     assert np.mean(np.sum(mc.errors_after[:, 0] ** 2, axis=1)) / np.trace(iso) > 1.8  # 2.3

@@ -51,7 +51,10 @@ def test_identify_measurements_uses_the_scene_noise_model():
     from calib_oed.measurement.noise import TrackerNoise
     from calib_oed.scene.reader import load_scene
 
-    base = load_scene("fms_kr16")
+    shipped = load_scene("fms_kr16")
+    # the isotropic 0.01 mm scene: no tracker error model, no repeatability
+    base = replace(shipped, tracker=replace(shipped.tracker, noise=None), repeatability=0.0)
+    assert base.position_noise() is None and np.all(base.tracker.sigma == 1e-5)
     scene = replace(base, tracker=replace(base.tracker, noise=TrackerNoise((5e-6, 1.5e-7),
                                                                            (7.5e-6, 3e-6))),
                     repeatability=1.1e-5)

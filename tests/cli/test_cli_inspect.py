@@ -105,7 +105,12 @@ def test_positional_design_for_simulate_and_montecarlo(capsys, tmp_path, designs
 
 def test_validate_a_calibration_on_separate_data(capsys, tmp_path):
     """Identify on one simulated session, validate on another of the same robot
-    (same truth seed): the calibrated model's errors drop to the noise floor."""
+    (same truth seed): the calibrated model's errors drop to the noise floor.
+
+    The shipped scene has the tracker error model and the robot's repeatability: the
+    data are simulated with Sigma_i, and the floor is sqrt(mean tr Sigma_i), not the
+    isotropic sqrt(3) x 0.01 mm, so a correct calibration passes (exit 0) and a wrong
+    one still fails (exit 3)."""
     cal, val, out = tmp_path / "cal.csv", tmp_path / "val.csv", tmp_path / "cal"
     assert main(["simulate", "fms_kr16", "-n", "40", "--seed", "0", "--truth-seed", "4",
                  "-o", str(cal), "--quiet"]) == EXIT_OK
@@ -116,6 +121,16 @@ def test_validate_a_calibration_on_separate_data(capsys, tmp_path):
     assert main(["validate", "fms_kr16", str(out), str(val), "--json"]) == EXIT_OK
     data = json.loads(capsys.readouterr().out)
     assert data["n"] == 30
+    # the floor of the scene's error model, computed here from Sigma_i at the measured positions
+    from calib_oed.calibration.workflow import read_scene_measurements
+
+    s = setup(load_scene("fms_kr16"))
+    y = read_scene_measurements(s, val).positions  # tracker frame [m]
+    cov = s.scene.position_noise().covariance(y)
+    floor = np.sqrt(np.mean(np.trace(cov, axis1=1, axis2=2))) * 1e3
+    assert data["noise_floor_mm"] == pytest.approx(floor, rel=1e-12)
+    assert data["noise_floor_mm"] > 1.5 * 0.01 * np.sqrt(3)  # well above the isotropic 0.0173 mm
+    assert data["verdict"]["passed"]
     assert data["nominal"]["rms_mm"] > 0.3  # millimetre-level geometric errors before
     # calibrated: measurement noise plus a little estimation error, nothing more
     assert 0.7 < data["rms_over_noise_floor"] < 1.3
@@ -129,6 +144,16 @@ def test_validate_a_calibration_on_separate_data(capsys, tmp_path):
     # ... and judged: the verdict FAIL is exit code 3
     assert main(["validate", "fms_kr16", str(out), str(other), "--json"]) == EXIT_VALIDATION_FAILED
     assert json.loads(capsys.readouterr().out)["rms_over_noise_floor"] > 5
+    # a calibration off by only 0.1 mm in the reflector offset (~3 x the floor) fails too
+    import yaml
+
+    sensor = out / "kr16_sensor.yaml"
+    spec = yaml.safe_load(sensor.read_text())
+    spec["reflectors"][0]["offset_m"][0] += 1e-4
+    spec["reflectors"][0]["offset_mm"][0] += 0.1
+    sensor.write_text(yaml.safe_dump(spec))
+    assert main(["validate", "fms_kr16", str(out), str(val), "--json"]) == EXIT_VALIDATION_FAILED
+    assert not json.loads(capsys.readouterr().out)["verdict"]["passed"]
 
 
 @pytest.mark.parametrize("target, fragment", [

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+from importlib import resources
 
 import numpy as np
 import pinocchio as pin
@@ -267,20 +268,25 @@ def test_sensor_yaml_carries_the_compliances(tmp_path):
 
 
 def test_validation_applies_the_exported_compliances(capsys, tmp_path):
-    """simulate -> identify -> validate with compliance: the sensor YAML's compliances are used."""
-    run = [("simulate", "fms_kr16", "-n", "40", "--seed", "0", "--truth-seed", "3", "--payload-kg", "10",
+    """simulate -> identify -> validate with compliance: the sensor YAML's compliances are used.
+
+    In the isotropic 0.01 mm copy of fms_kr16 (the studies' scene): the test is about the
+    compliances being applied, at the signal-to-noise its bands were set for; under the
+    shipped scene's realistic noise (floor ~0.031 mm) the 10 kg deflection is only ~2.4x it."""
+    iso = str(resources.files("calib_oed.study.shipped") / "scenes" / "fms_kr16_paper.yaml")
+    run = [("simulate", iso, "-n", "40", "--seed", "0", "--truth-seed", "3", "--payload-kg", "10",
             "-o", str(tmp_path / "m.csv"), "--quiet"),
-           ("simulate", "fms_kr16", "-n", "20", "--seed", "5", "--truth-seed", "3", "--payload-kg", "10",
+           ("simulate", iso, "-n", "20", "--seed", "5", "--truth-seed", "3", "--payload-kg", "10",
             "-o", str(tmp_path / "v.csv"), "--quiet"),
-           ("identify", "fms_kr16", str(tmp_path / "m.csv"), "--payload-kg", "10", "-o", str(tmp_path / "c"),
+           ("identify", iso, str(tmp_path / "m.csv"), "--payload-kg", "10", "-o", str(tmp_path / "c"),
             "--json"),
-           ("identify", "fms_kr16", str(tmp_path / "m.csv"), "-o", str(tmp_path / "r"), "--json")]
+           ("identify", iso, str(tmp_path / "m.csv"), "-o", str(tmp_path / "r"), "--json")]
     for argv in run:
         assert main(list(argv)) == EXIT_OK
     capsys.readouterr()
     rms = {}
     for name in ("c", "r"):
-        assert main(["validate", "fms_kr16", str(tmp_path / name), str(tmp_path / "v.csv"), "--json"]) == EXIT_OK
+        assert main(["validate", iso, str(tmp_path / name), str(tmp_path / "v.csv"), "--json"]) == EXIT_OK
         data = json.loads(capsys.readouterr().out)
         rms[name] = data["calibrated"]["rms_mm"] / data["noise_floor_mm"]
     # the compliance calibration predicts new poses to near the noise floor, the rigid one does not

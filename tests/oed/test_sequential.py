@@ -15,8 +15,9 @@ from calib_oed.oed.sequential_run import measurements_needed, run_sequential
 from calib_oed.scene.reader import load_scene
 from calib_oed.solver.sqp import SQPSettings
 
-#: The heuristic 60-pose design of fms_kr16 (seed 0) predicts 0.0036 mm; 0.004 is reachable.
-TARGET = 0.004
+#: The heuristic 60-pose design of fms_kr16 (seed 0) predicts 0.0062 mm under the shipped
+#: tracker error model and repeatability (0.0036 mm with the old isotropic 0.01 mm); 0.007 is reachable.
+TARGET = 0.007
 FAST = SQPSettings(max_iterations=10)
 
 
@@ -70,7 +71,7 @@ def test_comparison_consistent(run):
     heur = by["heuristic"]
     assert heur.n is not None and heur.sigma_mm[heur.n] <= TARGET
     assert all(v > TARGET for n, v in heur.sigma_mm.items() if n < heur.n)
-    # measured: sequential 25, heuristic 50 poses for 0.004 mm
+    # measured: sequential 25, heuristic 50 poses for 0.007 mm (tracker model + repeatability)
     assert run.n_measurements < heur.n
     opt = by["fixed KPI-optimal"]
     if opt.n is not None:
@@ -125,7 +126,7 @@ def test_propose_near_current_pose(kr16):
     q = des.propose(q_meas, None, current_pose=pose)
     assert q.shape == (3, kr16.problem.robot.nq)
     assert kr16.feasibility.compute(q, jacobian=False).feasible.all()
-    assert des.done(q_meas) is False  # 15 heuristic poses: 0.0093 mm > 0.004 mm
+    assert des.done(q_meas) is False  # 15 heuristic poses: 0.0161 mm > 0.007 mm
 
 
 @pytest.mark.parametrize("kwargs", [
@@ -158,9 +159,9 @@ def test_bad_run_and_proposal_inputs(kr16):
 
 
 def test_measurements_needed_heuristic_is_nested(kr16):
-    res = measurements_needed(kr16, 0.0073, "heuristic", grid=[10, 15, 20, 25])
+    res = measurements_needed(kr16, 0.0125, "heuristic", grid=[10, 15, 20, 25])
     q = heuristic_design(kr16, 25, 0)
-    assert res.n == 20  # 0.00931 mm at 15, 0.00721 at 20
+    assert res.n == 20  # 0.0161 mm at 15, 0.0122 at 20
     assert res.sigma_mm[20] == pytest.approx(kr16.problem.kpi_sigma(q[:20]).max() * 1e3)
     assert set(res.sigma_mm) == {10, 15, 20}
     never = measurements_needed(kr16, 1e-6, "heuristic", grid=[10, 15])

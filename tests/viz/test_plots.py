@@ -310,7 +310,11 @@ def test_residual_plot_counts_every_component(identified):
 
 def test_pose_residuals_get_a_rotation_panel(kr16):
     s, q = kr16
-    s6 = setup(dataclasses.replace(s.scene, measurement="pose"))
+    # 6-D probe rows: the tracker error model and repeatability are position-only (the scene
+    # reader refuses them with measurement: pose), so the isotropic sigma and sigma_angle
+    scene = s.scene
+    s6 = setup(dataclasses.replace(scene, measurement="pose", repeatability=0.0,
+                                   tracker=dataclasses.replace(scene.tracker, noise=None)))
     mset, _ = simulated_measurements(s6, q[:20], 2)
     res = identify_measurements(s6, mset)
     fig = plots.plot_residuals(res)
