@@ -16,6 +16,7 @@ import calib_oed.study.runner as study_module
 from calib_oed.calibration.workflow import setup
 from calib_oed.exceptions import OptionalDependencyError, StudyConfigError, StudyResumeError
 from calib_oed.model.kuka import notional_grid
+from calib_oed.scene.reader import load_scene
 from calib_oed.study.case import colliding_poses
 from calib_oed.study.loader import load_study_config, study_config_from_dict, study_names
 from calib_oed.study.report import study_tables, write_report
@@ -119,11 +120,17 @@ def test_unknown_study_lists_the_shipped_ones():
 def test_shipped_studies():
     assert {"kuka", "notional90", "smoke"} <= set(study_names())
     kuka = load_study_config("kuka")
-    assert [(s.robot, s.scene) for s in kuka.specs] == [
-        ("kr16", "fms_kr16"), ("kr300", "fms_kr300"), ("kr500", "fms_kr500")]
+    # the studies run on copies of the cells with the paper's isotropic noise
+    assert [(s.robot, Path(s.scene).name) for s in kuka.specs] == [
+        ("kr16", "fms_kr16_paper.yaml"), ("kr300", "fms_kr300_paper.yaml"),
+        ("kr500", "fms_kr500_paper.yaml")]
+    for s in kuka.specs:
+        scene = load_scene(s.scene)
+        assert scene.tracker.noise is None and scene.repeatability == 0
     grid = load_study_config("notional90")
     assert [s.robot for s in grid.specs] == [d.name for d in notional_grid()]
-    assert all(s.template == "fms_kr16" and s.lambda_mm and s.mu_mm for s in grid.specs)
+    assert all(Path(s.template).name == "fms_kr16_paper.yaml" and s.lambda_mm and s.mu_mm
+               for s in grid.specs)
     for config in (kuka, grid):
         plan = config.plan
         assert (plan.n, plan.criteria, plan.collisions) == (60, ("params", "kpi"), (True, False))
