@@ -66,7 +66,13 @@ from calib_oed.feasibility import fit_cache
 from calib_oed.feasibility.bodies import BodyStates
 from calib_oed.feasibility.capsules import _local_balls, fit_capsule, link_names
 from calib_oed.feasibility.curvature import body_points, point_hessian_along
-from calib_oed.feasibility.link_fit import LinkFitSettings, geometry_key, link_meshes, slab_points
+from calib_oed.feasibility.link_fit import (
+    LinkFitSettings,
+    geometry_key,
+    link_meshes,
+    slab_partitions,
+    slab_points,
+)
 from calib_oed.feasibility.segments import closest_parameters
 
 __all__ = ["HullPairs", "LinkPieces", "link_pieces"]
@@ -138,24 +144,7 @@ def _slab_cuts(mesh, axis: np.ndarray, slabs: int, key: str) -> np.ndarray:
     t = mesh.vertices @ axis
     g = GRID * slabs
     pos = np.concatenate([[-np.inf], t.min() + (t.max() - t.min()) * np.arange(1, g) / g, [np.inf]])
-    n = len(pos)
-    vol = np.full((n, n), np.inf)
-    for i in range(n):
-        for j in range(i + 1, n):
-            vol[i, j] = _hull_volume(slab_points(mesh, axis, pos[i], pos[j]))
-    k = min(slabs, n - 1)
-    best, arg = np.full((k + 1, n), np.inf), np.zeros((k + 1, n), dtype=int)
-    best[1] = vol[0]
-    for m in range(2, k + 1):
-        for j in range(m, n):
-            tot = best[m - 1, :j] + vol[:j, j]
-            arg[m, j] = int(np.argmin(tot))
-            best[m, j] = tot[arg[m, j]]
-    idx, j = [n - 1], n - 1
-    for m in range(k, 1, -1):
-        j = arg[m, j]
-        idx.append(j)
-    cuts = pos[[0, *idx[::-1]]]
+    cuts = slab_partitions(mesh, axis, pos, _hull_volume, slabs)[-1][1]
     fit_cache.store("hull_cuts", h, [float(c) for c in cuts])
     return cuts
 

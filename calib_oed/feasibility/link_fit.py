@@ -229,17 +229,21 @@ def _quick_volume(points: np.ndarray, axis: np.ndarray) -> float:
     return best
 
 
-def _best_partitions(mesh: LinkMesh, axis: np.ndarray, settings: LinkFitSettings):
-    """Per k = 1..K: (volume, cut positions) of the best k-slab partition on the grid."""
-    t = mesh.vertices @ axis
-    g = int(settings.grid)
-    cuts = np.concatenate([[-np.inf], t.min() + (t.max() - t.min()) * np.arange(1, g + 1) / (g + 1), [np.inf]])
-    n = len(cuts)
+def slab_partitions(mesh: LinkMesh, axis: np.ndarray, positions: np.ndarray, volume,
+                    k_max: int) -> list[tuple[float, np.ndarray]]:
+    r"""Per k = 1..``k_max``: (total volume, cut positions) of the best k-slab partition of ``mesh``.
+
+    Slabs along ``axis`` between cuts taken from ``positions`` (increasing, the first
+    :math:`-\infty` and the last :math:`+\infty`), each slab costing
+    ``volume(points)`` of its part (:func:`slab_points`); dynamic programming over the
+    cut pairs. ``k_max`` is capped at ``len(positions) - 1``.
+    """
+    n = len(positions)
     vol = np.full((n, n), np.inf)
     for i in range(n):
         for j in range(i + 1, n):
-            vol[i, j] = _quick_volume(slab_points(mesh, axis, cuts[i], cuts[j]), axis)
-    K = min(int(settings.max_capsules), n - 1)
+            vol[i, j] = volume(slab_points(mesh, axis, positions[i], positions[j]))
+    K = min(int(k_max), n - 1)
     best = np.full((K + 1, n), np.inf)
     arg = np.zeros((K + 1, n), dtype=int)
     best[1] = vol[0]
@@ -255,8 +259,17 @@ def _best_partitions(mesh: LinkMesh, axis: np.ndarray, settings: LinkFitSettings
             j = arg[kk, j]
             idx.append(j)
         idx.append(0)
-        out.append((float(best[k, n - 1]), cuts[idx[::-1]]))
+        out.append((float(best[k, n - 1]), positions[idx[::-1]]))
     return out
+
+
+def _best_partitions(mesh: LinkMesh, axis: np.ndarray, settings: LinkFitSettings):
+    """Per k = 1..K: (volume, cut positions) of the best k-slab partition on the grid."""
+    t = mesh.vertices @ axis
+    g = int(settings.grid)
+    cuts = np.concatenate([[-np.inf], t.min() + (t.max() - t.min()) * np.arange(1, g + 1) / (g + 1), [np.inf]])
+    return slab_partitions(mesh, axis, cuts, lambda points: _quick_volume(points, axis),
+                           settings.max_capsules)
 
 
 def _hull_volume(points: np.ndarray) -> float:
