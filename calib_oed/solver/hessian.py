@@ -48,6 +48,7 @@ lifted QP's time grows with :math:`r` and the dense one's does not (ProxQP,
 from __future__ import annotations
 
 import numpy as np
+import scipy.sparse
 
 from calib_oed.solver.result import StructuredHessian
 
@@ -127,32 +128,18 @@ def augment_active(blocks, A, active, at_bound, weight: float = 1.0) -> tuple[np
     rows = np.flatnonzero(active)
     added = 0
     if rows.size:
-        sub = A[rows].tocsr() if hasattr(A, "tocsr") else np.asarray(A)[rows]
-        if hasattr(sub, "indptr"):
-            for k in range(sub.shape[0]):
-                cols = sub.indices[sub.indptr[k]:sub.indptr[k + 1]]
-                vals = sub.data[sub.indptr[k]:sub.indptr[k + 1]]
-                if cols.size == 0:
-                    continue
-                j = cols[0] // s
-                if np.any(cols // s != j):
-                    continue  # spans blocks: its outer product would leave the block structure
-                norm = float(np.linalg.norm(vals))
-                if norm <= 0.0:
-                    continue
-                a = np.zeros(s)
-                a[cols - j * s] = vals / norm
-                blocks[j] += rho[j] * np.outer(a, a)
-                added += 1
-        else:
-            for a_full in sub:
-                nz = np.flatnonzero(a_full)
-                if nz.size == 0 or np.any(nz // s != nz[0] // s):
-                    continue
-                j = nz[0] // s
-                a = a_full[j * s:(j + 1) * s]
-                blocks[j] += rho[j] * np.outer(a, a) / float(a @ a)
-                added += 1
+        sub = scipy.sparse.csr_matrix(A)[rows]
+        sub.eliminate_zeros()
+        for k in range(sub.shape[0]):
+            cols = sub.indices[sub.indptr[k]:sub.indptr[k + 1]]
+            vals = sub.data[sub.indptr[k]:sub.indptr[k + 1]]
+            if cols.size == 0 or np.any(cols // s != cols[0] // s):
+                continue  # empty, or spans blocks: its outer product would leave the block structure
+            j = cols[0] // s
+            a = np.zeros(s)
+            a[cols - j * s] = vals / np.linalg.norm(vals)
+            blocks[j] += rho[j] * np.outer(a, a)
+            added += 1
     for i in np.flatnonzero(at_bound):
         j = i // s
         blocks[j, i - j * s, i - j * s] += rho[j]
