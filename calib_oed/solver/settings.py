@@ -76,7 +76,7 @@ class SQPSettings:
             (multiplier > 0 in the last two QPs) and active bounds
             (:func:`calib_oed.solver.hessian.augment_active`); 0 (default) turns it
             off. Measured on the design problem (docs/benchmarks.md): fewer
-            iterations on three scenes, more or a stall in a flat valley on two.
+            iterations on two scenes, more on three (a flat valley wanders).
         initial_hessian_scale: :math:`\beta` of :math:`B_0 = \beta I`.
         bfgs_damping: Powell's :math:`\delta \in (0, 1)`: :math:`s^\top r \ge \delta\, s^\top B s`.
         qp_backend: ``"dense"`` (default) or ``"sparse"`` for QPs with a dense
