@@ -3,14 +3,20 @@
 Run from the repository root:
 
     .venv/bin/python bench/bench_design_pipeline.py [--scenes all] [--poses 60]
-        [--growth 30,60,120,250,500] [--no-certificate]
+        [--growth 30,60,120,250,500] [--no-certificate] [--replicates 1,2,3,5]
 
 Each case runs in its own process (``python -m calib_oed design SCENE -n N -o DIR
 --json``), as a user would run it: from the scene file to the written design.
 The process's CPU time (user + system, from ``os.wait4``) and peak resident
 memory (``ru_maxrss``) are measured from outside; the design record gives the
 solver status, the iterations, the design's own wall and CPU time, the
-certificate's time and the efficiency against the certified lower bound.
+certificate's time and the efficiency against the certified lower bound;
+*approx cpu* is the column generation (approximate design and off-pool local
+maxima) that both the start and the certificate use, included in *design cpu*.
+``--replicates 1,3`` runs every scene once per K (``--replicates K``);
+``--feasibility link_fit=single,joint_window=full`` runs copies of the scenes
+with those ``feasibility`` keys overridden (e.g. the single capsules, the
+default before the convex hulls).
 
 Scenes: the five shipped ones and ``bench/scenes/ur10_cell.yaml``,
 ``bench/scenes/panda_cell.yaml`` (example-robot-data arms in cells of our
@@ -27,11 +33,26 @@ import platform
 import subprocess
 import sys
 import tempfile
+from importlib import resources
 from pathlib import Path
+
+import yaml
 
 ROOT = Path(__file__).resolve().parent.parent
 SHIPPED = ("fms_kr16", "fms_kr16_program", "fms_kr300", "fms_kr500", "ur5_table")
 OWN = (str(ROOT / "bench" / "scenes" / "ur10_cell.yaml"), str(ROOT / "bench" / "scenes" / "panda_cell.yaml"))
+
+
+def with_feasibility(scene: str, overrides: dict, folder: Path) -> str:
+    """A copy of ``scene`` (a shipped name or a file) in ``folder`` with its ``feasibility`` keys overridden."""
+    path = Path(scene)
+    if not path.is_file():
+        path = Path(str(resources.files("calib_oed.scene.shipped").joinpath(f"{scene}.yaml")))
+    data = yaml.safe_load(path.read_text())
+    data.setdefault("feasibility", {}).update(overrides)
+    out = folder / path.name
+    out.write_text(yaml.safe_dump(data, sort_keys=False))
+    return str(out)
 
 
 def run_case(scene: str, n: int, certificate: bool, extra=()) -> dict:
@@ -53,8 +74,10 @@ def run_case(scene: str, n: int, certificate: bool, extra=()) -> dict:
                     "error": err_path.read_text().strip().splitlines()[-1:]}
         record = json.loads(out_path.read_text())
     solver, cert = record["solver"], record["certificate"]
+    approx = solver.get("approximate") or {}
     return {
         "scene": record["scene"], "n": n, "status": solver.get("status"),
+        "distinct_poses": record.get("distinct_poses"), "approximate_cpu_s": approx.get("cpu_seconds"),
         "iterations": solver.get("iterations"), "value": record["value"],
         "efficiency": record.get("efficiency"), "design_cpu_s": solver.get("cpu_seconds"),
         "design_wall_s": record["seconds"], "certificate_cpu_s": cert.get("cpu_seconds"),
@@ -68,32 +91,47 @@ def main(argv=None) -> int:
     ap.add_argument("--poses", type=int, default=60)
     ap.add_argument("--growth", default="", help="fms_kr16 at these n, e.g. 30,60,120,250,500")
     ap.add_argument("--no-certificate", action="store_true")
+    ap.add_argument("--replicates", default="1",
+                    help="comma-separated K of --replicates K, each scene run once per K, e.g. 1,2,3,5")
+    ap.add_argument("--feasibility", default="",
+                    help="override scene feasibility keys, e.g. link_fit=single,joint_window=full")
     args = ap.parse_args(argv)
+    reps = [int(k) for k in args.replicates.split(",") if k]
+    overrides = dict(kv.split("=", 1) for kv in args.feasibility.split(",") if kv)
     print(f"# {platform.node()} {platform.processor() or platform.machine()}, "
           f"{os.cpu_count()} cores, Python {platform.python_version()}")
     scenes = [*SHIPPED, *OWN] if args.scenes == "all" else [s for s in args.scenes.split(",") if s]
+    tmp = tempfile.TemporaryDirectory()
+    if overrides:
+        scenes = [with_feasibility(s, overrides, Path(tmp.name)) for s in scenes]
     rows = []
     for scene in scenes:
-        row = run_case(scene, args.poses, not args.no_certificate)
-        rows.append(row)
-        print(json.dumps(row), flush=True)
+        for k in reps:
+            row = run_case(scene, args.poses, not args.no_certificate,
+                           () if k == 1 else ("--replicates", str(k)))
+            row["replicates"] = k
+            rows.append(row)
+            print(json.dumps(row), flush=True)
     for n in [int(k) for k in args.growth.split(",") if k]:
         row = run_case("fms_kr16", n, n <= 120 and not args.no_certificate)
         row["growth"] = True
         rows.append(row)
         print(json.dumps(row), flush=True)
     print()
-    print(f"{'scene':18s} {'n':>4s} {'status':>15s} {'it':>4s} {'value':>11s} {'eff':>6s} "
-          f"{'design cpu':>10s} {'cert cpu':>8s} {'proc cpu':>8s} {'peak MB':>8s}")
+    print(f"{'scene':18s} {'n':>4s} {'K':>3s} {'distinct':>8s} {'status':>15s} {'it':>4s} {'value':>11s} "
+          f"{'eff':>6s} {'design cpu':>10s} {'approx cpu':>10s} {'cert cpu':>8s} {'proc cpu':>8s} "
+          f"{'peak MB':>8s}")
     for r in rows:
         if "error" in r:
             print(f"{r['scene']:18s} {r['n']:4d} ERROR {r['error']}")
             continue
         eff = "-" if r["efficiency"] is None else f"{100 * r['efficiency']:.1f}%"
         cert = "-" if r["certificate_cpu_s"] is None else f"{r['certificate_cpu_s']:.1f}"
-        print(f"{r['scene']:18s} {r['n']:4d} {r['status']:>15s} {r['iterations']:4d} "
-              f"{r['value']:11.4e} {eff:>6s} {r['design_cpu_s']:10.1f} {cert:>8s} "
-              f"{r['process_cpu_s']:8.1f} {r['peak_rss_mb']:8.0f}")
+        approx = "-" if r["approximate_cpu_s"] is None else f"{r['approximate_cpu_s']:.1f}"
+        print(f"{r['scene']:18s} {r['n']:4d} {r.get('replicates', 1):3d} {r['distinct_poses']:8d} "
+              f"{r['status']:>15s} {r['iterations']:4d} {r['value']:11.4e} {eff:>6s} "
+              f"{r['design_cpu_s']:10.1f} {approx:>10s} {cert:>8s} {r['process_cpu_s']:8.1f} "
+              f"{r['peak_rss_mb']:8.0f}")
     return 0
 
 

@@ -40,6 +40,17 @@ def central_difference(fun, x, eps=1e-6):
     return out
 
 
+def smooth_difference(fun, x, eps=1e-6, agree=1e-6):
+    """Central differences of ``fun`` (values (m,)) at ``x`` with steps ``eps`` and ``2 eps``, and the
+    rows (m,) where the two agree to ``agree`` relative to the row's largest entry (at least 1e-3):
+    rows with no kink (a switch of coal's witness features) within the step. A kink between
+    ``x - 2 eps`` and ``x + 2 eps`` changes the two differences by different amounts."""
+    num = central_difference(fun, x, eps)
+    second = central_difference(fun, x, 2 * eps)
+    scale = np.maximum(np.abs(num).max(axis=-1), 1e-3)
+    return num, np.abs(num - second).max(axis=-1) <= agree * scale
+
+
 def relative_error(analytic, numeric):
     """Largest absolute difference relative to the largest entry."""
     return float(np.abs(analytic - numeric).max() / max(np.abs(numeric).max(), 1e-300))
@@ -81,3 +92,14 @@ def kr16_poses(kr16_scene) -> np.ndarray:
 
     model, _ = feasibility_from_scene(kr16_scene)
     return sample_feasible(model, 12, 3)
+
+
+@pytest.fixture(scope="session")
+def ur5_checker():
+    """ur5_table's continuous check (rows on convex pieces of the link geometry, a UR's
+    joints of two turns in the design joint window), built once per session."""
+    from calib_oed.program.build import move_checker
+    from calib_oed.program.settings import ProgramSettings
+    from calib_oed.scene.reader import load_scene
+
+    return move_checker(load_scene("ur5_table"), ProgramSettings())

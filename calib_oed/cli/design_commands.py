@@ -78,9 +78,11 @@ def cmd_design(args) -> int:
     if args.json:
         data = result.to_dict()
         data["files"] = {k: str(v) for k, v in paths.items()}
+        data["joint_window"] = s.pairs.window  # the design's joint ranges (feasibility/window.py)
         print(json.dumps(data, indent=2))
         return code
     print(result.summary())
+    print("  " + s.pairs.window)
     if paths:
         print(f"wrote {paths['yaml']} and {paths['csv']}"
               + (f" and {paths['controller_csv']} (controller joint values)"

@@ -41,12 +41,14 @@ separated, minus coal's ``normal`` when overlapping, EPA),
 wherever the witness pair is unique and one piece pair is the closest; at a
 switch between piece pairs or witness features it is one of the one-sided slopes.
 
-**Curvature** (:func:`HullPairs.hessians`, the SQP's exact-Hessian path): the
-*tangent-plane model*, the witness points held fixed on their bodies and the
-normal held fixed, :math:`\nabla^2 g \approx u^\top(\partial^2 w_a - \partial^2 w_b)`.
-It omits the rotation of the separating normal with the body carrying the
-witness face and the curvature of edges and vertices; it is symmetric and
-finite everywhere, the Hessian of a valid local model of the row.
+**Curvature** (:func:`HullPairs.hessians`, the SQP's exact-Hessian path): exact
+for the closest features of the two pieces (vertex, edge, face, sphere, a
+cylinder's side, cap or rim: :mod:`calib_oed.feasibility.hull_curvature`); where
+there is no generic feature pair (parallel edge or face against a face,
+overlapping pieces) the *tangent-plane model*, the witness points held fixed on
+their bodies and the normal held fixed,
+:math:`\nabla^2 g \approx u^\top(\partial^2 w_a - \partial^2 w_b)`, symmetric and
+finite, the Hessian of a valid local model of the row.
 
 All lengths in [m].
 """
@@ -66,6 +68,7 @@ from calib_oed.feasibility import fit_cache
 from calib_oed.feasibility.bodies import BodyStates
 from calib_oed.feasibility.capsules import _local_balls, fit_capsule, link_names
 from calib_oed.feasibility.curvature import body_points, point_hessian_along
+from calib_oed.feasibility.hull_curvature import feature_hessian, support_feature
 from calib_oed.feasibility.link_fit import (
     LinkFitSettings,
     geometry_key,
@@ -81,6 +84,12 @@ __all__ = ["HullPairs", "LinkPieces", "link_pieces"]
 SLABS = 4
 #: Candidate cut positions per slab (the cuts are chosen among ``GRID * slabs - 1`` positions).
 GRID = 3
+
+
+#: GJK's absolute duality-gap tolerance (coal's distance request); 1e-14 made GJK fail on kr16.
+GJK_GAP = 1e-13
+#: A signed distance [m] beyond this is a failed GJK/EPA call (coal returns -DBL_MAX).
+GJK_FAILED = 1e3
 
 
 @dataclass(frozen=True, eq=False)
@@ -214,6 +223,7 @@ class HullWitness:
         wa, wb: Witness points on the first and second link, world [m], (n, H, 3).
         u: Unit normal from ``wb`` towards ``wa``, (n, H, 3).
         calls: coal distance calls made (the broad phase's cost).
+        piece_a, piece_b: The closest pair's pieces (indices into the model's pieces), (n, H).
     """
 
     dist: np.ndarray
@@ -221,6 +231,8 @@ class HullWitness:
     wb: np.ndarray
     u: np.ndarray
     calls: int
+    piece_a: np.ndarray | None = None
+    piece_b: np.ndarray | None = None
 
 
 class HullPairs:
@@ -247,6 +259,7 @@ class HullPairs:
             cb.append(lp.cap_b)
             cr.append(lp.cap_r)
         self._shapes = shapes
+        self._curved = [not isinstance(sh, (coal.ConvexBase, coal.Box)) for sh in shapes]
         self._body = np.array(body, dtype=int)
         if shapes:
             self._rot, self._trans = np.concatenate(rot), np.concatenate(trans)
@@ -266,7 +279,22 @@ class HullPairs:
         self.body_b = np.array([self.pieces[b].body for _, b in self.link_pairs], dtype=int)
         self._request = coal.DistanceRequest()
         self._request.enable_signed_distance = True
-        self._request.gjk_tolerance = 1e-10
+        # GJK stops on an absolute duality gap: on curved pieces (cylinders, spheres) coal's default
+        # relative criterion leaves the witness points off by up to 7e-5 of the gradient (kr16);
+        # a gap of GJK_GAP gives 6e-7 at the same cost (docs/feasibility.md §2). So tight a gap
+        # sometimes makes GJK/EPA fail: a result beyond GJK_FAILED (EPA: -DBL_MAX), exactly 0
+        # (GJK) or below the capsule lower bound (the pieces lie in their capsules) is a failed
+        # call, repeated with coal's default criterion.
+        self._fallback = coal.DistanceRequest()
+        self._fallback.enable_signed_distance = True
+        self._fallback.gjk_tolerance = 1e-10
+        self._request.gjk_convergence_criterion = coal.GJKConvergenceCriterion.DualityGap
+        self._request.gjk_convergence_criterion_type = coal.GJKConvergenceCriterionType.Absolute
+        self._request.gjk_tolerance = GJK_GAP
+        #: Calls repeated with the fallback request (coal returned a non-finite or absurd distance).
+        self.fallbacks = 0
+        #: Rows whose curvature was exact (closest features) or the tangent-plane model.
+        self.curvature = {"exact": 0, "model": 0}
 
     def __len__(self) -> int:
         return len(self.link_pairs)
@@ -282,9 +310,10 @@ class HullPairs:
         n = states.rotation.shape[0]
         H = len(rows)
         dist, wa, wb, u = np.zeros((n, H)), np.zeros((n, H, 3)), np.zeros((n, H, 3)), np.zeros((n, H, 3))
+        piece_a, piece_b = np.full((n, H), -1), np.full((n, H), -1)
         calls = 0
         if H == 0:
-            return HullWitness(dist, wa, wb, u, 0)
+            return HullWitness(dist, wa, wb, u, 0, piece_a, piece_b)
         sel = np.concatenate([np.arange(self._bounds[h], self._bounds[h + 1]) for h in rows])
         pa, pb = self._pa[sel], self._pb[sel]
         bounds = np.concatenate([[0], np.cumsum(np.diff(self._bounds)[rows])])
@@ -297,7 +326,7 @@ class HullPairs:
         lower = np.linalg.norm(gap, axis=2) - self._cr[pa] - self._cr[pb]  # (n, PP)
         res = coal.DistanceResult()
         orders = [lo + np.argsort(lower[:, lo:hi], axis=1) for lo, hi in zip(bounds[:-1], bounds[1:], strict=True)]
-        shapes, pa_l, pb_l, low = self._shapes, pa.tolist(), pb.tolist(), lower.tolist()
+        shapes, pa_l, pb_l, low, curved = self._shapes, pa.tolist(), pb.tolist(), lower.tolist(), self._curved
         for k in range(n):
             placed: dict[int, coal.Transform3s] = {}  # piece placements of pose k, made once
             low_k = low[k]
@@ -311,11 +340,12 @@ class HullPairs:
                         placed[i] = coal.Transform3s(rw[k, i], tw[k, i])
                     if j not in placed:
                         placed[j] = coal.Transform3s(rw[k, j], tw[k, j])
-                    res.clear()
-                    d = coal.distance(shapes[i], placed[i], shapes[j], placed[j], self._request, res)
+                    d = self._distance(shapes[i], placed[i], shapes[j], placed[j], low_k[c],
+                                       curved[i] or curved[j], res)
                     calls += 1
                     if d < best:
                         best = d
+                        piece_a[k, h], piece_b[k, h] = i, j
                         hit = (np.array(res.getNearestPoint1()), np.array(res.getNearestPoint2()),
                                np.array(res.normal, dtype=float))
                 if hit is None:
@@ -325,7 +355,23 @@ class HullPairs:
                 norm = float(np.sqrt(gap_w @ gap_w))
                 dist[k, h], wa[k, h], wb[k, h] = best, p1, p2
                 u[k, h] = gap_w / norm if best > 0.0 and norm > 1e-9 else -normal
-        return HullWitness(dist, wa, wb, u, calls)
+        return HullWitness(dist, wa, wb, u, calls, piece_a, piece_b)
+
+    def _distance(self, s1, t1, s2, t2, lower: float, curved: bool, res) -> float:
+        """coal's signed distance of two placed pieces [m] (witnesses in ``res``): with the
+        duality-gap request for a curved piece, coal's defaults otherwise; a failed call (see
+        ``__init__``) is repeated with the defaults."""
+        res.clear()
+        if curved:
+            d = coal.distance(s1, t1, s2, t2, self._request, res)
+            if abs(d) < GJK_FAILED and d != 0.0 and d >= lower - 1e-9:
+                return d
+            self.fallbacks += 1
+            res.clear()
+        d = coal.distance(s1, t1, s2, t2, self._fallback, res)
+        if not abs(d) < GJK_FAILED:
+            raise FloatingPointError(f"coal's signed distance of two convex pieces failed ({d})")
+        return d
 
     def rows(self, states: BodyStates, clearance: float, jacobian: bool):
         """Values :math:`g` (n, H) [m] and Jacobians (n, H, nv) (``None`` without ``jacobian``)."""
@@ -337,14 +383,22 @@ class HullPairs:
         jb = states.directional_jacobian(self.body_b, w.wb, w.u)
         return values, ja - jb
 
-    def hessians(self, states: BodyStates, pose: np.ndarray, rows: np.ndarray) -> np.ndarray:
-        r"""Tangent-plane model :math:`u^\top(\partial^2 w_a - \partial^2 w_b)` (K, nv, nv) of link
-        pairs ``rows`` (K,) at poses ``pose`` (K,) of ``states`` (with Jacobians)."""
+    def hessians(self, states: BodyStates, pose: np.ndarray, rows: np.ndarray, exact: bool = True) -> np.ndarray:
+        r"""Second derivatives (K, nv, nv) of link pairs ``rows`` (K,) at poses ``pose`` (K,) of
+        ``states`` (with Jacobians): exact for the closest features
+        (:func:`calib_oed.feasibility.hull_curvature.feature_hessian`), else (or with
+        ``exact=False``) the tangent-plane model :math:`u^\top(\partial^2 w_a - \partial^2 w_b)`.
+        ``self.curvature`` counts both."""
         pose, rows = np.asarray(pose, dtype=int), np.asarray(rows, dtype=int)
         nv = states.jacobian.shape[-1]
         out = np.zeros((len(pose), nv, nv))
         for k in range(len(pose)):
             w = self.closest(states.take(pose[k:k + 1]), rows[k:k + 1])
+            hess = self._exact(states, int(pose[k]), int(rows[k]), w) if exact else None
+            self.curvature["exact" if hess is not None else "model"] += 1
+            if hess is not None:
+                out[k] = hess
+                continue
             for body, x, sign in ((self.body_a, w.wa, 1.0), (self.body_b, w.wb, -1.0)):
                 bk = body[rows[k:k + 1]]
                 rot, trans = states.rotation[pose[k], bk[0]], states.translation[pose[k], bk[0]]
@@ -352,3 +406,16 @@ class HullPairs:
                 _, jx, omega = body_points(states, pose[k:k + 1], bk, local)
                 out[k] += sign * point_hessian_along(omega, jx, w.u[0])[0]
         return out
+
+    def _exact(self, states: BodyStates, pose: int, row: int, w: HullWitness) -> np.ndarray | None:
+        """The exact Hessian of one row from its closest features, or ``None``."""
+        i, j, dist = int(w.piece_a[0, 0]), int(w.piece_b[0, 0]), float(w.dist[0, 0])
+        if i < 0 or dist <= 0.0:
+            return None
+        ba, bb = int(self.body_a[row]), int(self.body_b[row])
+        u = w.u[0, 0]
+        fa = support_feature(self._shapes[i], self._rot[i], self._trans[i], -states.rotation[pose, ba].T @ u)
+        fb = support_feature(self._shapes[j], self._rot[j], self._trans[j], states.rotation[pose, bb].T @ u)
+        if fa is None or fb is None:
+            return None
+        return feature_hessian(states, pose, ba, fa, bb, fb, dist, (w.wa[0, 0], w.wb[0, 0]))

@@ -28,7 +28,7 @@ configuration). The pieces' rows get the same sampling pass: never closer than
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -74,6 +74,7 @@ class PairReport:
     samples: int
     seed: int
     counts: dict = field(default_factory=dict)
+    window: str = ""
 
     @property
     def paper_count(self) -> int:
@@ -86,6 +87,8 @@ class PairReport:
                  + ", ".join(f"{k} {v}" for k, v in self.counts.items())
                  + " (a half-space pair gives a row per capsule end)",
                  f"paper formula n(n-1)/2-(n-1) for n={self.n_links} links: {self.paper_count} self pairs"]
+        if self.window:
+            lines.append(self.window)
         by_reason: dict[str, int] = {}
         for d in self.dropped:
             key = d.reason.split(" (")[0]
@@ -354,9 +357,13 @@ def build_feasibility_model(
 
 
 def feasibility_from_scene(scene, prune: bool = True) -> tuple[FeasibilityModel, PairReport]:
-    """The feasibility model of a :class:`calib_oed.scene.records.Scene` (its cell and settings)."""
-    return build_feasibility_model(
-        scene.robot,
+    """The feasibility model of a :class:`calib_oed.scene.records.Scene` (its cell and settings),
+    on the robot limited to the design joint window (:mod:`calib_oed.feasibility.window`)."""
+    from calib_oed.feasibility.window import scene_window, windowed_robot
+
+    window = scene_window(scene)
+    model, report = build_feasibility_model(
+        windowed_robot(scene.robot, window),
         scene.cell,
         scene.feasibility,
         scene.tracker.placement().translation,
@@ -365,3 +372,4 @@ def feasibility_from_scene(scene, prune: bool = True) -> tuple[FeasibilityModel,
         prune=prune,
         reflector_normals=np.array([r.normal for r in scene.reflectors]),
     )
+    return model, replace(report, window=window.summary())

@@ -299,19 +299,22 @@ class FeasibilitySettings:
         prune_seed: Seed of that pass.
         prune_distance: A pair is dropped if its clearance stays above this [m]
             over the whole sampling pass.
-        link_fit: How capsules are fitted to the URDF collision meshes
-            (:data:`LINK_FITS`): ``"single"`` (default) one capsule per link,
-            ``"split"`` up to three per link
-            (:func:`calib_oed.feasibility.link_fit.fit_link_capsules`) with the
-            self pairs decided on the meshes (:mod:`calib_oed.feasibility.mesh_pairs`).
-            ``"split"`` is not the default: on ``ur5_table`` its tighter
-            forearm pieces sit within the 10 mm margin of ``wrist_2_link`` in
-            93 % of draws and no feasible pose is found. ``"hulls"``: as
-            ``"split"``, and the self pairs of links at most three joints apart
-            are checked on convex pieces of their geometry
-            (:mod:`calib_oed.feasibility.hulls`). With every fit, a link pair whose
-            fitted capsules are never separated by the margin in the pruning pass
-            is checked on convex pieces too.
+        link_fit: How the link geometry is modelled (:data:`LINK_FITS`): ``"hulls"``
+            (default) up to three capsules per mesh link
+            (:func:`calib_oed.feasibility.link_fit.fit_link_capsules`), the self pairs
+            decided on the meshes (:mod:`calib_oed.feasibility.mesh_pairs`), and the
+            self pairs of links at most three joints apart checked on convex pieces
+            of their geometry (:mod:`calib_oed.feasibility.hulls`): 92-98 % of the
+            mesh-feasible poses accepted, none of the infeasible (docs/feasibility.md).
+            ``"split"``: the same without the convex pieces (on ``ur5_table`` the
+            forearm pieces sit within the margin of ``wrist_2_link`` in 93 % of
+            draws); ``"single"``: one capsule per link (21-25 % accepted). With every
+            fit, a link pair whose fitted capsules are never separated by the margin
+            in the pruning pass is checked on convex pieces too.
+        joint_window: The joint ranges the design may use
+            (:mod:`calib_oed.feasibility.window`): ``"one_turn"`` (default) limits a
+            revolute joint with more than one turn of range to one turn about home,
+            ``"full"`` keeps every range.
     """
 
     incidence_limit: float = float(np.deg2rad(30.0))
@@ -324,7 +327,8 @@ class FeasibilitySettings:
     prune_samples: int = 2000
     prune_seed: int = 0
     prune_distance: float = 0.10
-    link_fit: str = "single"
+    link_fit: str = "hulls"
+    joint_window: str = "one_turn"
 
     def __post_init__(self):
         if self.link_fit not in LINK_FITS:

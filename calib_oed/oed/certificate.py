@@ -15,11 +15,14 @@ pool, the design's own poses, and local maxima of :math:`d(x, w)` over the
 continuous feasible set (SQP from the best pool poses, exact gradient
 :math:`\partial d/\partial x_k = -2\,\mathrm{tr}(F\Gamma\,\partial_k F^\top)`,
 the mixed derivative of ``docs/derivations.md`` §11). It is *certified on the
-pool*; on the continuous feasible set it is as good as that maximisation. On
-``fms_kr16`` (60 poses, pool 3000) the maxima it misses lie on constraint
-boundaries far from every pool pose; certificates of different designs
-agreed to 0.2 % (``bench/bench_certificate.py``), so read the last digits
-of the continuous bound with that in mind.
+pool*; on the continuous feasible set it is as good as that maximisation. An
+8-start search from the pool alone on ``fms_kr16`` stopped at a bound that a
+design found afterwards beat (``docs/oed.md``); with 16 starts per round and a
+32-start verification (:data:`calib_oed.oed.design.CERTIFICATE_STARTS`) a search
+of 64 starts per round run to its end gave the same bound to 0.01 %
+(``bench/bench_certificate_slack.py``). ``approximate=`` continues a column
+generation already run for the design's start
+(:mod:`calib_oed.oed.approximate_pool`) instead of starting afresh.
 
 This module owns the certificate: the candidate pool (random feasible poses
 and the design's own), :func:`certify` and its :class:`Certificate`. The
@@ -53,6 +56,7 @@ from calib_oed.oed.approximate import (
     sensitivities,
     solve_approximate,
 )
+from calib_oed.oed.approximate_pool import ApproximatePool
 from calib_oed.oed.criterion_base import Criterion
 from calib_oed.oed.objective import DesignObjective
 from calib_oed.oed.sensitivity_maxima import _local_search, _Search
@@ -198,6 +202,7 @@ def certify(
     local_iterations: int = 80,
     collisions: bool = True,
     max_iterations: int = 500,
+    approximate: ApproximatePool | None = None,
 ) -> Certificate:
     r"""Certificate of design ``q_design`` (n, nq) [rad]: the lower bound and the design's efficiency.
 
@@ -227,6 +232,10 @@ def certify(
         collisions: Local maximisation under the collision constraints too
             (as :func:`calib_oed.oed.design.design`).
         max_iterations: Newton steps per approximate solve.
+        approximate: The column generation already run on the pool
+            (:func:`calib_oed.oed.approximate_pool.approximate_pool`, e.g. for the
+            design's start): its candidates replace ``pool`` (plus the design's
+            poses), its weights start the solver and the search continues from there.
 
     Raises:
         CertificateError: criterion without certificate, bad pool or counts.
@@ -244,7 +253,9 @@ def certify(
                         ("local_rounds", local_rounds, 0), ("local_iterations", local_iterations, 1)):
         if isinstance(v, bool) or int(v) != v or v < lo:
             raise CertificateError(what, v, f"must be an integer >= {lo}")
-    if isinstance(pool, (int, np.integer)):
+    if approximate is not None:
+        candidates = approximate.q
+    elif isinstance(pool, (int, np.integer)):
         if pool < 0:
             raise CertificateError("pool", pool, "must be a number of candidates >= 0 or an (N, nq) array")
         candidates = sample_feasible(s.feasibility, int(pool), seed, max_draws=50_000_000)
@@ -255,8 +266,18 @@ def certify(
     cand = np.vstack([q, candidates])
     blocks = objective.compute_blocks(cand)
     with threadpool_limits(limits=1, user_api="blas"):
-        approx = solve_approximate(blocks, crit, start=np.arange(n), tol=tol, max_iterations=max_iterations)
-        search = _Search(cand, blocks, approx, approx.iterations)
+        if approximate is None:
+            approx = solve_approximate(blocks, crit, start=np.arange(n), tol=tol,
+                                       max_iterations=max_iterations)
+            search = _Search(cand, blocks, approx, approx.iterations)
+        else:  # warm: the design's poses join with weight 0
+            w0 = np.concatenate([np.zeros(n), approximate.approx.weights])
+            approx = solve_approximate(blocks, crit, weights=w0, tol=tol, max_iterations=max_iterations)
+            prior = approximate.search
+            # its rounds count against local_rounds: the search continues, it does not restart
+            search = _Search(cand, blocks, approx, prior.iterations + approx.iterations,
+                             added=approximate.n_added, rounds=prior.rounds,
+                             local_iterations=prior.local_iterations)
         if local_starts:
             search = _local_search(s, objective, search, starts=int(local_starts),
                                    verify_starts=int(verify_starts), rounds=int(local_rounds),

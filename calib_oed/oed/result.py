@@ -69,6 +69,8 @@ class Design:
             ``lower_bound`` (the criterion no feasible design of n poses can
             beat, in the criterion's unit), ``scope``, ``seconds``; or
             ``skipped`` with the reason; {} when not computed.
+        joint_window: The joint ranges the design could use
+            (:meth:`calib_oed.feasibility.window.JointWindow.summary`, degrees), or "".
     """
 
     scene: str
@@ -88,6 +90,7 @@ class Design:
     collisions: bool = True
     method: str = "sqp"
     certificate: dict = field(default_factory=dict)
+    joint_window: str = ""
 
     @property
     def n(self) -> int:
@@ -197,6 +200,7 @@ class Design:
             "seconds": self.seconds,
             "efficiency": self.efficiency,
             "certificate": dict(self.certificate),
+            "joint_window": self.joint_window,
             "distinct_poses": len(self.multiplicity),
             "multiplicity": self.multiplicity,
             "solver": self.solver,

@@ -17,6 +17,7 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.spatial
 
 from calib_oed.feasibility.constraints import FEASIBILITY_TOL
 from calib_oed.oed.approximate import ApproximateDesign, information, solve_approximate
@@ -25,9 +26,13 @@ from calib_oed.oed.problem import DesignProblem
 from calib_oed.solver.sqp import SQPSettings, SQPStatus, solve_sqp
 
 #: Starts per SQP of the local maximisation (its dense QP grows with the square of the starts).
-LOCAL_CHUNK = 8
+#: 16 rather than 8: the chunk's poses share the iterations, so the 16 starts of a column
+#: generation round take 10 % less CPU in one SQP than in two (fms_kr16, fms_kr500).
+LOCAL_CHUNK = 16
 #: Two local-maximisation starts closer than this in every joint [rad] count as one.
 START_SEPARATION = 1.0
+#: A local maximum closer than this to a candidate in every joint [rad] is that candidate.
+DUPLICATE_TOL = 1e-4
 
 
 # ---------------------------------------------- the continuous feasible set
@@ -133,7 +138,7 @@ def _maximise_in_chunks(setup, objective, gamma, starts, scale, chunk, **kwargs)
                        worst, sum(p.iterations for p in parts), sum(p.seconds for p in parts))
 
 
-def _distinct(q: np.ndarray, values: np.ndarray, tol: float = 1e-4) -> np.ndarray:
+def _distinct(q: np.ndarray, values: np.ndarray, tol: float = DUPLICATE_TOL) -> np.ndarray:
     """Indices of ``q`` without near-duplicates (∞-distance < ``tol`` rad), the larger value kept."""
     keep: list[int] = []
     for i in np.argsort(-values):
@@ -194,12 +199,16 @@ def _local_search(s, objective, search: _Search, *, starts: int, verify_starts: 
         search.local_iterations += loc.iterations
         search.d_local, search.status, search.final_starts = loc.max_value, loc.status, idx.size
         new = np.flatnonzero(loc.feasible & (loc.values > dbar * (1.0 + local_tol)))
+        if new.size:
+            new = new[_distinct(loc.q[new], loc.values[new])]
+            # a maximum found again (from another start or round) is not a new candidate
+            near, _ = scipy.spatial.cKDTree(search.cand).query(loc.q[new], p=np.inf)
+            new = new[near >= DUPLICATE_TOL]
         if new.size == 0 and not verifying and verify_starts > starts:
             verifying = True
             continue
         if new.size == 0 or search.rounds == rounds:
             return search
-        new = new[_distinct(loc.q[new], loc.values[new])]
         search.cand = np.vstack([search.cand, loc.q[new]])
         search.blocks = np.concatenate([search.blocks, objective.compute_blocks(loc.q[new])])
         search.added += int(new.size)

@@ -45,10 +45,9 @@ import numpy as np
 from calib_oed.feasibility.bodies import compute_body_states
 from calib_oed.feasibility.constraints import FeasibilityModel
 from calib_oed.feasibility.pairs import PairReport
-from calib_oed.program.motion_bound import EndpointBounds, segment_speed_bounds
-
-COLLISION_KINDS = ("self", "obstacle")
-SIGHT_KINDS = ("beam", "incidence")
+from calib_oed.program.interval_bounds import IntervalBounds
+from calib_oed.program.motion_bound import piece_speed_bounds, segment_speed_bounds
+from calib_oed.program.rows import CollisionRows
 
 
 @dataclass(frozen=True)
@@ -103,28 +102,18 @@ class MoveChecker:
         self.tolerance = float(tolerance)
         self.min_step = float(min_step)
         self.max_evaluations = int(max_evaluations)
-        asked = COLLISION_KINDS + SIGHT_KINDS
-        mask = feasibility.row_mask(asked)
-        kinds = [k for k, m in zip(feasibility.kinds, mask, strict=True) if m]
-        labels = [lbl for lbl, m in zip(feasibility.labels, mask, strict=True) if m]
-        base = [_base_label(lbl) for lbl in labels]
-        self._collision = np.array([k in COLLISION_KINDS and b not in ignore
-                                    for k, b in zip(kinds, base, strict=True)])
-        self._sight = np.array([k in SIGHT_KINDS for k in kinds])
-        self.labels = tuple(labels)
-        collision = [lbl for lbl, c in zip(labels, self._collision, strict=True) if c]
         self.extra = extra
-        self._extra_cols = np.zeros(0, dtype=int)
-        if extra is not None:
-            have = {_base_label(lbl) for lbl in collision}
-            self._extra_cols = np.array([r for r, (k, lbl) in enumerate(zip(extra.kinds, extra.labels, strict=True))
-                                         if k in COLLISION_KINDS and _base_label(lbl) in extra_rows
-                                         and _base_label(lbl) not in have and _base_label(lbl) not in ignore],
-                                        dtype=int)
-            collision += [extra.labels[r] for r in self._extra_cols]
-        self.collision_labels = tuple(collision)
-        self._lipschitz, self._segments = row_bounds(self.robot, feasibility.segments, self.collision_labels)
-        self._ends = EndpointBounds(self.robot, feasibility.segments)
+        self._rows = CollisionRows(feasibility, ignore, extra, extra_rows)
+        self.collision_labels = self._rows.labels
+        self.sight_labels = self._rows.sight_labels
+        pieces = {**(extra.hull_pairs.pieces if extra is not None else {}), **feasibility.hull_pairs.pieces}
+        self._lipschitz, self._segments = row_bounds(self.robot, feasibility.segments, self.collision_labels,
+                                                     pieces)
+        # local constants (relative motion of self pairs, interval end points, piece axes)
+        self._bounds = IntervalBounds(self.robot, feasibility.segments, pieces, self.collision_labels,
+                                      self._segments)
+        self._lipschitz = self._lipschitz * self._bounds.relative
+        self._ends = self._bounds.ends
 
     # ---------------------------------------------------------------- evaluation
     def rows(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -132,25 +121,17 @@ class MoveChecker:
         g, s, _ = self._evaluate(q, distances=False)
         return g, s
 
-    def _evaluate(self, q: np.ndarray, distances: bool = True):
+    def _evaluate(self, q: np.ndarray, distances: bool = True, need: np.ndarray | None = None):
+        """Collision rows, line-of-sight rows and end-point distances (or ``None``) at ``q``;
+        the deferred rows (convex pieces) only where ``need`` says (:class:`CollisionRows`)."""
         q = np.atleast_2d(np.asarray(q, dtype=float))
         states = compute_body_states(self.robot.model, q, jacobian=False)
-        values = self.feasibility.compute_from_states(q, states, jacobian=False,
-                                                      kinds=COLLISION_KINDS + SIGHT_KINDS).values
-        d = self._ends.distances(states) if distances else None
-        g = values[:, self._collision]
-        if len(self._extra_cols):
-            more = self.extra.compute_from_states(q, states, jacobian=False).values[:, self._extra_cols]
-            g = np.concatenate([g, more], axis=1)
-        return g, values[:, self._sight], d
+        g, s = self._rows.evaluate(q, states, need)
+        return g, s, (self._ends.distances(states) if distances else None)
 
     def _interval_lipschitz(self, lip, d_a, d_b, h, dq_abs, growth) -> np.ndarray:
         """Per interval and row, the smaller of the move's constant and the local one, (I, m)."""
-        speed = self._ends.segment_speeds(d_a, d_b, h, dq_abs, growth)  # (I, s)
-        speed = np.concatenate([speed, np.zeros((len(h), 1))], axis=1)  # column -1: none
-        segs = self._segments
-        local = speed[:, np.maximum(segs[:, 0], -1)] + speed[:, np.maximum(segs[:, 1], -1)]
-        return np.where(segs[:, 0] == -2, lip, np.minimum(lip, local))
+        return self._bounds.local(lip, d_a, d_b, h, dq_abs, growth)
 
     def clearance(self, q: np.ndarray) -> np.ndarray:
         """Smallest collision row per configuration [m], (n,); >= 0: the full margin is kept."""
@@ -174,11 +155,14 @@ class MoveChecker:
 
     def screen(self, q0: np.ndarray, q1: np.ndarray) -> bool:
         """True if the move certainly collides: a row below :math:`-\\delta` on the first
-        grid of :meth:`check` (one batch; False proves nothing: :meth:`check` certifies)."""
+        grid of :meth:`check` (one batch; False proves nothing: :meth:`check` certifies).
+        The rows on convex pieces, evaluated per sample and link pair, are left to
+        :meth:`check` (on ur5_table they were two thirds of the screens' cost)."""
         q0 = np.asarray(q0, dtype=float)
         q1 = np.asarray(q1, dtype=float)
         t = self._grid(q0, q1)
-        g, _ = self.rows(q0 + t[:, None] * (q1 - q0))
+        skip = np.zeros((len(t), self._rows.n - self._rows.n_cheap), dtype=bool)
+        g, _, _ = self._evaluate(q0 + t[:, None] * (q1 - q0), distances=False, need=skip)
         return bool(np.any(g < -self.tolerance))
 
     def check(self, q0: np.ndarray, q1: np.ndarray) -> MoveCheck:
@@ -193,6 +177,9 @@ class MoveChecker:
         g, s, d = self._evaluate(q0 + t[:, None] * (q1 - q0))
         gs, ss = [g], [s]
         ta, tb, ga, gb, da, db = t[:-1], t[1:], g[:-1], g[1:], d[:-1], d[1:]
+        # rows not yet certified on each interval (a certified row stays so on the halves)
+        open_ = np.ones((len(ta), g.shape[1]), dtype=bool)
+        cheap = self._rows.n_cheap
         evaluations = n0
         verified = collision = False
         while True:
@@ -202,44 +189,51 @@ class MoveChecker:
             h = tb - ta
             local = self._interval_lipschitz(lip, da, db, h, dq_abs, growth)
             bound = 0.5 * (ga + gb - local * h[:, None])
-            bad = np.any(bound < -self.tolerance, axis=1)
+            open_ &= ~(bound >= -self.tolerance)
+            bad = np.any(open_, axis=1)
             if not bad.any():
                 verified = True
                 break
-            ta, tb, ga, gb, da, db = ta[bad], tb[bad], ga[bad], gb[bad], da[bad], db[bad]
+            ta, tb, ga, gb, da, db, open_ = ta[bad], tb[bad], ga[bad], gb[bad], da[bad], db[bad], open_[bad]
             if np.min(tb - ta) < self.min_step or evaluations + len(ta) > self.max_evaluations:
                 break
             tm = 0.5 * (ta + tb)
-            g, s, d = self._evaluate(q0 + tm[:, None] * (q1 - q0))
+            g, s, d = self._evaluate(q0 + tm[:, None] * (q1 - q0), need=open_[:, cheap:])
             evaluations += len(tm)
             gs.append(g)
             ss.append(s)
             ta, tb = np.concatenate([ta, tm]), np.concatenate([tm, tb])
             ga, gb = np.concatenate([ga, g]), np.concatenate([g, gb])
             da, db = np.concatenate([da, d]), np.concatenate([d, db])
+            open_ = np.concatenate([open_, open_])
         allg, alls = np.concatenate(gs), np.concatenate(ss)
+        allg = np.where(np.isnan(allg), np.inf, allg)  # rows not evaluated at a sample
         if allg.shape[1]:
             k = np.unravel_index(int(np.argmin(allg)), allg.shape)
             min_sampled, worst = float(allg[k]), self.collision_labels[k[1]]
         else:
             min_sampled, worst = float("inf"), ""
-        sight_labels = np.array(self.labels)[self._sight]
+        sight_labels = np.array(self.sight_labels)
         lost = tuple(str(x) for x in sight_labels[np.any(alls < 0, axis=0)]) if alls.shape[1] else ()
         return MoveCheck(verified, collision, evaluations, min_sampled, worst, lost)
 
 
-def row_bounds(robot, segments, labels) -> tuple[np.ndarray, np.ndarray]:
+def row_bounds(robot, segments, labels, pieces=None) -> tuple[np.ndarray, np.ndarray]:
     r"""Per collision row, the vector :math:`\rho_a + \rho_b` of its Lipschitz constant (m, nv),
     and its segments (m, 2) (-1: a fixed set; -2: the row's bound only, no local tightening).
 
     Read from the row's label ``kind:A|B`` (``A.a``/``A.b``: an end point of segment ``A``):
     a side naming a segment contributes :math:`\rho` of that segment (0 if world-fixed); a
-    side naming a robot link (rows on the link's geometry, e.g. convex pieces) contributes
+    side naming a robot link (rows on convex pieces of the link geometry) contributes the
+    bound :func:`~calib_oed.program.motion_bound.piece_speed_bounds` of the link's pieces
+    (``pieces``: ``{link: LinkPieces}``, the rows' own geometry: a convex hull of a slab of
+    a mesh may reach outside the link's capsules) or, for a link not in ``pieces``,
     :math:`\max_k(\rho_k + r_k)` over the link's capsules, which enclose its geometry (a
     point within :math:`r_k` of an axis is at most :math:`r_k` farther from every joint);
-    any other side is a world-fixed set (half-space, solid: 0). A row whose label cannot be
-    read takes :math:`2\max_k(\rho_k + r_k)`, valid for any distance between robot parts
-    or to a fixed set.
+    any other side is a world-fixed set (half-space, solid: 0). A distance between two sets
+    (coal's signed distance of convex pieces too) moves no more than their points do. A
+    row whose label cannot be read takes twice the largest of these bounds, valid for any
+    distance between robot parts or to a fixed set.
     """
     rho = segment_speed_bounds(robot, segments)
     names = {str(n): k for k, n in enumerate(segments.names)}
@@ -248,7 +242,11 @@ def row_bounds(robot, segments, labels) -> tuple[np.ndarray, np.ndarray]:
     for k, link in enumerate(getattr(segments, "links", [None] * len(segments))):
         if link is not None and str(segments.roles[k]) in ("robot", "reflector"):
             links[str(link)] = np.maximum(links.get(str(link), 0.0), grown[k])
+    for name, lp in (pieces or {}).items():
+        links[str(name)] = piece_speed_bounds(robot, lp)
     fallback = 2.0 * grown.max(axis=0) if len(grown) else np.zeros(robot.model.nv)
+    if links:
+        fallback = np.maximum(fallback, 2.0 * np.max(list(links.values()), axis=0))
     bounds = np.zeros((len(labels), rho.shape[1]))
     segs = np.full((len(labels), 2), -1)
     for r, label in enumerate(labels):
@@ -269,11 +267,6 @@ def row_bounds(robot, segments, labels) -> tuple[np.ndarray, np.ndarray]:
             bounds[r], segs[r] = fallback, (-2, -2)  # neither side known: any distance
     segs[np.any(segs == -2, axis=1)] = -2
     return bounds, segs
-
-
-def _base_label(label: str) -> str:
-    """A row label without its half-space end marker (``.a|``, ``.b|``): the pair label."""
-    return label.replace(".a|", "|").replace(".b|", "|")
 
 
 def overlapping_pairs(report: PairReport) -> frozenset[str]:

@@ -27,6 +27,11 @@ from calib_oed.program.settings import SOLVERS
 #: LKH runs per solve (elkai's default is 10): the build re-solves several times, each
 #: run of LKH-3 on 61 nodes is already near-optimal (bench/bench_program.py).
 RUNS = 1
+#: LKH-3 parameters beyond RUNS: trials per run (LKH's default: the number of nodes) and
+#: its initial period. On the 68 re-solves of an fms_kr16 program (60 poses, many moves
+#: blocked by the floor) they cut a solve from 29 to 7 ms CPU for tours 0.04 % longer in
+#: total (docs/benchmarks.md, issue 20).
+LKH_PARAMETERS = "MAX_TRIALS = 10\nINITIAL_PERIOD = 10\n"
 
 
 def tour_time(cost: np.ndarray, order: np.ndarray) -> float:
@@ -95,7 +100,15 @@ def _lkh(cost: np.ndarray) -> np.ndarray:
     # integer arc costs [ms]: LKH multiplies them by its precision (100) in C integers, so
     # costs must stay far below 2**31 / 100 ms (build.UNREACHABLE is 1e3 s = 1e6 ms)
     scaled = np.rint(np.minimum(cost, 1e3) * 1e3).astype(np.int64)
-    tour = elkai.DistanceMatrix(scaled.tolist()).solve_tsp(runs=RUNS)
+    solve = getattr(getattr(elkai, "_elkai", None), "solve_problem", None)
+    if solve is None or not np.array_equal(scaled, scaled.T):  # elkai's own call: RUNS only
+        tour = elkai.DistanceMatrix(scaled.tolist()).solve_tsp(runs=RUNS)
+    else:  # what DistanceMatrix.solve_tsp sends to LKH-3, with LKH_PARAMETERS added
+        n = len(scaled)
+        problem = (f"TYPE : TSP\nDIMENSION : {n}\nEDGE_WEIGHT_TYPE : EXPLICIT\n"
+                   "EDGE_WEIGHT_FORMAT : FULL_MATRIX\nEDGE_WEIGHT_SECTION\n"
+                   + "".join(" ".join(map(str, row)) + "\n" for row in scaled.tolist()))
+        tour = [k - 1 for k in solve(f"RUNS = {RUNS}\n{LKH_PARAMETERS}PROBLEM_FILE = :stdin:\n", problem)]
     order = _rotate_to_home(tour)
     # a symmetric cost: both directions are the same tour; keep the one elkai gives
     return order

@@ -44,6 +44,7 @@ from calib_oed.feasibility.shapes import (
     Margins,
     MeshObstacle,
 )
+from calib_oed.feasibility.window import JOINT_WINDOWS
 
 if TYPE_CHECKING:
     from calib_oed.model.robot import Robot
@@ -57,7 +58,8 @@ HALFSPACE_SHORTHANDS: dict[str, tuple[tuple[float, float, float], float]] = {
     "z_min": ((0.0, 0.0, 1.0), 1.0), "z_max": ((0.0, 0.0, -1.0), -1.0),
 }  # fmt: skip
 FEASIBILITY_KEYS = ("incidence_limit", "beam_radius", "reflector_radius", "capsule_margin",
-                    "margins", "excluded_pairs", "robot_capsules", "prune", "link_fit")
+                    "margins", "excluded_pairs", "robot_capsules", "prune", "link_fit",
+                    "joint_window")
 _XYZ = "x, y, z"
 CELL_KEYS = ("capsules", "halfspaces", "boxes", "cylinders", "spheres", "meshes")
 _CELL = "the cell's obstacles (" + ", ".join(CELL_KEYS) + ")"
@@ -216,6 +218,8 @@ def read_feasibility(reader: FieldReader, value: Any, robot: Robot) -> Feasibili
                         if "distance" in prune else default.prune_distance),
         link_fit=reader.string(spec.get("link_fit", default.link_fit), "feasibility.link_fit",
                                LINK_FITS),
+        joint_window=reader.string(spec.get("joint_window", default.joint_window),
+                                   "feasibility.joint_window", JOINT_WINDOWS),
     )
 
 

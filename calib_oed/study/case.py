@@ -108,7 +108,7 @@ def run_case(case: StudyCase) -> CaseResult:
             for crit in plan.criteria:
                 # the study certifies the case itself (_certified_rows), on its own pool
                 d = design(s, plan.n, crit, start=start, seed=plan.seed, collisions=coll,
-                           settings=settings, certificate=False)
+                           settings=settings, certificate=False, enrich=plan.enrich)
                 rows.append(_row(case, d, "optimal", crit, coll, plan.seed,
                                  float(colliding_poses(fm, d.q).mean())))
                 label = design_label(crit, coll)

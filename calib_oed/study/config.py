@@ -71,6 +71,9 @@ class DesignPlan:
         collisions: Collision settings of the optimised designs: ``True`` (all
             constraints), ``False`` (joint limits and incidence only).
         start: ``"heuristic"`` or ``"exchange"`` (:func:`calib_oed.oed.design.design`).
+        enrich: The exchange start's pool enriched by the off-pool local maxima of the
+            approximate design (``design(..., enrich=)``, the library's default);
+            ``False``: the random pool alone, as the study tables of docs/study.md were computed.
         seed: Seed of the start design (the heuristic design of that seed).
         max_iterations: SQP iteration limit per design.
         time_limit: SQP wall-clock limit per design [s], or None.
@@ -82,6 +85,7 @@ class DesignPlan:
     criteria: tuple[str, ...] = DEFAULT_CRITERIA
     collisions: tuple[bool, ...] = DEFAULT_COLLISIONS
     start: str = "heuristic"
+    enrich: bool = True
     seed: int = 0
     max_iterations: int = DESIGN_SQP.max_iterations
     time_limit: float | None = None
@@ -103,6 +107,8 @@ class DesignPlan:
         if self.start not in STARTS:
             raise StudyConfigError(f"expected one of {', '.join(STARTS)}, got {self.start!r}",
                                    key="start")
+        if not isinstance(self.enrich, bool):
+            raise StudyConfigError(f"expected true or false, got {self.enrich!r}", key="enrich")
         if not (isinstance(self.max_iterations, int) and self.max_iterations >= 1):
             raise StudyConfigError(f"expected an integer >= 1, got {self.max_iterations!r}",
                                    key="sqp.max_iterations")
@@ -123,6 +129,8 @@ class DesignPlan:
                "criteria": list(self.criteria), "collisions": list(self.collisions),
                "start": self.start, "seed": self.seed,
                "sqp": {"max_iterations": self.max_iterations, "time_limit": self.time_limit}}
+        if self.enrich:  # absent when off: the case hashes of studies run before it existed hold
+            out["enrich"] = True
         if self.certificate is not None:  # absent otherwise: the case hashes of older studies hold
             out["certificate"] = self.certificate.to_dict()
         return out

@@ -67,8 +67,8 @@ __all__ = ["load_study_config", "study_config_from_dict", "study_names"]
 
 SUPPORTED_VERSIONS = (1,)
 _TOP_REQUIRED = ("version", "name", "cases")
-_TOP_OPTIONAL = ("description", "n", "heuristic_seeds", "criteria", "collisions", "start", "seed",
-                 "sqp", "certificate")
+_TOP_OPTIONAL = ("description", "n", "heuristic_seeds", "criteria", "collisions", "start", "enrich",
+                 "seed", "sqp", "certificate")
 
 
 def study_names() -> list[str]:
@@ -151,6 +151,11 @@ class _Reader:
             raise self.fail(key, f"expected an integer >= {minimum}, got {value!r}")
         return value
 
+    def boolean(self, value, key) -> bool:
+        if not isinstance(value, bool):
+            raise self.fail(key, f"expected true or false, got {value!r}")
+        return value
+
     def string(self, value, key) -> str:
         if not isinstance(value, str) or not value:
             raise self.fail(key, f"expected a non-empty string, got {value!r}")
@@ -208,6 +213,7 @@ class _Reader:
             collisions=self.items(top.get("collisions", list(DEFAULT_COLLISIONS)), "collisions",
                                   flag),
             start=start,
+            enrich=self.boolean(top.get("enrich", True), "enrich"),
             seed=self.integer(top.get("seed", 0), "seed"),
             max_iterations=self.integer(sqp.get("max_iterations", DESIGN_SQP.max_iterations),
                                         "sqp.max_iterations", 1),

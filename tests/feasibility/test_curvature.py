@@ -109,8 +109,20 @@ def test_lagrangian_hessian_follows_the_row_order_of_kinds(kinds):
     lam_full = np.zeros((3, fm.n_constraints))
     lam_full[:, fm.row_mask(kinds)] = lam
     np.testing.assert_allclose(hess, fm.compute_lagrangian_hessian(q, lam_full), rtol=0, atol=1e-13)
+    # rows on convex pieces: the tangent-plane model (test_hulls.py), added in their place in the row
+    # order; every other row: exact, against central differences
+    hull = hull_rows(fm)[fm.row_mask(kinds)]
+    assert hull.any() == ("self" in kinds)
+    exact = np.where(hull, 0.0, lam)
+    model = np.zeros_like(hess)
+    hull_index = {lbl: h for h, lbl in enumerate(fm.hull_pairs.labels)}
     for j in range(3):
-        assert_matches(hess[j], fd_hessian(fm, q[j], lam[j], kinds))
+        for r in np.flatnonzero(hull):
+            model[j] += lam[j, r] * fm.hull_pairs.hessians(states, [j], [hull_index[res.labels[r]]])[0]
+    np.testing.assert_allclose(hess, fm.compute_lagrangian_hessian(q, exact, kinds=kinds, states=states) + model,
+                               rtol=1e-12, atol=1e-12)
+    for j in range(3):
+        assert_matches(hess[j] - model[j], fd_hessian(fm, q[j], exact[j], kinds))
     with pytest.raises(ShapeError, match="lam"):
         fm.compute_lagrangian_hessian(q, lam[:, 1:], kinds=kinds)
 

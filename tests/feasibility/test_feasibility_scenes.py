@@ -64,13 +64,20 @@ def test_working_configuration_clears_the_cell(scene_model):
 
 
 def test_scene_constraint_jacobian_matches_finite_differences(scene_model):
-    """The shipped cells with fitted capsules, beam and half-space rows, at feasible poses."""
-    from conftest import central_difference
+    """The shipped cells with fitted capsules, beam and half-space rows, at feasible poses. Rows on
+    convex pieces (coal) are piecewise smooth: a row whose witness features switch within the step
+    (two step sizes disagree) is skipped; every other row is held to 1e-6."""
+    from conftest import smooth_difference
 
     scene, fm, _ = scene_model
     q = sample_feasible(fm, 4, 8)
     jac = fm.compute(q).jacobian
+    hull = np.isin(np.array(fm.labels), fm.hull_pairs.labels)
+    skipped = 0
     for k in range(len(q)):
-        num = central_difference(lambda x: fm.compute_values(x[None])[0], q[k], eps=1e-6)
+        num, smooth = smooth_difference(lambda x: fm.compute_values(x[None])[0], q[k], eps=1e-6)
+        assert np.all(smooth | hull)  # only coal's rows have kinks
+        skipped += int((~smooth).sum())
         scale = np.maximum(np.abs(num).max(axis=1, keepdims=True), 1e-3)
-        assert np.max(np.abs(jac[k] - num) / scale) < 1e-6
+        assert np.max(np.abs(jac[k] - num)[smooth] / scale[smooth]) < 1e-6
+    assert skipped <= max(1, hull.sum())  # a kink now and then, not a blanket exclusion

@@ -9,7 +9,7 @@ import coal
 import numpy as np
 import pinocchio as pin
 import pytest
-from conftest import central_difference
+from conftest import central_difference, smooth_difference
 
 import calib_oed
 from calib_oed import load_robot, load_scene
@@ -114,13 +114,95 @@ def test_curvature_is_the_hessian_of_the_tangent_plane_model(ur10):
     w = hp.closest(states)
     for k in range(3):
         for h in range(len(hp)):
-            hess = hp.hessians(states, np.array([k]), np.array([h]))[0]
+            hess = hp.hessians(states, np.array([k]), np.array([h]), exact=False)[0]
             local = [(body, (x - states.translation[k, body]) @ states.rotation[k, body])
                      for body, x in ((hp.body_a[h], w.wa[k, h]), (hp.body_b[h], w.wb[k, h]))]
             num = central_difference(model_gradient(robot, local, w.u[k, h]), q0[k], eps=1e-6)
             scale = max(np.abs(num).max(), 1e-9)
             assert np.abs(hess - num).max() / scale < 1e-6
             np.testing.assert_allclose(hess, hess.T, atol=1e-12 * scale)
+
+
+def assert_exact_curvature(robot, hp, q, min_exact):
+    """The rows' Hessians (hessians: exact for the closest features) against central differences
+    of their analytic gradients, where two step sizes agree (no feature switch within the step).
+    The gradient rests on coal's witness points (to ~1e-9 m): the differences carry ~1e-7 m/rad^2
+    of noise, so the bound is 1e-6 of the largest entry, but at least of 1 m/rad^2."""
+    exact = model = 0
+    for qk in q:
+        states = compute_body_states(robot.model, qk[None])
+        for h in range(len(hp)):
+            def grad(x, h=h):
+                return hp.rows(compute_body_states(robot.model, x[None]), 0.010, True)[1][0, h]
+            num, smooth = smooth_difference(grad, qk)
+            before = hp.curvature["exact"]
+            hess = hp.hessians(states, [0], [h])[0]
+            if hp.curvature["exact"] == before:
+                model += 1
+                continue
+            exact += 1
+            if smooth.all():
+                scale = max(np.abs(num).max(), 1.0)
+                assert np.abs(hess - num).max() <= 1e-6 * scale, (hp.link_pairs[h], np.abs(hess - num).max())
+                np.testing.assert_allclose(hess, hess.T, atol=1e-12 * scale)
+    assert exact >= min_exact * (exact + model), (exact, model)
+    return exact, model
+
+
+def test_curvature_is_exact_for_the_closest_features(ur10):
+    """UR10 (convex hulls of mesh slabs): vertex, edge and face features; the tangent-plane model
+    it replaces is off by more than 10 % of the largest entry on most rows."""
+    robot, _, hp = ur10
+    q = robot.random_configurations(6, 3)
+    assert_exact_curvature(robot, hp, q, 0.8)
+    states = compute_body_states(robot.model, q)
+    pose, rows = np.repeat(np.arange(6), len(hp)), np.tile(np.arange(len(hp)), 6)
+    exact, model = hp.hessians(states, pose, rows), hp.hessians(states, pose, rows, exact=False)
+    off = np.abs(exact - model).max(axis=(1, 2)) / np.abs(exact).max(axis=(1, 2))
+    assert np.mean(off > 0.1) > 0.5
+
+
+def second_difference(fun, x, h):
+    """The Hessian of a scalar ``fun`` by central second differences of its values, step ``h``."""
+    e = np.eye(x.size) * h
+    out = np.zeros((x.size, x.size))
+    for i in range(x.size):
+        for j in range(i, x.size):
+            out[i, j] = out[j, i] = (fun(x + e[i] + e[j]) - fun(x + e[i] - e[j]) - fun(x - e[i] + e[j])
+                                     + fun(x - e[i] - e[j])) / (4 * h * h)
+    return out
+
+
+def test_curvature_on_primitives():
+    """kr16's pieces are URDF cylinders and a sphere: a sphere, a cylinder's side (its axis, rounded),
+    cap (a face) and rim (a circle) are exact. On curved pieces coal's witness points carry ~1e-7 m
+    (GJK's duality gap), too much for differences of the gradient: the reference is second
+    differences of the row values (step 3e-4; skipped where 6e-4 differs by more than the bound: a
+    feature switch within the steps), 1e-5 of
+    the largest entry but at least of 1 m/rad^2 (measured: 2e-6 at most)."""
+    robot = load_robot("kr16")
+    pairs = (("link_1", "link_4"), ("link_2", "link_4"), ("link_2", "link_5"), ("link_4", "link_6"),
+             ("base_link", "link_2"), ("link_1", "link_3"), ("link_3", "link_6"))
+    hp = HullPairs(link_pieces(robot, load_collision_model(robot)), pairs)
+    checked = 0
+    for qk in robot.random_configurations(4, 3):
+        states = compute_body_states(robot.model, qk[None])
+        for h in range(len(hp)):
+            before = hp.curvature["exact"]
+            hess = hp.hessians(states, [0], [h])[0]
+            if hp.curvature["exact"] == before:
+                continue
+
+            def value(x, h=h):
+                return hp.closest(compute_body_states(robot.model, x[None], jacobian=False), [h]).dist[0, 0]
+
+            ref, wide = second_difference(value, qk, 3e-4), second_difference(value, qk, 6e-4)
+            scale = max(np.abs(ref).max(), 1.0)
+            if np.abs(ref - wide).max() > 1e-5 * scale:
+                continue  # a feature switch within the steps
+            assert np.abs(hess - ref).max() <= 1e-5 * scale, (hp.link_pairs[h], np.abs(hess - ref).max())
+            checked += 1
+    assert hp.curvature["exact"] >= 0.9 * (hp.curvature["exact"] + hp.curvature["model"]) and checked >= 20
 
 
 def test_link_fit_hulls_checks_near_pairs_on_pieces(ur10):
@@ -158,16 +240,23 @@ def test_link_fit_hulls_checks_near_pairs_on_pieces(ur10):
                                fm.compute_lagrangian_hessian(q, rest) + expect, rtol=1e-10, atol=1e-12)
 
 
-def test_pairs_the_capsules_never_separate_fall_back_to_pieces():
-    """The default fit: a UR10's base_link/upper_arm_link capsules are never 10 mm apart (its shoulder
-    motor), the pieces of the meshes are (11-21 mm): the pair is checked on the pieces, and sampling works."""
+@pytest.mark.parametrize("fit", ["single", "hulls"])
+def test_pairs_the_capsules_never_separate_fall_back_to_pieces(fit):
+    """One capsule per link (``link_fit: single``): a UR10's base_link/upper_arm_link capsules are never
+    10 mm apart (its shoulder motor), the pieces of the meshes are (11-21 mm): the pair is checked on
+    the pieces. With the default (hulls) it is on the pieces anyway, as a near pair."""
     scene = load_scene("ur5_table")
     robot = load_robot("ur10")
-    fm, report = build_feasibility_model(robot, scene.cell, FeasibilitySettings(prune_samples=500),
+    fm, report = build_feasibility_model(robot, scene.cell, FeasibilitySettings(prune_samples=500, link_fit=fit),
                                          np.array([1.5, -2.5, 1.0]), np.array([[0.0, 0.0, 0.04]]))
     assert ("base_link", "upper_arm_link") in fm.hull_pairs.link_pairs
-    reason = next(d.reason for d in report.dropped if d.label.startswith("self:base_link#0|upper_arm_link#0"))
-    assert "never separated by the 10 mm margin" in reason
+    reason = next(d.reason for d in report.dropped if d.label.startswith("self:base_link#0|upper_arm_link#"))
+    assert reason.startswith("checked on convex pieces of the link geometry")
+    if fit == "single":
+        assert "never separated by the 10 mm margin" in reason
+    else:
+        assert reason.endswith("links 2 joints apart")
+    assert not any(lbl.startswith("self:base_link#") and "|upper_arm_link#" in lbl for lbl in fm.labels)
 
 
 def test_scene_key_link_fit_hulls():
@@ -184,3 +273,33 @@ def test_scene_key_link_fit_hulls():
     spec["feasibility"]["link_fit"] = "hull"
     with pytest.raises((CalibOedError, ValueError), match="hulls"):
         scene_from_dict(spec, str(path))
+
+
+def test_a_failed_coal_call_is_repeated_with_the_defaults(monkeypatch):
+    """Curved pieces (kr16's cylinders) use a tight duality-gap request; a result of exactly 0, below
+    the capsule lower bound or beyond GJK_FAILED (coal's -DBL_MAX) is a failed call, repeated with
+    coal's defaults: the values are those of a model whose every call succeeds."""
+    from calib_oed.feasibility import hulls
+
+    scene = load_scene("fms_kr16")
+    robot = scene.robot
+    pairs = (("link_1", "link_4"), ("link_2", "link_5"))
+    hp = HullPairs(link_pieces(robot, load_collision_model(robot)), pairs)
+    states = compute_body_states(robot.model, robot.random_configurations(4, 2), jacobian=False)
+    expect = hp.closest(states)
+    assert hp.fallbacks == 0
+    real = coal.distance
+    calls = {"n": 0}
+
+    def flaky(s1, t1, s2, t2, request, result):
+        calls["n"] += 1
+        d = real(s1, t1, s2, t2, request, result)
+        if request is hp._request:  # the tight request fails every other call, in the three ways
+            return (0.0, -np.finfo(float).max, -1.0, d)[calls["n"] % 4]
+        return d
+
+    monkeypatch.setattr(hulls.coal, "distance", flaky)
+    got = hp.closest(states)
+    assert hp.fallbacks >= 3
+    np.testing.assert_allclose(got.dist, expect.dist, rtol=0, atol=1e-5)  # default criterion: ~1e-6 m
+    assert np.all(np.isfinite(got.u)) and np.allclose(np.linalg.norm(got.u, axis=2), 1.0)

@@ -117,25 +117,30 @@ def test_capsule_table_pairs_follow_the_rules(kr16_data, tmp_path):
 
 
 @pytest.mark.parametrize(
-    ("pair", "label"),
+    ("fit", "pair", "checked", "label"),
     [
-        (["link_1", "link_4"], "self:link_1#0|link_4#0"),
-        (["tool0", "link_2"], "self:link_2#0|reflector(smr0)"),  # the reflector is on tool0
+        # default link_fit (hulls): link_1 and link_4 are 3 joints apart, one row on their pieces;
+        # excluded, neither that row nor a capsule row of theirs is left
+        ("hulls", ["link_1", "link_4"], "self:link_1|link_4", "self:link_1#0|link_4#0"),
+        ("single", ["link_1", "link_4"], "self:link_1#0|link_4#0", "self:link_1#0|link_4#0"),
+        ("hulls", ["tool0", "link_2"], "self:link_2#0|reflector(smr0)", "self:link_2#0|reflector(smr0)"),
     ],
 )
-def test_excluded_pair_is_not_checked(kr16_data, tmp_path, pair, label):
+def test_excluded_pair_is_not_checked(kr16_data, tmp_path, fit, pair, checked, label):
     # no pruning pass: the comparison does not depend on what sampling drops
-    _, plain = feasibility_from_scene(scene_in(tmp_path, kr16_data, "plain.yaml"), prune=False)
-    assert label in plain.checked  # checked by default
-    scene = scene_in(tmp_path, with_feasibility(kr16_data, excluded_pairs=[pair]))
+    data = with_feasibility(kr16_data, link_fit=fit)
+    _, plain = feasibility_from_scene(scene_in(tmp_path, data, "plain.yaml"), prune=False)
+    assert checked in plain.checked  # checked by default
+    scene = scene_in(tmp_path, with_feasibility(data, excluded_pairs=[pair]))
     assert scene.feasibility.excluded_pairs == (tuple(pair),)
     model, report = feasibility_from_scene(scene, prune=False)
-    assert label not in report.checked
-    assert label not in model.labels
+    assert checked not in report.checked
+    assert checked not in model.labels
+    assert not any(lbl.startswith(f"self:{pair[0]}") and f"|{pair[1]}" in lbl for lbl in model.labels)
     excluded = [d for d in report.dropped if d.reason == "excluded by the scene"]
     assert [d.label for d in excluded] == [label]
     assert "dropped 1: excluded by the scene" in report.summary()
-    assert set(report.checked) == set(plain.checked) - {label}
+    assert set(report.checked) == set(plain.checked) - {checked}
     assert report.counts["self"] == plain.counts["self"] - 1
 
 
@@ -153,8 +158,11 @@ def test_prune_distance_is_monotone(kr16_data, tmp_path):
         assert scene.feasibility.prune_distance == pytest.approx(d * 1e-3)
         model, report = feasibility_from_scene(scene)
         far = {x.label for x in report.dropped if x.reason.startswith("never closer")}
+        # capsule pairs: exactly this reason; pairs on convex pieces add their clearance range
         assert all(
-            f"never closer than {d} mm in 500 samples" == x.reason
+            x.reason == f"never closer than {d} mm in 500 samples"
+            or (x.reason.startswith(f"never closer than {d} mm in 500 samples (clearance ")
+                and x.min_clearance > d * 1e-3)
             for x in report.dropped
             if x.label in far
         )

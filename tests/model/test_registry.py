@@ -70,13 +70,15 @@ def test_the_cases_cover_every_listed_robot():
 
 
 def _case(name: str, fit: str = "default"):
-    marks = [] if name in FAST and fit == "default" else [pytest.mark.slow]
+    fast = name in FAST and fit == "default" or (name, fit) == ("kr16", "single")
+    marks = [] if fast else [pytest.mark.slow]
     return pytest.param(name, fit, marks=marks, id=name if fit == "default" else f"{name}-{fit}")
 
 
-@pytest.mark.parametrize(("name", "fit"), [_case(n) for n in listed()] + [_case(n, "hulls") for n in listed()])
+@pytest.mark.parametrize(("name", "fit"), [_case(n) for n in listed()] + [_case(n, "single") for n in listed()])
 def test_every_listed_robot_designs_in_a_simple_cell(name, fit):
-    """With the default link geometry and with ``feasibility: {link_fit: hulls}`` (slow set)."""
+    """With the default link geometry (``link_fit: hulls``) and with an explicit
+    ``feasibility: {link_fit: single}``, one capsule per link (kr16 fast, the others slow)."""
     spec = simple_cell(name)
     if fit != "default":
         spec["feasibility"] = {"link_fit": fit}

@@ -39,7 +39,9 @@ def slsqp_optimum(blocks, criterion):
                                   bounds=[(0.0, 1.0)] * n,
                                   constraints=[{"type": "eq", "fun": lambda w: w.sum() - 1.0,
                                                 "jac": lambda w: np.ones_like(w)}],
-                                  options={"ftol": 1e-14, "maxiter": 2000})
+                                  options={"ftol": 1e-12, "maxiter": 2000})
+    # ftol 1e-14 ended with "Positive directional derivative for linesearch" (status 8, at 1e-12
+    # of the optimum) under OPENBLAS_NUM_THREADS=1 with scipy 1.17: below rounding, not a failure
     assert res.success, res.message
     return res.fun
 

@@ -71,7 +71,9 @@ def test_bad_scale(kr16):
 @pytest.mark.parametrize("criterion", ["kpi", "D"])
 def test_lagrangian_hessian_matches_differences_of_the_lagrangian_gradient(kr16, criterion):
     """Per-pose blocks (criterion through the rows, constraint curvature) plus the coupling
-    U U^T equal central differences of grad(phi/s) - A^T lam, with random multipliers."""
+    U U^T equal central differences of grad(phi/s) - A^T lam, with random multipliers. Rows on
+    convex pieces of the link geometry have the tangent-plane model (docs/feasibility.md §7): their
+    multipliers are zero in the comparison, and their part is checked to be that model."""
     s = kr16
     n = 10
     nlp = DesignProblem(DesignObjective(s.problem, criterion), s.feasibility, n, scale=2e-5)
@@ -79,16 +81,26 @@ def test_lagrangian_hessian_matches_differences_of_the_lagrangian_gradient(kr16,
     c, _ = nlp.compute_constraints(x)
     rng = np.random.default_rng(0)
     lam = rng.random(c.size) * (rng.random(c.size) < 0.2)
-    hess = nlp.compute_lagrangian_hessian(x, lam)
+    hull = np.isin([lbl.split(": ", 1)[1] for lbl in nlp.constraint_labels()], s.feasibility.hull_pairs.labels)
+    assert hull.any() and lam[hull].any()
+    exact = np.where(hull, 0.0, lam)
+    hess = nlp.compute_lagrangian_hessian(x, exact)
     assert hess.blocks.shape == (n, 6, 6) and hess.low_rank.shape[0] == n * 6
 
     def gradient(y):
         _, g = nlp.compute_objective(y)
         _, jac = nlp.compute_constraints(y)
-        return g - jac.T @ lam
+        return g - jac.T @ exact
 
     fd = central_difference(gradient, x)
     assert np.abs(hess.dense() - fd).max() <= 1e-6 * np.abs(fd).max()
-    # without multipliers only the criterion remains
+    # the constraint part is -sum_i lam_i hess g_i of the feasibility model (hull rows: its model)
+    q = nlp.configurations(x)
     plain = nlp.compute_lagrangian_hessian(x, np.zeros_like(lam))
-    assert not np.allclose(plain.blocks, hess.blocks)
+    full = nlp.compute_lagrangian_hessian(x, lam)
+    part = s.feasibility.compute_lagrangian_hessian(q, lam.reshape(n, -1), kinds=nlp.kinds)
+    assert np.abs(part).max() > 0.0
+    np.testing.assert_allclose(full.blocks, plain.blocks - part, rtol=1e-12, atol=1e-9 * np.abs(part).max())
+    np.testing.assert_allclose(hess.blocks - plain.blocks, full.blocks - plain.blocks + s.feasibility.
+                               compute_lagrangian_hessian(q, np.where(hull, lam, 0.0).reshape(n, -1),
+                                                          kinds=nlp.kinds), rtol=0, atol=1e-9 * np.abs(part).max())

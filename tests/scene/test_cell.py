@@ -97,6 +97,8 @@ def test_flat_mesh_is_an_error(tmp_path):
 
 def test_link_fit_setting_is_read_and_validated():
     data = valid()
+    assert scene_from_dict(data, check=False).feasibility.link_fit == "hulls"  # the default
+    data["feasibility"] = {"link_fit": "single"}
     assert scene_from_dict(data, check=False).feasibility.link_fit == "single"
     data["feasibility"] = {"link_fit": "split"}
     assert scene_from_dict(data, check=False).feasibility.link_fit == "split"
