@@ -128,8 +128,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-refine", action="store_true",
                    help="no SQP refinement: pure selection from the pool (with --start exchange)")
     p.add_argument("--replicates", type=_positive_int, default=1, metavar="K",
-                   help="each configuration may be measured up to K times (default 1: all "
-                   "distinct); the record says how many distinct poses")
+                   help="each configuration may be measured up to K times (default 1: the "
+                   "start's poses are distinct, though the refinement may bring two together); "
+                   "the record says how many distinct poses")
     p.add_argument("--no-certificate", action="store_true",
                    help="skip the optimality certificate (the efficiency against a lower bound "
                    "valid for any feasible design of this size)")

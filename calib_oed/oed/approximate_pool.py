@@ -31,12 +31,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from calib_oed.exceptions import DesignError, NotIdentifiableError
+from calib_oed.exceptions import NotIdentifiableError
 from calib_oed.oed.approximate import ApproximateDesign, solve_approximate
-from calib_oed.oed.exchange import ExchangeResult, exchange_design
+from calib_oed.oed.exchange import ExchangeResult
 from calib_oed.oed.objective import DesignObjective
 from calib_oed.oed.rounding import efficient_rounding
 from calib_oed.oed.sensitivity_maxima import _local_search, _Search
+from calib_oed.oed.starts import check_pool_size, exchange_poses
 
 __all__ = ["ENRICH_ROUNDS", "ENRICH_STARTS", "ApproximatePool", "approximate_pool",
            "approximate_start", "rounded_start"]
@@ -158,17 +159,11 @@ def approximate_start(objective: DesignObjective, ap: ApproximatePool, n: int, s
     Raises:
         DesignError: ``n`` larger than the candidates allow.
     """
-    n_cand = len(ap.q)
-    if n > n_cand * replicates:
-        raise DesignError("n", n, f"the pool has {n_cand} feasible candidates, each usable "
-                          f"{replicates} time(s): at most {n_cand * replicates} poses; "
-                          "give a larger pool or --replicates")
-    blocks = np.concatenate([ap.blocks] * replicates) if replicates > 1 else ap.blocks
+    check_pool_size(len(ap.q), n, replicates)
     start = rounded_start(ap, n, replicates) if seed is None else None
     try:
-        result = exchange_design(blocks, n, objective.criterion, start=start, rng=seed)
+        return exchange_poses(objective, ap.q, ap.blocks, n, replicates, start=start, rng=seed)
     except NotIdentifiableError:  # a rounding of a small n can be singular: a random start then
         if start is None:
             raise
-        result = exchange_design(blocks, n, objective.criterion, rng=0)
-    return ap.q[np.asarray(result.indices) % n_cand], result
+        return exchange_poses(objective, ap.q, ap.blocks, n, replicates, rng=0)

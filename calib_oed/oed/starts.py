@@ -115,19 +115,35 @@ def exchange_start(objective: DesignObjective, pool: CandidatePool, n: int, seed
     Raises:
         DesignError: ``n`` larger than the pool allows.
     """
-    n_pool = len(pool.q)
-    if n > n_pool * replicates:
-        raise DesignError("n", n, f"the pool has {n_pool} feasible candidates, each usable "
-                          f"{replicates} time(s): at most {n_pool * replicates} poses; "
-                          "give a larger pool or --replicates")
+    check_pool_size(len(pool.q), n, replicates)
     blocks = objective.compute_blocks(pool.q)
     if objective.prior is None and n * blocks.shape[1] < blocks.shape[2]:
         objective.information(blocks[:n])  # raises NotIdentifiableError: too few measured values
+    return exchange_poses(objective, pool.q, blocks, n, replicates, rng=seed)
+
+
+def check_pool_size(n_candidates: int, n: int, replicates: int) -> None:
+    """Raise :class:`DesignError` if ``n`` poses cannot come from ``n_candidates``, each
+    usable ``replicates`` times."""
+    if n > n_candidates * replicates:
+        raise DesignError("n", n, f"the pool has {n_candidates} feasible candidates, each usable "
+                          f"{replicates} time(s): at most {n_candidates * replicates} poses; "
+                          "give a larger pool or --replicates")
+
+
+def exchange_poses(objective: DesignObjective, q: np.ndarray, blocks: np.ndarray, n: int,
+                   replicates: int = 1, start=None, rng=None) -> tuple[np.ndarray, ExchangeResult]:
+    """The exchange algorithm's ``n`` of the candidates ``q`` (N, nq) [rad] with their
+    information blocks, each candidate usable ``replicates`` times (the blocks repeated).
+
+    Returns:
+        ``(q, result)``: the design (n, nq) [rad] and the exchange record.
+    """
     if replicates > 1:
         blocks = np.concatenate([blocks] * replicates)
-    result = exchange_design(blocks, n, objective.criterion, rng=seed, prior=objective.prior)
-    q = pool.q[np.asarray(result.indices) % n_pool]
-    return q, result
+    result = exchange_design(blocks, n, objective.criterion, start=start, rng=rng,
+                             prior=objective.prior)
+    return q[np.asarray(result.indices) % len(q)], result
 
 
 def heuristic_start(s: Setup, n: int, seed: int) -> np.ndarray:
