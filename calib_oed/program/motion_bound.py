@@ -82,14 +82,14 @@ def point_speed_bounds(robot: Robot, body: int, local: np.ndarray) -> np.ndarray
 def piece_speed_bounds(robot: Robot, pieces) -> np.ndarray:
     r"""A bound (nv,) on the speed of every point of a link's convex pieces
     (:class:`calib_oed.feasibility.hulls.LinkPieces`): no such point moves faster than
-    :math:`arho^	op |\dot q|` [m/s].
+    :math:`\bar\rho^\top |\dot q|` [m/s].
 
     Each piece lies in its enclosing capsule (axis :math:`[a, b]`, radius :math:`r`, body
     frame), so a point :math:`p` of it is within :math:`r` of an axis point :math:`x`:
-    :math:`\lVert p_bVert \le \lVert x_bVert + r` and, the norm being convex along the
+    :math:`\lVert p_b\rVert \le \lVert x_b\rVert + r` and, the norm being convex along the
     axis, :math:`R_i(p) \le \max(R_i(a), R_i(b)) + r` for every joint :math:`i` that moves
     the body (:func:`point_speed_bounds`; conservative for a prismatic joint, whose
-    :math:`R_i = 1`). :math:`arho` is the element-wise maximum over the pieces.
+    :math:`R_i = 1`). :math:`\bar\rho` is the element-wise maximum over the pieces.
     """
     out = np.zeros(robot.model.nv)
     for a, b, r in zip(pieces.cap_a, pieces.cap_b, pieces.cap_r, strict=True):
