@@ -252,8 +252,10 @@ class StudyConfig:
 
     def to_dict(self) -> dict:
         """The configuration as YAML would state it (normalised)."""
+        # enrich written either way: the plan's dict leaves it out when off (case hashes of
+        # studies run before it existed), and the loader's default is on
         return {"version": 1, "name": self.name, "description": self.description,
-                "cases": self.raw_cases, **self.plan.to_dict()}
+                "cases": self.raw_cases, **self.plan.to_dict(), "enrich": self.plan.enrich}
 
 
 def _label(scene: str) -> str:

@@ -62,6 +62,7 @@ def smoke_study(tmp_path_factory):
     ({"collisions": ["yes"]}, "collisions[0]", "true (with collision constraints) or false"),
     ({"collisions": [True, True]}, "collisions", "repeated"),
     ({"start": "random"}, "start", "expected one of heuristic, exchange"),
+    ({"enrich": "yes"}, "enrich", "expected true or false"),
     ({"n": 0}, "n", "integer >= 1"),
     ({"heuristic_seeds": [0, -1]}, "heuristic_seeds[1]", "integer >= 0"),
     ({"sqp": {"iterations": 5}}, "sqp.iterations", "valid keys of 'sqp' are: max_iterations, "
@@ -103,6 +104,13 @@ def test_config_defaults_and_round_trip():
     again = study_config_from_dict(config.to_dict())
     assert again.cases()[0].config_hash == config.cases()[0].config_hash
     assert again.to_dict() == config.to_dict()
+
+
+def test_enrich_round_trips_and_changes_the_hash():
+    off = study_config_from_dict(smoke(enrich=False))
+    assert off.plan.enrich is False and study_config_from_dict(smoke()).plan.enrich is True
+    assert study_config_from_dict(off.to_dict()).plan.enrich is False
+    assert off.cases()[0].config_hash != study_config_from_dict(smoke()).cases()[0].config_hash
 
 
 def test_hash_changes_with_the_plan_not_with_the_name():
