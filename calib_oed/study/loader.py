@@ -21,6 +21,7 @@ are YAML files (shipped ones in ``calib_oed/study/shipped/``, see
     criteria: [params, kpi]                  # C_p-optimal (state of the art) and KPI-optimal
     collisions: [true, false]                # with and without collision constraints
     start: heuristic                         # heuristic | exchange
+    enrich: true                             # exchange: pool + off-pool maxima (false: pool only)
     seed: 0                                  # seed of the start design
     sqp: {max_iterations: 80, time_limit: 30}   # per SQP run; time_limit [s] or null
     certificate: {pool: 3000, seed: 0, local_starts: 32}   # optional: KPI lower bound per case
