@@ -23,6 +23,7 @@ import scipy.sparse
 
 from calib_oed.feasibility.bodies import compute_body_states
 from calib_oed.feasibility.constraints import FeasibilityModel
+from calib_oed.feasibility.hull_pieces import hull_row_pieces
 from calib_oed.oed.objective import DesignObjective
 from calib_oed.solver.result import StructuredHessian
 
@@ -130,6 +131,37 @@ class DesignProblem:
         n, m, nq = jac.shape
         bsr = scipy.sparse.bsr_matrix((jac, np.arange(n), np.arange(n + 1)), shape=(n * m, n * nq))
         return values.ravel(), bsr.tocsr()
+
+    def compute_row_pieces(self, x: np.ndarray, rows: np.ndarray):
+        """The smooth pieces of kinked convex-piece rows among the stacked ``rows``, for the SQP.
+
+        ``(rows_k, values, G)``: the stacked row of each piece, its value [m] and
+        gradient (k, n·nq) (:mod:`calib_oed.feasibility.hull_pieces`,
+        :mod:`calib_oed.solver.pieces`).
+        """
+        hull = self.feasibility.hull_pairs
+        none = (np.zeros(0, dtype=int), np.zeros(0), scipy.sparse.csr_matrix((0, self.n * self.nq)))
+        if not len(hull):
+            return none
+        full = np.flatnonzero(self.feasibility.row_mask(self.kinds))  # design-local -> model row
+        m = full.size
+        rows = np.asarray(rows, dtype=int)
+        first = self.feasibility.labels.index(hull.labels[0])
+        h = full[rows % m] - first
+        mine = (h >= 0) & (h < len(hull))
+        if not mine.any():
+            return none
+        poses, at = np.unique(rows[mine] // m, return_inverse=True)
+        states = compute_body_states(self.feasibility.robot.model, self.configurations(x)[poses], jacobian=True)
+        pieces = hull_row_pieces(hull, states, at, h[mine], self.feasibility.settings.margins.clearance)
+        pose = poses[pieces.pose]
+        local = first + pieces.row  # model row -> design-local row
+        stacked = pose * m + np.searchsorted(full, local)
+        k, nq = pose.size, self.nq
+        cols = (pose[:, None] * nq + np.arange(nq)[None]).ravel()
+        grads = scipy.sparse.csr_matrix((pieces.jacobian.ravel(), cols, np.arange(0, k * nq + 1, nq)),
+                                        shape=(k, self.n * nq))
+        return stacked, pieces.values, grads
 
     def constraint_labels(self) -> list[str]:
         """Label of each stacked row, ``"pose j: <row label>"``."""

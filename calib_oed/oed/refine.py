@@ -114,7 +114,8 @@ def optimise_from(objective: DesignObjective, feasibility, q0: np.ndarray, *, co
                        bounds=nlp.bounds, settings=settings or DESIGN_SQP, callback=callback,
                        hessian_model=nlp.compute_curvature if structured else None,
                        block_size=nlp.nq,
-                       lagrangian_hessian=nlp.compute_lagrangian_hessian if exact else None)
+                       lagrangian_hessian=nlp.compute_lagrangian_hessian if exact else None,
+                       row_pieces=nlp.compute_row_pieces)
     x = result.x
     if nlp.max_violation(x) > FEASIBILITY_TOL:
         # interrupted: the (feasible) start rather than a projection the user did not wait for

@@ -21,6 +21,7 @@ import numpy as np
 from calib_oed.exceptions import ShapeError
 from calib_oed.solver.bfgs import damped_bfgs_update
 from calib_oed.solver.nlp import _Point, _Problem
+from calib_oed.solver.pieces import RowPieces, check_pieces
 from calib_oed.solver.polish import polish
 from calib_oed.solver.restoration import _RestorationMixin
 from calib_oed.solver.result import IterationRecord, SQPSettings, SQPStatus, kkt_residuals
@@ -37,7 +38,7 @@ class _Run(_SubproblemMixin, _RestorationMixin):
     """State of one :func:`~calib_oed.solver.sqp.solve_sqp` call; the iteration is in :meth:`iterate`."""
 
     def __init__(self, problem: _Problem, pt: _Point, lb, ub, settings: SQPSettings, t0,
-                 hessian_model=None, block_size=None, lagrangian_hessian=None):
+                 hessian_model=None, block_size=None, lagrangian_hessian=None, row_pieces=None):
         s = self.s = settings
         self.p, self.pt, self.lb, self.ub, self.t0 = problem, pt, lb, ub, t0
         n, m = pt.x.size, pt.c.size
@@ -56,8 +57,17 @@ class _Run(_SubproblemMixin, _RestorationMixin):
         self.first_update = True
         self.delta = s.step_bound
         self.mu = s.penalty_margin
-        self.lam = np.zeros(m)  # multipliers of all rows, 0 for rows not in the QP
+        self.lam = np.zeros(m)  # multipliers of all rows, 0 for rows not in the QP (+ their pieces')
+        self.lam_rows = self.lam  # the same without the pieces' (for the KKT test)
         self.lam_previous = self.lam  # of the QP before (the active set seen twice)
+        self.row_pieces = row_pieces  # the caller's pieces of kinked rows (calib_oed.solver.pieces)
+        self.n_pieces = 0  # most pieces in one QP
+        self._pieces_at = (-1, RowPieces.none(n))  # (point version, pieces there)
+        self.pieces = RowPieces.none(n)  # those of the last QP solved, with
+        self.lam_pieces = np.zeros(0)  # their multipliers, and the point version they belong to
+        self.pieces_version = -1
+        self._qp_rows = np.zeros(0, dtype=int)  # row of c behind each row of the last QP
+        self._qp_pieces = self.pieces
         self.nu = np.zeros(n)  # box multipliers of the last QP (warm start)
         self.qp = QPSolver(n, s)
         self.max_rows = s.qp_row_limit(n)
@@ -136,6 +146,44 @@ class _Run(_SubproblemMixin, _RestorationMixin):
     def _trial(self, x):
         return self.p.evaluate(np.clip(x, self.lb, self.ub), strict=False)
 
+    def _pieces(self) -> RowPieces:
+        """The pieces of the kinked rows near activity at :math:`x_k` (:mod:`calib_oed.solver.pieces`), cached."""
+        if self.row_pieces is None:
+            return self._pieces_at[1]
+        if self._pieces_at[0] != self._version:
+            pt = self.pt
+            near = np.flatnonzero(pt.c <= self.s.row_pieces_margin)
+            t = time.perf_counter()
+            pieces = (check_pieces(self.row_pieces(pt.x.copy(), near), pt.x.size, pt.c.size)
+                      if near.size else RowPieces.none(pt.x.size))
+            self.p.times["constraints"] += time.perf_counter() - t
+            self._pieces_at = (self._version, pieces)
+            self.n_pieces = max(self.n_pieces, pieces.size)
+        return self._pieces_at[1]
+
+    def _set_multipliers(self, rows, lam, nu):
+        r"""Store a QP's multipliers: rows, pieces (also summed into their rows), box."""
+        m = self.pt.c.size
+        self.lam_rows = np.zeros(m)
+        self.lam_rows[rows] = lam[:rows.size]
+        self.pieces, self.lam_pieces = self._qp_pieces, lam[rows.size:]
+        self.pieces_version = self._version
+        self.lam = self.lam_rows + np.bincount(self.pieces.rows, self.lam_pieces, minlength=m)
+        self.nu = nu
+
+    def kkt(self):
+        r""":math:`(r_d, r_c, \nu)` at :math:`x_k` with the last multipliers (:func:`kkt_residuals`).
+
+        The pieces of kinked rows count with their multipliers when they were
+        evaluated at :math:`x_k` (:mod:`calib_oed.solver.pieces`).
+        """
+        pt = self.pt
+        pieces = None
+        if self.pieces.size and self.pieces_version == self._version:
+            pieces = (self.pieces.values, self.pieces.gradients, self.lam_pieces)
+        return kkt_residuals(pt.x, pt.g, pt.c, pt.A, self.lam_rows, self.lb, self.ub,
+                             self.s.tol_feasibility, pieces)
+
     def _record(self, k, stat, step_norm, delta, n_rows, qp_status, qp_iter, backtracks, restoration,
                 corrected=False):
         pt, info = self.pt, self._info
@@ -144,7 +192,7 @@ class _Run(_SubproblemMixin, _RestorationMixin):
                               delta, int(n_rows), qp_status, int(qp_iter), int(backtracks),
                               bool(restoration), time.perf_counter() - self.t0, bool(corrected),
                               info.hessian, bool(info.fallback), int(info.modified), info.backend,
-                              int(info.dropped))
+                              int(info.dropped), int(info.pieces))
         self.history.append(rec)
         return rec
 
@@ -204,10 +252,8 @@ class _Run(_SubproblemMixin, _RestorationMixin):
         self.delta = delta
         self.restoration_run = 0
         self.lam_previous = self.lam
-        self.lam = np.zeros(pt.c.size)
-        self.lam[rows] = step.lam
-        self.nu = step.nu
-        stat, comp, _ = kkt_residuals(pt.x, pt.g, pt.c, pt.A, self.lam, self.lb, self.ub, s.tol_feasibility)
+        self._set_multipliers(rows, step.lam, step.nu)
+        stat, comp, _ = self.kkt()
         n_rows = rows.size
         if pt.violation_max <= s.tol_feasibility and stat <= s.tol_optimality and comp <= s.tol_optimality:
             self._stop(SQPStatus.CONVERGED)
@@ -217,7 +263,7 @@ class _Run(_SubproblemMixin, _RestorationMixin):
             self._stop(SQPStatus.STALLED, f"QP step {d_norm:.1e} below tol_step without convergence "
                        f"(violation {pt.violation_max:.1e}, stationarity {stat:.1e})")
             return self._record(k, stat, 0.0, delta, n_rows, step.status, qp_iter, 0, False)
-        self.mu = max(self.mu, float(np.max(step.lam, initial=0.0)) + s.penalty_margin)
+        self.mu = max(self.mu, float(np.max(self.lam, initial=0.0)) + s.penalty_margin)
         new, backtracks, soc, its = self._line_search(rows, step)
         qp_iter += its
         if (new is None and s.qp_polish and not step.polished  # QP error may be the cause
@@ -225,7 +271,7 @@ class _Run(_SubproblemMixin, _RestorationMixin):
             exact = polish(self._sub[0], step, self._sub[2])
             if exact is not None:
                 step, d_norm = exact, float(np.max(np.abs(exact.d), initial=0.0))
-                self.lam[rows], self.nu = exact.lam, exact.nu
+                self._set_multipliers(rows, exact.lam, exact.nu)
                 new, backtracks, soc, its = self._line_search(rows, step)
                 qp_iter += its
         if new is None:  # no sufficient decrease: stay, shrink the box

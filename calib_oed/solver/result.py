@@ -106,7 +106,7 @@ class SQPStatus(str, Enum):
     iteration; the result holds the last accepted iterate."""
 
 
-def kkt_residuals(x, g, c, A, lam, lb, ub, bound_tol):
+def kkt_residuals(x, g, c, A, lam, lb, ub, bound_tol, pieces=None):
     r""":math:`(r_d, r_c, \nu)` at :math:`x` for multipliers :math:`\lambda` (module docstring).
 
     ``g`` is :math:`\nabla f(x)`, ``c`` and ``A`` (ndarray or scipy sparse)
@@ -116,13 +116,24 @@ def kkt_residuals(x, g, c, A, lam, lb, ub, bound_tol):
     (:math:`\nu_j = \max(r_j, 0)` at a lower bound, :math:`\min(r_j, 0)` at an
     upper one). Returns :math:`(\|r - \nu\|_\infty / s,\ \max_i |\lambda_i c_i| / s,\ \nu)`
     with :math:`s = \max(1, \|\nabla f\|_\infty)`.
+
+    ``pieces``: optional ``(v, G, mu)``, the smooth pieces of kinked rows at
+    :math:`x` (values :math:`v`, gradients :math:`G` (k, n)) with multipliers
+    :math:`\mu \ge 0` (:mod:`calib_oed.solver.pieces`): then
+    :math:`r = \nabla f - A^\top\lambda - G^\top\mu` and :math:`r_c` includes
+    :math:`|\mu_k v_k|`.
     """
     r = g - (A.T @ lam if lam.size else 0.0)  # A is sparse in the design problem
+    comp_terms = lam * c
+    if pieces is not None and len(pieces[0]):
+        values, grads, mu = pieces
+        r = r - np.asarray(grads.T @ mu).reshape(-1)
+        comp_terms = np.concatenate([comp_terms, mu * values])
     at_lo, at_up = x - lb <= bound_tol, ub - x <= bound_tol
     nu = np.where(at_lo, np.maximum(r, 0.0), 0.0) + np.where(at_up, np.minimum(r, 0.0), 0.0)
     scale = max(1.0, float(np.max(np.abs(g), initial=0.0)))
     stat = float(np.max(np.abs(r - nu), initial=0.0)) / scale
-    comp = float(np.max(np.abs(lam * c), initial=0.0)) / scale
+    comp = float(np.max(np.abs(comp_terms), initial=0.0)) / scale
     return stat, comp, nu
 
 
@@ -167,6 +178,8 @@ class IterationRecord:
             coupling :math:`U U^\top` kept factored); ``""`` when no QP was solved.
         n_rows_dropped: Near-active rows left out by ``SQPSettings.max_qp_rows``
             (the farthest from activity).
+        n_pieces: Extra QP rows: the smooth pieces of kinked rows at :math:`x_k`
+            (:mod:`calib_oed.solver.pieces`).
     """
 
     iteration: int
@@ -189,6 +202,7 @@ class IterationRecord:
     hessian_modified: int = 0
     qp_backend: str = ""
     n_rows_dropped: int = 0
+    n_pieces: int = 0
 
 
 def _json_float(v):
@@ -241,6 +255,9 @@ class SQPResult:
         hessian_fallbacks: Iterations in which the exact Hessian was asked for
             but the BFGS one was used.
         hessian_message: Why the last fallback happened (``""`` if none).
+        max_pieces: Most pieces of kinked rows in one QP
+            (:mod:`calib_oed.solver.pieces`); their multipliers are added to
+            their rows' in ``multipliers``, and counted in the KKT residuals.
     """
 
     x: np.ndarray
@@ -260,6 +277,7 @@ class SQPResult:
     hessian: str = "bfgs"
     hessian_fallbacks: int = 0
     hessian_message: str = ""
+    max_pieces: int = 0
 
     def __post_init__(self):
         for name in ("x", "multipliers", "bound_multipliers"):
@@ -315,6 +333,7 @@ class SQPResult:
             "hessian": self.hessian,
             "hessian_fallbacks": self.hessian_fallbacks,
             "hessian_message": self.hessian_message,
+            "max_pieces": self.max_pieces,
         }
         return _json(out)
 

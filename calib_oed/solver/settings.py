@@ -86,6 +86,8 @@ class SQPSettings:
         qp_polish: Refine small QP steps on their active set (:func:`calib_oed.solver.polish.polish`).
         second_order_correction: Try a second-order correction before
             backtracking from a rejected full step (:mod:`calib_oed.solver.sqp`, item 4).
+        row_pieces_margin: Rows with :math:`c_i` at most this (units of :math:`c`)
+            are offered to the caller's ``row_pieces`` (:mod:`calib_oed.solver.pieces`).
         armijo: :math:`\eta \in (0, 1/2)` of the Armijo condition.
         backtrack: Factor :math:`\in (0, 1)` applied to :math:`\alpha` per backtrack.
         max_backtracks: Backtracks before the step is rejected.
@@ -118,6 +120,7 @@ class SQPSettings:
     qp_max_iterations: int = 100
     qp_polish: bool = True
     second_order_correction: bool = True
+    row_pieces_margin: float = 1e-3
     armijo: float = 1e-4
     backtrack: float = 0.5
     max_backtracks: int = 12
@@ -142,7 +145,7 @@ class SQPSettings:
         need("max_qp_rows", lambda v: v is None or integer(1)(v), "must be None (automatic) or an integer >= 1")
         for name in ("tol_optimality", "tol_feasibility", "tol_step", "step_bound", "min_step_bound",
                      "max_step_bound", "initial_hessian_scale", "qp_eps_abs", "penalty_margin",
-                     "restoration_penalty"):
+                     "restoration_penalty", "row_pieces_margin"):
             need(name, positive, "must be a finite number > 0")
         need("active_curvature", lambda v: isinstance(v, (int, float)) and 0 <= v < np.inf,
              "must be finite and >= 0 (0: off)")

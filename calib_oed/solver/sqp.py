@@ -121,7 +121,6 @@ from calib_oed.solver.result import (
     SQPSettingsError,
     SQPStatus,
     StructuredHessian,
-    kkt_residuals,
 )
 
 __all__ = ["SQPSettings", "SQPSettingsError", "SQPProblemError", "SQPStatus", "SQPResult",
@@ -133,7 +132,7 @@ _NUMERICAL = (MemoryError, np.linalg.LinAlgError, FloatingPointError)
 
 def solve_sqp(objective, x0, *, constraints=None, bounds=None, settings: SQPSettings | None = None,
               callback=None, hessian_model=None, block_size: int | None = None,
-              lagrangian_hessian=None) -> SQPResult:
+              lagrangian_hessian=None, row_pieces=None) -> SQPResult:
     r"""Minimise :math:`f(x)` s.t. :math:`c(x) \ge 0`, :math:`lb \le x \le ub` by SQP (module docstring).
 
     Args:
@@ -163,6 +162,11 @@ def solve_sqp(objective, x0, *, constraints=None, bounds=None, settings: SQPSett
             iteration (counted in ``SQPResult.hessian_fallbacks``). Without
             ``block_size`` the fallback BFGS matrices take the block size of
             the first Hessian returned (one dense block if none ever is).
+        row_pieces: Optional ``(x, rows) -> (rows_k, values, G)`` or ``None``: for
+            rows among ``rows`` (those with :math:`c_i \le` ``row_pieces_margin``)
+            that have a kink at :math:`x`, the values (k,) and gradients
+            :math:`G` (k, n) of their smooth pieces (:mod:`calib_oed.solver.pieces`):
+            extra QP rows, and their multipliers count in the KKT test.
 
     Returns:
         :class:`SQPResult`; call ``check()`` for the KKT residuals.
@@ -185,7 +189,7 @@ def solve_sqp(objective, x0, *, constraints=None, bounds=None, settings: SQPSett
     problem = _Problem(objective, constraints, n, lb, ub, times)
     pt0 = problem.evaluate(np.clip(x0, lb, ub), strict=True)
     try:
-        run = _Run(problem, pt0, lb, ub, s, t0, hessian_model, block_size, lagrangian_hessian)
+        run = _Run(problem, pt0, lb, ub, s, t0, hessian_model, block_size, lagrangian_hessian, row_pieces)
     except MemoryError as exc:  # e.g. one dense BFGS matrix for a very large n
         times["total"] = time.perf_counter() - t0
         return SQPResult(
@@ -215,11 +219,15 @@ def solve_sqp(objective, x0, *, constraints=None, bounds=None, settings: SQPSett
         run._stop(SQPStatus.MAX_ITERATIONS)
     pt = run.pt
     # residuals at the final point with the latest multipliers (those of its QP when converged)
-    stat, comp, nu_bounds = kkt_residuals(pt.x, pt.g, pt.c, pt.A, run.lam, lb, ub, s.tol_feasibility)
+    try:
+        stat, comp, nu_bounds = run.kkt()
+    except _NUMERICAL:  # already reported by the status; the residuals are unknown
+        stat, comp, nu_bounds = np.nan, np.nan, np.zeros(n)
     times["total"] = time.perf_counter() - t0
     return SQPResult(
         x=pt.x, fun=pt.f, status=run.status, message=run.message, iterations=len(run.history),
         history=tuple(run.history), multipliers=run.lam, bound_multipliers=nu_bounds,
         max_violation=pt.violation_max, kkt_stationarity=stat, kkt_complementarity=comp, times=times,
         n_objective_evaluations=problem.n_obj, n_constraint_evaluations=problem.n_con,
-        hessian=run.hessian_label, hessian_fallbacks=run.n_fallbacks, hessian_message=run.fallback_reason)
+        hessian=run.hessian_label, hessian_fallbacks=run.n_fallbacks, hessian_message=run.fallback_reason,
+        max_pieces=run.n_pieces)

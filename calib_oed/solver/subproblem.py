@@ -30,6 +30,7 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.sparse as sp
 
 from calib_oed.solver.hessian import augment_active, check_structured, positive_definite
 from calib_oed.solver.lifted import LiftedQPWorkspace
@@ -64,6 +65,15 @@ def failed_step(n: int, k: int, status: str, message: str = "") -> QPStep:
     """A QP step that carries only a failure: NaN step, infinite residuals."""
     nan = np.full(n, np.nan)
     return QPStep(nan, np.zeros(k), nan, status, 0, np.inf, np.inf, np.inf, message=message)
+
+
+def _stack(a_rows, gradients):
+    """The QP's row matrix: the kept rows of :math:`A` over the pieces' gradients."""
+    if not gradients.shape[0]:
+        return a_rows
+    if sp.issparse(a_rows):
+        return sp.vstack([a_rows, gradients], format="csr")
+    return np.vstack([np.asarray(a_rows), gradients.toarray()])
 
 
 class QPSolver:
@@ -125,6 +135,7 @@ class _QPInfo:
     modified: int = 0
     backend: str = ""
     dropped: int = 0
+    pieces: int = 0
 
 
 class _SubproblemMixin:
@@ -219,23 +230,27 @@ class _SubproblemMixin:
         """
         pt, s = self.pt, self.s
         sel = self._select(delta)
+        pieces = self._pieces()
         its = 0  # ProxQP iterations of the rounds before the last
         for rounds in range(_MISSED_ROUNDS + 1):
             rows = sel.rows
-            H, label, fallback, modified = self._qp_hessian(rows.size)
-            self._info = _QPInfo(label, fallback, modified, "", int(sel.dropped.size))
-            sub = QPSubproblem(H, pt.g, pt.A[rows], -pt.c[rows],
+            H, label, fallback, modified = self._qp_hessian(rows.size + pieces.size)
+            self._info = _QPInfo(label, fallback, modified, "", int(sel.dropped.size), pieces.size)
+            qp_rows = np.concatenate([rows, pieces.rows])  # the row of c behind each QP row
+            constants = np.concatenate([pt.c[rows], pieces.values])
+            sub = QPSubproblem(H, pt.g, _stack(pt.A[rows], pieces.gradients), -constants,
                                np.maximum(self.lb - pt.x, -delta), np.minimum(self.ub - pt.x, delta))
-            scale = max(1.0, float(np.max(np.abs(pt.c[rows]), initial=0.0)))
+            self._qp_rows, self._qp_pieces = qp_rows, pieces
+            scale = max(1.0, float(np.max(np.abs(constants), initial=0.0)))
             tol_p = 10 * s.qp_eps_abs * scale
             tol_d = 10 * s.qp_eps_abs * max(scale, float(np.max(np.abs(pt.g), initial=0.0)))
             self._sub = (sub, tol_p, tol_d)
             if np.any(pt.c[rows] < 0):
                 bad = unreachable_rows(sub.C, sub.lower, sub.box_lower, sub.box_upper, tol_p)
                 if bad.size:  # infeasible for sure: do not let ProxQP run to its limit
-                    return rows, failed_step(pt.x.size, rows.size, "unreachable_row"), False
+                    return rows, failed_step(pt.x.size, qp_rows.size, "unreachable_row"), False
             t = time.perf_counter()
-            step = self._solve(sub, self.lam[rows], self.nu, tol_d)
+            step = self._solve(sub, np.concatenate([self.lam_rows[rows], np.zeros(pieces.size)]), self.nu, tol_d)
             ok = step.is_solved(tol_p, tol_d)
             if not ok and step.status not in CRASHED:  # a stale warm start can mislead ProxQP: cold
                 cold = self._solve(sub, None, None, tol_d)
@@ -277,8 +292,7 @@ class _SubproblemMixin:
         """
         pt = self.pt
         sub, tol_p, tol_d = self._sub
-        a_k = pt.A[rows]
-        sub = sub._replace(lower=-(trial.c[rows] - a_k @ step.d))
+        sub = sub._replace(lower=-(trial.c[self._qp_rows] - np.asarray(sub.C @ step.d).reshape(-1)))
         if unreachable_rows(sub.C, sub.lower, sub.box_lower, sub.box_upper, tol_p).size:
             return None, 0
         t = time.perf_counter()

@@ -104,3 +104,35 @@ def test_lagrangian_hessian_matches_differences_of_the_lagrangian_gradient(kr16,
     np.testing.assert_allclose(hess.blocks - plain.blocks, full.blocks - plain.blocks + s.feasibility.
                                compute_lagrangian_hessian(q, np.where(hull, lam, 0.0).reshape(n, -1),
                                                           kinds=nlp.kinds), rtol=0, atol=1e-9 * np.abs(part).max())
+
+
+def test_row_pieces_land_on_their_stacked_rows(nlp, monkeypatch):
+    """compute_row_pieces maps the pieces of convex-piece rows (pose, pair) to the stacked rows of
+    those pairs and puts each gradient in its pose's columns (the geometry: test_hull_pieces.py)."""
+    import calib_oed.oed.problem as problem_module
+    from calib_oed.feasibility.hull_pieces import HullRowPieces
+
+    problem, q0 = nlp
+    hull = problem.feasibility.hull_pairs
+    assert len(hull) >= 2
+    seen = {}
+    grads = np.random.default_rng(1).standard_normal((2, problem.nq))
+
+    def fake(hp, states, pose, rows, clearance):
+        seen["rows"], seen["n_states"] = np.asarray(rows), states.rotation.shape[0]
+        return HullRowPieces(np.array([0, 1]), np.array([0, len(hp) - 1]), np.array([0.5, 0.25]), grads)
+
+    monkeypatch.setattr(problem_module, "hull_row_pieces", fake)
+    labels = problem.constraint_labels()
+    every = np.arange(len(labels))
+    stacked, values, g = problem.compute_row_pieces(q0.ravel(), every)
+    assert seen["n_states"] == problem.n and sorted(set(seen["rows"].tolist())) == list(range(len(hull)))
+    assert labels[stacked[0]] == f"pose 0: {hull.labels[0]}"
+    assert labels[stacked[1]] == f"pose 1: {hull.labels[-1]}"
+    assert np.array_equal(values, [0.5, 0.25]) and g.shape == (2, q0.size)
+    dense = g.toarray()
+    assert np.array_equal(dense[0, :problem.nq], grads[0]) and not dense[0, problem.nq:].any()
+    assert np.array_equal(dense[1, problem.nq:2 * problem.nq], grads[1])
+    # rows that are not convex-piece rows are never passed on
+    others = np.array([i for i, lbl in enumerate(labels) if not any(h in lbl for h in hull.labels)])
+    assert problem.compute_row_pieces(q0.ravel(), others)[0].size == 0
