@@ -1,4 +1,4 @@
-r"""The smooth pieces of a convex-piece row where it has a kink: a vertex against a face.
+r"""The smooth pieces of a convex-piece row where it has a kink: the corners of the contact.
 
 The row of two convex pieces :math:`P` (on body :math:`a`) and :math:`Q` (on
 body :math:`b`), :math:`g = d(P, Q) - m_d` (:mod:`calib_oed.feasibility.hulls`),
@@ -8,28 +8,31 @@ is only piecewise smooth. With :math:`u` the unit normal from :math:`Q` towards
 .. math::
     h_P = \min_{p \in P} u^\top p, \qquad h_Q = \max_{q \in Q} u^\top q, \qquad d = h_P - h_Q,
 
-where :math:`Q`'s support along :math:`u` is a face and several vertices of
-:math:`P` are (nearly) as low as :math:`h_P` (an edge or a face of :math:`P`
-resting on that face), :math:`d` is the least of the vertex-to-face-plane
-distances: a concave kink, where an optimum likes to sit and where the row's
-one gradient is wrong to first order (:mod:`calib_oed.solver.pieces`). Its
-smooth pieces are, for every vertex :math:`p` of :math:`P` with
-:math:`u^\top p \le h_P + \delta` (:data:`NEAR`),
+the *support features* are the vertices of :math:`P` at :math:`h_P` and of
+:math:`Q` at :math:`h_Q` (to :data:`~calib_oed.feasibility.hull_curvature.TOL`):
+a vertex, an edge or a face each. Where they overlap in more than a point
+(projected along :math:`u`: an edge or a face of one resting on a face of the
+other, or on an edge across it), :math:`d` is the least of several smooth
+distances and has a concave kink, where an optimum likes to sit and where the
+row's one gradient is wrong to first order (:mod:`calib_oed.solver.pieces`).
+The pieces are the corners :math:`y` of the overlap (the *contact polygon*, the
+intersection of the two features' projections, by shapely): each is a vertex
+of one feature over the other's face or edge, or the crossing of an edge of
+each, and its distance
 
 .. math::
-    g_p = u^\top p - h_Q - m_d, \qquad
-    \frac{\partial g_p}{\partial q} = u^\top (J_p - J_w), \quad w = p - (u^\top p - h_Q)\, u,
+    g_y = h_P - h_Q - m_d, \qquad
+    \frac{\partial g_y}{\partial q} = u^\top (J_{y_a} - J_{y_b}),
 
-the distance of the vertex to the face's plane, :math:`w` its foot held fixed
-on body :math:`b` (the plane turns with :math:`b`; by the envelope theorem the
-turning of :math:`u` does not enter, as for the row itself). The same with the
-roles swapped where :math:`P`'s support is a face. Each piece is at least
-:math:`g` (a vertex is at or above the support), it equals :math:`g` for the
-vertices on the support, and it is smooth while its vertex stays over the face: only vertices over the face
-(their projection along :math:`u` inside its polygon) give pieces.
-Rows whose supports are not a face on either side (vertex, edge or curved
-against anything but a face) get no pieces: there the witness features are
-unique and the row is smooth.
+with :math:`y_a, y_b` the points of the two features over :math:`y` held fixed
+on bodies :math:`a` and :math:`b`: the gradient of a vertex-to-plane or an
+edge-to-edge distance (the envelope theorem: the turning of :math:`u` does not
+enter, as for the row itself). :math:`g` is the least of them to first order.
+Vertices a little above the support (within :data:`NEAR`) whose projection lies
+inside the other piece's support face add their vertex-to-plane pieces
+(:math:`g_p = u^\top p - h_Q - m_d` for :math:`P`), which a step may make active.
+Every piece is at least :math:`g`. Rows whose supports meet in a point get no
+pieces: there the witness features are unique and the row is smooth.
 
 All lengths in [m].
 """
