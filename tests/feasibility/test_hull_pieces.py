@@ -25,10 +25,11 @@ def _piece(name: str, body: int, half: np.ndarray, centre: np.ndarray) -> LinkPi
                       np.array([float(np.linalg.norm(half))]))
 
 
-def _scene():
-    """A two-joint arm (about x, then y, both at the pivot) carrying a box over a world box."""
+def _scene(x0: float = 0.0):
+    """A two-joint arm (about x, then y, both at the pivot over (x0, 0)) carrying a box over a world
+    box whose top face spans -0.4..0.4 m in x and y."""
     model = pin.Model()
-    j1 = model.addJoint(0, pin.JointModelRX(), pin.SE3(np.eye(3), np.array([0.0, 0.0, PIVOT])), "j1")
+    j1 = model.addJoint(0, pin.JointModelRX(), pin.SE3(np.eye(3), np.array([x0, 0.0, PIVOT])), "j1")
     model.addJoint(j1, pin.JointModelRY(), pin.SE3.Identity(), "j2")
     pieces = {"table": _piece("table", 0, np.array([0.4, 0.4, 0.1]), [0.0, 0.0, TABLE_TOP - 0.1]),
               "box": _piece("box", 2, HALF, [0.0, 0.0, 0.0])}
@@ -94,3 +95,37 @@ def test_no_face_no_pieces():
     """Tilted by 0.3 rad about both axes, one vertex is lowest by far: no kink, no pieces."""
     model, hull = _scene()
     assert len(_pieces(model, hull, np.array([0.3, 0.3])).values) == 0
+
+
+def test_an_overhanging_face_gives_pieces_where_the_edges_cross():
+    """The box overhangs the table's edge at x = 0.4 m: the contact is the part of its bottom face over
+    the table, with two corners at its vertices and two where its long edges cross the table's edge.
+    The crossing pieces are edge-to-edge distances (checked against central differences of the
+    distance of the two lines); the row's one-sided slope is the least piece slope."""
+    model, hull = _scene(0.38)
+    q0 = np.zeros(2)
+    pieces = _pieces(model, hull, q0)
+    g0 = _row(model, hull, q0)
+    assert len(pieces.values) == 4 and np.allclose(pieces.values, g0, atol=1e-12)
+    rng = np.random.default_rng(2)
+    for v in rng.standard_normal((12, 2)):
+        v /= np.linalg.norm(v)
+        slope = (_row(model, hull, 1e-7 * v) - g0) / 1e-7
+        assert abs(slope - np.min(pieces.jacobian @ v)) <= 1e-6, (v, slope)
+
+    def edge_gap(x, sy):
+        """Distance along the common normal of the box's bottom long edge at y = sy·HALF[1] and the
+        table's top edge x = 0.4 m (both lines, signed up)."""
+        states = compute_body_states(model, np.asarray(x)[None], jacobian=False)
+        ends = states.points(np.array([2, 2]), np.array([[-HALF[0], sy * HALF[1], -HALF[2]],
+                                                          [HALF[0], sy * HALF[1], -HALF[2]]]))[0]
+        a0, da = ends[0], ends[1] - ends[0]
+        b0, db = np.array([0.4, 0.0, TABLE_TOP]), np.array([0.0, 1.0, 0.0])
+        n = np.cross(da, db)
+        n *= np.sign(n[2]) / np.linalg.norm(n)
+        return float(n @ (a0 - b0)) - CLEARANCE
+
+    for sy in (-1.0, 1.0):  # each crossing piece is the gradient of an edge-to-edge distance
+        assert np.isclose(edge_gap(q0, sy), g0, atol=1e-12)
+        num = central_difference(lambda x, sy=sy: edge_gap(x, sy), q0)
+        assert np.min(np.abs(pieces.jacobian - num).max(axis=1)) <= 1e-9, (sy, pieces.jacobian, num)
