@@ -13,6 +13,8 @@ solver status, the iterations, the design's own wall and CPU time, the
 certificate's time and the efficiency against the certified lower bound;
 *approx cpu* is the column generation (approximate design and off-pool local
 maxima) that both the start and the certificate use, included in *design cpu*.
+``PYTHONPATH=/other/checkout`` runs that checkout's package (the child's
+working directory is a temporary folder), for side-by-side comparisons.
 ``--replicates 1,3`` runs every scene once per K (``--replicates K``);
 ``--feasibility link_fit=single,joint_window=full`` runs copies of the scenes
 with those ``feasibility`` keys overridden (e.g. the single capsules, the
@@ -65,7 +67,8 @@ def run_case(scene: str, n: int, certificate: bool, extra=()) -> dict:
         env = dict(os.environ, OPENBLAS_NUM_THREADS="1")
         out_path, err_path = Path(tmp) / "stdout.json", Path(tmp) / "stderr.txt"
         with open(out_path, "w") as out, open(err_path, "w") as err:
-            proc = subprocess.Popen(argv, stdout=out, stderr=err, env=env)
+            # cwd: the child imports calib_oed as installed (or from PYTHONPATH), not from cwd
+            proc = subprocess.Popen(argv, stdout=out, stderr=err, env=env, cwd=tmp)
             _, status, usage = os.wait4(proc.pid, 0)
         cpu = usage.ru_utime + usage.ru_stime
         peak = usage.ru_maxrss / 1024  # kB -> MB on Linux

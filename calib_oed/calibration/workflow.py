@@ -11,13 +11,12 @@ from __future__ import annotations
 import os
 from functools import cached_property
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pinocchio as pin
 import yaml
 
-from calib_oed.calibration.export import export_calibration
-from calib_oed.calibration.identification import IdentificationResult, identify
 from calib_oed.calibration.problem import CalibrationProblem
 from calib_oed.calibration.simulation import draw_true_parameters, simulate_observations
 from calib_oed.exceptions import DesignError, ExportError, SceneError
@@ -30,6 +29,9 @@ from calib_oed.io.measurement_writer import write_measurements
 from calib_oed.measurement.dataset import MeasurementSet
 from calib_oed.model.robot import load_robot
 from calib_oed.scene.records import Scene
+
+if TYPE_CHECKING:
+    from calib_oed.calibration.identification import IdentificationResult
 
 
 class Setup:
@@ -151,6 +153,8 @@ def identify_measurements(s: Setup, mset: MeasurementSet, loss: str = "linear") 
     tracker = s.scene.tracker
     blocks = mset.blocks(sigma=tracker.sigma, sigma_angle=tracker.sigma_angle,
                          noise=s.scene.position_noise())
+    from calib_oed.calibration.identification import identify  # scipy.optimize: not for designs
+
     return identify(s.problem.space, blocks, s.problem.identifiability, loss=loss)
 
 
@@ -161,6 +165,8 @@ def export_result(s: Setup, result: IdentificationResult, folder: str | os.PathL
         folder.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise ExportError(f"cannot create output folder {folder}: {exc}") from exc
+    from calib_oed.calibration.export import export_calibration  # yourdfpy, trimesh: the same
+
     return export_calibration(s.problem.space, result.p, folder, stem=s.problem.robot.name)
 
 

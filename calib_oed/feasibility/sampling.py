@@ -3,7 +3,8 @@ r"""Seeded random feasible configurations (the paper's heuristic designs).
 Configurations are drawn uniformly in the joint ranges and kept if every
 constraint holds, so the result is uniform on the feasible set. The incidence
 limit alone keeps only about 1 in 500 draws of a 6R arm, so draws are
-evaluated in large batches: forward kinematics once per draw, then the cheap
+evaluated in large batches: forward kinematics vectorised over the batch
+(:func:`~calib_oed.feasibility.batch_fk.batch_body_states`), then the cheap
 joint and incidence rows on the whole batch, and the capsule pairs only on the
 survivors.
 
@@ -24,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from calib_oed.exceptions import SamplingError
-from calib_oed.feasibility.bodies import compute_body_states
+from calib_oed.feasibility.batch_fk import batch_body_states
 from calib_oed.feasibility.constraints import FEASIBILITY_TOL, FeasibilityModel
 
 #: Rows named in a sampling error besides those that block every draw.
@@ -114,7 +115,7 @@ def sample_feasible(
             raise SamplingError(_failure_message(model, n, count, draws, rejected, stats))
         q = rng.uniform(robot.lower, robot.upper, size=(batch, robot.nq))
         draws += batch
-        states = compute_body_states(robot.model, q, jacobian=False)
+        states = batch_body_states(robot.model, q)
         cheap = model.compute_from_states(q, states, jacobian=False, kinds=("joint", "incidence"))
         stats.add(cheap_rows, cheap.values)
         for kind in ("joint", "incidence"):

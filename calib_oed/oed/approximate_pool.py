@@ -118,7 +118,7 @@ def approximate_pool(s, objective: DesignObjective, pool_q: np.ndarray, *, start
         search = _local_search(s, objective, search, starts=int(starts), verify_starts=int(starts),
                                rounds=int(rounds), iterations=int(local_iterations),
                                collisions=collisions, tol=APPROXIMATE_TOL, local_tol=LOCAL_TOL,
-                               max_iterations=500)
+                               max_iterations=500, final_maximisation=False)
     return ApproximatePool(search.cand, search.blocks, len(pool_q), search.approx, search,
                            time.perf_counter() - t0, time.process_time() - cpu0)
 

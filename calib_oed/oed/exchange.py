@@ -215,12 +215,13 @@ def _small_cholesky(k: np.ndarray) -> np.ndarray:
     return low
 
 
-def _rank_update_scores(kind, criterion, m_minus, blocks, flat):
+def _rank_update_scores(kind, criterion, m_minus, blocks, flat, blocks_t=None):
     r"""Scores of all candidates (lower is better) by rank-d updates, or ``None`` if M_{-i} is ill-conditioned.
 
     ``"trace"``: the A-criterion value of :math:`M_{-i} + F_c^\top F_c`;
     ``"logdet"``: :math:`-\log\det(I + S_c)`, which orders candidates as
-    :math:`\log\det C` does.
+    :math:`\log\det C` does. ``blocks_t``: :math:`F_c^\top` (N, n_p, d),
+    contiguous (one batched product for every :math:`S_c`; computed if None).
     """
     lam = np.linalg.eigvalsh(m_minus)
     if lam[0] <= RANK_UPDATE_RCOND * lam[-1]:
@@ -232,10 +233,10 @@ def _rank_update_scores(kind, criterion, m_minus, blocks, flat):
     # one product for the rows of F_c A and of B_c = F_c A R^T: (N d, n_p + r)
     fab = flat @ np.hstack([a, a @ root.T])
     fa3 = fab[:, :n_p].reshape(n_cand, d, n_p)
-    i_s = np.empty((n_cand, d, d))  # I + S_c, S_c = F_c A F_c^T (eigenvalues >= 1)
-    for r in range(d):
-        for q in range(r, d):
-            i_s[:, r, q] = i_s[:, q, r] = np.einsum("ck,ck->c", fa3[:, r], blocks[:, q]) + (r == q)
+    if blocks_t is None:
+        blocks_t = np.ascontiguousarray(blocks.transpose(0, 2, 1))
+    s_c = np.matmul(fa3, blocks_t)  # S_c = F_c A F_c^T, (N, d, d), symmetric up to rounding
+    i_s = 0.5 * (s_c + s_c.transpose(0, 2, 1)) + np.eye(d)  # I + S_c (eigenvalues >= 1)
     chol = _small_cholesky(i_s)
     if kind == "logdet":
         return -2.0 * np.sum(np.log(np.diagonal(chol, axis1=1, axis2=2)), axis=1)
@@ -335,6 +336,7 @@ def exchange_design(
         raise ValueError(f"need max_sweeps >= 0 and a finite rtol >= 0, got {max_sweeps}, {rtol}")
     kind = _rank_kind(criterion, method)
     flat = blocks.reshape(n_cand * d, n_p)
+    blocks_t = np.ascontiguousarray(blocks.transpose(0, 2, 1)) if kind is not None else None
 
     def info_of(idx):
         f = blocks[idx].reshape(-1, n_p)
@@ -350,7 +352,8 @@ def exchange_design(
         swaps = 0
         for i in range(n):
             m_minus = info_of(np.delete(design, i))
-            scores = None if kind is None else _rank_update_scores(kind, criterion, m_minus, blocks, flat)
+            scores = (None if kind is None else
+                      _rank_update_scores(kind, criterion, m_minus, blocks, flat, blocks_t))
             if scores is None:
                 pool = np.flatnonzero(~in_design)
                 scores = np.full(n_cand, np.inf)

@@ -108,34 +108,83 @@ def maximise_sensitivity(setup, objective: DesignObjective, gamma: np.ndarray, s
     nlp = DesignProblem(objective, setup.feasibility, k, collisions=collisions)
     d0, _ = sensitivity_field(objective, gamma, starts)
 
+    last: dict = {}  # the last point each function saw: the SQP ends at one of them
+
     def negative(x):
         d, g = sensitivity_field(objective, gamma, x.reshape(k, nq))
+        last["d"] = (x.copy(), d)
         return -float(d.sum()) / scale, -g.ravel() / scale
 
-    res = solve_sqp(negative, starts.ravel(), constraints=nlp.compute_constraints, bounds=nlp.bounds,
+    def constraints(x):
+        values, jac = nlp.compute_constraints(x)
+        last["g"] = (x.copy(), values.copy())
+        return values, jac
+
+    def at_end(key, x):
+        """The value ``key`` saw at exactly ``x``, or None (keyed by the point, never stale)."""
+        seen = last.get(key)
+        return seen[1] if seen is not None and np.array_equal(seen[0], x) else None
+
+    res = solve_sqp(negative, starts.ravel(), constraints=constraints, bounds=nlp.bounds,
                     settings=SQPSettings(max_iterations=max_iterations, time_limit=time_limit,
                                          step_bound=0.2),
                     block_size=nq)
     if res.status is SQPStatus.INTERRUPTED:  # Ctrl-C ends the certificate, not just this search
         raise KeyboardInterrupt
     q = res.x.reshape(k, nq)
-    values, _ = nlp.compute_constraint_rows(res.x, jacobian=False)
+    values = at_end("g", res.x)
+    values = (nlp.compute_constraint_rows(res.x, jacobian=False)[0] if values is None
+              else values.reshape(k, -1))
     lo, hi = nlp.bounds
     viol = np.maximum.reduce([np.zeros(k), -values.min(axis=1), (lo - res.x).reshape(k, nq).max(axis=1),
                               (res.x - hi).reshape(k, nq).max(axis=1)])
-    d, _ = sensitivity_field(objective, gamma, q)
+    d = at_end("d", res.x)
+    if d is None:
+        d, _ = sensitivity_field(objective, gamma, q)
     return LocalMaxima(q, d, d0, viol, str(getattr(res.status, "value", res.status)), res.iterations,
                        time.perf_counter() - t0)
 
 
-def _maximise_in_chunks(setup, objective, gamma, starts, scale, chunk, **kwargs) -> LocalMaxima:
-    """:func:`maximise_sensitivity` on chunks of ``chunk`` starts (the dense QP grows as K²), concatenated."""
-    parts = [maximise_sensitivity(setup, objective, gamma, starts[i:i + chunk], scale, **kwargs)
-             for i in range(0, len(starts), chunk)]
+def _concatenate(parts: list[LocalMaxima]) -> LocalMaxima:
+    """One :class:`LocalMaxima` of several, in order (status: the first not converged)."""
     worst = next((p.status for p in parts if p.status != "converged"), parts[0].status)
     return LocalMaxima(*(np.concatenate([getattr(p, f) for p in parts])
                          for f in ("q", "values", "start_values", "violation")),
                        worst, sum(p.iterations for p in parts), sum(p.seconds for p in parts))
+
+
+def _maximise_in_chunks(setup, objective, gamma, starts, scale, chunk, **kwargs) -> LocalMaxima:
+    """:func:`maximise_sensitivity` on chunks of ``chunk`` starts (the dense QP grows as K²), concatenated."""
+    return _concatenate([maximise_sensitivity(setup, objective, gamma, starts[i:i + chunk], scale,
+                                              **kwargs)
+                         for i in range(0, len(starts), chunk)])
+
+
+@dataclass(frozen=True, eq=False)
+class _Round:
+    """One maximisation of the column generation: for which approximate design, from which starts."""
+
+    approx: ApproximateDesign
+    n_candidates: int
+    starts: np.ndarray
+    maxima: LocalMaxima
+
+
+def _reusable(last: _Round | None, search: _Search, idx: np.ndarray, chunk: int) -> int:
+    r"""How many leading starts of ``idx`` the maximisation ``last`` already ran, chunk for chunk.
+
+    The same approximate design (so the same :math:`\Gamma` and :math:`\bar d`),
+    the same candidates and the same leading starts in whole chunks give the
+    same maxima (each chunk is one SQP): :func:`spread_starts` picks greedily,
+    so the verification round's ``2k`` starts begin with the ``k`` of the round
+    before it when nothing was added in between. 0 when anything differs.
+    """
+    if last is None or last.approx is not search.approx or last.n_candidates != len(search.cand):
+        return 0
+    m = last.starts.size
+    if m == 0 or m % chunk or m > idx.size or not np.array_equal(idx[:m], last.starts):
+        return 0
+    return m
 
 
 def _distinct(q: np.ndarray, values: np.ndarray, tol: float = DUPLICATE_TOL) -> np.ndarray:
@@ -181,22 +230,34 @@ class _Search:
 
 def _local_search(s, objective, search: _Search, *, starts: int, verify_starts: int, rounds: int,
                   iterations: int, collisions: bool, tol: float, local_tol: float,
-                  max_iterations: int) -> _Search:
+                  max_iterations: int, final_maximisation: bool = True) -> _Search:
     r"""Add local maxima of :math:`d` with :math:`d > \bar d(1+\text{local\_tol})` and re-solve (to ``tol``) until none is found.
 
     A round maximises from ``starts`` separated candidates; when it finds no
     violation, a verification round uses ``verify_starts``; the search ends
-    when that finds none either, or after ``rounds`` re-solves.
+    when that finds none either, or after ``rounds`` re-solves. After the
+    last re-solve one more maximisation gives :attr:`_Search.d_local` (the
+    certificate's largest sensitivity); ``final_maximisation=False`` skips it
+    when the search is continued later (the design's start: the
+    certificate's first round repeats it on the candidates plus the design).
     """
-    crit, verifying = objective.criterion, False
+    crit, verifying, last = objective.criterion, False, None
     while True:
+        if not final_maximisation and search.rounds >= rounds:
+            return search
         k = verify_starts if verifying else starts
         gamma = crit.compute_gradient(information(search.blocks, search.approx.weights))
         dbar = search.approx.mean_sensitivity
         idx = spread_starts(search.cand, search.approx.sensitivities, k)
-        loc = _maximise_in_chunks(s, objective, gamma, search.cand[idx], dbar, LOCAL_CHUNK,
-                                  collisions=collisions, max_iterations=iterations)
-        search.local_iterations += loc.iterations
+        done = _reusable(last, search, idx, LOCAL_CHUNK)  # the verification repeats the round's starts
+        parts = [last.maxima] if done else []
+        if idx.size > done:
+            fresh = _maximise_in_chunks(s, objective, gamma, search.cand[idx[done:]], dbar, LOCAL_CHUNK,
+                                        collisions=collisions, max_iterations=iterations)
+            search.local_iterations += fresh.iterations
+            parts.append(fresh)
+        loc = _concatenate(parts)
+        last = _Round(search.approx, len(search.cand), idx, loc)
         search.d_local, search.status, search.final_starts = loc.max_value, loc.status, idx.size
         new = np.flatnonzero(loc.feasible & (loc.values > dbar * (1.0 + local_tol)))
         if new.size:
