@@ -263,7 +263,8 @@ class _Run(_SubproblemMixin, _RestorationMixin):
             self._stop(SQPStatus.STALLED, f"QP step {d_norm:.1e} below tol_step without convergence "
                        f"(violation {pt.violation_max:.1e}, stationarity {stat:.1e})")
             return self._record(k, stat, 0.0, delta, n_rows, step.status, qp_iter, 0, False)
-        self.mu = max(self.mu, float(np.max(self.lam, initial=0.0)) + s.penalty_margin)
+        need = float(np.max(self.lam, initial=0.0)) + s.penalty_margin
+        self.mu = max(need, 0.5 * (self.mu + need))  # Powell (1978): may fall back after a spike
         new, backtracks, soc, its = self._line_search(rows, step)
         qp_iter += its
         if (new is None and s.qp_polish and not step.polished  # QP error may be the cause

@@ -179,12 +179,13 @@ def test_merit_never_increases_across_accepted_iterations(name):
     h = res.history
     compared = 0
     for prev, cur in zip(h[:-1], h[1:], strict=True):
-        if cur.restoration or prev.restoration or cur.penalty != prev.penalty:
-            continue  # merits with different penalties are different functions
+        if cur.restoration or prev.restoration or cur.penalty > prev.penalty:
+            continue  # a larger penalty is a different merit; a smaller one only lowers phi(x_k)
         assert cur.merit <= prev.merit + 1e-12 * max(1.0, abs(prev.merit))
         compared += 1
     assert compared >= len(h) // 2
-    assert all(b.penalty >= a.penalty for a, b in zip(h[:-1], h[1:], strict=True))  # monotone mu
+    # Powell's update: mu falls at most by half per iteration (after a multiplier spike)
+    assert all(b.penalty >= 0.5 * a.penalty for a, b in zip(h[:-1], h[1:], strict=True))
 
 
 def test_second_order_correction_overcomes_the_maratos_effect():
