@@ -45,7 +45,7 @@ import numpy as np
 import shapely
 
 from calib_oed.feasibility.bodies import BodyStates
-from calib_oed.feasibility.hull_curvature import TOL, _vertices
+from calib_oed.feasibility.hull_curvature import TOL
 from calib_oed.feasibility.hulls import HullPairs
 
 NEAR = 1e-3
@@ -92,14 +92,13 @@ def _corners(region) -> np.ndarray:
     return np.zeros((0, 2))
 
 
-def _world_vertices(hull: HullPairs, states: BodyStates, pose: int, piece: int) -> np.ndarray | None:
-    """A piece's vertices in the world [m] (k, 3), or None (a curved piece)."""
-    local = _vertices(hull._shapes[piece])
-    if local is None:
-        return None
-    body = hull._body[piece]
-    in_body = local @ hull._rot[piece].T + hull._trans[piece]
-    return in_body @ states.rotation[pose, body].T + states.translation[pose, body]
+def _near_over(face, heights: np.ndarray, flat: np.ndarray, support: float, away: float) -> list[int]:
+    """Vertices a little off their piece's support height (``away`` = +1: above it, -1: below;
+    by more than TOL, at most NEAR [m]) whose projection lies over ``face``, nearest first."""
+    off = away * (heights - support)
+    near = np.flatnonzero((off > TOL) & (off <= NEAR))
+    near = near[np.argsort(off[near])][:MAX_PER_SIDE]
+    return [int(v) for v in near if face.contains(shapely.Point(flat[v]))]
 
 
 def hull_row_pieces(hull: HullPairs, states: BodyStates, pose: np.ndarray, rows: np.ndarray,
@@ -114,7 +113,7 @@ def hull_row_pieces(hull: HullPairs, states: BodyStates, pose: np.ndarray, rows:
         i, j, dist = int(w.piece_a[0, 0]), int(w.piece_b[0, 0]), float(w.dist[0, 0])
         if i < 0 or dist <= 0.0:
             continue
-        verts_p, verts_q = _world_vertices(hull, states, k, i), _world_vertices(hull, states, k, j)
+        verts_p, verts_q = hull.piece_vertices(states, k, i), hull.piece_vertices(states, k, j)
         if verts_p is None or verts_q is None:
             continue
         u = w.u[0, 0]
@@ -129,15 +128,11 @@ def hull_row_pieces(hull: HullPairs, states: BodyStates, pose: np.ndarray, rows:
                 for y in _corners(low_p.intersection(high_q))]
         # vertices a little above the support, over the other's face: pieces a step may activate
         if isinstance(high_q, shapely.Polygon):
-            near = np.flatnonzero((sp_ > h_p + TOL) & (sp_ <= h_p + NEAR))
-            for v in near[np.argsort(sp_[near])][:MAX_PER_SIDE]:
-                if high_q.contains(shapely.Point(flat_p[v])):
-                    feet.append((verts_p[v], flat_p[v] @ basis + h_q * u, sp_[v] - h_q))
+            feet += [(verts_p[v], flat_p[v] @ basis + h_q * u, sp_[v] - h_q)
+                     for v in _near_over(high_q, sp_, flat_p, h_p, 1.0)]
         if isinstance(low_p, shapely.Polygon):
-            near = np.flatnonzero((sq < h_q - TOL) & (sq >= h_q - NEAR))
-            for v in near[np.argsort(-sq[near])][:MAX_PER_SIDE]:
-                if low_p.contains(shapely.Point(flat_q[v])):
-                    feet.append((flat_q[v] @ basis + h_p * u, verts_q[v], h_p - sq[v]))
+            feet += [(flat_q[v] @ basis + h_p * u, verts_q[v], h_p - sq[v])
+                     for v in _near_over(low_p, sq, flat_q, h_q, -1.0)]
         if len(feet) < 2:  # one piece: the row itself, smooth
             continue
         on_a = np.array([f[0] for f in feet])[None]  # (1, s, 3)

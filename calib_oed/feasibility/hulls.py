@@ -68,7 +68,7 @@ from calib_oed.feasibility import fit_cache
 from calib_oed.feasibility.bodies import BodyStates
 from calib_oed.feasibility.capsules import _local_balls, fit_capsule, link_names
 from calib_oed.feasibility.curvature import body_points, point_hessian_along
-from calib_oed.feasibility.hull_curvature import feature_hessian, support_feature
+from calib_oed.feasibility.hull_curvature import _vertices, feature_hessian, support_feature
 from calib_oed.feasibility.link_fit import (
     LinkFitSettings,
     geometry_key,
@@ -356,6 +356,16 @@ class HullPairs:
                 dist[k, h], wa[k, h], wb[k, h] = best, p1, p2
                 u[k, h] = gap_w / norm if best > 0.0 and norm > 1e-9 else -normal
         return HullWitness(dist, wa, wb, u, calls, piece_a, piece_b)
+
+    def piece_vertices(self, states: BodyStates, pose: int, piece: int) -> np.ndarray | None:
+        """The vertices of piece ``piece`` at pose ``pose`` of ``states``, world [m] (k, 3); None for
+        a curved piece (sphere, cylinder, capsule)."""
+        local = _vertices(self._shapes[piece])
+        if local is None:
+            return None
+        body = self._body[piece]
+        in_body = local @ self._rot[piece].T + self._trans[piece]
+        return in_body @ states.rotation[pose, body].T + states.translation[pose, body]
 
     def _distance(self, s1, t1, s2, t2, lower: float, curved: bool, res) -> float:
         """coal's signed distance of two placed pieces [m] (witnesses in ``res``): with the

@@ -67,7 +67,6 @@ class _Run(_SubproblemMixin, _RestorationMixin):
         self.lam_pieces = np.zeros(0)  # their multipliers, and the point version they belong to
         self.pieces_version = -1
         self._qp_rows = np.zeros(0, dtype=int)  # row of c behind each row of the last QP
-        self._qp_pieces = self.pieces
         self.nu = np.zeros(n)  # box multipliers of the last QP (warm start)
         self.qp = QPSolver(n, s)
         self.max_rows = s.qp_row_limit(n)
@@ -166,7 +165,7 @@ class _Run(_SubproblemMixin, _RestorationMixin):
         m = self.pt.c.size
         self.lam_rows = np.zeros(m)
         self.lam_rows[rows] = lam[:rows.size]
-        self.pieces, self.lam_pieces = self._qp_pieces, lam[rows.size:]
+        self.pieces, self.lam_pieces = self._pieces(), lam[rows.size:]  # those of x_k's QP
         self.pieces_version = self._version
         self.lam = self.lam_rows + np.bincount(self.pieces.rows, self.lam_pieces, minlength=m)
         self.nu = nu

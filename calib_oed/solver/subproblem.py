@@ -240,7 +240,7 @@ class _SubproblemMixin:
             constants = np.concatenate([pt.c[rows], pieces.values])
             sub = QPSubproblem(H, pt.g, _stack(pt.A[rows], pieces.gradients), -constants,
                                np.maximum(self.lb - pt.x, -delta), np.minimum(self.ub - pt.x, delta))
-            self._qp_rows, self._qp_pieces = qp_rows, pieces
+            self._qp_rows = qp_rows
             scale = max(1.0, float(np.max(np.abs(constants), initial=0.0)))
             tol_p = 10 * s.qp_eps_abs * scale
             tol_d = 10 * s.qp_eps_abs * max(scale, float(np.max(np.abs(pt.g), initial=0.0)))
