@@ -30,6 +30,9 @@ pieces' multipliers :math:`\mu \ge 0` enter the KKT test
 stationarity with the gradients of the active pieces, i.e. in the sense of
 Clarke for :math:`\min_k c_i^{(k)}` (Clarke, *Optimization and Nonsmooth
 Analysis*, 1983, §2.3 and §6.1); for a row without a kink nothing changes.
+The pieces' multipliers are also added to their rows' (``SQPResult.multipliers``
+and the exact Hessian's :math:`\lambda`, where the row's curvature stands for
+its pieces': a model approximation that the KKT test does not use).
 """
 
 from __future__ import annotations
