@@ -1,0 +1,317 @@
+"""The docs agree with the code and with themselves.
+
+- docs/cli.md names every option of every command's parser (built from
+  calib_oed.cli), in that command's own section.
+- Figures quoted in several places are read from their one source table and
+  checked wherever they are quoted: the study's improvements (docs/study.md,
+  Tables 6-8, copied from the study reports) in the summary table of
+  docs/study.md and in README.md's Status; the link-geometry acceptance
+  (docs/feasibility.md, the table of bench/bench_feasibility_mesh.py) in
+  docs/scenes.md and docs/feasibility.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import functools
+import math
+import re
+from pathlib import Path
+
+import pytest
+
+from calib_oed.cli import build_parser
+
+ROOT = Path(__file__).parent.parent
+DOCS = ROOT / "docs"
+
+
+def read(name: str) -> str:
+    return (ROOT / name).read_text(encoding="utf-8")
+
+
+# --------------------------------------------------------------------------- CLI options
+
+
+@functools.cache
+def subcommands() -> dict[str, argparse.ArgumentParser]:
+    parser = build_parser()
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            return dict(action.choices)
+    raise AssertionError("calib_oed.cli.build_parser has no subcommands")
+
+
+def section(text: str, heading: str) -> str | None:
+    """The text under a markdown heading line, up to the next heading of that level or above."""
+    match = re.search(rf"^(#+) {re.escape(heading)}\s*$", text, flags=re.M)
+    if match is None:
+        return None
+    level = len(match.group(1))
+    rest = text[match.end():]
+    stop = re.search(rf"^#{{1,{level}}} ", rest, flags=re.M)
+    return rest[: stop.start()] if stop else rest
+
+
+def names_option(text: str, option: str) -> bool:
+    """`option` appears as a whole word (so -n does not match -N or --no-refine)."""
+    return re.search(rf"(?<![\w-]){re.escape(option)}(?![\w-])", text) is not None
+
+
+def option_strings(parser: argparse.ArgumentParser) -> list[str]:
+    return [o for action in parser._actions for o in action.option_strings if o not in ("-h", "--help")]
+
+
+def test_cli_md_has_a_section_per_command():
+    text = read("docs/cli.md")
+    missing = [name for name in subcommands() if section(text, f"`{name}`") is None]
+    assert not missing, ("docs/cli.md lacks a section '### `COMMAND`' for: "
+                         + ", ".join(missing))
+
+
+@pytest.mark.parametrize("command", sorted(subcommands()))
+def test_cli_md_names_every_option(command):
+    """Every option `calib-oed COMMAND -h` shows is in COMMAND's section of docs/cli.md."""
+    body = section(read("docs/cli.md"), f"`{command}`")
+    assert body is not None, f"docs/cli.md has no section '### `{command}`'"
+    missing = [o for o in option_strings(subcommands()[command]) if not names_option(body, o)]
+    assert not missing, (f"docs/cli.md, section `{command}`: option(s) {', '.join(missing)} of "
+                         f"`calib-oed {command} -h` not documented")
+
+
+def test_cli_md_names_the_top_level_options():
+    text = read("docs/cli.md")
+    missing = [o for o in option_strings(build_parser()) if not names_option(text, o)]
+    assert not missing, f"docs/cli.md: top-level option(s) {', '.join(missing)} not documented"
+
+
+# --------------------------------------------------------------------------- tables
+
+
+def table_after(text: str, caption: str) -> list[list[str]]:
+    """The rows (cells stripped) of the first markdown table after the line starting with
+    `caption`, header included, separator left out."""
+    start = text.find(caption)
+    assert start >= 0, f"caption {caption!r} not found"
+    rows, seen = [], False
+    lines = text[start:].splitlines()
+    for line in lines if lines[0].startswith("|") else lines[1:]:
+        if line.startswith("|"):
+            seen = True
+            cells = [c.strip() for c in line.strip().strip("|").split("|")]
+            if not all(re.fullmatch(r":?-+:?", c) for c in cells):
+                rows.append(cells)
+        elif seen:
+            break
+    assert rows, f"no table after {caption!r}"
+    return rows
+
+
+def number(cell: str) -> float:
+    match = re.search(r"-?\d+(?:\.\d+)?(?:e-?\d+)?", cell.replace("**", ""))
+    assert match, f"no number in table cell {cell!r}"
+    return float(match.group())
+
+
+def percent_range(low: float, high: float, digits: int) -> str:
+    return f"{low:.{digits}f}–{high:.{digits}f} %"
+
+
+# --------------------------------------------------------------------------- the study's figures
+
+
+def whole_percent(value: float) -> int:
+    """A percentage to whole percent, halves up (88.5 % -> 89 %)."""
+    return math.floor(value + 0.5)
+
+
+def whole_range(low: float, high: float) -> str:
+    return f"{whole_percent(low)}–{whole_percent(high)} %"
+
+
+class Study:
+    """docs/study.md's Tables 6-8 and result paragraphs (copied from the study reports) and what
+    follows from them."""
+
+    def __init__(self):
+        self.text = text = read("docs/study.md")
+        table6 = table_after(text, "Table 6 analogue")
+        col = {name: i for i, name in enumerate(table6[0])}
+        self.kuka = {row[0]: {
+            "heuristic": number(row[col["heuristic (median) [mm²]"]]),
+            "params": number(row[col["C_p-optimal [mm²]"]]),
+            "kpi": number(row[col["KPI-optimal [mm²]"]]),
+            "vs_heuristic": number(row[col["KPI-opt vs heuristic"]]),
+            "vs_params": number(row[col["KPI-opt vs C_p-opt"]]),
+            "bound": number(row[col["lower bound [mm²]"]]),
+            "efficiency": number(row[col["KPI-opt efficiency"]]),
+        } for row in table6[1:]}
+        table7 = {row[0]: row for row in table_after(text, "Table 7 analogue")}
+        self.arms_vs_heuristic = (number(table7["min"][4]), number(table7["max"][4]))
+        self.arms_vs_params = (number(table7["min"][5]), number(table7["max"][5]))
+        table8 = {row[0]: row for row in table_after(text, "Table 8 analogue")}
+        self.arms_mean_vs_heuristic = number(table8["KPI-opt vs heuristic (mean of arms)"][1])
+        self.arms_mean_vs_params = number(table8["KPI-opt vs C_p-opt (mean of arms)"][1])
+        self.arms_kpi_with = number(table8["KPI-optimal [mm²]"][1])
+        self.arms_kpi_without = number(table8["KPI-optimal [mm²]"][2])
+        flat = " ".join(text.split())
+        sqrt = re.search(r"In the standard deviation √V .*? design is (\d+\.\d–\d+\.\d %) \(mean (\d+\.\d) %\) "
+                         r"better than the heuristic median and (\d+\.\d–\d+\.\d %) \(mean (\d+\.\d) %\)", flat)
+        assert sqrt, "docs/study.md: the 90 arms' paragraph on the standard deviation √V not found"
+        self.arms_sqrt = {"heuristic": (sqrt.group(1), sqrt.group(2)), "params": (sqrt.group(3), sqrt.group(4))}
+        collide = re.findall(r"Colliding poses of the designs optimised without collision constraints: "
+                             r"C_p-optimal (\d+–\d+ %) \(mean (\d+) %\), KPI-optimal (\d+–\d+ %) \(mean (\d+) %\)", flat)
+        assert len(collide) == 2, "docs/study.md: expected the colliding-poses sentence of both studies"
+        self.kuka_collide, self.arms_collide = collide
+        converged = re.search(r"of the 360 SQP designs (\d+) converged", flat)
+        assert converged, "docs/study.md: the 90 arms' solver paragraph not found"
+        self.arms_converged = int(converged.group(1))
+
+    def kuka_range(self, key: str) -> tuple[float, float]:
+        values = [arm[key] for arm in self.kuka.values()]
+        return min(values), max(values)
+
+    def kuka_mean(self, key: str) -> float:
+        return sum(arm[key] for arm in self.kuka.values()) / len(self.kuka)
+
+    def kuka_sqrt(self, other: str) -> list[float]:
+        """Per arm, the improvement in the standard deviation √V [%], from the variances."""
+        return [100 * (1 - math.sqrt(arm["kpi"] / arm[other])) for arm in self.kuka.values()]
+
+
+@pytest.fixture(scope="module")
+def study() -> Study:
+    return Study()
+
+
+def test_table6_follows_from_its_variances(study):
+    for name, arm in study.kuka.items():
+        assert arm["vs_heuristic"] == pytest.approx(100 * (1 - arm["kpi"] / arm["heuristic"]), abs=0.15), name
+        assert arm["vs_params"] == pytest.approx(100 * (1 - arm["kpi"] / arm["params"]), abs=0.15), name
+        assert arm["efficiency"] == pytest.approx(100 * arm["bound"] / arm["kpi"], abs=0.15), name
+
+
+def test_study_text_on_table6_quotes_it(study):
+    flat = " ".join(study.text.split())
+    gap = [100 - arm["efficiency"] for arm in study.kuka.values()]
+    assert f"within {whole_range(min(gap), max(gap)).replace(' %', '')} % of the best" in flat
+    best = [100 * (1 - arm["bound"] / arm["heuristic"]) for arm in study.kuka.values()]
+    assert f"by more than {whole_range(min(best), max(best))}" in flat
+
+
+def summary_row(text: str, claim: str) -> list[str]:
+    rows = {row[0]: row for row in table_after(text, "## Our numbers next to the paper's")}
+    assert claim in rows, f"docs/study.md's summary table has no row {claim!r}"
+    return rows[claim]
+
+
+def test_study_summary_table_quotes_the_study_tables(study):
+    text = study.text
+    row = summary_row(text, "KPI-optimal vs heuristic, in the variance V")
+    low, high = study.kuka_range("vs_heuristic")
+    assert row[2] == f"{percent_range(low, high, 1)} (mean {study.kuka_mean('vs_heuristic'):.1f} %)"
+    low, high = study.arms_vs_heuristic
+    assert row[3] == f"{percent_range(low, high, 1)} (mean {study.arms_mean_vs_heuristic:.1f} %)"
+
+    row = summary_row(text, "KPI-optimal vs C_p-optimal, in V")
+    low, high = study.kuka_range("vs_params")
+    assert row[2] == f"{percent_range(low, high, 1)} (mean {study.kuka_mean('vs_params'):.1f} %)"
+    low, high = study.arms_vs_params
+    assert row[3] == f"{percent_range(low, high, 1)} (mean {study.arms_mean_vs_params:.1f} %)"
+
+    for claim, other, (low, high) in (
+            ("the same in the standard deviation √V", "heuristic", study.arms_vs_heuristic),
+            ("the same in √V", "params", study.arms_vs_params)):
+        values = study.kuka_sqrt(other)
+        row = summary_row(text, claim)
+        assert row[2] == f"{percent_range(min(values), max(values), 1)} (mean {sum(values) / len(values):.1f} %)"
+        quoted, mean = study.arms_sqrt[other]
+        assert row[3] == f"{quoted} (mean {mean} %)", claim
+        # the 90 arms' extremes in √V are Table 7's per-arm extremes in V, mapped (a monotone map)
+        for value, extreme in zip(map(float, re.findall(r"\d+\.\d", quoted)), (low, high)):
+            bounds = [100 * (1 - math.sqrt(1 - (extreme + d) / 100)) for d in (-0.05, 0.05)]
+            assert bounds[0] - 0.05 <= value <= bounds[1] + 0.05, (
+                f"docs/study.md: {quoted} in √V does not follow from Table 7's {low}–{high} %")
+
+    for claim, index in (("colliding poses without collision constraints, C_p-optimal", 0),
+                         ("the same, KPI-optimal", 2)):
+        row = summary_row(text, claim)
+        assert row[2] == f"{study.kuka_collide[index]} (mean {study.kuka_collide[index + 1]} %)", claim
+        assert row[3] == f"{study.arms_collide[index]} (mean {study.arms_collide[index + 1]} %)", claim
+
+    cost = 100 * (math.sqrt(study.arms_kpi_with / study.arms_kpi_without) - 1)
+    row = summary_row(text, "cost of collision avoidance for the KPI-optimal design (Table 8, in √V)")
+    assert row[3] == (f"{cost:.1f} % (√({study.arms_kpi_with * 1e6:.3f}/"
+                      f"{study.arms_kpi_without * 1e6:.3f}) − 1)")
+
+
+def test_study_discussion_quotes_the_study(study):
+    flat = " ".join(study.text.split())
+    assert f"collide in {study.arms_collide[0]} of their poses" in flat
+    assert f"({study.arms_converged} of 360 SQP runs to the KKT" in flat
+    heuristic, params = study.arms_sqrt["heuristic"][0], study.arms_sqrt["params"][0]
+    assert f"√V, \"the precision\" of its abstract ({heuristic} over the 90 arms)" in flat
+    whole_params = [whole_percent(float(x)) for x in re.findall(r"\d+\.\d", params)]
+    assert f"far more than 10–19 % ({whole_params[0]}–{whole_params[1]} % in √V)" in flat
+
+
+def pages() -> list[str]:
+    return ["README.md", "DEVELOPERS.md", *sorted(f"docs/{p.name}" for p in DOCS.glob("*.md"))]
+
+
+@pytest.mark.parametrize("name", pages())
+def test_quoted_study_figures_match_the_tables(study, name):
+    """Where a page gives both studies' improvement, or the KUKA arms' efficiency, in whole
+    percent, they are those of docs/study.md's tables."""
+    kuka, arms = study.kuka_range("vs_heuristic"), study.arms_vs_heuristic
+    vs_heuristic = whole_range(min(kuka[0], arms[0]), max(kuka[1], arms[1]))
+    kuka, arms = study.kuka_range("vs_params"), study.arms_vs_params
+    vs_params = whole_range(min(kuka[0], arms[0]), max(kuka[1], arms[1]))
+    efficiency = whole_range(*study.kuka_range("efficiency"))
+    text = " ".join(read(name).split())
+    quoted = re.findall(r"by (\d+–\d+ %) against heuristic designs and by (\d+–\d+ %) against "
+                        r"the C_p-optimal design", text)
+    reach = re.findall(r"KPI-optimal designs reach (\d+–\d+ %) efficiency", text)
+    if name == "README.md":
+        assert quoted and reach, "README.md's Status should quote the study's figures"
+    for found in quoted:
+        assert found == (vs_heuristic, vs_params), (
+            f"{name} quotes {found[0]} / {found[1]}; docs/study.md's tables give {vs_heuristic} / {vs_params}")
+    for found in reach:
+        assert found == efficiency, f"{name} quotes {found}; docs/study.md's Table 6 gives {efficiency}"
+
+
+# --------------------------------------------------------------------------- acceptance of the link geometry
+
+
+def acceptance() -> dict[str, tuple[float, float]]:
+    """Per link model, the lowest and highest share of mesh-feasible configurations accepted
+    over the cells of docs/feasibility.md's table (bench/bench_feasibility_mesh.py)."""
+    rows = table_after(read("docs/feasibility.md"), "| Cell | mesh-feasible |")
+    header, body = rows[0], rows[1:]
+    columns = {"single": next(i for i, h in enumerate(header) if "one capsule per link" in h),
+               "split": next(i for i, h in enumerate(header) if "`split`" in h and "accepted" in h),
+               "hulls": next(i for i, h in enumerate(header) if "`hulls`" in h and "accepted," in h)}
+    return {model: (min(number(r[i]) for r in body), max(number(r[i]) for r in body))
+            for model, i in columns.items()}
+
+
+def whole(extremes: tuple[float, float]) -> str:
+    return whole_range(*extremes)
+
+
+def test_acceptance_quotes_match_the_table():
+    accepted = acceptance()
+    scenes = " ".join(read("docs/scenes.md").split())
+    assert f"{whole(accepted['hulls'])} of the mesh-feasible poses accepted" in scenes
+    assert f"one capsule per link fitted to the URDF collision geometry: {whole(accepted['single'])} " \
+           "accepted" in scenes, (
+        f"docs/scenes.md should quote the single-capsule acceptance {whole(accepted['single'])} "
+        "of docs/feasibility.md's table")
+    feasibility = " ".join(read("docs/feasibility.md").split())
+    capsules = (min(accepted["single"][0], accepted["split"][0]), max(accepted["single"][1], accepted["split"][1]))
+    for phrase in ("cells accepted against", "With capsules alone the acceptance stays at"):
+        found = re.findall(rf"{phrase} (\d+–\d+ %)", feasibility)
+        assert found, f"docs/feasibility.md: phrase {phrase!r} not found"
+        assert found == [whole(capsules)] * len(found), (
+            f"docs/feasibility.md: {phrase} {found}, the table gives {whole(capsules)}")
