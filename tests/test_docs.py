@@ -315,3 +315,51 @@ def test_acceptance_quotes_match_the_table():
         assert found, f"docs/feasibility.md: phrase {phrase!r} not found"
         assert found == [whole(capsules)] * len(found), (
             f"docs/feasibility.md: {phrase} {found}, the table gives {whole(capsules)}")
+
+
+# --------------------------------------------------------------------------- benchmark commands
+
+
+def benchmark_commands() -> list[str]:
+    """The commands of docs/benchmarks.md: its indented code lines and its `...` spans that
+    run a bench script or calib-oed."""
+    text = read("docs/benchmarks.md")
+    lines = [line.strip() for line in text.splitlines() if line.startswith("    ") and line.strip()]
+    lines += re.findall(r"`([^`\n]*(?:bench/\w+\.py|calib-oed \w)[^`\n]*)`", text)
+    return [line.split("  #")[0].strip() for line in lines
+            if re.search(r"bench/\w+\.py|calib-oed \w", line) and not line.startswith("#")]
+
+
+def test_benchmark_scripts_take_the_options_the_docs_give():
+    commands = benchmark_commands()
+    assert commands, "docs/benchmarks.md: no command found"
+    for command in commands:
+        for script in re.findall(r"bench/\w+\.py", command):
+            path = ROOT / script
+            assert path.is_file(), f"docs/benchmarks.md runs {script}, which does not exist"
+            source = path.read_text(encoding="utf-8")
+            tail = command.split(script, 1)[1]
+            for flag in re.findall(r"(?<![\w-])(--[a-z][\w-]*)", tail):
+                assert f'"{flag}"' in source, f"docs/benchmarks.md: {script} has no option {flag} (`{command}`)"
+
+
+def test_benchmark_calib_oed_commands_parse():
+    """Every calib-oed command docs/benchmarks.md gives is accepted by today's parser."""
+    parser = build_parser()
+    checked = 0
+    for command in benchmark_commands():
+        match = re.search(r"calib-oed (\w.*)", command)
+        if match is None or "[" in match.group(1) or "bench/" in match.group(1) or " " not in match.group(1):
+            continue  # optional parts, a bench script's arguments, or a command named in prose
+        argv = match.group(1).split()
+        try:
+            parser.parse_args(argv)
+        except SystemExit:
+            pytest.fail(f"docs/benchmarks.md: `calib-oed {match.group(1)}` is not a valid command today")
+        known = set(option_strings(subcommands()[argv[0]]))
+        for token in argv[1:]:  # whole names: argparse would accept an abbreviation
+            flag = token.split("=")[0]
+            if re.fullmatch(r"--?[a-zA-Z][\w-]*", flag):
+                assert flag in known, f"docs/benchmarks.md: `calib-oed {argv[0]}` has no option {flag}"
+        checked += 1
+    assert checked, "docs/benchmarks.md: no calib-oed command checked"
