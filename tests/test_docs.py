@@ -363,3 +363,25 @@ def test_benchmark_calib_oed_commands_parse():
                 assert flag in known, f"docs/benchmarks.md: `calib-oed {argv[0]}` has no option {flag}"
         checked += 1
     assert checked, "docs/benchmarks.md: no calib-oed command checked"
+
+
+# --------------------------------------------------------------------------- the module map
+
+
+def test_developers_module_map_lists_every_module():
+    """DEVELOPERS.md's module map has a line for every module of calib_oed, under its package."""
+    text = section(read("DEVELOPERS.md"), "Module map")
+    assert text is not None, "DEVELOPERS.md has no '## Module map'"
+    blocks = dict(re.findall(r"^\*\*(\w+/|Base modules)\*\*(.*?)(?=^\*\*|\Z)", text, flags=re.M | re.S))
+    package = ROOT / "calib_oed"
+    missing = []
+    for path in sorted(package.rglob("*.py")):
+        rel = path.relative_to(package)
+        if "shipped" in rel.parts or rel.name == "__main__.py" or rel == Path("__init__.py"):
+            continue
+        if rel.name == "__init__.py" and rel.parent.name != "cli":
+            continue  # a package's __init__ re-exports its names (said once, above the map)
+        key = "Base modules" if len(rel.parts) == 1 else f"{rel.parts[0]}/"
+        if f"`{rel.name}`" not in blocks.get(key, ""):
+            missing.append(str(rel))
+    assert not missing, "DEVELOPERS.md's module map lacks: " + ", ".join(missing)
