@@ -385,3 +385,36 @@ def test_developers_module_map_lists_every_module():
         if f"`{rel.name}`" not in blocks.get(key, ""):
             missing.append(str(rel))
     assert not missing, "DEVELOPERS.md's module map lacks: " + ", ".join(missing)
+
+
+# --------------------------------------------------------------------------- links between the docs
+
+
+def heading_anchors(path: Path) -> set[str]:
+    """GitHub's anchors of a markdown file's headings (lower case, punctuation dropped,
+    spaces as hyphens)."""
+    anchors = set()
+    in_code = False
+    for line in path.read_text(encoding="utf-8").splitlines():
+        if line.startswith("```"):
+            in_code = not in_code
+        match = None if in_code else re.match(r"#+ (.*)", line)
+        if match:
+            anchors.add(re.sub(r"[^\w\- ]", "", match.group(1).strip().lower()).replace(" ", "-"))
+    return anchors
+
+
+def test_links_between_the_docs_resolve():
+    pages_ = [ROOT / "README.md", ROOT / "DEVELOPERS.md", ROOT / "examples" / "README.md",
+              *sorted(DOCS.glob("*.md"))]
+    broken = []
+    for page in pages_:
+        for target, anchor in re.findall(r"\]\(([^)#\s:]*\.md)?(?:#([^)\s]+))?\)", page.read_text(encoding="utf-8")):
+            if not target and not anchor:
+                continue
+            path = (page.parent / target) if target else page
+            if not path.is_file():
+                broken.append(f"{page.relative_to(ROOT)}: {target}")
+            elif anchor and anchor not in heading_anchors(path):
+                broken.append(f"{page.relative_to(ROOT)}: {target}#{anchor}")
+    assert not broken, "links to missing pages or headings: " + "; ".join(broken)
