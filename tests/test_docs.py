@@ -418,3 +418,29 @@ def test_links_between_the_docs_resolve():
             elif anchor and anchor not in heading_anchors(path):
                 broken.append(f"{page.relative_to(ROOT)}: {target}#{anchor}")
     assert not broken, "links to missing pages or headings: " + "; ".join(broken)
+
+
+# --------------------------------------------------------------------------- design figures quoted from benchmarks.md
+
+
+def test_design_figures_quoted_from_the_benchmark_tables():
+    """docs/oed.md and the benchmarks' own summaries quote the pipeline and default-call tables."""
+    bench = read("docs/benchmarks.md")
+    rows = table_after(bench, "    OPENBLAS_NUM_THREADS=1 .venv/bin/python bench/bench_design_pipeline.py --scenes all --replicates 1,3")
+    col = {name: i for i, name in enumerate(rows[0])}
+    efficiency = {k: [number(r[col["efficiency"]]) for r in rows[1:] if r[col["K"]] == k] for k in ("1", "3")}
+    k1 = f"{min(efficiency['1']):.1f}–{max(efficiency['1']):.1f} %"
+    k3 = f"{min(efficiency['3']):.1f}–{max(efficiency['3']):.1f} %"
+    calls = table_after(bench, "    OPENBLAS_NUM_THREADS=1 /usr/bin/time .venv/bin/calib-oed design fms_kr16 -n 60 -o DIR")
+    col = {name: i for i, name in enumerate(calls[0])}
+    cpu = [number(r[col["CPU user + sys [s]"]]) for r in calls[1:]]
+    call_eff = [number(r[col["efficiency"]]) for r in calls[1:]]
+    iterations = [int(number(r[col["SQP iterations"]])) for r in calls[1:]]
+
+    flat_bench = " ".join(bench.split())
+    assert f"efficiency {k1} with K = 1, {k3} with K = 3" in flat_bench
+    assert f"{min(cpu):.1f}–{max(cpu):.1f} s: the target is met" in flat_bench
+    oed = " ".join(read("docs/oed.md").split())
+    assert f"at {k1} of the bound (`--replicates 3`: {k3})" in oed
+    assert (f"**{min(call_eff):.1f}–{max(call_eff):.1f} %** of the certified bound, in "
+            f"{min(iterations)}–{max(iterations)} SQP iterations and {min(cpu):.1f}–{max(cpu):.1f} s") in oed
