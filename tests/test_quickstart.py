@@ -1,6 +1,7 @@
 """docs/quickstart.md runs as written: every `calib-oed` command of its shell blocks,
-in order, in one fresh folder, with the installed command; and the README's
-Python quick start prints what the README says it prints."""
+in order, in one fresh folder, with the installed command, printing the lines the page
+shows under it; and the README's Python quick start prints what the README says it
+prints."""
 
 from __future__ import annotations
 
@@ -46,15 +47,59 @@ def test_the_quickstart_has_the_whole_workflow():
         assert verb in verbs, f"docs/quickstart.md lacks a `calib-oed {verb}` command"
 
 
+def blocks_with_output(text: str) -> list[tuple[list[str], str | None]]:
+    """Each ```sh block's commands, with the ```text block that follows it (the output the page
+    shows), if one follows before the next ```sh block."""
+    pieces = re.split(r"```sh\n(.*?)```", text, flags=re.S)
+    out = []
+    for block, after in zip(pieces[1::2], pieces[2::2]):
+        shown = re.match(r"(?:(?!```sh).)*?```text\n(.*?)```", after, flags=re.S)
+        out.append((shell_commands(f"```sh\n{block}```"), shown.group(1) if shown else None))
+    return out
+
+
+NUMBER = r"-?\d+(?:\.\d+)?(?:e[-+]?\d+)?"
+
+
+def shown_line_pattern(line: str) -> re.Pattern:
+    """A line the page shows as a regular expression: `~x` (a value that is not bitwise
+    reproducible, or a time) matches any number, runs of spaces any run of spaces, a trailing
+    `...` anything."""
+    parts = re.split(rf"(~{NUMBER}|\s+|\.\.\.$)", line.strip())
+    regex = "".join(NUMBER if p.startswith("~") else r"\s+" if p.isspace() else ".*" if p == "..." else
+                    re.escape(p) for p in parts if p)
+    return re.compile(regex)
+
+
+def check_shown_output(commands: list[str], shown: str, printed: str) -> None:
+    """Every line the page shows (but `...`) is printed, in the order shown."""
+    lines = printed.splitlines()
+    at = 0
+    for line in shown.strip().splitlines():
+        if line.strip() in ("", "..."):
+            continue
+        pattern = shown_line_pattern(line)
+        hit = next((i for i in range(at, len(lines)) if pattern.fullmatch(lines[i].strip())), None)
+        assert hit is not None, (f"docs/quickstart.md shows\n  {line.strip()}\nafter `{commands[-1]}`, "
+                                 f"which printed (from there):\n" + "\n".join(lines[at:])[-3000:])
+        at = hit + 1
+
+
 def test_quickstart_runs_as_written(tmp_path):
+    """Every command runs, writes what it says, and prints the lines the page shows."""
     env = dict(os.environ, PATH=f"{BIN}{os.pathsep}{os.environ.get('PATH', '')}")
-    for command in shell_commands(QUICKSTART.read_text()):
-        argv = shlex.split(command)
-        done = subprocess.run([str(BIN / argv[0]), *argv[1:]], cwd=tmp_path, env=env,
-                              capture_output=True, text=True, timeout=600)
-        assert done.returncode == 0, f"`{command}` failed ({done.returncode}):\n{done.stderr[-2000:]}"
-        for path in output_paths(argv):
-            assert (tmp_path / path).exists(), f"`{command}` did not write {path}"
+    for commands, shown in blocks_with_output(QUICKSTART.read_text()):
+        printed = []
+        for command in commands:
+            argv = shlex.split(command)
+            done = subprocess.run([str(BIN / argv[0]), *argv[1:]], cwd=tmp_path, env=env,
+                                  capture_output=True, text=True, timeout=600)
+            assert done.returncode == 0, f"`{command}` failed ({done.returncode}):\n{done.stderr[-2000:]}"
+            for path in output_paths(argv):
+                assert (tmp_path / path).exists(), f"`{command}` did not write {path}"
+            printed.append(done.stdout)
+        if shown is not None and commands:
+            check_shown_output(commands, shown, "\n".join(printed))
 
 
 def readme_python_quickstart() -> tuple[str, str]:
