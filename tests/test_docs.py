@@ -272,6 +272,10 @@ def test_quoted_study_figures_match_the_tables(study, name):
     quoted = re.findall(r"by (\d+–\d+ %) against heuristic designs and by (\d+–\d+ %) against "
                         r"the C_p-optimal design", text)
     reach = re.findall(r"KPI-optimal designs reach (\d+–\d+ %) efficiency", text)
+    arms = re.search(r"arms\): KPI-optimal \*\*(\d+\.\d)–(\d+\.\d) %\*\*", " ".join(study.text.split()))
+    assert arms, "docs/study.md: the 90 arms' efficiency sentence not found"
+    arms_efficiency = whole_range(float(arms.group(1)), float(arms.group(2)))
+    on_arms = re.findall(r"efficiency on the three KUKA arms \([^)]*\) and (\d+–\d+ %) on the 90 notional arms", text)
     if name == "README.md":
         assert quoted and reach, "README.md's Status should quote the study's figures"
     for found in quoted:
@@ -279,6 +283,10 @@ def test_quoted_study_figures_match_the_tables(study, name):
             f"{name} quotes {found[0]} / {found[1]}; docs/study.md's tables give {vs_heuristic} / {vs_params}")
     for found in reach:
         assert found == efficiency, f"{name} quotes {found}; docs/study.md's Table 6 gives {efficiency}"
+    for found in on_arms:
+        assert found == arms_efficiency, f"{name} quotes {found}; docs/study.md gives {arms_efficiency} on the 90 arms"
+    if name == "README.md":
+        assert on_arms, "README.md's Status should quote the 90 arms' efficiency"
 
 
 # --------------------------------------------------------------------------- acceptance of the link geometry
