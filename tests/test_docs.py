@@ -2,12 +2,15 @@
 
 - docs/cli.md names every option of every command's parser (built from
   calib_oed.cli), in that command's own section.
-- Figures quoted in several places are read from their one source table and
-  checked wherever they are quoted: the study's improvements (docs/study.md,
-  Tables 6-8, copied from the study reports) in the summary table of
-  docs/study.md and in README.md's Status; the link-geometry acceptance
-  (docs/feasibility.md, the table of bench/bench_feasibility_mesh.py) in
-  docs/scenes.md and docs/feasibility.md.
+- Figures quoted in several places are read from their one source and checked
+  wherever they are quoted: the study's figures (docs/study.md, Tables 6-8 and
+  its result paragraphs, copied from the study reports) in its summary table
+  and in README.md's Status; the link-geometry acceptance (docs/feasibility.md,
+  the table of bench/bench_feasibility_mesh.py) in docs/scenes.md and
+  docs/feasibility.md; the design pipeline's efficiencies and times
+  (docs/benchmarks.md) in its summaries and docs/oed.md.
+- docs/benchmarks.md's commands exist with the options they are given.
+- DEVELOPERS.md's module map lists every module; links between the docs resolve.
 """
 
 from __future__ import annotations
