@@ -82,14 +82,6 @@ class DesignProblem:
         ev = self.objective.compute(self.configurations(x))
         return ev.value / self.scale, ev.gradient.ravel() / self.scale
 
-    def compute_curvature(self, x: np.ndarray) -> np.ndarray | None:
-        """The objective's exact curvature through M (scaled like the objective), or None.
-
-        See :meth:`calib_oed.oed.objective.DesignObjective.compute_curvature`.
-        """
-        h = self.objective.compute_curvature(self.configurations(x))
-        return None if h is None else h / self.scale
-
     def compute_lagrangian_hessian(self, x: np.ndarray, lam: np.ndarray) -> StructuredHessian | None:
         r"""The exact Hessian of :math:`L = \phi/s - \lambda^\top g` in factored form, or None.
 

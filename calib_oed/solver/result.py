@@ -33,7 +33,7 @@ from typing import NamedTuple
 import numpy as np
 
 from calib_oed.exceptions import SQPProblemError, SQPSettingsError  # noqa: F401 (re-exported)
-from calib_oed.solver.settings import HESSIANS, QP_BACKENDS, SQPSettings  # noqa: F401 (re-exported)
+from calib_oed.solver.settings import SQPSettings  # noqa: F401 (re-exported)
 
 
 class StructuredHessian(NamedTuple):
@@ -166,8 +166,7 @@ class IterationRecord:
         time: Seconds since the start of :func:`~calib_oed.solver.sqp.solve_sqp` [s].
         second_order_correction: The accepted point is the second-order
             correction of the full step.
-        hessian: The QP's Hessian: ``"bfgs"`` (damped BFGS), ``"model+bfgs"``
-            (``hessian_model`` plus BFGS blocks) or ``"exact"`` (the caller's
+        hessian: The QP's Hessian: ``"bfgs"`` (damped BFGS) or ``"exact"`` (the caller's
             ``lagrangian_hessian``, made positive definite).
         hessian_fallback: The exact Hessian was asked for but not used in this
             iteration (the callable returned None, raised or gave a bad value, or
@@ -251,7 +250,7 @@ class SQPResult:
             ``"qp"``, ``"hessian"``, ``"total"`` [s].
         n_objective_evaluations: Calls of the objective.
         n_constraint_evaluations: Calls of the constraints.
-        hessian: The Hessian asked for: ``"bfgs"``, ``"model+bfgs"`` or ``"exact"``.
+        hessian: The Hessian asked for: ``"bfgs"`` or ``"exact"``.
         hessian_fallbacks: Iterations in which the exact Hessian was asked for
             but the BFGS one was used.
         hessian_message: Why the last fallback happened (``""`` if none).
