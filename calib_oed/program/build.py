@@ -209,10 +209,10 @@ def build_program(scene, q: np.ndarray, settings: ProgramSettings | None = None,
     moves = _Moves(nodes, checker, dyn, settings, scene.feasibility.margins.joint)
     n = len(q)
     limit = 10 * n + 10
-    winner = [settings.solver]
+    winner = ["lkh"]
 
     def solver(cost):
-        order, who = solve_tour(cost, settings.solver)
+        order, who = solve_tour(cost)
         winner[0] = who
         return order
 
