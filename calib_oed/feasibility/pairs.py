@@ -253,13 +253,13 @@ def build_feasibility_model(
         reflector_names: Their names (default ``reflector0..``).
         capsules: Robot capsules (link frames); default: the scene's table or
             the capsules fitted to the URDF collision geometry, one per link or,
-            with ``settings.link_fit == "split"``, several
+            with ``settings.link_fit == "hulls"``, several
             (:func:`calib_oed.feasibility.link_fit.fitted_robot_capsules`).
         prune: Run the sampling pass that drops pairs that cannot matter.
         reflector_normals: Reflector axes in the tool frame, (k, 3) (default tool z).
         mesh_pairs: Drop the self pairs decided on the collision meshes
-            (:mod:`calib_oed.feasibility.mesh_pairs`); default: with the split fit
-            to the URDF geometry (no ``capsules``, no scene table).
+            (:mod:`calib_oed.feasibility.mesh_pairs`); default: with the ``hulls``
+            fit to the URDF geometry (no ``capsules``, no scene table).
         hulls: Check on convex pieces of the link geometry
             (:mod:`calib_oed.feasibility.hulls`) the self pairs whose capsules the
             pruning pass never finds separated by the margin and, with
@@ -273,7 +273,7 @@ def build_feasibility_model(
     from calib_oed.feasibility.link_fit import fitted_robot_capsules
     from calib_oed.feasibility.mesh_pairs import dropped_mesh_pairs
 
-    split = settings.link_fit in ("split", "hulls")
+    split = settings.link_fit == "hulls"
     fitted = capsules is None and settings.robot_capsules is None
     if mesh_pairs is None:
         mesh_pairs = fitted and split

@@ -24,7 +24,7 @@ import numpy as np
 from calib_oed.exceptions import NonFiniteError, ShapeError
 
 #: Capsule fits to the URDF collision meshes (:attr:`FeasibilitySettings.link_fit`).
-LINK_FITS = ("single", "split", "hulls")
+LINK_FITS = ("single", "hulls")
 
 
 def _links(value, what: str) -> tuple[str, ...]:
@@ -306,9 +306,7 @@ class FeasibilitySettings:
             self pairs of links at most three joints apart checked on convex pieces
             of their geometry (:mod:`calib_oed.feasibility.hulls`): 92-98 % of the
             mesh-feasible poses accepted, none of the infeasible (docs/feasibility.md).
-            ``"split"``: the same without the convex pieces (on ``ur5_table`` the
-            forearm pieces sit within the margin of ``wrist_2_link`` in 93 % of
-            draws); ``"single"``: one capsule per link (21-25 % accepted). With every
+            ``"single"``: one capsule per link (21-25 % accepted). With every
             fit, a link pair whose fitted capsules are never separated by the margin
             in the pruning pass is checked on convex pieces too.
         joint_window: The joint ranges the design may use
