@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import numpy as np
 
-
 #: LKH runs per solve (elkai's default is 10): the build re-solves several times, each
 #: run of LKH-3 on 61 nodes is already near-optimal (bench/bench_program.py).
 RUNS = 1
