@@ -44,7 +44,6 @@ import numpy as np
 
 from calib_oed.feasibility.bodies import compute_body_states
 from calib_oed.feasibility.constraints import FeasibilityModel
-from calib_oed.feasibility.pairs import PairReport
 from calib_oed.program.interval_bounds import IntervalBounds
 from calib_oed.program.motion_bound import piece_speed_bounds, segment_speed_bounds
 from calib_oed.program.rows import CollisionRows
@@ -267,8 +266,3 @@ def row_bounds(robot, segments, labels, pieces=None) -> tuple[np.ndarray, np.nda
             bounds[r], segs[r] = fallback, (-2, -2)  # neither side known: any distance
     segs[np.any(segs == -2, axis=1)] = -2
     return bounds, segs
-
-
-def overlapping_pairs(report: PairReport) -> frozenset[str]:
-    """Labels of the pairs the pruning pass found overlapping in every sample (coarse capsules)."""
-    return frozenset(d.label for d in report.dropped if d.reason.startswith("overlapping"))

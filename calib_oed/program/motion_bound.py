@@ -155,16 +155,3 @@ class EndpointBounds:
         w = self.reach * dq_abs
         tail = np.cumsum(w[..., ::-1], axis=-1)[..., ::-1]
         return tail - w
-
-    def segment_speeds(self, d_a, d_b, h, dq_abs, growth) -> np.ndarray:
-        """Largest speed [m per unit t] of any point of each segment on intervals, (I, s).
-
-        Args:
-            d_a, d_b: :meth:`distances` at the intervals' ends, (I, s, 2, nv).
-            h: Interval lengths, (I,).
-            dq_abs: :math:`|\\Delta|`, (nv,).
-            growth: :meth:`growth` of the move.
-        """
-        local = 0.5 * (d_a + d_b + h[:, None, None, None] * growth)
-        r = np.where(self.prismatic, self.reach, np.minimum(self.reach, local))
-        return (r @ dq_abs).max(axis=2)

@@ -34,11 +34,6 @@ def tour_time(cost: np.ndarray, order: np.ndarray) -> float:
     return float(cost[nodes[:-1], nodes[1:]].sum())
 
 
-def design_order(n: int) -> np.ndarray:
-    """The design's order: nodes 1..n."""
-    return np.arange(1, n + 1)
-
-
 def nearest_neighbour(cost: np.ndarray) -> np.ndarray:
     """Greedy tour from home (node 0): always the cheapest unvisited node (ties: lowest index)."""
     n = len(cost) - 1
