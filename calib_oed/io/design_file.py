@@ -43,13 +43,9 @@ _JOINTS_RE = re.compile(r"#\s*joints\s*:(.*)$", re.IGNORECASE)
 _DEFAULT_UNITS = {"angle": "rad", "length": "m"}
 
 
-def _prismatic(robot: Robot) -> np.ndarray:
-    return np.array([j.shortname().startswith("JointModelP") for j in robot.model.joints[1:]])
-
-
 def _to_si(robot: Robot, units: dict[str, str]) -> np.ndarray:
     """Per-joint factor from the file's units to SI (rad, m), shape (nq,)."""
-    return np.where(_prismatic(robot), LENGTH_UNITS[units["length"]], ANGLE_UNITS[units["angle"]])
+    return np.where(robot.prismatic, LENGTH_UNITS[units["length"]], ANGLE_UNITS[units["angle"]])
 
 
 def write_design_csv(path: str | os.PathLike, robot: Robot, q: np.ndarray, comment: str | None = None,
@@ -162,7 +158,7 @@ def read_design_csv(path: str | os.PathLike, robot: Robot, check_limits: bool = 
         raise MeasurementFileError(source, problems, kind="design file")
     order = [header.index(n) for n in names]
     scale = _to_si(robot, units)
-    shown = np.where(_prismatic(robot), units["length"], units["angle"])
+    shown = np.where(robot.prismatic, units["length"], units["angle"])
     q = np.empty((len(rows), len(names)))
     for k, (number, fields) in enumerate(rows):
         if len(fields) != len(header):
