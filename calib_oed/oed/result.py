@@ -9,7 +9,6 @@ atomically (:mod:`calib_oed.io.atomic`).
 
 from __future__ import annotations
 
-import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,21 +21,7 @@ from calib_oed.feasibility.margins import KindMargin, format_margins
 from calib_oed.io.atomic import atomic_write_text
 from calib_oed.io.design_file import read_design_csv, write_design_csv
 from calib_oed.model.robot import Robot
-
-
-def _finite(value):
-    """JSON/YAML-safe: NaN and inf become None, numpy scalars plain floats."""
-    if isinstance(value, dict):
-        return {k: _finite(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_finite(v) for v in value]
-    if isinstance(value, (np.floating, float)):
-        return float(value) if math.isfinite(value) else None
-    if isinstance(value, np.integer):
-        return int(value)
-    if isinstance(value, np.ndarray):
-        return _finite(value.tolist())
-    return value
+from calib_oed.values import plain
 
 
 @dataclass(frozen=True, eq=False)
@@ -177,7 +162,7 @@ class Design:
 
     def to_dict(self) -> dict:
         """A plain, YAML/JSON-safe record (SI configurations plus degrees)."""
-        return _finite({
+        return plain({
             "format": "calib_oed design v1",
             "scene": self.scene,
             "criterion": self.criterion,
