@@ -28,8 +28,7 @@ import time
 import numpy as np
 
 from calib_oed.cli import main as calib_oed
-from calib_oed.io.design_file import write_design_csv
-from calib_oed.oed.result import read_design_file
+from calib_oed.io.design_file import read_design_file, write_design_csv
 from calib_oed.program.build import build_program, move_checker
 from calib_oed.program.settings import program_settings_from_scene
 from calib_oed.scene.reader import load_scene

@@ -62,7 +62,7 @@ def _home(text: str | None, robot) -> np.ndarray | None:
 
 
 def cmd_program(args) -> int:
-    from calib_oed.oed.result import read_design_file
+    from calib_oed.io.design_file import read_design_file
     from calib_oed.program.build import build_program
     from calib_oed.program.formats import program_texts, write_program
     from calib_oed.program.settings import program_settings_from_scene
