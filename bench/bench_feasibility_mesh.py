@@ -66,17 +66,20 @@ def since(t):
 
 def build(scene, fit: str, split_primitives: bool = False):
     """The model of ``scene`` with the link geometry ``fit``: ``before`` (one capsule per link, no
-    mesh pair decisions, no convex pieces: the model before issue 17), or a ``link_fit`` setting."""
+    mesh pair decisions, no convex pieces: the model before issue 17), ``split`` (the capsules and
+    mesh pair decisions of ``hulls`` without its convex pieces), or a ``link_fit`` setting."""
     kwargs = {}
     if fit == "before":
         kwargs = {"capsules": fit_capsules(scene.robot), "mesh_pairs": False, "hulls": False}
-    elif split_primitives:
+    elif fit == "split":
+        kwargs = {"hulls": False}
+    if split_primitives:
         settings = LinkFitSettings(split_primitives=True)
         kwargs = {"capsules": fit_link_capsules(scene.robot, settings=settings), "mesh_pairs": True,
                   "hulls": True}
     feasibility = scene.feasibility
     if fit != "before":
-        feasibility = dataclasses.replace(scene.feasibility, link_fit=fit)
+        feasibility = dataclasses.replace(scene.feasibility, link_fit="hulls" if fit == "split" else fit)
     return build_feasibility_model(
         scene.robot, scene.cell, feasibility, scene.tracker.placement().translation,
         np.array([r.offset for r in scene.reflectors]), [r.name for r in scene.reflectors],

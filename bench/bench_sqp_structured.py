@@ -147,10 +147,6 @@ def compare(args):
         ("BFGS dense", {}, {}),
         ("BFGS per pose (design default)", {"block_size": 6}, {}),
         ("exact, abs, per block (lifted)", {"lagrangian_hessian": prob.hessian}, {}),
-        ("exact, floor, per block (lifted)", {"lagrangian_hessian": prob.hessian},
-         {"hessian_modification": "floor"}),
-        ("exact, abs, whole matrix (dense)", {"lagrangian_hessian": prob.hessian},
-         {"hessian_modification_scope": "matrix"}),
     ]
     _header()
     for label, kwargs, settings in runs:

@@ -21,6 +21,7 @@ import numpy as np
 
 from calib_oed.exceptions import UnknownParameterError
 from calib_oed.model.parameters import report_scale_of, report_unit_of
+from calib_oed.values import plain
 
 
 class IdentificationStatus(str, Enum):
@@ -267,7 +268,7 @@ class IdentificationResult:
 
     def to_dict(self) -> dict:
         """Machine-readable form (JSON-serialisable, SI unless a key says mm/mrad; NaN, inf -> None)."""
-        return _json_safe({
+        return plain({
             "status": self.status.value, "message": self.message,
             "nfev": self.nfev, "njev": self.njev,
             "method": self.method, "loss": self.loss, "f_scale": self.f_scale,
@@ -288,13 +289,3 @@ class IdentificationResult:
             "outliers": [{"block": o.block, "model": self.block_names[o.block], "row": o.row,
                           "norm_sigma": o.norm} for o in self.outliers],
         })
-
-
-def _json_safe(obj):
-    if isinstance(obj, dict):
-        return {k: _json_safe(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_json_safe(v) for v in obj]
-    if isinstance(obj, float) and not np.isfinite(obj):
-        return None
-    return obj

@@ -7,7 +7,6 @@ own, it wires a scene's pieces together and caches the gauge selection.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
 from functools import cached_property
 
 import numpy as np
@@ -25,19 +24,7 @@ from calib_oed.model.identifiability import (
 )
 from calib_oed.model.parameters import ParameterSpace
 from calib_oed.model.robot import Robot
-
-
-@dataclass(frozen=True)
-class GenericDesign:
-    """The fixed-seed random design of the gauge rule.
-
-    Attributes:
-        n: Number of configurations (uniform in the joint limits).
-        seed: Seed of ``numpy.random.default_rng``.
-    """
-
-    n: int = 200
-    seed: int = 0
+from calib_oed.scene.records import GenericDesignSpec
 
 
 class CalibrationProblem:
@@ -47,7 +34,7 @@ class CalibrationProblem:
         space: Parameter layout (robot, tracker, reflectors).
         models: Measurement models, each applied at every design configuration.
         kpi: The key performance indicator.
-        generic: The generic design of the gauge rule.
+        generic: The generic design of the gauge rule (default 200 configurations, seed 0).
         tol: Tolerance of the gauge rule.
     """
 
@@ -56,7 +43,7 @@ class CalibrationProblem:
         space: ParameterSpace,
         models: Sequence[MeasurementModel],
         kpi: TcpKpi,
-        generic: GenericDesign = GenericDesign(),
+        generic: GenericDesignSpec | None = None,
         tol: float = DEFAULT_TOL,
     ):
         if not models:
@@ -64,7 +51,7 @@ class CalibrationProblem:
         self.space = space
         self.models = tuple(models)
         self.kpi = kpi
-        self.generic = generic
+        self.generic = generic if generic is not None else GenericDesignSpec()
         self.tol = tol
         space.robot.check_configurations(kpi.configurations, "kpi configurations")
 
@@ -96,7 +83,7 @@ class CalibrationProblem:
             reflector=scene.kpi.reflector,
             weights=[w.weight for w in scene.kpi.configurations],
         )
-        generic = GenericDesign(scene.generic_design.n, scene.generic_design.seed)
+        generic = scene.generic_design
         return cls(space, models, kpi, generic)
 
     # ------------------------------------------------------------ jacobians

@@ -49,10 +49,8 @@ def classical_count(problem: CalibrationProblem) -> tuple[int, str] | None:
     with our rank directly. Returns None for set-ups the rule does not cover
     (several reflectors, joint compliance or joint gains modelled).
     """
-    model = problem.robot.model
-    kinds = [j.shortname() for j in model.joints[1:]]
-    n_r = sum(k.startswith("JointModelR") for k in kinds)
-    n_p = len(kinds) - n_r
+    n_p = int(problem.robot.prismatic.sum())
+    n_r = problem.robot.nq - n_p
     space = problem.space
     if len(problem.models) != 1 or space.compliance is not None or space.joint_gains is not None:
         return None

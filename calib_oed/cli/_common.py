@@ -78,8 +78,7 @@ def _scene(scene_ref):
     """A loaded scene: ``scene_ref`` is a shipped name, a scene file, or a loaded scene.
 
     Raises:
-        SceneError: a folder given as the scene; numbers whose size says the
-            declared length unit is wrong (:func:`_check_magnitudes`).
+        SceneError: a folder given as the scene (and what :func:`load_scene` raises).
     """
     from calib_oed.exceptions import SceneError
     from calib_oed.scene.reader import load_scene, scene_names
@@ -91,29 +90,7 @@ def _scene(scene_ref):
         raise SceneError(f"SCENE {os.fspath(scene_ref)} is a folder; give a scene file"
                          + (f" (it holds {', '.join(inside)})" if inside else "")
                          + f" or a shipped scene name ({', '.join(scene_names())})")
-    scene = load_scene(scene_ref)
-    _check_magnitudes(scene)
-    return scene
-
-
-#: Distances beyond which a scene's lengths are surely in the wrong unit [m]: no laser
-#: tracker measures beyond 160 m, no reflector sits 5 m from the flange.
-_MAX_TRACKER_DISTANCE, _MAX_REFLECTOR_OFFSET = 160.0, 5.0
-
-
-def _check_magnitudes(scene) -> None:
-    """Catch a unit mistake: numbers in mm with ``units: {length: m}`` put a tracker km away."""
-    from calib_oed.exceptions import SceneError
-
-    distance = float(np.linalg.norm(scene.tracker.placement().translation))
-    offsets = [float(np.linalg.norm(r.offset)) for r in scene.reflectors]
-    declared = (scene.units or {}).get("length", "m")
-    if distance > _MAX_TRACKER_DISTANCE or max(offsets, default=0.0) > _MAX_REFLECTOR_OFFSET:
-        raise SceneError(
-            f"the tracker is {distance:.4g} m from the robot base and the farthest reflector "
-            f"{max(offsets, default=0.0):.4g} m from the tool frame, with lengths declared in "
-            f"{declared!r}: are the numbers in mm? Then write `units: {{length: mm}}` (valid "
-            "length units: m, mm)", key="units.length", source=str(scene.source) if scene.source else None)
+    return load_scene(scene_ref)
 
 
 def _problem(scene_ref):
@@ -155,7 +132,7 @@ def _setup(scene_ref):
 def _design(s, args):
     """The design of a command: a design file (YAML or CSV), or n heuristic feasible poses."""
     from calib_oed.calibration.workflow import heuristic_design
-    from calib_oed.oed.result import read_design_file
+    from calib_oed.io.design_file import read_design_file
 
     path = getattr(args, "design", None) or getattr(args, "design_option", None)
     if path:
@@ -227,7 +204,7 @@ def _pool(s, args):
         if int(text) < 1:
             raise CalibOedError(f"--pool {text}: give a number of candidates >= 1 or a design file")
         return int(text)
-    from calib_oed.oed.result import read_design_file
+    from calib_oed.io.design_file import read_design_file
 
     if not Path(text).exists():
         raise CalibOedError(f"--pool {text}: neither a number of candidates nor an existing "

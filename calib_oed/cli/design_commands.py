@@ -40,7 +40,8 @@ def cmd_identifiability(args) -> int:
 
 def cmd_design(args) -> int:
     from calib_oed.exceptions import DesignError
-    from calib_oed.oed.result import read_design_file, write_design
+    from calib_oed.io.design_file import read_design_file
+    from calib_oed.oed.result import write_design
 
     s = _setup(args.scene)
     controller = s.scene.controller
@@ -174,13 +175,9 @@ def _evaluate_plots(s, q, args) -> dict[str, Path]:
 
 
 def cmd_compare(args) -> int:
+    from calib_oed.io.design_file import read_design_file
     from calib_oed.oed.design import evaluate_design
-    from calib_oed.oed.result import (
-        design_label,
-        format_criteria_table,
-        format_design_table,
-        read_design_file,
-    )
+    from calib_oed.oed.result import design_label, format_criteria_table, format_design_table
 
     s = _setup(args.scene)
     labels = [design_label(p) for p in args.designs]
@@ -217,7 +214,7 @@ def cmd_view(args) -> int:
     s = _setup(args.scene)
     q = None
     if args.design:
-        from calib_oed.oed.result import read_design_file
+        from calib_oed.io.design_file import read_design_file
 
         q = read_design_file(args.design, s.problem.robot, controller=s.scene.controller)
     options = {"ellipsoid_scale": args.scale, "level": args.level, "robot_drawing": args.drawing}

@@ -27,7 +27,6 @@ def add_program_parser(sub) -> None:
                    "configuration); write --home=-9,-73,... when it starts with a minus")
     p.add_argument("--dwell", type=float, metavar="SECONDS", help="settle and measure time per "
                    "pose (default: the scene's program.dwell, else 2 s)")
-    p.add_argument("--solver", choices=("lkh", "ortools"), help="tour solver (default lkh)")
     p.add_argument("--strict", action="store_true", help="stop with an error when a pose cannot "
                    "be reached from home (default: leave it out, named in the output and the files)")
     p.add_argument("--wrap", action="store_true", help="measure each pose at the joint values whole "
@@ -63,7 +62,7 @@ def _home(text: str | None, robot) -> np.ndarray | None:
 
 
 def cmd_program(args) -> int:
-    from calib_oed.oed.result import read_design_file
+    from calib_oed.io.design_file import read_design_file
     from calib_oed.program.build import build_program
     from calib_oed.program.formats import program_texts, write_program
     from calib_oed.program.settings import program_settings_from_scene
@@ -75,7 +74,7 @@ def cmd_program(args) -> int:
                            "(letters, digits, _)")
     q = read_design_file(args.design, scene.robot, controller=scene.controller)
     settings = program_settings_from_scene(scene, home=_home(args.home, scene.robot),
-                                           dwell=args.dwell, solver=args.solver,
+                                           dwell=args.dwell,
                                            skip_unreachable=not args.strict, wrap=args.wrap)
     _say(args, f"ordering and checking {len(q)} poses of {args.design} in scene {scene.name!r} ...")
     program = build_program(scene, q, settings)

@@ -65,7 +65,6 @@ import numpy as np
 
 from calib_oed.feasibility.bodies import BodyStates, compute_body_states
 from calib_oed.feasibility.segments import EPS, closest_parameters
-from calib_oed.feasibility.solids import EDGE, END_B
 
 #: Distances [m] below which the curvature of the norm is evaluated at this floor
 #: (contact; the gradient row uses the same floor).
@@ -198,97 +197,11 @@ def body_points(states: BodyStates, pose, body, local):
     return x, jac[:, :3] + _cross(omega, (x - trans)[:, :, None]), omega
 
 
-def _requests(model, pose, row, nq):
-    """The points each curved row needs: ``(kind, index, pose, body, local)`` per group."""
-    seg, robot = model.segments, model.robot
-    tool = robot.model.frames[robot.tool_frame_id]
-    k, p, ns = len(model.reflector_names), len(model.pairs), len(model.solid_pairs)
-    r = row - 2 * nq
-    out = []
-    sel = np.flatnonzero((r >= 0) & (r < k))
-    if sel.size:
-        local = np.array([tool.placement.act(c) for c in model.reflector_offsets]).reshape(-1, 3)
-        out.append(("incidence", sel, pose[sel], np.full(sel.size, tool.parentJoint), local[r[sel]]))
-    sel = np.flatnonzero((r >= k) & (r < k + ns))
-    if sel.size:  # two end points per solid row: a, b
-        i = model.solid_pairs.pairs[r[sel] - k, 0]
-        body = np.stack([seg.body_a[i], seg.body_b[i]], 1)
-        local = np.stack([seg.a_local[i], seg.b_local[i]], 1)
-        out.append(("solid", sel, np.repeat(pose[sel], 2), body.ravel(), local.reshape(-1, 3)))
-    k += ns + len(model.hull_pairs)  # the hull rows (own path), then capsule and half-space rows
-    sel = np.flatnonzero((r >= k) & (r < k + p))
-    if sel.size:  # four end points per pair: a1, b1, a2, b2
-        ij = model.pairs[r[sel] - k]
-        body = np.stack([seg.body_a[ij[:, 0]], seg.body_b[ij[:, 0]], seg.body_a[ij[:, 1]], seg.body_b[ij[:, 1]]], 1)
-        local = np.stack([seg.a_local[ij[:, 0]], seg.b_local[ij[:, 0]], seg.a_local[ij[:, 1]],
-                          seg.b_local[ij[:, 1]]], 1)
-        out.append(("pair", sel, np.repeat(pose[sel], 4), body.ravel(), local.reshape(-1, 3)))
-    sel = np.flatnonzero(r >= k + p)
-    if sel.size:  # rows (h, end) of half-space pair h, end 0 = a, 1 = b
-        h, end = divmod(r[sel] - k - p, 2)
-        i = model.halfspace_pairs[h, 0]
-        body = np.where(end == 0, seg.body_a[i], seg.body_b[i])
-        local = np.where((end == 0)[:, None], seg.a_local[i], seg.b_local[i])
-        out.append(("halfspace", sel, pose[sel], body, local))
-    return out
-
-
-def _row_hessians(model, kind, states, pose, index, x, jx, omega):
-    """Hessians (K, nv, nv) of one group's rows from their points."""
-    if kind == "incidence":
-        tool = model.robot.model.frames[model.robot.tool_frame_id]
-        z = np.einsum("kij,kj->ki", states.rotation[pose, tool.parentJoint], model.reflector_axis_local[index])
-        dz = _cross(omega, z[:, :, None])
-        return incidence_derivatives(z, dz, point_hessian(omega, dz), x, jx, point_hessian(omega, jx),
-                                     model.tracker_position)[2]
-    if kind == "pair":
-        nv = jx.shape[-1]
-
-        def hess_along(u):
-            return point_hessian_along(omega, jx, np.repeat(u, 4, axis=0)).reshape(-1, 4, nv, nv)
-
-        return segment_distance_derivatives(x.reshape(-1, 4, 3), jx.reshape(-1, 4, 3, nv), hess_along)[2]
-    if kind == "solid":
-        return solid_hessians(model.solid_pairs, index - len(model.reflector_names), x.reshape(-1, 2, 3),
-                              jx.reshape(-1, 2, 3, jx.shape[-1]), omega.reshape(-1, 2, 3, jx.shape[-1]))
-    first = len(model.reflector_names) + len(model.solid_pairs) + len(model.hull_pairs) + len(model.pairs)
-    hs = model.halfspace_pairs[(index - first) // 2, 1]
-    normal = np.array([model.cell.halfspaces[h].normal for h in hs]).reshape(-1, 3)
-    return point_hessian_along(omega, jx, normal)
-
-
-def solid_hessians(solids, pair: np.ndarray, x: np.ndarray, jx: np.ndarray, omega: np.ndarray) -> np.ndarray:
-    r""":math:`\nabla^2 d` (K, nv, nv) of solid rows ``pair`` (K,) from their segments' end points
-    ``x`` (K, 2, 3), Jacobians ``jx`` and angular Jacobians ``omega`` (K, 2, 3, nv) (module docstring)."""
-    w = solids.closest(x[:, 0], x[:, 1], pair)
-    nv = jx.shape[-1]
-    ua = point_hessian_along(omega[:, 0], jx[:, 0], w.u)
-    ub = point_hessian_along(omega[:, 1], jx[:, 1], w.u)
-    out = (1.0 - w.s)[:, None, None] * ua + w.s[:, None, None] * ub  # tangent-plane model
-    end = np.flatnonzero(w.regime <= END_B)
-    if end.size:  # point to box: + J^T (P - u u^T) J / d
-        b = (w.regime[end] == END_B).astype(int)
-        jac = jx[end, b]
-        rot = solids.rotation[pair[end]]
-        proj = np.einsum("kij,kj,klj->kil", rot, w.mask[end].astype(float), rot) - _outer(w.u[end], w.u[end])
-        out[end] += np.swapaxes(jac, 1, 2) @ proj @ jac / np.maximum(w.dist[end], TINY)[:, None, None]
-    edge = np.flatnonzero(w.regime == EDGE)
-    if edge.size:  # segment to the world-fixed edge
-        pts = np.concatenate([x[edge], w.edge[edge]], axis=1)
-        jac = np.concatenate([jx[edge], np.zeros((edge.size, 2, 3, nv))], axis=1)
-
-        def hess_along(u):
-            h = np.zeros((edge.size, 4, nv, nv))
-            h[:, 0] = point_hessian_along(omega[edge, 0], jx[edge, 0], u)
-            h[:, 1] = point_hessian_along(omega[edge, 1], jx[edge, 1], u)
-            return h
-
-        out[edge] = segment_distance_derivatives(pts, jac, hess_along)[2]
-    return out
-
-
 def lagrangian_hessian(model, q: np.ndarray, lam: np.ndarray, states: BodyStates | None = None) -> np.ndarray:
     r""":math:`H_j = \sum_i \lambda_{ji}\,\nabla^2 g_{ji}(q_j)`, (n, nq, nq).
+
+    Each row's second derivative is its family's
+    (:meth:`calib_oed.feasibility.row_family.RowFamily.hessians`).
 
     Args:
         model: The :class:`~calib_oed.feasibility.constraints.FeasibilityModel`.
@@ -300,7 +213,10 @@ def lagrangian_hessian(model, q: np.ndarray, lam: np.ndarray, states: BodyStates
     n, nq = q.shape
     out = np.zeros((n, nq, nq))
     lam = np.array(lam, dtype=float)
-    lam[:, : 2 * nq] = 0.0  # joint rows are linear
+    slices = model.family_slices()
+    for family, rows in slices:
+        if family.linear:
+            lam[:, rows] = 0.0
     pose, row = np.nonzero(lam)
     if pose.size == 0:
         return out
@@ -309,23 +225,9 @@ def lagrangian_hessian(model, q: np.ndarray, lam: np.ndarray, states: BodyStates
         states = compute_body_states(model.robot.model, q[used], jacobian=True)
     else:
         local_pose = pose
-    first = 2 * nq + len(model.reflector_names) + len(model.solid_pairs)
-    hull = (row >= first) & (row < first + len(model.hull_pairs))
-    if np.any(hull):  # convex-piece rows: the tangent-plane model of their own module
-        sel = np.flatnonzero(hull)
-        hess = model.hull_pairs.hessians(states, local_pose[sel], row[sel] - first)
-        np.add.at(out, pose[sel], lam[pose[sel], row[sel], None, None] * hess)
-        pose, row, local_pose = pose[~hull], row[~hull], local_pose[~hull]
-        if pose.size == 0:
-            return out
-    groups = _requests(model, local_pose, row, nq)
-    # every point of every group in one batch
-    x, jx, omega = body_points(states, *(np.concatenate([g[m] for g in groups]) for m in (2, 3, 4)))
-    start = 0
-    for kind, sel, gpose, _, _ in groups:
-        part = slice(start, start + gpose.size)
-        start += gpose.size
-        hess = _row_hessians(model, kind, states, local_pose[sel], row[sel] - 2 * nq,
-                             x[part], jx[part], omega[part])
-        np.add.at(out, pose[sel], lam[pose[sel], row[sel], None, None] * hess)
+    for family, rows in slices:
+        sel = np.flatnonzero((row >= rows.start) & (row < rows.stop))
+        if sel.size:
+            hess = family.hessians(states, local_pose[sel], row[sel] - rows.start)
+            np.add.at(out, pose[sel], lam[pose[sel], row[sel], None, None] * hess)
     return out

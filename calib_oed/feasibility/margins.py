@@ -56,8 +56,7 @@ def margin_report(model: FeasibilityModel, values: np.ndarray) -> list[KindMargi
             out.append(KindMargin(kind, float(np.degrees(limit) - beta), float(beta),
                                   float(np.degrees(limit)), "deg", label, int(pose)))
         elif kind == "joint":
-            joint = model.robot.joint_names.index(label.split(":")[1])
-            prismatic = model.robot.model.joints[joint + 1].shortname().startswith("JointModelP")
+            prismatic = model.robot.prismatic[rows[col] // 2]  # two rows per joint, first in the model
             scale, unit = (1e3, "mm") if prismatic else (np.degrees(1.0), "deg")
             out.append(KindMargin(kind, g * scale, (g + st.margins.joint) * scale,
                                   st.margins.joint * scale, unit, label, int(pose)))

@@ -42,15 +42,11 @@ from calib_oed.feasibility.capsules import link_names, load_collision_model
 from calib_oed.feasibility.shapes import Cell
 from calib_oed.feasibility.solids import solid_collision_objects
 from calib_oed.model.robot import Robot
+from calib_oed.values import readonly
 
 __all__ = ["MeshCheckReport", "check_design_meshes"]
 
 Pair = tuple[str, str]
-
-
-def _readonly(arr: np.ndarray) -> np.ndarray:
-    arr.setflags(write=False)
-    return arr
 
 
 @dataclass(frozen=True, eq=False)
@@ -100,11 +96,11 @@ class MeshCheckReport:
         return cls(
             pairs=pairs,
             kinds=tuple(kinds),
-            distances=_readonly(dist),
+            distances=readonly(dist),
             clearance=float(clearance),
-            min_distance=_readonly(np.asarray(min_distance, dtype=float)),
+            min_distance=readonly(np.asarray(min_distance, dtype=float)),
             closest_pair=closest_pair,
-            feasible=_readonly(np.asarray(min_distance, dtype=float) > clearance),
+            feasible=readonly(np.asarray(min_distance, dtype=float) > clearance),
             colliding_pairs=tuple(colliding),
         )
 

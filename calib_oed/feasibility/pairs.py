@@ -33,9 +33,12 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from calib_oed.exceptions import UnknownLinkError
+from calib_oed.feasibility.capsule_rows import CapsulePairRows, HalfspaceRows
 from calib_oed.feasibility.constraints import FeasibilityModel, SegmentTable, build_segments
+from calib_oed.feasibility.hull_rows import HullRows
 from calib_oed.feasibility.shapes import Capsule, Cell, FeasibilitySettings
-from calib_oed.feasibility.solids import prune_solid_pairs
+from calib_oed.feasibility.solid_rows import SolidRows
+from calib_oed.feasibility.solids import solid_candidates
 from calib_oed.model.robot import Robot
 
 
@@ -48,12 +51,15 @@ class DroppedPair:
         reason: Why (``"adjacent links"``, ``"never closer than 100 mm"``, ...).
         min_clearance: Smallest sampled clearance [m] (NaN if not sampled).
         max_clearance: Largest sampled clearance [m] (NaN if not sampled).
+        links: The two robot links of a self capsule pair the sampling pass dropped
+            (``None`` otherwise).
     """
 
     label: str
     reason: str
     min_clearance: float = float("nan")
     max_clearance: float = float("nan")
+    links: frozenset[str] | None = None
 
 
 @dataclass(frozen=True)
@@ -168,20 +174,6 @@ def _candidates(robot: Robot, seg: SegmentTable, cell: Cell, excluded: Sequence[
     return pairs, kinds, hs_pairs, hs_kinds, dropped
 
 
-def _prune_reason(lo: float, hi: float, samples: int, distance: float) -> str | None:
-    """Why the sampling pass drops a pair with clearance range [lo, hi] [m], or ``None``."""
-    if hi - lo < 1e-9:
-        if lo < 0:
-            return f"overlapping in every configuration ({lo * 1e3:.1f} mm, constant)"
-        return f"constant clearance ({lo * 1e3:.1f} mm)"
-    if hi < 0:
-        return (f"overlapping in every one of {samples} samples "
-                f"(clearance {lo * 1e3:.1f} to {hi * 1e3:.1f} mm): capsules too coarse?")
-    if lo > distance:
-        return f"never closer than {distance * 1e3:.0f} mm in {samples} samples"
-    return None
-
-
 def _hull_link_pairs(robot: Robot, seg: SegmentTable, pairs, kinds, hi: np.ndarray,
                      settings: FeasibilitySettings) -> dict[frozenset, str]:
     """Link pairs whose self rows are checked on convex pieces, and why: with
@@ -253,13 +245,13 @@ def build_feasibility_model(
         reflector_names: Their names (default ``reflector0..``).
         capsules: Robot capsules (link frames); default: the scene's table or
             the capsules fitted to the URDF collision geometry, one per link or,
-            with ``settings.link_fit == "split"``, several
+            with ``settings.link_fit == "hulls"``, several
             (:func:`calib_oed.feasibility.link_fit.fitted_robot_capsules`).
         prune: Run the sampling pass that drops pairs that cannot matter.
         reflector_normals: Reflector axes in the tool frame, (k, 3) (default tool z).
         mesh_pairs: Drop the self pairs decided on the collision meshes
-            (:mod:`calib_oed.feasibility.mesh_pairs`); default: with the split fit
-            to the URDF geometry (no ``capsules``, no scene table).
+            (:mod:`calib_oed.feasibility.mesh_pairs`); default: with the ``hulls``
+            fit to the URDF geometry (no ``capsules``, no scene table).
         hulls: Check on convex pieces of the link geometry
             (:mod:`calib_oed.feasibility.hulls`) the self pairs whose capsules the
             pruning pass never finds separated by the margin and, with
@@ -273,7 +265,7 @@ def build_feasibility_model(
     from calib_oed.feasibility.link_fit import fitted_robot_capsules
     from calib_oed.feasibility.mesh_pairs import dropped_mesh_pairs
 
-    split = settings.link_fit in ("split", "hulls")
+    split = settings.link_fit == "hulls"
     fitted = capsules is None and settings.robot_capsules is None
     if mesh_pairs is None:
         mesh_pairs = fitted and split
@@ -289,49 +281,44 @@ def build_feasibility_model(
     seg = build_segments(robot, capsules, cell, settings, tracker_position, reflector_offsets, reflector_names)
     on_meshes = dropped_mesh_pairs(robot, settings.margins.clearance) if mesh_pairs else ()
     pairs, kinds, hs_pairs, hs_kinds, dropped = _candidates(robot, seg, cell, settings.excluded_pairs, on_meshes)
-    args = (cell, settings, tracker_position, reflector_offsets, reflector_names)
-    model = FeasibilityModel(robot, seg, np.array(pairs), kinds, np.array(hs_pairs), hs_kinds, *args,
-                             reflector_normals=reflector_normals)
+    clearance = settings.margins.clearance
+    solid_pairs, solid_kinds, _ = solid_candidates(seg, cell)
+    candidates = (SolidRows(seg, cell, solid_pairs, solid_kinds, clearance),
+                  CapsulePairRows(seg, pairs, kinds, clearance),
+                  HalfspaceRows(seg, cell, hs_pairs, hs_kinds, clearance))
+    args = (robot, seg, cell, settings, tracker_position, reflector_offsets, reflector_names, reflector_normals)
+    model = FeasibilityModel(*args, families=candidates)
     n_links = len({c.frame for c in capsules})
     samples = int(settings.prune_samples) if prune else 0
+    ranges, reasons = [], []
     if samples > 0:
         q = robot.random_configurations(samples, settings.prune_seed)
         values = model.compute_values(q)
-        first_pair = len(model.kinds) - len(pairs) - 2 * len(hs_pairs)
-        rows = values[:, first_pair:] + settings.margins.clearance
-        # one clearance per pair: a half-space pair has a row per end point
-        hs = rows[:, len(pairs):].reshape(len(q), len(hs_pairs), 2).min(axis=2)
-        raw = np.concatenate([rows[:, :len(pairs)], hs], axis=1)
-        lo, hi = raw.min(axis=0), raw.max(axis=0)
-        labels = list(model.labels[first_pair:first_pair + len(pairs)])
-        labels += [lbl.replace(".a|", "|") for lbl in model.labels[first_pair + len(pairs)::2]]
-        reasons = [_prune_reason(lo[k], hi[k], samples, settings.prune_distance) for k in range(raw.shape[1])]
-        solid_pairs, solid_kinds, solid_dropped = prune_solid_pairs(model, values, settings.prune_distance)
-        dropped += [DroppedPair(*d) for d in solid_dropped]
-    else:
-        lo = hi = np.full(len(pairs) + len(hs_pairs), np.nan)
-        reasons, solid_pairs, solid_kinds = [None] * len(lo), None, None
-        labels = [f"{kind}:{seg.names[i]}|{seg.names[j]}" for (i, j), kind in zip(pairs, kinds, strict=True)]
-        labels += [f"{kind}:{seg.names[i]}|{cell.halfspaces[h].name}" for (i, h), kind in zip(hs_pairs, hs_kinds,
-                                                                                             strict=True)]
-    keep = np.array([r is None for r in reasons], dtype=bool)
-    why = _hull_link_pairs(robot, seg, pairs, kinds, hi, settings) if hulls else {}
+    for family in candidates:
+        if samples > 0:
+            clear = family.pair_clearance(values[:, model.row_slice(family)], clearance)
+            lo, hi = clear.min(axis=0), clear.max(axis=0)
+            why = [family.prune_reason(lo[k], hi[k], samples, settings.prune_distance) for k in range(lo.size)]
+        else:
+            lo = hi = np.full(len(family.pair_labels), np.nan)
+            why = [None] * lo.size
+        ranges.append((lo, hi))
+        reasons.append(why)
+    capsule_pairs, (_, hi_pairs), pair_reasons = candidates[1], ranges[1], reasons[1]
+    on_pieces = _hull_link_pairs(robot, seg, pairs, kinds, hi_pairs, settings) if hulls else {}
     converted: set[frozenset] = set()
-    for k, (i, j) in enumerate(pairs):
+    for k, (i, j) in enumerate(capsule_pairs.pairs):
         key = frozenset((seg.links[i], seg.links[j]))
-        if kinds[k] == "self" and key in why and not (reasons[k] or "").startswith("never closer"):
-            keep[k] = False
+        if kinds[k] == "self" and key in on_pieces and not (pair_reasons[k] or "").startswith("never closer"):
             converted.add(key)
-            reasons[k] = f"checked on convex pieces of the link geometry: {why[key]}"
-    for k, reason in enumerate(reasons):
-        if reason:
-            dropped.append(DroppedPair(labels[k], reason, float(lo[k]), float(hi[k])))
-    kp, kh = keep[: len(pairs)], keep[len(pairs):]
-    pairs = [p for p, k in zip(pairs, kp, strict=True) if k]
-    kinds = [p for p, k in zip(kinds, kp, strict=True) if k]
-    hs_pairs = [p for p, k in zip(hs_pairs, kh, strict=True) if k]
-    hs_kinds = [p for p, k in zip(hs_kinds, kh, strict=True) if k]
-    hull_pairs = None
+            pair_reasons[k] = f"checked on convex pieces of the link geometry: {on_pieces[key]}"
+    kept = []
+    for family, (lo, hi), why in zip(candidates, ranges, reasons, strict=True):
+        links = family.pair_links()
+        for k, reason in enumerate(why):
+            if reason:
+                dropped.append(DroppedPair(family.pair_labels[k], reason, float(lo[k]), float(hi[k]), links[k]))
+        kept.append(family.subset(np.array([r is None for r in why], dtype=bool)))
     if converted:
         from calib_oed.feasibility.capsules import load_collision_model
         from calib_oed.feasibility.hulls import HullPairs, link_pieces
@@ -343,14 +330,12 @@ def build_feasibility_model(
         if samples > 0:
             chosen, hull_dropped = _prune_hulls(HullPairs(pieces, chosen), robot, q, settings)
             dropped += hull_dropped
-        hull_pairs = HullPairs(pieces, chosen)
-    model = FeasibilityModel(robot, seg, np.array(pairs), kinds, np.array(hs_pairs), hs_kinds, *args,
-                             reflector_normals=reflector_normals, solid_pairs=solid_pairs,
-                             solid_kinds=solid_kinds, hull_pairs=hull_pairs)
+        kept.insert(1, HullRows(HullPairs(pieces, chosen), clearance))
+    model = FeasibilityModel(*args, families=kept)
     counts = {k: v for k, v in model.count_per_pose().items()}
     checked = tuple(dict.fromkeys(
-        lbl.replace(".a|", "|").replace(".b|", "|")
-        for lbl, kind in zip(model.labels, model.kinds, strict=True) if kind in ("self", "obstacle", "beam")
+        lbl for f in model.families for lbl, kind in zip(f.row_pair_labels, f.kinds, strict=True)
+        if kind in ("self", "obstacle", "beam")
     ))
     report = PairReport(checked, tuple(dropped), n_links, samples, int(settings.prune_seed), counts)
     return model, report

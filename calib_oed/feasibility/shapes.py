@@ -22,9 +22,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from calib_oed.exceptions import NonFiniteError, ShapeError
+from calib_oed.values import finite_vector
 
 #: Capsule fits to the URDF collision meshes (:attr:`FeasibilitySettings.link_fit`).
-LINK_FITS = ("single", "split", "hulls")
+LINK_FITS = ("single", "hulls")
 
 
 def _links(value, what: str) -> tuple[str, ...]:
@@ -53,16 +54,6 @@ def _positive(value, what: str) -> float:
     return v
 
 
-def _vector(value, what: str, size: int = 3) -> np.ndarray:
-    arr = np.array(value, dtype=float).reshape(-1)
-    if arr.shape != (size,):
-        raise ShapeError(what, f"({size},)", np.shape(value))
-    if not np.all(np.isfinite(arr)):
-        raise NonFiniteError(what)
-    arr.setflags(write=False)
-    return arr
-
-
 @dataclass(frozen=True, eq=False)
 class Capsule:
     """A capsule: segment ``a``–``b`` [m] swept by a sphere of ``radius`` [m].
@@ -85,8 +76,8 @@ class Capsule:
     ignore_links: tuple[str, ...] = ()
 
     def __post_init__(self):
-        object.__setattr__(self, "a", _vector(self.a, f"capsule {self.name!r} a"))
-        object.__setattr__(self, "b", _vector(self.b, f"capsule {self.name!r} b"))
+        object.__setattr__(self, "a", finite_vector(self.a, f"capsule {self.name!r} a", 3))
+        object.__setattr__(self, "b", finite_vector(self.b, f"capsule {self.name!r} b", 3))
         r = float(self.radius)
         if not np.isfinite(r) or r <= 0.0:
             raise ValueError(f"capsule {self.name!r}: radius must be > 0 [m], got {self.radius!r}")
@@ -122,7 +113,7 @@ class HalfSpace:
     ignore_links: tuple[str, ...] = ()
 
     def __post_init__(self):
-        n = np.array(_vector(self.normal, f"half-space {self.name!r} normal"))
+        n = np.array(finite_vector(self.normal, f"half-space {self.name!r} normal", 3))
         norm = np.linalg.norm(n)
         if norm < 1e-12:
             raise ValueError(f"half-space {self.name!r}: normal must be non-zero")
@@ -158,8 +149,8 @@ class Box:
 
     def __post_init__(self):
         what = f"box {self.name!r}"
-        object.__setattr__(self, "center", _vector(self.center, f"{what} center"))
-        object.__setattr__(self, "size", _vector(self.size, f"{what} size"))
+        object.__setattr__(self, "center", finite_vector(self.center, f"{what} center", 3))
+        object.__setattr__(self, "size", finite_vector(self.size, f"{what} size", 3))
         if np.any(self.size <= 0):
             raise ValueError(f"{what}: size must be > 0 [m] along x, y, z, got {self.size.tolist()}")
         object.__setattr__(self, "rotation", _rotation(self.rotation, f"{what} rotation"))
@@ -193,7 +184,7 @@ class Cylinder:
 
     def __post_init__(self):
         what = f"cylinder {self.name!r}"
-        object.__setattr__(self, "center", _vector(self.center, f"{what} center"))
+        object.__setattr__(self, "center", finite_vector(self.center, f"{what} center", 3))
         object.__setattr__(self, "radius", _positive(self.radius, f"{what}: radius"))
         object.__setattr__(self, "length", _positive(self.length, f"{what}: length"))
         object.__setattr__(self, "rotation", _rotation(self.rotation, f"{what} rotation"))
@@ -306,9 +297,7 @@ class FeasibilitySettings:
             self pairs of links at most three joints apart checked on convex pieces
             of their geometry (:mod:`calib_oed.feasibility.hulls`): 92-98 % of the
             mesh-feasible poses accepted, none of the infeasible (docs/feasibility.md).
-            ``"split"``: the same without the convex pieces (on ``ur5_table`` the
-            forearm pieces sit within the margin of ``wrist_2_link`` in 93 % of
-            draws); ``"single"``: one capsule per link (21-25 % accepted). With every
+            ``"single"``: one capsule per link (21-25 % accepted). With every
             fit, a link pair whose fitted capsules are never separated by the margin
             in the pruning pass is checked on convex pieces too.
         joint_window: The joint ranges the design may use

@@ -298,59 +298,7 @@ def solid_candidates(segments, cell: Cell) -> tuple[list[tuple[int, int]], list[
     return pairs, kinds, skipped
 
 
-def solid_rows(model, states, jacobian: bool):
-    """Values (n, P) and Jacobians (n, P, nv) of a model's solid rows."""
-    sp, seg = model.solid_pairs, model.segments
-    n = states.rotation.shape[0]
-    nv = model.robot.model.nv
-    if len(sp) == 0:
-        return np.zeros((n, 0)), (np.zeros((n, 0, nv)) if jacobian else None)
-    i = sp.pairs[:, 0]
-    a = states.points(seg.body_a[i], seg.a_local[i])
-    b = states.points(seg.body_b[i], seg.b_local[i])
-    idx = np.tile(np.arange(len(sp)), n)
-    w = sp.closest(a.reshape(-1, 3), b.reshape(-1, 3), idx)
-    values = w.dist.reshape(n, -1) - seg.radius[i] - model.settings.margins.clearance
-    if not jacobian:
-        return values, None
-    s, u = w.s.reshape(n, -1, 1), w.u.reshape(n, -1, 3)
-    ja = states.directional_jacobian(seg.body_a[i], a, u)
-    jb = states.directional_jacobian(seg.body_b[i], b, u)
-    return values, (1.0 - s) * ja + s * jb
-
-
 def solid_collision_objects(cell: Cell) -> list[tuple[str, coal.CollisionGeometry, coal.Transform3s, tuple[str, ...]]]:
     """``(name, coal geometry, placement in the world, ignore_links)`` of each of the cell's
     solids, for the mesh check (:mod:`calib_oed.feasibility.mesh_check`)."""
     return [(s.name, *_geometry(s), s.ignore_links) for s in cell.solids]
-
-
-def prune_solid_pairs(model, values: np.ndarray, distance: float) -> tuple[np.ndarray, list[str], list[tuple]]:
-    """The sampling pass for the solid rows (as for capsule pairs, :mod:`calib_oed.feasibility.pairs`).
-
-    Args:
-        model: The unpruned model.
-        values: Its constraint values at the sampled configurations, (n, m).
-        distance: A pair whose clearance stays above this [m] in every sample is dropped.
-
-    Returns:
-        The kept ``(segment, solid)`` pairs (S', 2), their kinds, and
-        ``(label, reason, min clearance, max clearance)`` of each dropped pair.
-    """
-    first = 2 * model.robot.nq + len(model.reflector_names)
-    rows = np.arange(first, first + len(model.solid_pairs))
-    raw = values[:, rows] + model.settings.margins.clearance
-    lo, hi = raw.min(axis=0), raw.max(axis=0)
-    keep, dropped = np.ones(len(rows), dtype=bool), []
-    for k, r in enumerate(rows):
-        reason = None
-        if hi[k] < 0:
-            reason = (f"overlapping in every one of {len(values)} samples (clearance {lo[k] * 1e3:.1f} to "
-                      f"{hi[k] * 1e3:.1f} mm): capsules too coarse?")
-        elif lo[k] > distance:
-            reason = f"never closer than {distance * 1e3:.0f} mm in {len(values)} samples"
-        if reason:
-            keep[k] = False
-            dropped.append((model.labels[r], reason, float(lo[k]), float(hi[k])))
-    kinds = [kind for kind, k in zip(model.solid_kinds, keep, strict=True) if k]
-    return model.solid_pairs.pairs[keep], kinds, dropped

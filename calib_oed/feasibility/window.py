@@ -33,13 +33,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from calib_oed.exceptions import SceneError
-from calib_oed.model.robot import Robot
+from calib_oed.model.robot import Robot, joint_kind
 from calib_oed.units import ANGLE_UNITS
 
 #: Values of the scene key ``feasibility.joint_window``.
 JOINT_WINDOWS = ("one_turn", "full")
-
-_REVOLUTE = ("JointModelRX", "JointModelRY", "JointModelRZ", "JointModelRevoluteUnaligned")
 
 
 @dataclass(frozen=True, eq=False)
@@ -87,7 +85,7 @@ def revolute_indices(robot: Robot) -> list[int]:
     """Configuration indices of the robot's revolute joints."""
     model = robot.model
     return [model.joints[j].idx_q for j in range(1, model.njoints)
-            if model.joints[j].nq == 1 and model.joints[j].shortname().startswith(_REVOLUTE)]
+            if joint_kind(model.joints[j]) == "revolute"]
 
 
 def design_window(robot: Robot, home: np.ndarray | None, mode: str = "one_turn",

@@ -30,6 +30,7 @@ import warnings
 from pathlib import Path
 
 import numpy as np
+import yaml
 
 from calib_oed.exceptions import CalibOedNote, MeasurementFileError
 from calib_oed.io.atomic import atomic_write_text
@@ -43,13 +44,9 @@ _JOINTS_RE = re.compile(r"#\s*joints\s*:(.*)$", re.IGNORECASE)
 _DEFAULT_UNITS = {"angle": "rad", "length": "m"}
 
 
-def _prismatic(robot: Robot) -> np.ndarray:
-    return np.array([j.shortname().startswith("JointModelP") for j in robot.model.joints[1:]])
-
-
 def _to_si(robot: Robot, units: dict[str, str]) -> np.ndarray:
     """Per-joint factor from the file's units to SI (rad, m), shape (nq,)."""
-    return np.where(_prismatic(robot), LENGTH_UNITS[units["length"]], ANGLE_UNITS[units["angle"]])
+    return np.where(robot.prismatic, LENGTH_UNITS[units["length"]], ANGLE_UNITS[units["angle"]])
 
 
 def write_design_csv(path: str | os.PathLike, robot: Robot, q: np.ndarray, comment: str | None = None,
@@ -162,7 +159,7 @@ def read_design_csv(path: str | os.PathLike, robot: Robot, check_limits: bool = 
         raise MeasurementFileError(source, problems, kind="design file")
     order = [header.index(n) for n in names]
     scale = _to_si(robot, units)
-    shown = np.where(_prismatic(robot), units["length"], units["angle"])
+    shown = np.where(robot.prismatic, units["length"], units["angle"])
     q = np.empty((len(rows), len(names)))
     for k, (number, fields) in enumerate(rows):
         if len(fields) != len(header):
@@ -192,6 +189,61 @@ def read_design_csv(path: str | os.PathLike, robot: Robot, check_limits: bool = 
     if problems:
         raise MeasurementFileError(source, problems, kind="design file")
     _note_repeats(source, [number for number, _ in rows], q)
+    return q
+
+
+def read_design_file(path: str | os.PathLike, robot: Robot, check_limits: bool = True,
+                     controller=None) -> np.ndarray:
+    """Configurations (n, nq) [rad] of a design file, in ``robot``'s joint order.
+
+    Accepts what :func:`calib_oed.oed.result.write_design` writes: ``design.yaml`` (its
+    ``joint_names`` and ``configurations_rad``) or a design CSV (header = joint
+    names, rad), recognised by the suffix (``.yaml``/``.yml``, else CSV). A CSV in
+    controller joint values (``# joints: controller <name>``) is mapped to URDF joints
+    with ``controller``, the scene's :class:`~calib_oed.model.controller.ControllerConvention`.
+
+    Raises:
+        MeasurementFileError: unreadable file, not a calib_oed design, joint
+            names that are not the robot's, bad or out-of-limit values.
+    """
+    path = Path(path)
+    if path.is_dir():
+        raise MeasurementFileError(str(path), [(None, "is a folder; give its design.yaml or design.csv")],
+                                   kind="design file")
+    if path.suffix.lower() not in (".yaml", ".yml"):
+        return read_design_csv(path, robot, check_limits=check_limits, controller=controller)
+    source = str(path)
+
+    def fail(message: str) -> MeasurementFileError:
+        return MeasurementFileError(source, [(None, message)], kind="design file")
+
+    try:
+        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
+        raise fail(f"cannot read the design YAML ({exc})") from exc
+    if not isinstance(data, dict) or not str(data.get("format", "")).startswith("calib_oed design"):
+        raise fail("not a calib_oed design YAML (expected 'format: calib_oed design v1', "
+                   "'joint_names' and 'configurations_rad', as `calib-oed design -o DIR` writes)")
+    names = data.get("joint_names")
+    rows = data.get("configurations_rad")
+    if not isinstance(names, list) or sorted(map(str, names)) != sorted(robot.joint_names):
+        raise fail(f"joint_names {names} are not the robot's joints {list(robot.joint_names)}")
+    try:
+        q = np.array(rows, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise fail(f"configurations_rad is not a table of numbers ({exc})") from exc
+    if q.ndim != 2 or q.shape[0] < 1 or q.shape[1] != len(names):
+        raise fail(f"configurations_rad must be n >= 1 rows of {len(names)} values, got shape {q.shape}")
+    if not np.all(np.isfinite(q)):
+        raise fail("configurations_rad holds NaN or infinite values")
+    q = q[:, [list(map(str, names)).index(j) for j in robot.joint_names]]
+    if check_limits:
+        bad = np.argwhere((q < robot.lower - 1e-9) | (q > robot.upper + 1e-9))
+        if bad.size:
+            raise MeasurementFileError(source, [
+                (None, f"pose {k}: {robot.joint_names[i]} = {q[k, i]:.6g} outside the limits "
+                       f"[{robot.lower[i]:.6g}, {robot.upper[i]:.6g}] (rad, or m if prismatic)")
+                for k, i in bad], kind="design file")
     return q
 
 

@@ -97,7 +97,7 @@ class _Reader:
         self.units: dict[str, str] = {}
         self.units_bad: set[str] = set()  # keys of the units line with an invalid value
         self.units_line: int | None = None
-        self.prismatic = [j.shortname().startswith("JointModelP") for j in robot.model.joints[1:]]
+        self.prismatic = robot.prismatic.tolist()
 
     def problem(self, line: int | None, message: str) -> None:
         self.problems.append((line, message))

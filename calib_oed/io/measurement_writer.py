@@ -84,7 +84,7 @@ def write_measurements(
         raise ExportError(f"reflector index {int(mset.reflector.max())} has no name; "
                           f"reflector_names gives {len(names)}: {', '.join(names)}")
     length, angle = LENGTH_UNITS[length_unit], ANGLE_UNITS[angle_unit]
-    prismatic = [j.shortname().startswith("JointModelP") for j in robot.model.joints[1:]]
+    prismatic = robot.prismatic
     order = [mset.joint_names.index(j) for j in robot.joint_names]
     q = mset.q[:, order]
     q = (q if controller is None else controller.to_controller(q)) / np.where(prismatic, length, angle)

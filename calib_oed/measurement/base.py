@@ -34,7 +34,6 @@ from functools import cached_property
 import numpy as np
 import pinocchio as pin
 
-from calib_oed.exceptions import ShapeError
 from calib_oed.model.joint_map import config_chain_term, effective_configurations, parameter_columns
 from calib_oed.model.kinematics import (
     ToolKinematics,
@@ -421,10 +420,3 @@ class MeasurementModel(abc.ABC):
         it or with compliance modelled (needs :math:`\partial^2\tau_g/\partial q^2`).
         """
         return None
-
-    def check_measured(self, values: np.ndarray, n: int) -> np.ndarray:
-        """Validate measured values of this model for n configurations."""
-        arr = np.asarray(values, dtype=float)
-        if arr.shape != (n, self.dim):
-            raise ShapeError(f"{self.name} measurements", f"({n}, {self.dim})", arr.shape)
-        return arr

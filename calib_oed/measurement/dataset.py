@@ -21,12 +21,7 @@ from calib_oed.measurement.observations import ObservationBlock
 from calib_oed.measurement.pose import DEFAULT_SIGMA_ANGLE, PoseMeasurement
 from calib_oed.measurement.position import DEFAULT_SIGMA, TrackerPosition
 from calib_oed.model.robot import Robot
-
-
-def _frozen(arr: np.ndarray) -> np.ndarray:
-    arr = np.array(arr)
-    arr.setflags(write=False)
-    return arr
+from calib_oed.values import readonly
 
 
 @dataclass(frozen=True, eq=False)
@@ -88,7 +83,7 @@ class MeasurementSet:
                             ("positions", positions), ("rotations", rotations),
                             ("sigma", sigma), ("lines", lines)):
             object.__setattr__(self, name, value if value is None or name == "joint_names"
-                               else _frozen(value))
+                               else readonly(value))
 
     @classmethod
     def from_arrays(

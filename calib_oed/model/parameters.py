@@ -34,7 +34,7 @@ import pinocchio as pin
 from calib_oed.exceptions import NonFiniteError, ShapeError, UnknownParameterError
 from calib_oed.model.compliance import Compliance, GravityLoad
 from calib_oed.model.joint_map import JointGains
-from calib_oed.model.robot import Robot
+from calib_oed.model.robot import Robot, joint_kind
 
 _TWIST = ("tx", "ty", "tz", "rx", "ry", "rz")
 _XYZ = ("x", "y", "z")
@@ -209,7 +209,7 @@ class ParameterSpace:
             idx += 1
 
     def _prismatic(self, i: int) -> bool:
-        return self.robot.model.joints[i].shortname().startswith("JointModelP")
+        return joint_kind(self.robot.model.joints[i]) == "prismatic"
 
     @property
     def size(self) -> int:

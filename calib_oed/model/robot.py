@@ -56,6 +56,16 @@ _SUPPORTED_JOINTS = {
 }
 
 
+def joint_kind(joint) -> str:
+    """``"revolute"`` or ``"prismatic"`` for a one-coordinate Pinocchio joint model, else ``"other"``."""
+    if joint.nq != 1 or joint.nv != 1:
+        return "other"
+    name = joint.shortname()
+    if name.startswith("JointModelR"):
+        return "revolute"
+    return "prismatic" if name.startswith("JointModelP") else "other"
+
+
 @dataclass(frozen=True, eq=False)
 class Robot:
     """A serial arm ready for calibration.
@@ -99,6 +109,11 @@ class Robot:
     def joint_names(self) -> tuple[str, ...]:
         """Actuated joint names from base to tip (URDF names)."""
         return tuple(self.model.names[1:])
+
+    @property
+    def prismatic(self) -> np.ndarray:
+        """Per joint (nq,), whether it is prismatic (its values in m, not rad)."""
+        return np.array([joint_kind(j) == "prismatic" for j in self.model.joints[1:]], dtype=bool)
 
     @property
     def tool_joint(self) -> int:

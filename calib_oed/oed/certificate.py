@@ -41,7 +41,6 @@ from threadpoolctl import threadpool_limits
 
 from calib_oed.calibration.workflow import Setup
 from calib_oed.exceptions import CertificateError
-from calib_oed.feasibility.sampling import sample_feasible
 from calib_oed.oed.approximate import (
     CERTIFIABLE,
     DROP_WEIGHT,
@@ -60,6 +59,7 @@ from calib_oed.oed.approximate_pool import ApproximatePool
 from calib_oed.oed.criterion_base import Criterion
 from calib_oed.oed.objective import DesignObjective
 from calib_oed.oed.sensitivity_maxima import _local_search, _Search
+from calib_oed.oed.starts import candidate_pool
 
 __all__ = [
     # this module
@@ -258,7 +258,7 @@ def certify(
     elif isinstance(pool, (int, np.integer)):
         if pool < 0:
             raise CertificateError("pool", pool, "must be a number of candidates >= 0 or an (N, nq) array")
-        candidates = sample_feasible(s.feasibility, int(pool), seed, max_draws=50_000_000)
+        candidates = candidate_pool(s, int(pool), seed).q if pool else np.zeros((0, robot.nq))
     else:
         candidates = robot.check_configurations(pool, "candidate pool")
     design_value = objective.compute_value(q)

@@ -202,7 +202,6 @@ def design(
     collisions: bool = True,
     settings: SQPSettings | None = None,
     callback=None,
-    structured_hessian: bool = False,
     aggregate: str = "mean",
     hessian: str = "exact",
 ) -> Design:
@@ -253,9 +252,6 @@ def design(
             joint limits and incidence.
         settings: SQP settings (default :data:`DESIGN_SQP`).
         callback: Called with each SQP iteration record.
-        structured_hessian: Give the SQP the criterion's exact curvature
-            through M (A and D criteria) plus per-pose BFGS blocks instead of
-            one dense BFGS matrix (the earlier structured form; overrides ``hessian``).
         hessian: ``"exact"`` (default: the exact Lagrangian Hessian, per-pose
             blocks plus the low-rank coupling, where the criterion has one:
             ``kpi``, ``params``, ``D``) or ``"bfgs"`` (damped BFGS).
@@ -281,7 +277,7 @@ def design(
     if int(replicates) != replicates or replicates < 1:
         raise DesignError("replicates", replicates, "an integer >= 1 (1: every pose distinct)")
     _check_aggregate(aggregate, criterion)
-    exact = (hessian == "exact" and not structured_hessian and aggregate == "mean"
+    exact = (hessian == "exact" and aggregate == "mean"
              and (criterion in EXACT_CRITERIA if isinstance(criterion, str)
                   else has_exact_hessian(criterion)))
     check_memory(n, s.problem.robot.nq, int(len(s.feasibility.labels)), dense=not exact)
@@ -298,9 +294,9 @@ def design(
         if not refine:
             best = _best_start(objective, starts, aggregate)
         else:
-            run = optimise_worst_case if aggregate == "max" else optimise_starts
-            best = run(s, starts, criterion, collisions, settings, callback, structured_hessian,
-                       hessian)
+            best = (optimise_worst_case(s, starts, criterion, collisions, settings, callback)
+                    if aggregate == "max"
+                    else optimise_starts(s, starts, criterion, collisions, settings, callback, hessian))
         design_seconds, design_cpu = time.perf_counter() - t0, time.process_time() - cpu0
         value, q, phi0, result, start_seed = best
         interrupted = result is not None and result.status is SQPStatus.INTERRUPTED

@@ -24,6 +24,7 @@ import scipy.sparse
 from calib_oed.feasibility.bodies import compute_body_states
 from calib_oed.feasibility.constraints import FeasibilityModel
 from calib_oed.feasibility.hull_pieces import hull_row_pieces
+from calib_oed.feasibility.hull_rows import HullRows
 from calib_oed.oed.objective import DesignObjective
 from calib_oed.solver.result import StructuredHessian
 
@@ -82,14 +83,6 @@ class DesignProblem:
         ev = self.objective.compute(self.configurations(x))
         return ev.value / self.scale, ev.gradient.ravel() / self.scale
 
-    def compute_curvature(self, x: np.ndarray) -> np.ndarray | None:
-        """The objective's exact curvature through M (scaled like the objective), or None.
-
-        See :meth:`calib_oed.oed.objective.DesignObjective.compute_curvature`.
-        """
-        h = self.objective.compute_curvature(self.configurations(x))
-        return None if h is None else h / self.scale
-
     def compute_lagrangian_hessian(self, x: np.ndarray, lam: np.ndarray) -> StructuredHessian | None:
         r"""The exact Hessian of :math:`L = \phi/s - \lambda^\top g` in factored form, or None.
 
@@ -139,14 +132,15 @@ class DesignProblem:
         gradient (k, n·nq) (:mod:`calib_oed.feasibility.hull_pieces`,
         :mod:`calib_oed.solver.pieces`).
         """
-        hull = self.feasibility.hull_pairs
+        family = self.feasibility.family(HullRows)
         none = (np.zeros(0, dtype=int), np.zeros(0), scipy.sparse.csr_matrix((0, self.n * self.nq)))
-        if not len(hull):
+        if family is None or not len(family) or "self" not in self.kinds:
             return none
+        hull = family.hulls
         full = np.flatnonzero(self.feasibility.row_mask(self.kinds))  # design-local -> model row
         m = full.size
         rows = np.asarray(rows, dtype=int)
-        first = self.feasibility.labels.index(hull.labels[0])
+        first = self.feasibility.row_slice(family).start
         h = full[rows % m] - first
         mine = (h >= 0) & (h < len(hull))
         if not mine.any():

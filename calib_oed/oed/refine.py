@@ -45,8 +45,7 @@ def project_feasible(nlp: DesignProblem, x: np.ndarray, max_iterations: int = 50
     return res.x
 
 
-def optimise_worst_case(s, starts, criterion, collisions, settings, callback, structured_hessian,
-                         hessian):
+def optimise_worst_case(s, starts, criterion, collisions, settings, callback):
     """The epigraph SQP from every start; the best ``(max_i v_i, q, start max, result, seed)``."""
     best = None
     for start_seed, q0 in starts:
@@ -69,16 +68,13 @@ def optimise_worst_case(s, starts, criterion, collisions, settings, callback, st
     return best
 
 
-def optimise_starts(s, starts, criterion, collisions, settings, callback, structured_hessian,
-                     hessian):
+def optimise_starts(s, starts, criterion, collisions, settings, callback, hessian):
     """Run the SQP from every start; the best ``(value, q, phi0, result, seed)``."""
     best = None
     for start_seed, q0 in starts:
         objective = DesignObjective(s.problem, criterion)
         value, q, phi0, result = optimise_from(objective, s.feasibility, q0, collisions=collisions,
-                                               settings=settings, callback=callback,
-                                               structured_hessian=structured_hessian,
-                                               hessian=hessian)
+                                               settings=settings, callback=callback, hessian=hessian)
         if best is None or value < best[0]:
             best = (value, q, phi0, result, start_seed)
         if result.status is SQPStatus.INTERRUPTED:  # no further starts: the best so far, and
@@ -88,7 +84,6 @@ def optimise_starts(s, starts, criterion, collisions, settings, callback, struct
 
 def optimise_from(objective: DesignObjective, feasibility, q0: np.ndarray, *, collisions: bool = True,
                   settings: SQPSettings | None = None, callback=None,
-                  structured_hessian: bool = False,
                   hessian: str = "exact") -> tuple[float, np.ndarray, float, SQPResult]:
     r"""One SQP run of ``objective`` (its prior and parameters included) from the design ``q0``.
 
@@ -108,11 +103,9 @@ def optimise_from(objective: DesignObjective, feasibility, q0: np.ndarray, *, co
                         scale=max(abs(phi0), 1e-300))
     if hessian not in HESSIANS:
         raise DesignError("hessian", hessian, "how the SQP models curvature", HESSIANS)
-    structured = structured_hessian and nlp.compute_curvature(q0.ravel()) is not None
-    exact = (hessian == "exact" and not structured and has_exact_hessian(objective.criterion))
+    exact = hessian == "exact" and has_exact_hessian(objective.criterion)
     result = solve_sqp(nlp.compute_objective, q0.ravel(), constraints=nlp.compute_constraints,
                        bounds=nlp.bounds, settings=settings or DESIGN_SQP, callback=callback,
-                       hessian_model=nlp.compute_curvature if structured else None,
                        block_size=nlp.nq,
                        lagrangian_hessian=nlp.compute_lagrangian_hessian if exact else None,
                        row_pieces=nlp.compute_row_pieces)

@@ -9,7 +9,6 @@ atomically (:mod:`calib_oed.io.atomic`).
 
 from __future__ import annotations
 
-import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -17,26 +16,11 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from calib_oed.exceptions import MeasurementFileError
 from calib_oed.feasibility.margins import KindMargin, format_margins
 from calib_oed.io.atomic import atomic_write_text
-from calib_oed.io.design_file import read_design_csv, write_design_csv
+from calib_oed.io.design_file import write_design_csv
 from calib_oed.model.robot import Robot
-
-
-def _finite(value):
-    """JSON/YAML-safe: NaN and inf become None, numpy scalars plain floats."""
-    if isinstance(value, dict):
-        return {k: _finite(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_finite(v) for v in value]
-    if isinstance(value, (np.floating, float)):
-        return float(value) if math.isfinite(value) else None
-    if isinstance(value, np.integer):
-        return int(value)
-    if isinstance(value, np.ndarray):
-        return _finite(value.tolist())
-    return value
+from calib_oed.values import plain
 
 
 @dataclass(frozen=True, eq=False)
@@ -177,7 +161,7 @@ class Design:
 
     def to_dict(self) -> dict:
         """A plain, YAML/JSON-safe record (SI configurations plus degrees)."""
-        return _finite({
+        return plain({
             "format": "calib_oed design v1",
             "scene": self.scene,
             "criterion": self.criterion,
@@ -218,61 +202,6 @@ def write_design(folder: str | os.PathLike, design: Design, robot: Robot) -> dic
         comment=f"scene {design.scene}: {design.criterion}-optimal design of {design.n} poses",
     )
     return {"yaml": yaml_path, "csv": csv_path}
-
-
-def read_design_file(path: str | os.PathLike, robot: Robot, check_limits: bool = True,
-                     controller=None) -> np.ndarray:
-    """Configurations (n, nq) [rad] of a design file, in ``robot``'s joint order.
-
-    Accepts what :func:`write_design` writes: ``design.yaml`` (its
-    ``joint_names`` and ``configurations_rad``) or a design CSV (header = joint
-    names, rad), recognised by the suffix (``.yaml``/``.yml``, else CSV). A CSV in
-    controller joint values (``# joints: controller <name>``) is mapped to URDF joints
-    with ``controller``, the scene's :class:`~calib_oed.model.controller.ControllerConvention`.
-
-    Raises:
-        MeasurementFileError: unreadable file, not a calib_oed design, joint
-            names that are not the robot's, bad or out-of-limit values.
-    """
-    path = Path(path)
-    if path.is_dir():
-        raise MeasurementFileError(str(path), [(None, "is a folder; give its design.yaml or design.csv")],
-                                   kind="design file")
-    if path.suffix.lower() not in (".yaml", ".yml"):
-        return read_design_csv(path, robot, check_limits=check_limits, controller=controller)
-    source = str(path)
-
-    def fail(message: str) -> MeasurementFileError:
-        return MeasurementFileError(source, [(None, message)], kind="design file")
-
-    try:
-        data = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
-        raise fail(f"cannot read the design YAML ({exc})") from exc
-    if not isinstance(data, dict) or not str(data.get("format", "")).startswith("calib_oed design"):
-        raise fail("not a calib_oed design YAML (expected 'format: calib_oed design v1', "
-                   "'joint_names' and 'configurations_rad', as `calib-oed design -o DIR` writes)")
-    names = data.get("joint_names")
-    rows = data.get("configurations_rad")
-    if not isinstance(names, list) or sorted(map(str, names)) != sorted(robot.joint_names):
-        raise fail(f"joint_names {names} are not the robot's joints {list(robot.joint_names)}")
-    try:
-        q = np.array(rows, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise fail(f"configurations_rad is not a table of numbers ({exc})") from exc
-    if q.ndim != 2 or q.shape[0] < 1 or q.shape[1] != len(names):
-        raise fail(f"configurations_rad must be n >= 1 rows of {len(names)} values, got shape {q.shape}")
-    if not np.all(np.isfinite(q)):
-        raise fail("configurations_rad holds NaN or infinite values")
-    q = q[:, [list(map(str, names)).index(j) for j in robot.joint_names]]
-    if check_limits:
-        bad = np.argwhere((q < robot.lower - 1e-9) | (q > robot.upper + 1e-9))
-        if bad.size:
-            raise MeasurementFileError(source, [
-                (None, f"pose {k}: {robot.joint_names[i]} = {q[k, i]:.6g} outside the limits "
-                       f"[{robot.lower[i]:.6g}, {robot.upper[i]:.6g}] (rad, or m if prismatic)")
-                for k, i in bad], kind="design file")
-    return q
 
 
 def design_label(path: str | os.PathLike) -> str:

@@ -33,6 +33,7 @@ import time
 import numpy as np
 
 from calib_oed.exceptions import ProgramError
+from calib_oed.feasibility.window import revolute_indices
 from calib_oed.program.continuous import MoveChecker
 from calib_oed.program.planner import plan_move
 from calib_oed.program.records import Move, Program
@@ -53,7 +54,7 @@ def move_checker(scene, settings: ProgramSettings) -> MoveChecker:
 
     design, report = feasibility_from_scene(scene)
     full, _ = feasibility_from_scene(scene, prune=False)
-    far = frozenset(d.label for d in report.dropped if d.reason.startswith("never closer"))
+    far = tuple(d for d in report.dropped if d.reason.startswith("never closer"))
     return MoveChecker(design, settings.move_tolerance, extra=full, extra_rows=far)
 
 
@@ -209,10 +210,10 @@ def build_program(scene, q: np.ndarray, settings: ProgramSettings | None = None,
     moves = _Moves(nodes, checker, dyn, settings, scene.feasibility.margins.joint)
     n = len(q)
     limit = 10 * n + 10
-    winner = [settings.solver]
+    winner = ["lkh"]
 
     def solver(cost):
-        order, who = solve_tour(cost, settings.solver)
+        order, who = solve_tour(cost)
         winner[0] = who
         return order
 
@@ -298,11 +299,7 @@ def nearest_turns(robot, q: np.ndarray, home: np.ndarray, margin: float = 0.0) -
     Revolute joints only (a full turn of a prismatic joint is not the same geometry)."""
     out = np.array(q, dtype=float, copy=True)
     lo, hi = robot.lower + margin, robot.upper - margin
-    model = robot.model
-    revolute = [model.joints[j].idx_q for j in range(1, model.njoints)
-                if model.joints[j].nq == 1 and model.joints[j].shortname().startswith(
-                    ("JointModelRX", "JointModelRY", "JointModelRZ", "JointModelRevoluteUnaligned"))]
-    for i in revolute:
+    for i in revolute_indices(robot):
         for k in (-2, -1, 1, 2):
             x = np.asarray(q, float)[:, i] + 2 * np.pi * k
             better = (x >= lo[i]) & (x <= hi[i]) & (np.abs(x - home[i]) < np.abs(out[:, i] - home[i]))

@@ -29,7 +29,8 @@ keeps: capsule pairs, half-spaces, solids, rows on the link geometry), plus the
 pairs its sampling pass dropped as "never closer than 100 mm in 2000 samples"
 (sampling proves nothing about a move), from the model built without the pass;
 a pair the pass dropped for another reason stays out, as in the design. Their
-Lipschitz constants come from the rows' labels (:func:`row_bounds`). Joint
+Lipschitz constants come from what moves each side of a row, as its family says
+(:meth:`~calib_oed.feasibility.row_family.RowFamily.sides`, :func:`row_bounds`). Joint
 limits need no check: the segment between two configurations inside the box
 of limits stays inside. Laser beam and incidence rows are evaluated at
 the same samples and *reported* (line of sight lost during the move: the tracker
@@ -44,7 +45,7 @@ import numpy as np
 
 from calib_oed.feasibility.bodies import compute_body_states
 from calib_oed.feasibility.constraints import FeasibilityModel
-from calib_oed.feasibility.pairs import PairReport
+from calib_oed.feasibility.row_family import FIXED, LINK, RowSides
 from calib_oed.program.interval_bounds import IntervalBounds
 from calib_oed.program.motion_bound import piece_speed_bounds, segment_speed_bounds
 from calib_oed.program.rows import CollisionRows
@@ -89,14 +90,15 @@ class MoveChecker:
         min_step: Shortest interval in :math:`t` the bisection splits.
         max_evaluations: Evaluation budget per move.
         extra: The same scene's model without the sampling pass, for ``extra_rows``.
-        extra_rows: Labels of pairs the sampling pass dropped as "never closer than ..."
-            (a sample proves nothing about a move): their rows of ``extra`` are checked too.
+        extra_rows: The pairs the sampling pass dropped as "never closer than ..."
+            (:class:`~calib_oed.feasibility.pairs.DroppedPair`; a sample proves nothing
+            about a move): their rows of ``extra`` are checked too.
     """
 
     def __init__(self, feasibility: FeasibilityModel, tolerance: float = 0.001,
                  ignore: frozenset[str] = frozenset(), min_step: float = 1e-6,
                  max_evaluations: int = 20000, extra: FeasibilityModel | None = None,
-                 extra_rows: frozenset[str] = frozenset()):
+                 extra_rows=()):
         self.feasibility = feasibility
         self.robot = feasibility.robot
         self.tolerance = float(tolerance)
@@ -107,11 +109,10 @@ class MoveChecker:
         self.collision_labels = self._rows.labels
         self.sight_labels = self._rows.sight_labels
         pieces = {**(extra.hull_pairs.pieces if extra is not None else {}), **feasibility.hull_pairs.pieces}
-        self._lipschitz, self._segments = row_bounds(self.robot, feasibility.segments, self.collision_labels,
-                                                     pieces)
+        sides = self._rows.sides()
+        self._lipschitz, self._segments = row_bounds(self.robot, feasibility.segments, sides, pieces)
         # local constants (relative motion of self pairs, interval end points, piece axes)
-        self._bounds = IntervalBounds(self.robot, feasibility.segments, pieces, self.collision_labels,
-                                      self._segments)
+        self._bounds = IntervalBounds(self.robot, feasibility.segments, pieces, sides.links, self._segments)
         self._lipschitz = self._lipschitz * self._bounds.relative
         self._ends = self._bounds.ends
 
@@ -218,57 +219,46 @@ class MoveChecker:
         return MoveCheck(verified, collision, evaluations, min_sampled, worst, lost)
 
 
-def row_bounds(robot, segments, labels, pieces=None) -> tuple[np.ndarray, np.ndarray]:
+def row_bounds(robot, segments, sides: RowSides, pieces=None) -> tuple[np.ndarray, np.ndarray]:
     r"""Per collision row, the vector :math:`\rho_a + \rho_b` of its Lipschitz constant (m, nv),
     and its segments (m, 2) (-1: a fixed set; -2: the row's bound only, no local tightening).
 
-    Read from the row's label ``kind:A|B`` (``A.a``/``A.b``: an end point of segment ``A``):
-    a side naming a segment contributes :math:`\rho` of that segment (0 if world-fixed); a
-    side naming a robot link (rows on convex pieces of the link geometry) contributes the
-    bound :func:`~calib_oed.program.motion_bound.piece_speed_bounds` of the link's pieces
+    From what moves each side of a row (``sides``, its family's
+    :meth:`~calib_oed.feasibility.row_family.RowFamily.sides`): a side on a segment
+    contributes :math:`\rho` of that segment (0 if world-fixed); a side on a robot link's
+    geometry (rows on convex pieces) contributes the bound
+    :func:`~calib_oed.program.motion_bound.piece_speed_bounds` of the link's pieces
     (``pieces``: ``{link: LinkPieces}``, the rows' own geometry: a convex hull of a slab of
     a mesh may reach outside the link's capsules) or, for a link not in ``pieces``,
     :math:`\max_k(\rho_k + r_k)` over the link's capsules, which enclose its geometry (a
     point within :math:`r_k` of an axis is at most :math:`r_k` farther from every joint);
-    any other side is a world-fixed set (half-space, solid: 0). A distance between two sets
-    (coal's signed distance of convex pieces too) moves no more than their points do. A
-    row whose label cannot be read takes twice the largest of these bounds, valid for any
-    distance between robot parts or to a fixed set.
+    a fixed set (half-space, solid) contributes 0. A distance between two sets (coal's
+    signed distance of convex pieces too) moves no more than their points do. A row whose
+    sides are unknown takes twice the largest of these bounds, valid for any distance
+    between robot parts or to a fixed set.
     """
     rho = segment_speed_bounds(robot, segments)
-    names = {str(n): k for k, n in enumerate(segments.names)}
     grown = rho + np.asarray(segments.radius, dtype=float)[:, None] * (rho.max(axis=1, keepdims=True) > 0)
     links: dict[str, np.ndarray] = {}
-    for k, link in enumerate(getattr(segments, "links", [None] * len(segments))):
-        if link is not None and str(segments.roles[k]) in ("robot", "reflector"):
+    for k, link in enumerate(segments.links):
+        if str(segments.roles[k]) in ("robot", "reflector"):
             links[str(link)] = np.maximum(links.get(str(link), 0.0), grown[k])
     for name, lp in (pieces or {}).items():
         links[str(name)] = piece_speed_bounds(robot, lp)
     fallback = 2.0 * grown.max(axis=0) if len(grown) else np.zeros(robot.model.nv)
     if links:
         fallback = np.maximum(fallback, 2.0 * np.max(list(links.values()), axis=0))
-    bounds = np.zeros((len(labels), rho.shape[1]))
-    segs = np.full((len(labels), 2), -1)
-    for r, label in enumerate(labels):
-        body = label.split(":", 1)[-1]
-        sides = body.split("|", 1)
-        if len(sides) != 2:
-            bounds[r], segs[r] = fallback, (-2, -2)
-            continue
-        for c, side in enumerate(sides):
-            name = side[:-2] if side.endswith((".a", ".b")) and side[:-2] in names else side
-            if name in names:
-                bounds[r] += rho[names[name]]
-                segs[r, c] = names[name]
-            elif name in links:
-                bounds[r] += links[name]
-                segs[r] = (-2, -2)
-        if np.all(segs[r] == -1) and not any(s in links for s in sides):
-            bounds[r], segs[r] = fallback, (-2, -2)  # neither side known: any distance
-    segs[np.any(segs == -2, axis=1)] = -2
+    m = len(sides.segments)
+    bounds = np.zeros((m, rho.shape[1]))
+    segs = np.asarray(sides.segments, dtype=int).copy()
+    for r in range(m):
+        pair = sides.links[r]
+        if pair is not None and all(name in links for name in pair):
+            bounds[r] = links[pair[0]] + links[pair[1]]
+        elif np.any(segs[r] == LINK):
+            bounds[r], segs[r] = fallback, (LINK, LINK)  # unknown sides: any distance
+        else:
+            for s in segs[r]:
+                if s != FIXED:
+                    bounds[r] += rho[s]
     return bounds, segs
-
-
-def overlapping_pairs(report: PairReport) -> frozenset[str]:
-    """Labels of the pairs the pruning pass found overlapping in every sample (coarse capsules)."""
-    return frozenset(d.label for d in report.dropped if d.reason.startswith("overlapping"))

@@ -65,18 +65,19 @@ def _ancestors(model, body: int) -> set[int]:
 
 
 class IntervalBounds:
-    """Local Lipschitz constants of the rows ``labels`` on the intervals of a move.
+    """Local Lipschitz constants of collision rows on the intervals of a move.
 
     Args:
         robot: The robot (the feasibility model's, with its limits).
         segments: The feasibility model's segment table.
         pieces: ``{link: LinkPieces}`` of the rows on convex pieces (may be empty).
-        labels: Collision row labels ``kind:A|B``.
-        segs: Their segments from :func:`~calib_oed.program.continuous.row_bounds`
+        row_links: Per row, the two links of a row on link geometry, else ``None``
+            (:class:`~calib_oed.feasibility.row_family.RowSides`).
+        segs: The rows' segments from :func:`~calib_oed.program.continuous.row_bounds`
             ((m, 2); -1 a fixed set, -2 no segment).
     """
 
-    def __init__(self, robot, segments, pieces: dict, labels, segs: np.ndarray):
+    def __init__(self, robot, segments, pieces: dict, row_links, segs: np.ndarray):
         model = robot.model
         self.n_segments = len(segments)
         body, a, b, radius, owner = [], [], [], [], []
@@ -102,18 +103,17 @@ class IntervalBounds:
         link_axes = {name: self.n_segments + np.flatnonzero(owner == k) for k, name in enumerate(links)}
         v_of = {j: model.joints[j].idx_v for j in range(1, model.njoints)}
         seg_body = np.asarray(segments.body_a, int)
-        m, nv = len(labels), model.nv
+        m, nv = len(row_links), model.nv
         #: (m, nv) True for the joints that move one side of the row relative to the other
         self.relative = np.ones((m, nv), dtype=bool)
         self.sides = np.full((m, 2), -1)  # segment rows: each side's segment (-1: fixed set)
         self.link_rows: list[tuple[int, np.ndarray, np.ndarray]] = []
         self.segment_rows = np.flatnonzero(segs[:, 0] != -2)
-        for r, label in enumerate(labels):
-            parts = label.split(":", 1)[-1].split("|", 1)
+        for r, parts in enumerate(row_links):
             if segs[r, 0] != -2:
                 self.sides[r] = segs[r]
                 bodies = [int(seg_body[s]) if s >= 0 else 0 for s in segs[r]]
-            elif len(parts) == 2 and all(p in link_axes for p in parts):
+            elif parts is not None and all(p in link_axes for p in parts):
                 self.link_rows.append((r, link_axes[parts[0]], link_axes[parts[1]]))
                 bodies = [int(pieces[p].body) for p in parts]
             else:

@@ -38,18 +38,7 @@ import numpy as np
 
 from calib_oed.exceptions import ProgramError
 from calib_oed.feasibility.constraints import SegmentTable
-from calib_oed.model.robot import Robot
-
-
-def _kind(joint) -> str:
-    name = joint.shortname()
-    if joint.nq != 1 or joint.nv != 1:
-        return "other"
-    if name.startswith("JointModelR"):
-        return "revolute"
-    if name.startswith("JointModelP"):
-        return "prismatic"
-    return "other"
+from calib_oed.model.robot import Robot, joint_kind
 
 
 def point_speed_bounds(robot: Robot, body: int, local: np.ndarray) -> np.ndarray:
@@ -68,7 +57,7 @@ def point_speed_bounds(robot: Robot, body: int, local: np.ndarray) -> np.ndarray
     reach = float(np.linalg.norm(local))
     for j in chain:  # from the body down to the base: reach = R_j(p)
         joint = model.joints[j]
-        kind = _kind(joint)
+        kind = joint_kind(joint)
         if kind == "other":
             raise ProgramError("robot", joint.shortname(), "the continuous collision check "
                                "supports 1-DoF revolute and prismatic joints only")
@@ -137,7 +126,7 @@ class EndpointBounds:
         prismatic = np.zeros(model.nv, dtype=bool)
         for j in range(1, model.njoints):
             joint_of_v[model.joints[j].idx_v] = j
-            prismatic[model.joints[j].idx_v] = _kind(model.joints[j]) == "prismatic"
+            prismatic[model.joints[j].idx_v] = joint_kind(model.joints[j]) == "prismatic"
         self.joint_of_v, self.prismatic = joint_of_v, prismatic
 
     def distances(self, states) -> np.ndarray:
@@ -155,16 +144,3 @@ class EndpointBounds:
         w = self.reach * dq_abs
         tail = np.cumsum(w[..., ::-1], axis=-1)[..., ::-1]
         return tail - w
-
-    def segment_speeds(self, d_a, d_b, h, dq_abs, growth) -> np.ndarray:
-        """Largest speed [m per unit t] of any point of each segment on intervals, (I, s).
-
-        Args:
-            d_a, d_b: :meth:`distances` at the intervals' ends, (I, s, 2, nv).
-            h: Interval lengths, (I,).
-            dq_abs: :math:`|\\Delta|`, (nv,).
-            growth: :meth:`growth` of the move.
-        """
-        local = 0.5 * (d_a + d_b + h[:, None, None, None] * growth)
-        r = np.where(self.prismatic, self.reach, np.minimum(self.reach, local))
-        return (r @ dq_abs).max(axis=2)

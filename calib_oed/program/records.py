@@ -54,8 +54,8 @@ class Program:
         dwell: Settle and measure time at every pose [s].
         cycle_times: Estimated cycle time [s] of ``"design order"``, ``"nearest neighbour"``
             and ``"optimised"``, moves through planned via points where blocked.
-        solver: Which order the optimised tour is (``"lkh"``, ``"ortools"``, or
-            ``"nearest neighbour"`` when no solver tour was better).
+        solver: Which order the optimised tour is (``"lkh"``, or
+            ``"nearest neighbour"`` when LKH's tour was not better).
         stats: Counts and times of the build (moves checked, blocked, planned, ...).
         settings_note: How home, velocities and accelerations were chosen.
         velocity: Joint velocity limits of the timing [rad/s], (nq,), or ``None``.

@@ -12,164 +12,150 @@ being split (a bound that holds on an interval holds on its halves), so
 :class:`CollisionRows` evaluates the cheap rows of every sample and the rows on
 convex pieces only for the (sample, row) pairs asked for.
 
-The cheap rows are those of a twin of each model, built with the same capsule,
-half-space and solid pairs and no convex pieces; the twin's labels must equal the
-model's without the convex-piece rows (else the model is evaluated whole and
-nothing is deferred). Values are the model's own: :math:`g = d - m_d` [m], the
-convex-piece distance less the clearance margin, as
+The cheap rows are those of every family that is not
+:attr:`~calib_oed.feasibility.row_family.RowFamily.deferred`; the rows on convex
+pieces (:class:`~calib_oed.feasibility.hull_rows.HullRows`) are deferred. Values
+are the model's own: :math:`g = d - m_d` [m], as
 :meth:`calib_oed.feasibility.constraints.FeasibilityModel.compute_from_states`.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from calib_oed.feasibility.bodies import BodyStates
 from calib_oed.feasibility.constraints import FeasibilityModel
+from calib_oed.feasibility.row_family import RowFamily, RowSides
 
 COLLISION_KINDS = ("self", "obstacle")
 SIGHT_KINDS = ("beam", "incidence")
-ASKED = COLLISION_KINDS + SIGHT_KINDS
 
 
-def base_label(label: str) -> str:
-    """A row label without its half-space end marker (``.a|``, ``.b|``): the pair label."""
-    return label.replace(".a|", "|").replace(".b|", "|")
+@dataclass(frozen=True)
+class Row:
+    """One row of a model: its family, its index in the family, kind, label, pair label, links."""
+
+    family: RowFamily
+    index: int
+    kind: str
+    label: str
+    pair: str
+    links: frozenset[str] | None
 
 
-def _twin(model: FeasibilityModel) -> FeasibilityModel | None:
-    """``model`` without its convex-piece rows (``None`` if it has none, or if the twin's
-    rows are not the model's other rows in the same order)."""
-    if len(model.hull_pairs) == 0:
-        return None
-    twin = FeasibilityModel(
-        model.robot, model.segments, model.pairs, model.pair_kinds, model.halfspace_pairs,
-        model.halfspace_kinds, model.cell, model.settings, model.tracker_position,
-        model.reflector_offsets, model.reflector_names, reflector_normals=model.reflector_normals,
-        solid_pairs=model.solid_pairs.pairs, solid_kinds=model.solid_kinds)
-    hulls = set(model.hull_pairs.labels)
-    rest = [(k, lbl) for k, lbl in zip(model.kinds, model.labels, strict=True) if lbl not in hulls]
-    return twin if rest == list(zip(twin.kinds, twin.labels, strict=True)) else None
-
-
-def _hull_links(label: str) -> frozenset[str]:
-    """The two links of a convex-piece row ``self:<link_a>|<link_b>``."""
-    return frozenset(label.split(":", 1)[1].split("|"))
-
-
-def _link_pairs(model: FeasibilityModel, labels: frozenset[str]) -> set[frozenset[str]]:
-    """The robot link pairs of the self capsule pairs among ``labels`` (``self:A|B``, A and B
-    capsule names of ``model``'s segments)."""
-    link = {str(n): str(lk) for n, lk, role in zip(model.segments.names, model.segments.links,
-                                                   model.segments.roles, strict=True)
-            if role in ("robot", "reflector")}
-    out = set()
-    for label in labels:
-        kind, _, body = label.partition(":")
-        a, _, b = body.partition("|")
-        if kind == "self" and a in link and b in link:
-            out.add(frozenset((link[a], link[b])))
-    return out
+def model_rows(model: FeasibilityModel) -> list[Row]:
+    """Every row of ``model``, in the model's order."""
+    return [Row(f, k, kind, label, pair, links)
+            for f in model.families
+            for k, (kind, label, pair, links) in enumerate(zip(f.kinds, f.labels, f.row_pair_labels, f.row_links(),
+                                                              strict=True))]
 
 
 class _Source:
-    """The columns one model contributes: cheap ones (from the twin or the whole model) and
-    convex-piece rows (``hull``: indices into ``model.hull_pairs``)."""
+    """The columns one model contributes: cheap rows (evaluated at every sample, with every
+    row of their families) and deferred rows (evaluated on request)."""
 
-    def __init__(self, model: FeasibilityModel, keep):
-        self.model, self.twin = model, _twin(model)
-        cheap_model = self.twin or model
-        mask = cheap_model.row_mask(ASKED)
-        kinds = [k for k, m in zip(cheap_model.kinds, mask, strict=True) if m]
-        labels = [lbl for lbl, m in zip(cheap_model.labels, mask, strict=True) if m]
-        hull_labels = set(model.hull_pairs.labels) if self.twin is not None else set()
-        self.cheap_cols = np.array([r for r, (k, lbl) in enumerate(zip(kinds, labels, strict=True))
-                                    if lbl not in hull_labels and keep(k, lbl)], dtype=int)
-        self.cheap_labels = [labels[r] for r in self.cheap_cols]
-        self.sight_cols = np.array([r for r, k in enumerate(kinds) if k in SIGHT_KINDS], dtype=int)
-        self.sight_labels = [labels[r] for r in self.sight_cols]
-        self.hull = np.array([h for h, lbl in enumerate(model.hull_pairs.labels)
-                              if lbl in hull_labels and keep("self", lbl)], dtype=int)
-        self.hull_labels = [model.hull_pairs.labels[h] for h in self.hull]
+    def __init__(self, model: FeasibilityModel, rows: list[Row], sight: list[Row] = ()):
+        self.cheap_rows = [r for r in rows if not r.family.deferred]
+        self.deferred = [r for r in rows if r.family.deferred]
+        self.sight_rows = list(sight)
+        used = {id(r.family) for r in self.cheap_rows + self.sight_rows}
+        self.families = [f for f in model.families if id(f) in used]
+        offset = dict(zip(map(id, self.families), np.cumsum([0] + [len(f) for f in self.families]), strict=False))
+        self.cheap_cols = np.array([offset[id(r.family)] + r.index for r in self.cheap_rows], dtype=int)
+        self.sight_cols = np.array([offset[id(r.family)] + r.index for r in self.sight_rows], dtype=int)
 
     def cheap(self, q: np.ndarray, states: BodyStates) -> np.ndarray:
-        model = self.twin or self.model
-        return model.compute_from_states(q, states, jacobian=False, kinds=ASKED).values
-
-    def hull_values(self, states: BodyStates, rows: np.ndarray) -> np.ndarray:
-        """Convex-piece rows ``rows`` (indices into ``hull_pairs``) at every pose of ``states``."""
-        clearance = self.model.settings.margins.clearance
-        return self.model.hull_pairs.closest(states, rows).dist - clearance
+        """Every row of the families of the cheap and sight rows, (n, sum of their sizes)."""
+        parts = [np.zeros((len(q), 0))] + [f.compute(q, states, False)[0] for f in self.families]
+        return np.concatenate(parts, axis=1)
 
 
 class CollisionRows:
     """The collision and line-of-sight rows of the continuous check.
 
     Columns: the design's cheap collision rows, the extra model's cheap rows, the design's
-    convex-piece rows, the extra model's convex-piece rows (``labels``); the first
+    deferred rows, the extra model's deferred rows (``labels``, ``rows``); the first
     ``n_cheap`` are evaluated at every sample, the rest on request (:meth:`evaluate`).
 
     Args:
         feasibility: The design's model.
         ignore: Pair labels not checked.
         extra: The model without the sampling pass, or ``None``.
-        extra_rows: Pair labels of ``extra`` checked too (those the pass dropped as far).
+        extra_rows: The pairs the pass dropped as far
+            (:class:`~calib_oed.feasibility.pairs.DroppedPair`): their rows of ``extra``
+            are checked too.
     """
 
     def __init__(self, feasibility: FeasibilityModel, ignore: frozenset[str] = frozenset(),
-                 extra: FeasibilityModel | None = None, extra_rows: frozenset[str] = frozenset()):
-        def design_keep(kind, label):
-            return kind in COLLISION_KINDS and base_label(label) not in ignore
-
-        self.design = _Source(feasibility, design_keep)
-        have = {base_label(lbl) for lbl in self.design.cheap_labels + self.design.hull_labels}
-
-        far_links = _link_pairs(extra, extra_rows) if extra is not None else set()
-        hull_labels = set(extra.hull_pairs.labels) if extra is not None else set()
-
-        def extra_keep(kind, label):
-            b = base_label(label)
-            if kind not in COLLISION_KINDS or b in have or b in ignore:
-                return False
-            # a far capsule pair whose links the model without the pass checks on convex pieces
-            return b in extra_rows or (label in hull_labels and _hull_links(label) in far_links)
-
-        self.extra = _Source(extra, extra_keep) if extra is not None else None
-        sources = [self.design] + ([self.extra] if self.extra is not None else [])
-        cheap = [lbl for s in sources for lbl in s.cheap_labels]
-        hull = [lbl for s in sources for lbl in s.hull_labels]
-        self.labels = tuple(cheap + hull)
+                 extra: FeasibilityModel | None = None, extra_rows=()):
+        design = model_rows(feasibility)
+        mine = [r for r in design if r.kind in COLLISION_KINDS and r.pair not in ignore]
+        self.design = _Source(feasibility, mine, [r for r in design if r.kind in SIGHT_KINDS
+                                                  and not r.family.deferred])
+        sources = [self.design]
+        self.extra = None
+        if extra is not None:
+            have = {r.pair for r in mine}
+            far = {d.label for d in extra_rows}
+            # link pairs of the far self capsule pairs: the model without the pass may check
+            # them on convex pieces
+            far_links = {d.links for d in extra_rows if d.links is not None}
+            theirs = [r for r in model_rows(extra) if r.kind in COLLISION_KINDS and r.pair not in have
+                      and r.pair not in ignore
+                      and (r.pair in far or (r.family.deferred and r.links in far_links))]
+            self.extra = _Source(extra, theirs)
+            sources.append(self.extra)
+        cheap = [r for s in sources for r in s.cheap_rows]
+        deferred = [r for s in sources for r in s.deferred]
+        #: The rows, in column order.
+        self.rows = tuple(cheap + deferred)
+        self.labels = tuple(r.label for r in self.rows)
         self.n_cheap = len(cheap)
-        self.sight_labels = tuple(self.design.sight_labels)
-        # which source and hull row each deferred column is
-        self._deferred = [(s, int(h)) for s in sources for h in s.hull]
+        self.sight_labels = tuple(r.label for r in self.design.sight_rows)
+        self._sources = sources
 
     @property
     def n(self) -> int:
         return len(self.labels)
+
+    def sides(self) -> RowSides:
+        """What moves each side of each row (its family's :meth:`RowFamily.sides`)."""
+        cache = {}
+        for r in self.rows:
+            if id(r.family) not in cache:
+                cache[id(r.family)] = r.family.sides()
+        got = [cache[id(r.family)] for r in self.rows]
+        segs = np.array([g.segments[r.index] for g, r in zip(got, self.rows, strict=True)], dtype=int)
+        return RowSides(segs.reshape(-1, 2), tuple(g.links[r.index] for g, r in zip(got, self.rows, strict=True)))
 
     def evaluate(self, q: np.ndarray, states: BodyStates, need: np.ndarray | None = None):
         """Collision rows (n, m) [m] and line-of-sight rows (n, m_s) at configurations ``q``
         with body states ``states``; a deferred column is evaluated where ``need`` (n, m - n_cheap)
         is True (default: everywhere) and NaN elsewhere."""
         n = len(q)
-        values = self.design.cheap(q, states)
-        parts = [values[:, self.design.cheap_cols]]
-        sight = values[:, self.design.sight_cols]
-        if self.extra is not None and len(self.extra.cheap_cols):
-            parts.append(self.extra.cheap(q, states)[:, self.extra.cheap_cols])
-        deferred = np.full((n, len(self._deferred)), np.nan)
-        if need is None or need.all():  # every deferred row at every sample: one call per source
-            done = 0
-            for source in (self.design, self.extra):
-                if source is not None and len(source.hull):
-                    deferred[:, done:done + len(source.hull)] = source.hull_values(states, source.hull)
-                    done += len(source.hull)
+        parts, sight = [], None
+        for source in self._sources:
+            values = source.cheap(q, states)
+            parts.append(values[:, source.cheap_cols])
+            if sight is None:
+                sight = values[:, source.sight_cols]
+        deferred_rows = self.rows[self.n_cheap:]
+        deferred = np.full((n, len(deferred_rows)), np.nan)
+        if need is None or need.all():  # every deferred row at every sample: one call per family
+            groups: dict[int, list[int]] = {}
+            for col, r in enumerate(deferred_rows):
+                groups.setdefault(id(r.family), []).append(col)
+            for cols in groups.values():
+                family = deferred_rows[cols[0]].family
+                deferred[:, cols] = family.values(states, np.array([deferred_rows[c].index for c in cols]))
             return np.concatenate(parts + [deferred], axis=1), sight
-        for col, (source, h) in enumerate(self._deferred):
+        for col, r in enumerate(deferred_rows):
             idx = np.flatnonzero(need[:, col])
             if idx.size == n:
-                deferred[:, col] = source.hull_values(states, np.array([h]))[:, 0]
+                deferred[:, col] = r.family.values(states, np.array([r.index]))[:, 0]
             elif idx.size:
-                deferred[idx, col] = source.hull_values(states.take(idx), np.array([h]))[:, 0]
+                deferred[idx, col] = r.family.values(states.take(idx), np.array([r.index]))[:, 0]
         return np.concatenate(parts + [deferred], axis=1), sight

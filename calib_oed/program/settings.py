@@ -52,7 +52,6 @@ class ProgramSettings:
             keep the full margin.
         planner_time: Time budget of the motion planner per blocked move [s].
         planner_seed: Seed of the planner's random samples.
-        solver: Tour solver: ``"lkh"`` (LKH-3 through elkai) or ``"ortools"``.
         skip_unreachable: Leave out (with a note) a pose no certified path from home reaches
             (else a :class:`~calib_oed.exceptions.ProgramError` names it).
         wrap: Measure each pose at the joint values a whole number of turns away that are
@@ -69,7 +68,6 @@ class ProgramSettings:
     move_tolerance: float = 0.001
     planner_time: float = 2.0
     planner_seed: int = 0
-    solver: str = "lkh"
     skip_unreachable: bool = True
     wrap: bool = False
 
@@ -85,12 +83,7 @@ class ProgramSettings:
             for joint, value in getattr(self, name).items():
                 if not (np.isfinite(value) and value > 0):
                     raise ProgramError(f"{name}.{joint}", value, "expected a number > 0")
-        if self.solver not in SOLVERS:
-            raise ProgramError("solver", self.solver, "unknown tour solver", SOLVERS)
 
-
-#: Tour solvers :func:`calib_oed.program.tour.solve_tour` offers.
-SOLVERS = ("lkh", "ortools")
 
 
 def program_settings_from_scene(scene, **overrides) -> ProgramSettings:

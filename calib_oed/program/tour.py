@@ -10,19 +10,13 @@ planned via points), and a tour's cycle time adds the dwell at every pose:
 
 Orders compared: the design's (:math:`\pi = 0, 1, ..., n, 0`), nearest neighbour
 from home (always the cheapest next pose), and the optimised tour of a TSP
-solver: LKH-3 through ``elkai`` (``"lkh"``, the default, chosen by
-``bench/bench_program.py``: as short tours, in a fraction of the time) or
-OR-Tools routing with guided local search (``"ortools"``, optional: the
-``bench`` extra). A solver's tour is never returned worse than nearest
+solver, LKH-3 through ``elkai``. A solver's tour is never returned worse than nearest
 neighbour: the better of the two is kept (and the choice reported).
 """
 
 from __future__ import annotations
 
 import numpy as np
-
-from calib_oed.exceptions import OptionalDependencyError, ProgramError
-from calib_oed.program.settings import SOLVERS
 
 #: LKH runs per solve (elkai's default is 10): the build re-solves several times, each
 #: run of LKH-3 on 61 nodes is already near-optimal (bench/bench_program.py).
@@ -40,11 +34,6 @@ def tour_time(cost: np.ndarray, order: np.ndarray) -> float:
     return float(cost[nodes[:-1], nodes[1:]].sum())
 
 
-def design_order(n: int) -> np.ndarray:
-    """The design's order: nodes 1..n."""
-    return np.arange(1, n + 1)
-
-
 def nearest_neighbour(cost: np.ndarray) -> np.ndarray:
     """Greedy tour from home (node 0): always the cheapest unvisited node (ties: lowest index)."""
     n = len(cost) - 1
@@ -59,30 +48,24 @@ def nearest_neighbour(cost: np.ndarray) -> np.ndarray:
     return np.array(order, dtype=int)
 
 
-def solve_tour(cost: np.ndarray, solver: str = "lkh", seed: int = 0,
-               time_limit: float = 1.0) -> tuple[np.ndarray, str]:
+def solve_tour(cost: np.ndarray) -> tuple[np.ndarray, str]:
     """The optimised order of the pose nodes 1..n and which order won.
 
     Args:
         cost: Move times [s], (n+1, n+1), node 0 = home.
-        solver: ``"lkh"`` or ``"ortools"``.
-        seed: Unused by LKH through elkai (deterministic); OR-Tools is deterministic too.
-        time_limit: OR-Tools' guided local search budget [s].
 
     Returns:
-        The order (n,) and ``solver`` or ``"nearest neighbour"`` if the solver's tour was not better.
+        The order (n,) and ``"lkh"``, or ``"nearest neighbour"`` if LKH's tour was not better.
     """
     cost = np.asarray(cost, dtype=float)
     n = len(cost) - 1
-    if solver not in SOLVERS:
-        raise ProgramError("solver", solver, "unknown tour solver", SOLVERS)
     nn = nearest_neighbour(cost)
     if n <= 2:
         return nn, "nearest neighbour"
-    order = _lkh(cost) if solver == "lkh" else _ortools(cost, time_limit)
+    order = _lkh(cost)
     if tour_time(cost, order) > tour_time(cost, nn):
         return nn, "nearest neighbour"
-    return order, solver
+    return order, "lkh"
 
 
 def _rotate_to_home(tour: list[int]) -> np.ndarray:
@@ -112,31 +95,3 @@ def _lkh(cost: np.ndarray) -> np.ndarray:
     order = _rotate_to_home(tour)
     # a symmetric cost: both directions are the same tour; keep the one elkai gives
     return order
-
-
-def _ortools(cost: np.ndarray, time_limit: float) -> np.ndarray:
-    try:
-        from ortools.constraint_solver import pywrapcp, routing_enums_pb2
-    except ImportError as exc:  # an optional dependency (the bench extra)
-        raise OptionalDependencyError("the OR-Tools tour solver", "ortools", "bench") from exc
-
-    scaled = np.rint(cost * 1e3).astype(np.int64)  # integer arc costs [ms]
-    manager = pywrapcp.RoutingIndexManager(len(cost), 1, 0)
-    routing = pywrapcp.RoutingModel(manager)
-
-    def arc(i, j):
-        return int(scaled[manager.IndexToNode(i), manager.IndexToNode(j)])
-
-    routing.SetArcCostEvaluatorOfAllVehicles(routing.RegisterTransitCallback(arc))
-    params = pywrapcp.DefaultRoutingSearchParameters()
-    params.first_solution_strategy = routing_enums_pb2.FirstSolutionStrategy.PATH_CHEAPEST_ARC
-    params.local_search_metaheuristic = routing_enums_pb2.LocalSearchMetaheuristic.GUIDED_LOCAL_SEARCH
-    params.time_limit.FromMilliseconds(max(1, int(time_limit * 1e3)))
-    solution = routing.SolveWithParameters(params)
-    if solution is None:
-        raise ProgramError("solver", "ortools", "OR-Tools found no tour")
-    index, tour = routing.Start(0), []
-    while not routing.IsEnd(index):
-        tour.append(manager.IndexToNode(index))
-        index = solution.Value(routing.NextVar(index))
-    return _rotate_to_home(tour)

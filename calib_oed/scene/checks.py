@@ -71,8 +71,28 @@ class Violation:
     geometry: str
 
 
+#: Distances beyond which a scene's lengths are surely in the wrong unit [m]: no laser
+#: tracker measures beyond 160 m, no reflector sits 5 m from the flange.
+_MAX_TRACKER_DISTANCE, _MAX_REFLECTOR_OFFSET = 160.0, 5.0
+
+
+def check_magnitudes(scene) -> None:
+    """Catch a unit mistake: numbers in mm with ``units: {length: m}`` put a tracker km away."""
+    distance = float(np.linalg.norm(scene.tracker.placement().translation))
+    offsets = [float(np.linalg.norm(r.offset)) for r in scene.reflectors]
+    declared = (scene.units or {}).get("length", "m")
+    if distance > _MAX_TRACKER_DISTANCE or max(offsets, default=0.0) > _MAX_REFLECTOR_OFFSET:
+        raise SceneError(
+            f"the tracker is {distance:.4g} m from the robot base and the farthest reflector "
+            f"{max(offsets, default=0.0):.4g} m from the tool frame, with lengths declared in "
+            f"{declared!r}: are the numbers in mm? Then write `units: {{length: mm}}` (valid "
+            "length units: m, mm)", key="units.length", source=str(scene.source) if scene.source else None)
+
+
 def check_scene(scene) -> None:
-    """Raise :class:`SceneError` if :func:`scene_violations` finds anything."""
+    """Raise :class:`SceneError` if the lengths are surely in the wrong unit
+    (:func:`check_magnitudes`) or :func:`scene_violations` finds anything."""
+    check_magnitudes(scene)
     found = scene_violations(scene)
     if not found:
         return

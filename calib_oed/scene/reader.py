@@ -317,7 +317,7 @@ class SceneReader(FieldReader):
         key = "kpi.working_configurations"
         joints = robot.joint_names
         per_joint = f"one per joint: {', '.join(joints)}"
-        prismatic = [j.shortname().startswith("JointModelP") for j in robot.model.joints[1:]]
+        prismatic = robot.prismatic
         scale = np.where(prismatic, self.length, self.angle)
         units = [self.units["length" if p else "angle"] for p in prismatic]
         configurations = []

@@ -10,35 +10,25 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Literal
 
 import numpy as np
 import pinocchio as pin
 
-from calib_oed.exceptions import NonFiniteError, SceneError, ShapeError
+from calib_oed.exceptions import SceneError
 from calib_oed.feasibility.shapes import Cell, FeasibilitySettings
 from calib_oed.measurement.noise import TrackerNoise
 from calib_oed.model.compliance import Compliance
 from calib_oed.model.controller import ControllerConvention
 from calib_oed.model.joint_map import JointGains
 from calib_oed.model.robot import Robot
+from calib_oed.values import finite_vector
 
 MEASUREMENTS = ("position", "pose")
 KPI_FRAMES = ("world", "tracker")
 KPI_AGGREGATES = ("mean", "max")
 SUPPORTED_VERSIONS = (1,)
 DEFAULT_SIGMA_ANGLE = 1e-5  # [rad] = 0.01 mrad
-
-
-def _readonly(value: Any, what: str, size: int | None = None) -> np.ndarray:
-    """A finite, read-only float copy of a vector (of length ``size`` if given)."""
-    arr = np.array(value, dtype=float)
-    if arr.ndim != 1 or (size is not None and arr.shape[0] != size):
-        raise ShapeError(what, f"({size if size is not None else 'n'},)", arr.shape)
-    if not np.all(np.isfinite(arr)):
-        raise NonFiniteError(what, np.flatnonzero(~np.isfinite(arr)).tolist())
-    arr.setflags(write=False)
-    return arr
 
 
 # eq=False: records holding arrays compare by identity (the generated __eq__
@@ -67,7 +57,7 @@ class TrackerSpec:
 
     def __post_init__(self):
         for name in ("position", "rpy", "sigma", "sigma_angle"):
-            object.__setattr__(self, name, _readonly(getattr(self, name), f"tracker.{name}", 3))
+            object.__setattr__(self, name, finite_vector(getattr(self, name), f"tracker.{name}", 3))
         for name in ("sigma", "sigma_angle"):
             if np.any(getattr(self, name) <= 0):
                 raise SceneError(f"must be > 0, got {getattr(self, name)}", key=f"tracker.{name}")
@@ -93,13 +83,13 @@ class ReflectorSpec:
     normal: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
 
     def __post_init__(self):
-        object.__setattr__(self, "offset", _readonly(self.offset, f"reflector {self.name}", 3))
+        object.__setattr__(self, "offset", finite_vector(self.offset, f"reflector {self.name}", 3))
         normal = np.array(self.normal, dtype=float)
         norm = float(np.linalg.norm(normal)) if normal.shape == (3,) else 0.0
         if not (np.isfinite(norm) and norm > 1e-12):
             raise SceneError(f"expected a non-zero vector nx, ny, nz, got {self.normal!r}",
                              key=f"reflector {self.name}.normal")
-        object.__setattr__(self, "normal", _readonly(normal / norm, f"reflector {self.name}.normal", 3))
+        object.__setattr__(self, "normal", finite_vector(normal / norm, f"reflector {self.name}.normal", 3))
 
 
 @dataclass(frozen=True, eq=False)
@@ -120,7 +110,7 @@ class WorkingConfiguration:
     path: str | None = None
 
     def __post_init__(self):
-        object.__setattr__(self, "q", _readonly(self.q, f"working configuration {self.name}"))
+        object.__setattr__(self, "q", finite_vector(self.q, f"working configuration {self.name}"))
         if not (math.isfinite(self.weight) and self.weight >= 0):
             raise SceneError(f"expected a number >= 0, got {self.weight!r}",
                              key=f"kpi working configuration {self.name}.weight")
@@ -148,7 +138,7 @@ class KpiSpec:
     aggregate: Literal["mean", "max"] = "mean"
 
     def __post_init__(self):
-        object.__setattr__(self, "point", _readonly(self.point, "kpi.point", 3))
+        object.__setattr__(self, "point", finite_vector(self.point, "kpi.point", 3))
         object.__setattr__(self, "configurations", tuple(self.configurations))
         if self.frame not in KPI_FRAMES:
             raise SceneError(f"expected one of {KPI_FRAMES}, got {self.frame!r}", key="kpi.frame")

@@ -16,27 +16,20 @@ modification (Nocedal & Wright, *Numerical Optimization*, 2nd ed., 2006,
 each eigenvalue :math:`\theta` of :math:`Q \Theta Q^\top` by
 
 .. math::
-    \tilde\theta = \max(|\theta|, \epsilon) \;(``"abs"``) \quad\text{or}\quad
-    \tilde\theta = \max(\theta, \epsilon) \;(``"floor"``), \qquad
+    \tilde\theta = \max(|\theta|, \epsilon), \qquad
     \epsilon = \epsilon_r \max(1, \max|\theta|),
 
 with :math:`\epsilon_r` = ``hessian_eigenvalue_floor`` and the max over every
 eigenvalue modified (all blocks together), so one scale holds for the whole
-matrix. ``"abs"`` keeps the size of the curvature and flips its sign, so a
-step along a direction of negative curvature is as long as along positive
-curvature of the same size; ``"floor"`` leaves :math:`\epsilon` there and the
-step runs to the trust-region edge (``tests/solver/test_hessian.py`` and
-``bench/bench_sqp_structured.py`` measure both; ``"abs"`` is the default).
+matrix. The absolute value keeps the size of the curvature and flips its sign,
+so a step along a direction of negative curvature is as long as along positive
+curvature of the same size.
 
-Scope (``hessian_modification_scope``):
-
-* ``"block"`` (default): each :math:`D_j` on its own, :math:`O(b s^3)`;
-  :math:`\tilde D + U U^\top \succ 0` since :math:`U U^\top \succeq 0`. The
-  result stays a :class:`StructuredHessian` and goes to the lifted sparse QP
-  (:mod:`calib_oed.solver.lifted`). It modifies more than needed where the
-  coupling would have made :math:`D + U U^\top` definite anyway.
-* ``"matrix"``: the dense :math:`D + U U^\top`, :math:`O(n^3)`, then a dense
-  QP; modifies only the directions the whole matrix curves down.
+Each :math:`D_j` is modified on its own, :math:`O(b s^3)`;
+:math:`\tilde D + U U^\top \succ 0` since :math:`U U^\top \succeq 0`. The
+result stays a :class:`StructuredHessian` and goes to the lifted sparse QP
+(:mod:`calib_oed.solver.lifted`). It modifies more than needed where the
+coupling would have made :math:`D + U U^\top` definite anyway.
 
 A coupling of many columns, :math:`r > n/3` (:data:`LIFTED_MAX_RANK_RATIO`), is
 not lifted: :math:`\tilde D + U U^\top` goes to the QP as a dense matrix. The
@@ -48,7 +41,6 @@ lifted QP's time grows with :math:`r` and the dense one's does not (ProxQP,
 from __future__ import annotations
 
 import numpy as np
-import scipy.sparse
 
 from calib_oed.solver.result import StructuredHessian
 
@@ -56,17 +48,11 @@ LIFTED_MAX_RANK_RATIO = 1.0 / 3.0
 r"""Largest :math:`r / n` of the coupling kept factored (module docstring)."""
 
 
-def _modified(theta, method: str, eps: float) -> np.ndarray:
-    if method == "abs":
-        return np.maximum(np.abs(theta), eps)
-    return np.maximum(theta, eps)
-
-
 def _floor(theta, rel_floor: float) -> float:
     return rel_floor * max(1.0, float(np.max(np.abs(theta), initial=0.0)))
 
 
-def modify_blocks(blocks, method: str = "abs", rel_floor: float = 1e-8) -> tuple[np.ndarray, int]:
+def modify_blocks(blocks, rel_floor: float = 1e-8) -> tuple[np.ndarray, int]:
     r"""Positive definite :math:`\tilde D_j` from symmetric (b, s, s) ``blocks``; ``(blocks, n_modified)``.
 
     Blocks whose eigenvalues all satisfy :math:`\theta \ge \epsilon` are
@@ -76,7 +62,7 @@ def modify_blocks(blocks, method: str = "abs", rel_floor: float = 1e-8) -> tuple
     blocks = 0.5 * (blocks + blocks.transpose(0, 2, 1))
     theta, q = np.linalg.eigh(blocks)
     eps = _floor(theta, rel_floor)
-    new = _modified(theta, method, eps)
+    new = np.maximum(np.abs(theta), eps)
     changed = new != theta
     bad = np.flatnonzero(changed.any(axis=1))
     if bad.size:
@@ -84,67 +70,6 @@ def modify_blocks(blocks, method: str = "abs", rel_floor: float = 1e-8) -> tuple
         qb = q[bad]
         blocks[bad] = np.einsum("jab,jb,jcb->jac", qb, new[bad], qb)
     return blocks, int(changed.sum())
-
-
-def modify_dense(h, method: str = "abs", rel_floor: float = 1e-8) -> tuple[np.ndarray, int]:
-    r"""Positive definite version of the symmetric (n, n) matrix ``h``; ``(matrix, n_modified)``."""
-    h = np.asarray(h, dtype=float)
-    h = 0.5 * (h + h.T)
-    theta, q = np.linalg.eigh(h)
-    new = _modified(theta, method, _floor(theta, rel_floor))
-    changed = new != theta
-    if not changed.any():
-        return h, 0
-    out = (q * new) @ q.T
-    return 0.5 * (out + out.T), int(changed.sum())
-
-
-def augment_active(blocks, A, active, at_bound, weight: float = 1.0) -> tuple[np.ndarray, int]:
-    r"""Blocks :math:`D_j + \rho_j \sum_{r} \hat a_r \hat a_r^\top + \rho_j \sum_{i} e_i e_i^\top`: curvature along active rows.
-
-    For the rows ``active`` (multiplier > 0 in the last QP) whose Jacobian row
-    :math:`a_r` (of ``A``, CSR (m, n)) lies within one diagonal block, and the
-    variables ``at_bound`` (on a bound), the block :math:`D_j` gains
-    :math:`\rho_j \hat a_r \hat a_r^\top` (:math:`\hat a_r = a_r / \|a_r\|`) and
-    :math:`\rho_j e_i e_i^\top`, with :math:`\rho_j = w \max(\|D_j\|_F, \epsilon)`.
-
-    While those rows stay active, the QP's steps satisfy :math:`a_r^\top d = -c_r`
-    and :math:`d_i = \text{bound} - x_i`, so the added terms are constant on the
-    QP's feasible set and do not change its solution; but a block whose
-    curvature is negative only across the active rows (the reduced Hessian on
-    their null space being positive definite, as at a strict local minimum)
-    becomes positive definite and needs no eigenvalue modification, which would
-    otherwise change the curvature along the constraint surface too and slow
-    the SQP to linear convergence (the augmented-Lagrangian convexification:
-    Nocedal & Wright, *Numerical Optimization*, 2nd ed., 2006, §17.3 and
-    Theorem 12.6's reduced-Hessian condition; Debreu's lemma).
-
-    Returns:
-        ``(blocks, n_rows)``: the new (b, s, s) blocks and the rows added.
-    """
-    blocks = np.array(blocks, dtype=float)
-    s = blocks.shape[1]
-    rho = weight * np.maximum(np.sqrt(np.einsum("jab,jab->j", blocks, blocks)), 1e-12)
-    rows = np.flatnonzero(active)
-    added = 0
-    if rows.size:
-        sub = scipy.sparse.csr_matrix(A)[rows]
-        sub.eliminate_zeros()
-        for k in range(sub.shape[0]):
-            cols = sub.indices[sub.indptr[k]:sub.indptr[k + 1]]
-            vals = sub.data[sub.indptr[k]:sub.indptr[k + 1]]
-            if cols.size == 0 or np.any(cols // s != cols[0] // s):
-                continue  # empty, or spans blocks: its outer product would leave the block structure
-            j = cols[0] // s
-            a = np.zeros(s)
-            a[cols - j * s] = vals / np.linalg.norm(vals)
-            blocks[j] += rho[j] * np.outer(a, a)
-            added += 1
-    for i in np.flatnonzero(at_bound):
-        j = i // s
-        blocks[j, i - j * s, i - j * s] += rho[j]
-        added += 1
-    return blocks, added
 
 
 def check_structured(h, n: int) -> StructuredHessian:
@@ -174,17 +99,13 @@ def check_structured(h, n: int) -> StructuredHessian:
     return StructuredHessian(blocks, low_rank)
 
 
-def positive_definite(h: StructuredHessian, method: str, scope: str,
-                      rel_floor: float) -> tuple[StructuredHessian | np.ndarray, int]:
+def positive_definite(h: StructuredHessian, rel_floor: float) -> tuple[StructuredHessian | np.ndarray, int]:
     r"""The QP Hessian from the exact one: ``(H, n_modified)`` (module docstring).
 
-    ``scope="block"`` gives a :class:`StructuredHessian`
-    :math:`\mathrm{blkdiag}(\tilde D_j) + U U^\top` (its dense matrix when
-    :math:`r > n/3`); ``"matrix"`` a dense (n, n) array.
+    A :class:`StructuredHessian` :math:`\mathrm{blkdiag}(\tilde D_j) + U U^\top`,
+    or its dense matrix when :math:`r > n/3`.
     """
-    if scope == "matrix":
-        return modify_dense(h.dense(), method, rel_floor)
-    blocks, n_mod = modify_blocks(h.blocks, method, rel_floor)
+    blocks, n_mod = modify_blocks(h.blocks, rel_floor)
     out = StructuredHessian(blocks, h.low_rank)
     if h.low_rank is not None and h.low_rank.shape[1] > LIFTED_MAX_RANK_RATIO * h.low_rank.shape[0]:
         return out.dense(), n_mod

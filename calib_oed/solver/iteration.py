@@ -38,11 +38,10 @@ class _Run(_SubproblemMixin, _RestorationMixin):
     """State of one :func:`~calib_oed.solver.sqp.solve_sqp` call; the iteration is in :meth:`iterate`."""
 
     def __init__(self, problem: _Problem, pt: _Point, lb, ub, settings: SQPSettings, t0,
-                 hessian_model=None, block_size=None, lagrangian_hessian=None, row_pieces=None):
+                 block_size=None, lagrangian_hessian=None, row_pieces=None):
         s = self.s = settings
         self.p, self.pt, self.lb, self.ub, self.t0 = problem, pt, lb, ub, t0
         n, m = pt.x.size, pt.c.size
-        self.hessian_model = hessian_model
         self.lagrangian_hessian = lagrangian_hessian
         if block_size and n % int(block_size):
             raise ShapeError("Hessian block size", f"a divisor of n = {n}", (int(block_size),))
@@ -52,14 +51,12 @@ class _Run(_SubproblemMixin, _RestorationMixin):
         self.R = None
         if block_size or lagrangian_hessian is None:
             self._init_bfgs(int(block_size) if block_size else n)
-        self.H0 = self._known_hessian(pt.x)
         self._B = None  # dense B, assembled when a QP needs it (_SubproblemMixin._dense_bfgs)
         self.first_update = True
         self.delta = s.step_bound
         self.mu = s.penalty_margin
         self.lam = np.zeros(m)  # multipliers of all rows, 0 for rows not in the QP (+ their pieces')
         self.lam_rows = self.lam  # the same without the pieces' (for the KKT test)
-        self.lam_previous = self.lam  # of the QP before (the active set seen twice)
         self.row_pieces = row_pieces  # the caller's pieces of kinked rows (calib_oed.solver.pieces)
         self.n_pieces = 0  # most pieces in one QP
         self._pieces_at = (-1, RowPieces.none(n))  # (point version, pieces there)
@@ -85,9 +82,7 @@ class _Run(_SubproblemMixin, _RestorationMixin):
     @property
     def hessian_label(self) -> str:
         """The Hessian asked for (:attr:`calib_oed.solver.result.SQPResult.hessian`)."""
-        if self.lagrangian_hessian is not None:
-            return "exact"
-        return "bfgs" if self.hessian_model is None else "model+bfgs"
+        return "bfgs" if self.lagrangian_hessian is None else "exact"
 
     def _init_bfgs(self, bs):
         """The BFGS blocks :math:`R_j = \beta I` of size ``bs``, if not there yet."""
@@ -99,24 +94,13 @@ class _Run(_SubproblemMixin, _RestorationMixin):
     def _merit(self, pt: _Point):
         return pt.f + self.mu * pt.violation_l1
 
-    def _known_hessian(self, x):
-        if self.hessian_model is None:
-            return None
-        t = time.perf_counter()
-        h0 = np.asarray(self.hessian_model(x), dtype=float)
-        self.p.times["hessian"] += time.perf_counter() - t
-        if h0.shape != (x.size, x.size) or not np.all(np.isfinite(h0)):
-            raise ShapeError("known Hessian part", f"finite ({x.size}, {x.size})", h0.shape)
-        return 0.5 * (h0 + h0.T)
-
     def _accept(self, new: _Point, lam):
         r"""Move to ``new``; damped BFGS update of the quasi-Newton part with multipliers ``lam``.
 
-        Structured (``hessian_model`` given): :math:`B = H_0(x) + \mathrm{blkdiag}(R_j)`,
-        each block :math:`R_j` updated with the residual secant pair
-        :math:`(s_j,\; (y - H_0(x_{k+1}) s)_j)` (Dennis & Moré's structured
-        secant idea; Nocedal & Wright §18.3 for the damping). Without it, one
-        dense BFGS matrix (one block of size n).
+        :math:`B = \mathrm{blkdiag}(R_j)`, each block :math:`R_j` updated with
+        its part :math:`(s_j, y_j)` of the secant pair (Nocedal & Wright §18.3
+        for the damping); without ``block_size``, one dense BFGS matrix (one
+        block of size n).
         """
         t = time.perf_counter()
         old = self.pt
@@ -125,11 +109,6 @@ class _Run(_SubproblemMixin, _RestorationMixin):
             y = (new.g - new.A.T @ lam) - (old.g - old.A.T @ lam)
         else:
             y = new.g - old.g
-        self.p.times["hessian"] += time.perf_counter() - t
-        self.H0 = self._known_hessian(new.x)
-        t = time.perf_counter()
-        if self.H0 is not None:
-            y = y - self.H0 @ s
         self._init_bfgs(new.x.size)
         bs = self.R.shape[1]
         for j in range(self.R.shape[0]):
@@ -250,7 +229,6 @@ class _Run(_SubproblemMixin, _RestorationMixin):
                     return self._qp_failed(k, delta, rows, step, qp_iter)
         self.delta = delta
         self.restoration_run = 0
-        self.lam_previous = self.lam
         self._set_multipliers(rows, step.lam, step.nu)
         stat, comp, _ = self.kkt()
         n_rows = rows.size

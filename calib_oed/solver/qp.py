@@ -381,13 +381,3 @@ class SparseQPWorkspace:
             qp.solve()
         r = qp.results
         return _finish(sub, r.x, r.z[:k], r.z[k:], r.info)
-
-
-def make_workspace(backend: str, n: int, eps_abs: float, max_iter: int):
-    """The QP workspace of ``backend`` (``"dense"`` or ``"sparse"``) for ``n`` variables."""
-    if backend == "dense":
-        return DenseQPWorkspace(n, eps_abs, max_iter)
-    if backend == "sparse":
-        return SparseQPWorkspace(n, eps_abs, max_iter)
-    raise ValueError(f"unknown QP backend {backend!r}; valid: 'dense', 'sparse'")
-

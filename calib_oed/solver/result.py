@@ -25,7 +25,6 @@ those of the caller's :math:`x`, :math:`c` and :math:`f`.
 
 from __future__ import annotations
 
-import math
 from dataclasses import asdict, dataclass, field
 from enum import Enum
 from typing import NamedTuple
@@ -33,7 +32,8 @@ from typing import NamedTuple
 import numpy as np
 
 from calib_oed.exceptions import SQPProblemError, SQPSettingsError  # noqa: F401 (re-exported)
-from calib_oed.solver.settings import HESSIANS, QP_BACKENDS, SQPSettings  # noqa: F401 (re-exported)
+from calib_oed.solver.settings import SQPSettings  # noqa: F401 (re-exported)
+from calib_oed.values import plain
 
 
 class StructuredHessian(NamedTuple):
@@ -166,8 +166,7 @@ class IterationRecord:
         time: Seconds since the start of :func:`~calib_oed.solver.sqp.solve_sqp` [s].
         second_order_correction: The accepted point is the second-order
             correction of the full step.
-        hessian: The QP's Hessian: ``"bfgs"`` (damped BFGS), ``"model+bfgs"``
-            (``hessian_model`` plus BFGS blocks) or ``"exact"`` (the caller's
+        hessian: The QP's Hessian: ``"bfgs"`` (damped BFGS) or ``"exact"`` (the caller's
             ``lagrangian_hessian``, made positive definite).
         hessian_fallback: The exact Hessian was asked for but not used in this
             iteration (the callable returned None, raised or gave a bad value, or
@@ -205,31 +204,6 @@ class IterationRecord:
     n_pieces: int = 0
 
 
-def _json_float(v):
-    """A float for JSON: non-finite values become ``None``."""
-    v = float(v)
-    return v if math.isfinite(v) else None
-
-
-def _json(value):
-    """Recursively turn arrays, enums and non-finite floats into JSON values."""
-    if isinstance(value, Enum):
-        return value.value
-    if isinstance(value, dict):
-        return {str(k): _json(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_json(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return [_json(v) for v in value.tolist()]
-    if isinstance(value, (bool, np.bool_)):
-        return bool(value)
-    if isinstance(value, (int, np.integer)):
-        return int(value)
-    if isinstance(value, (float, np.floating)):
-        return _json_float(value)
-    return value
-
-
 @dataclass(frozen=True)
 class SQPResult:
     r"""Outcome of :func:`~calib_oed.solver.sqp.solve_sqp`; checks its own KKT residuals.
@@ -251,7 +225,7 @@ class SQPResult:
             ``"qp"``, ``"hessian"``, ``"total"`` [s].
         n_objective_evaluations: Calls of the objective.
         n_constraint_evaluations: Calls of the constraints.
-        hessian: The Hessian asked for: ``"bfgs"``, ``"model+bfgs"`` or ``"exact"``.
+        hessian: The Hessian asked for: ``"bfgs"`` or ``"exact"``.
         hessian_fallbacks: Iterations in which the exact Hessian was asked for
             but the BFGS one was used.
         hessian_message: Why the last fallback happened (``""`` if none).
@@ -335,7 +309,7 @@ class SQPResult:
             "hessian_message": self.hessian_message,
             "max_pieces": self.max_pieces,
         }
-        return _json(out)
+        return plain(out)
 
     def summary(self) -> str:
         """A few lines for a log: status, objective, residuals, effort."""

@@ -14,10 +14,7 @@ import numpy as np
 
 from calib_oed.exceptions import SQPSettingsError
 
-HESSIANS = ("bfgs",)
 QP_BACKENDS = ("dense", "sparse")
-HESSIAN_MODIFICATIONS = ("abs", "floor")
-HESSIAN_MODIFICATION_SCOPES = ("block", "matrix")
 
 
 @dataclass(frozen=True)
@@ -60,23 +57,10 @@ class SQPSettings:
             refused with :attr:`SQPStatus.QP_FAILED` instead of letting
             ProxQP's allocation abort the process (measured ~60 bytes per
             nonzero for a dense Hessian: 1e7 is ~600 MB).
-        hessian: ``"bfgs"`` (the quasi-Newton model; the exact Hessian is
-            switched on by passing ``lagrangian_hessian`` to ``solve_sqp``).
-        hessian_modification: How an exact Hessian is made positive definite
-            (:mod:`calib_oed.solver.hessian`): ``"abs"`` (default) eigenvalues
-            :math:`\max(|\theta|, \epsilon)`, or ``"floor"``: :math:`\max(\theta, \epsilon)`.
-        hessian_modification_scope: ``"block"`` (default): each diagonal block
-            of :math:`D`, the coupling :math:`U U^\top` kept factored (lifted
-            sparse QP); ``"matrix"``: the dense :math:`D + U U^\top` as a whole
-            (O(n³), dense QP; for comparison and small problems).
-        hessian_eigenvalue_floor: :math:`\epsilon_r`: the smallest eigenvalue
-            kept is :math:`\epsilon = \epsilon_r \max(1, \max|\theta|)`.
-        active_curvature: :math:`w \ge 0`: before the eigenvalue modification each
-            block gains :math:`w\|D_j\|_F` times the outer products of its active rows
-            (multiplier > 0 in the last two QPs) and active bounds
-            (:func:`calib_oed.solver.hessian.augment_active`); 0 (default) turns it
-            off. Measured on the design problem (docs/benchmarks.md): fewer
-            iterations on two scenes, more on three (a flat valley wanders).
+        hessian_eigenvalue_floor: :math:`\epsilon_r` of the eigenvalue modification
+            that makes an exact Hessian positive definite
+            (:mod:`calib_oed.solver.hessian`): the smallest eigenvalue kept is
+            :math:`\epsilon = \epsilon_r \max(1, \max|\theta|)`.
         initial_hessian_scale: :math:`\beta` of :math:`B_0 = \beta I`.
         bfgs_damping: Powell's :math:`\delta \in (0, 1)`: :math:`s^\top r \ge \delta\, s^\top B s`.
         qp_backend: ``"dense"`` (default) or ``"sparse"`` for QPs with a dense
@@ -108,11 +92,7 @@ class SQPSettings:
     max_qp_rows: int | None = None
     max_dense_qp_size: int = 3000
     max_qp_nonzeros: int = 10_000_000
-    hessian: str = "bfgs"
-    hessian_modification: str = "abs"
-    hessian_modification_scope: str = "block"
     hessian_eigenvalue_floor: float = 1e-8
-    active_curvature: float = 0.0
     initial_hessian_scale: float = 1.0
     bfgs_damping: float = 0.2
     qp_backend: str = "dense"
@@ -147,8 +127,6 @@ class SQPSettings:
                      "max_step_bound", "initial_hessian_scale", "qp_eps_abs", "penalty_margin",
                      "restoration_penalty", "row_pieces_margin"):
             need(name, positive, "must be a finite number > 0")
-        need("active_curvature", lambda v: isinstance(v, (int, float)) and 0 <= v < np.inf,
-             "must be finite and >= 0 (0: off)")
         need("hessian_eigenvalue_floor", lambda v: positive(v) and v < 1, "must lie in (0, 1)")
         need("time_limit", lambda v: isinstance(v, (int, float)) and v > 0, "must be > 0 (inf: no limit)")
         need("step_bound_ratio", lambda v: isinstance(v, (int, float)) and v >= 1,
@@ -166,12 +144,9 @@ class SQPSettings:
         for name in ("qp_polish", "second_order_correction"):
             if not isinstance(getattr(self, name), bool):
                 raise SQPSettingsError(name, getattr(self, name), "must be True or False")
-        for name, valid in (("hessian", HESSIANS), ("qp_backend", QP_BACKENDS),
-                            ("hessian_modification", HESSIAN_MODIFICATIONS),
-                            ("hessian_modification_scope", HESSIAN_MODIFICATION_SCOPES)):
-            if getattr(self, name) not in valid:
-                raise SQPSettingsError(name, getattr(self, name),
-                                       f"valid values are {', '.join(map(repr, valid))}", valid)
+        if self.qp_backend not in QP_BACKENDS:
+            raise SQPSettingsError("qp_backend", self.qp_backend,
+                                   f"valid values are {', '.join(map(repr, QP_BACKENDS))}", QP_BACKENDS)
 
     def qp_row_limit(self, n: int) -> int:
         r"""Most rows in a QP for :math:`n` variables: ``max_qp_rows`` or :math:`\max(200, 4n)`."""

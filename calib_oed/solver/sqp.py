@@ -100,7 +100,7 @@ stays inside, so their merit term is zero in practice.
 
 Failures are statuses, not exceptions: only bad input raises (shapes,
 non-finite values at :math:`x_0`, ``lb > ub``, invalid settings, and errors
-raised by the caller's ``objective``, ``constraints`` or ``hessian_model``).
+raised by the caller's ``objective`` or ``constraints``).
 QP failures end in :attr:`SQPStatus.FAILED` or :attr:`SQPStatus.QP_FAILED`;
 ``MemoryError``, ``LinAlgError`` and floating-point errors anywhere else in
 an iteration in :attr:`SQPStatus.NUMERICAL_ERROR`, with the last iterate.
@@ -137,7 +137,7 @@ _NUMERICAL = (MemoryError, np.linalg.LinAlgError, FloatingPointError)
 
 
 def solve_sqp(objective, x0, *, constraints=None, bounds=None, settings: SQPSettings | None = None,
-              callback=None, hessian_model=None, block_size: int | None = None,
+              callback=None, block_size: int | None = None,
               lagrangian_hessian=None, row_pieces=None) -> SQPResult:
     r"""Minimise :math:`f(x)` s.t. :math:`c(x) \ge 0`, :math:`lb \le x \le ub` by SQP (module docstring).
 
@@ -150,11 +150,7 @@ def solve_sqp(objective, x0, *, constraints=None, bounds=None, settings: SQPSett
         bounds: ``(lb, ub)``, arrays of shape ``(n,)`` (or scalars), may hold ±inf.
         settings: :class:`SQPSettings`; defaults if ``None``.
         callback: Called with each :class:`IterationRecord`.
-        hessian_model: Optional ``x -> H_0`` (n, n), a known positive
-            semidefinite part of the Lagrangian's Hessian (e.g. the
-            Gauss–Newton-like term of an OED criterion); the quasi-Newton
-            matrices then only learn the remainder.
-        block_size: Size of the diagonal blocks of the quasi-Newton remainder
+        block_size: Size of the diagonal blocks of the quasi-Newton matrix
             (e.g. the joints of one pose when every constraint and the unknown
             curvature are per pose); default one dense block.
         lagrangian_hessian: Optional ``(x, lam) -> StructuredHessian`` (or
@@ -195,7 +191,7 @@ def solve_sqp(objective, x0, *, constraints=None, bounds=None, settings: SQPSett
     problem = _Problem(objective, constraints, n, lb, ub, times)
     pt0 = problem.evaluate(np.clip(x0, lb, ub), strict=True)
     try:
-        run = _Run(problem, pt0, lb, ub, s, t0, hessian_model, block_size, lagrangian_hessian, row_pieces)
+        run = _Run(problem, pt0, lb, ub, s, t0, block_size, lagrangian_hessian, row_pieces)
     except MemoryError as exc:  # e.g. one dense BFGS matrix for a very large n
         times["total"] = time.perf_counter() - t0
         return SQPResult(

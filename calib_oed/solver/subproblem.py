@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-from calib_oed.solver.hessian import augment_active, check_structured, positive_definite
+from calib_oed.solver.hessian import check_structured, positive_definite
 from calib_oed.solver.lifted import LiftedQPWorkspace
 from calib_oed.solver.polish import polish
 from calib_oed.solver.qp import (
@@ -174,32 +174,20 @@ class _SubproblemMixin:
             else:
                 h = check_structured(h, pt.x.size)
                 self._init_bfgs(h.blocks.shape[1])
-                if s.active_curvature > 0:  # before the modification (augment_active)
-                    active = self._active_rows()
-                    at_bound = ((pt.x - self.lb <= s.tol_feasibility)
-                                | (self.ub - pt.x <= s.tol_feasibility))
-                    blocks, _ = augment_active(h.blocks, pt.A, active, at_bound,
-                                               s.active_curvature)
-                    h = StructuredHessian(blocks, h.low_rank)
-                self._exact = positive_definite(h, s.hessian_modification, s.hessian_modification_scope,
-                                                s.hessian_eigenvalue_floor)
+                self._exact = positive_definite(h, s.hessian_eigenvalue_floor)
         except Exception as exc:  # noqa: BLE001 (the caller's function: any failure means "use BFGS")
             self._fallback(f"lagrangian_hessian failed: {type(exc).__name__}: {exc}")
         self.p.times["hessian"] += time.perf_counter() - t
         return self._exact
 
-    def _active_rows(self):
-        """Rows with a positive multiplier in each of the last two QPs (the active set as it settles)."""
-        return (self.lam > 0) & (self.lam_previous > 0)
-
     def _dense_bfgs(self):
-        r""":math:`B = H_0 + \mathrm{blkdiag}(R_1..R_b)` (structured) or the BFGS matrix itself, cached."""
+        r""":math:`B = \mathrm{blkdiag}(R_1..R_b)` (one block: the BFGS matrix itself), cached."""
         if self._B is None:
             nb, bs = self.R.shape[0], self.R.shape[1]
-            if nb == 1 and self.H0 is None:
+            if nb == 1:
                 self._B = self.R[0]
             else:
-                B = np.zeros((nb * bs, nb * bs)) if self.H0 is None else self.H0.copy()
+                B = np.zeros((nb * bs, nb * bs))
                 for j in range(nb):
                     B[j * bs:(j + 1) * bs, j * bs:(j + 1) * bs] += self.R[j]
                 self._B = B
@@ -212,11 +200,10 @@ class _SubproblemMixin:
             exact = self._exact_hessian()
             if exact is not None:
                 return exact[0], "exact", False, exact[1]
-        label = "bfgs" if self.hessian_model is None else "model+bfgs"
         self._init_bfgs(self.pt.x.size)  # no structure seen: one dense block
-        if self.H0 is None and self.R.shape[0] > 1 and not self.qp.dense_ok(k):
-            return StructuredHessian(self.R, None), label, want_exact, 0  # block-diagonal: sparse QP
-        return self._dense_bfgs(), label, want_exact, 0
+        if self.R.shape[0] > 1 and not self.qp.dense_ok(k):
+            return StructuredHessian(self.R, None), "bfgs", want_exact, 0  # block-diagonal: sparse QP
+        return self._dense_bfgs(), "bfgs", want_exact, 0
 
     # ------------------------------------------------------------- QP
     def _qp(self, delta):

@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from calib_oed.study.config import StudyCase, StudyConfig
+from calib_oed.values import plain
 
 __all__ = ["CaseFailure", "CaseResult", "DesignRow", "StoredDesign", "StudyResult",
            "improvement_pct"]
@@ -121,7 +122,7 @@ class StoredDesign:
     def to_dict(self) -> dict:
         return {"label": self.label, "joint_names": list(self.joint_names),
                 "configurations_rad": self.q.tolist(), "seed": self.seed,
-                "solver": _plain(self.solver)}
+                "solver": plain(self.solver)}
 
     @classmethod
     def from_dict(cls, data: dict) -> StoredDesign:
@@ -195,7 +196,7 @@ class CaseResult:
         return self
 
     def to_dict(self) -> dict:
-        return _plain({"format": CASE_FILE_FORMAT, "case_id": self.case_id,
+        return plain({"format": CASE_FILE_FORMAT, "case_id": self.case_id,
                        "config_hash": self.case.config_hash, "identity": self.case.identity(),
                        "spec": self.case.spec.to_dict(), "seconds": self.seconds,
                        "rows": [r.to_dict() for r in self.rows],
@@ -270,7 +271,7 @@ class StudyResult:
 
     def summary(self) -> dict:
         """The content of ``summary.json``."""
-        return _plain({
+        return plain({
             "format": SUMMARY_FORMAT, "study": self.config.name,
             "config_source": self.config.source, "config": self.config.to_dict(),
             "command": self.command, "machine": self.machine, "n_jobs": self.n_jobs,
@@ -307,23 +308,6 @@ def case_summary(result: CaseResult) -> dict:
                     v, opt["params"].kpi_avg_variance_mm2)
         out[key] = block
     return out
-
-
-def _plain(value):
-    """JSON-safe: numpy to Python, NaN and inf to None."""
-    if isinstance(value, dict):
-        return {str(k): _plain(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_plain(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return _plain(value.tolist())
-    if isinstance(value, (bool, np.bool_)):
-        return bool(value)
-    if isinstance(value, (int, np.integer)):
-        return int(value)
-    if isinstance(value, (float, np.floating)):
-        return float(value) if math.isfinite(value) else None
-    return value
 
 
 def rows_csv(rows: Sequence[DesignRow]) -> str:

@@ -30,6 +30,8 @@ from collections.abc import Sequence
 import numpy as np
 import pinocchio as pin
 
+from calib_oed.model.robot import joint_kind
+
 #: Name of the slider in meshcat's controls panel.
 CONTROL = "pose"
 
@@ -143,7 +145,7 @@ _SCRIPT = r"""(() => {
 def pose_labels(model: pin.Model, q: np.ndarray, infeasible: Sequence[int]) -> tuple[list[str], list[str]]:
     """Per design pose: a long label (feasibility, joints in degrees, or mm for prismatic joints)
     and a short one for the list."""
-    prismatic = [model.joints[j].shortname().startswith("JointModelP") for j in range(1, model.njoints)]
+    prismatic = [joint_kind(model.joints[j]) == "prismatic" for j in range(1, model.njoints)]
     scale = np.where(prismatic, 1e3, np.degrees(1.0))
     unit = "mm" if all(prismatic) else "deg" if not any(prismatic) else "deg/mm"
     long, short = [], []

@@ -9,8 +9,9 @@ import pytest
 
 from calib_oed.calibration.workflow import heuristic_design, setup
 from calib_oed.cli import EXIT_BAD_INPUT, EXIT_OK, EXIT_VALIDATION_FAILED, main
+from calib_oed.io.design_file import read_design_file
 from calib_oed.oed.design import evaluate_design
-from calib_oed.oed.result import read_design_file, write_design
+from calib_oed.oed.result import write_design
 from calib_oed.scene.reader import load_scene
 
 

@@ -69,9 +69,9 @@ def test_path_joints_are_those_between_the_links():
 
 def test_pair_report_names_the_pairs_decided_on_meshes():
     robot, _ = robot_and_geometry("ur10")
-    settings = FeasibilitySettings(prune_samples=0, link_fit="split")
+    settings = FeasibilitySettings(prune_samples=0)  # the capsules of the default fit, no convex pieces
     _, report = build_feasibility_model(robot, Cell(), settings, np.array([2.0, 0.0, 1.0]),
-                                        np.array([[0.0, 0.0, 0.04]]))
+                                        np.array([[0.0, 0.0, 0.04]]), hulls=False)
     on_meshes = [d for d in report.dropped if d.reason.startswith("meshes")]
     assert {d.label for d in on_meshes} >= {"self:wrist_1_link#0|wrist_3_link#0"}
     for d in on_meshes:
@@ -79,7 +79,7 @@ def test_pair_report_names_the_pairs_decided_on_meshes():
     assert "meshes never within the margin" in report.summary()
     # without mesh decisions the pair is checked
     _, plain = build_feasibility_model(robot, Cell(), settings, np.array([2.0, 0.0, 1.0]),
-                                       np.array([[0.0, 0.0, 0.04]]), mesh_pairs=False)
+                                       np.array([[0.0, 0.0, 0.04]]), mesh_pairs=False, hulls=False)
     assert "self:wrist_1_link#0|wrist_3_link#0" in plain.checked
 
 

@@ -12,9 +12,8 @@ import yaml
 from calib_oed.calibration.workflow import heuristic_design, setup
 from calib_oed.cli import EXIT_OK, main
 from calib_oed.exceptions import MeasurementFileError
-from calib_oed.io.design_file import write_design_csv
+from calib_oed.io.design_file import read_design_file, write_design_csv
 from calib_oed.io.measurement_reader import read_measurements
-from calib_oed.oed.result import read_design_file
 from calib_oed.scene.reader import scene_from_dict
 
 FANUC = {"name": "fanuc", "angle": "deg",

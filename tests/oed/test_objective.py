@@ -7,11 +7,12 @@ import pytest
 from conftest import central_difference, make_space, relative_error
 
 from calib_oed.calibration.kpi import TcpKpi
-from calib_oed.calibration.problem import CalibrationProblem, GenericDesign
+from calib_oed.calibration.problem import CalibrationProblem
 from calib_oed.measurement import PoseMeasurement, TrackerPosition
 from calib_oed.measurement.sensitivity import weighted_jacobian
 from calib_oed.oed.criteria import CRITERIA, ACriterion
 from calib_oed.oed.objective import DesignObjective
+from calib_oed.scene.records import GenericDesignSpec
 
 
 def _partial_differences(objective, q, poses, eps=1e-5):
@@ -45,7 +46,7 @@ def _build_problem(robot, pose):
     model = PoseMeasurement if pose else TrackerPosition
     kpi = TcpKpi(robot.random_configurations(2, 5), point=np.array([0.0, 0.0, 0.1]))
     return CalibrationProblem(space, [model(0), model(1, sigma=2e-5)], kpi,
-                              GenericDesign(n=60, seed=0))
+                              GenericDesignSpec(n=60, seed=0))
 
 
 @pytest.mark.parametrize("criterion", CRITERIA)
@@ -176,7 +177,7 @@ def _mixed_problem(robot):
         kpi = TcpKpi(robot.random_configurations(2, 5), point=np.array([0.0, 0.0, 0.1]))
         models = [TrackerPosition(0), PoseMeasurement(1, sigma=2e-5, sigma_angle=3e-5),
                   TrackerPosition(1, sigma=1.5e-5)]
-        _MIXED[robot.name] = CalibrationProblem(space, models, kpi, GenericDesign(n=60, seed=0))
+        _MIXED[robot.name] = CalibrationProblem(space, models, kpi, GenericDesignSpec(n=60, seed=0))
     return _MIXED[robot.name]
 
 
@@ -299,7 +300,7 @@ def test_no_hessian_with_compliance():
                            compliance=Compliance(10.0, [0.0, 0.0, 0.1]))
     kpi = TcpKpi(base.robot.random_configurations(1, 5), point=np.array([0.0, 0.0, 0.1]))
     problem = CalibrationProblem(space, [TrackerPosition(0), TrackerPosition(1)], kpi,
-                                 GenericDesign(n=60, seed=0))
+                                 GenericDesignSpec(n=60, seed=0))
     objective = DesignObjective(problem, "kpi")
     q = base.robot.random_configurations(8, 2)
     assert objective.compute_row_hessians(q) is None

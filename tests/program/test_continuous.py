@@ -105,9 +105,10 @@ def test_the_check_keeps_every_row_of_the_design_and_the_far_pairs(kr16_scene, k
     assert len(on_pieces) == len(base - capsule_rows)
 
 
-def test_row_bounds_read_from_labels(kr16_scene, kr16_checker):
+def test_row_bounds_from_the_rows_sides(kr16_scene, kr16_checker):
     """Capsule pair: rho_a + rho_b; end point against a half-space: rho_a; a row on two links'
-    geometry: each link's largest rho + r; an unreadable label: the global bound."""
+    geometry: each link's largest rho + r; a row of unknown sides: the global bound."""
+    from calib_oed.feasibility.row_family import FIXED, LINK, RowSides
     from calib_oed.program.continuous import row_bounds
     from calib_oed.program.motion_bound import segment_speed_bounds
 
@@ -118,8 +119,9 @@ def test_row_bounds_read_from_labels(kr16_scene, kr16_checker):
     i, j = names.index("link_2#0"), names.index("link_6#0")
     grown = rho + seg.radius[:, None] * (rho.max(axis=1, keepdims=True) > 0)
     links = {ln: grown[[k for k, x in enumerate(seg.links) if x == ln]].max(axis=0) for ln in ("link_2", "link_6")}
-    labels = ["self:link_2#0|link_6#0", "obstacle:link_6#0.b|floor", "self:link_2|link_6", "weird"]
-    bounds, segs = row_bounds(robot, seg, labels)
+    sides = RowSides(np.array([[i, j], [j, FIXED], [LINK, LINK], [LINK, LINK]]),
+                     (None, None, ("link_2", "link_6"), None))
+    bounds, segs = row_bounds(robot, seg, sides)
     assert np.allclose(bounds[0], rho[i] + rho[j]) and segs[0].tolist() == [i, j]
     assert np.allclose(bounds[1], rho[j]) and segs[1].tolist() == [j, -1]
     assert np.allclose(bounds[2], links["link_2"] + links["link_6"]) and segs[2].tolist() == [-2, -2]

@@ -32,7 +32,5 @@ def test_bad_block_names_the_key(kr16_scene, block, key):
 
 
 def test_bad_settings():
-    with pytest.raises(ProgramError, match="solver.*'lkh', 'ortools'"):
-        ProgramSettings(solver="concorde")
     with pytest.raises(ProgramError, match="dwell"):
         ProgramSettings(dwell=-1.0)

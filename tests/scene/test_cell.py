@@ -100,8 +100,6 @@ def test_link_fit_setting_is_read_and_validated():
     assert scene_from_dict(data, check=False).feasibility.link_fit == "hulls"  # the default
     data["feasibility"] = {"link_fit": "single"}
     assert scene_from_dict(data, check=False).feasibility.link_fit == "single"
-    data["feasibility"] = {"link_fit": "split"}
-    assert scene_from_dict(data, check=False).feasibility.link_fit == "split"
     data["feasibility"] = {"link_fit": "several"}
-    with pytest.raises(SceneError, match=r"feasibility\.link_fit.*single.*split"):
+    with pytest.raises(SceneError, match=r"feasibility\.link_fit.*single.*hulls"):
         scene_from_dict(data, check=False)

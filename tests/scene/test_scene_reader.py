@@ -105,6 +105,7 @@ def test_fms_kr16_numbers():
 def test_si_units_and_options():
     data = valid()
     data["units"] = {"length": "m", "angle": "rad"}
+    data["reflectors"] = [{"name": "smr0", "offset": [0, 0, 0.05]}]
     data["tracker"] = {"position": [0.6, -2.6, 1.3], "rpy": [0, 0, 1.5],
                        "sigma": [1e-5, 2e-5, 3e-5], "sigma_angle": 2e-5}
     data["kpi"] = {"point": [0, 0, 0.1], "frame": "tracker",

@@ -16,7 +16,6 @@ import pytest
 from calib_oed.solver.hessian import (
     check_structured,
     modify_blocks,
-    modify_dense,
     positive_definite,
 )
 from calib_oed.solver.lifted import LiftedQPWorkspace
@@ -38,33 +37,27 @@ def test_indefinite_block_is_made_positive_definite():
     pd = 0.5 * (pd + pd.T)
     blocks = np.stack([q @ np.diag(theta) @ q.T, pd])
     eps = 1e-8 * 4.0  # rel_floor * max(1, max |theta| over all blocks)
-    for method, expected in (("abs", [2.0, 0.5, 3.0, eps]), ("floor", [eps, 0.5, 3.0, eps])):
-        out, n_mod = modify_blocks(blocks, method, 1e-8)
-        assert n_mod == 2
-        np.testing.assert_allclose(out[0], q @ np.diag(expected) @ q.T, atol=1e-12)  # same eigenvectors
-        np.testing.assert_allclose(np.sort(np.linalg.eigvalsh(out[0])), np.sort(expected), atol=1e-12)
-        np.testing.assert_array_equal(out[1], 0.5 * (pd + pd.T))  # a definite block is left alone
-        assert np.linalg.eigvalsh(out).min() > 0
+    expected = [2.0, 0.5, 3.0, eps]
+    out, n_mod = modify_blocks(blocks, 1e-8)
+    assert n_mod == 2
+    np.testing.assert_allclose(out[0], q @ np.diag(expected) @ q.T, atol=1e-12)  # same eigenvectors
+    np.testing.assert_allclose(np.sort(np.linalg.eigvalsh(out[0])), np.sort(expected), atol=1e-12)
+    np.testing.assert_array_equal(out[1], 0.5 * (pd + pd.T))  # a definite block is left alone
+    assert np.linalg.eigvalsh(out).min() > 0
 
 
-def test_block_and_matrix_scope_differ_where_the_coupling_helps():
-    """D indefinite, D + U U^T definite: the matrix scope keeps it, the block scope convexifies D."""
+def test_each_block_is_modified_on_its_own():
+    """D indefinite, D + U U^T definite: each block of D is still made definite, U kept factored."""
     rng = np.random.default_rng(1)
     blocks = np.stack([np.diag([1.0, -0.5]), np.diag([2.0, 1.0])])
     u = np.array([[0.0], [2.0], [0.0], [0.0]])  # U U^T adds 4 to the (1, 1) entry
     h = StructuredHessian(blocks, u)
     assert np.linalg.eigvalsh(h.dense()).min() > 0
-    dense, n_dense = positive_definite(h, "abs", "matrix", 1e-8)
-    np.testing.assert_allclose(dense, h.dense(), atol=1e-12)
-    assert n_dense == 0
-    structured, n_block = positive_definite(h, "abs", "block", 1e-8)
+    structured, n_block = positive_definite(h, 1e-8)
     assert n_block == 1 and isinstance(structured, StructuredHessian)
     np.testing.assert_allclose(structured.blocks[0], np.diag([1.0, 0.5]))
     v = rng.standard_normal(4)
     np.testing.assert_allclose(structured @ v, structured.dense() @ v, atol=1e-12)
-    m, n_m = modify_dense(np.diag([-1.0, 2.0]), "floor", 1e-8)
-    np.testing.assert_allclose(m, np.diag([2e-8, 2.0]))
-    assert n_m == 1
 
 
 @pytest.mark.parametrize("bad, match", [
@@ -79,8 +72,7 @@ def test_bad_structured_hessians_are_named(bad, match):
 
 
 def test_hessian_settings_are_validated():
-    for field, value in (("hessian_modification", "clip"), ("hessian_modification_scope", "pose"),
-                         ("hessian_eigenvalue_floor", 0.0), ("hessian_eigenvalue_floor", 1.0)):
+    for field, value in (("hessian_eigenvalue_floor", 0.0), ("hessian_eigenvalue_floor", 1.0)):
         with pytest.raises(SQPSettingsError, match=field):
             SQPSettings(**{field: value})
 
@@ -129,8 +121,7 @@ def _double_well(b=10, s=6, r=3, seed=0):
     return objective, constraints, hessian, x_star, lam_star
 
 
-@pytest.mark.parametrize("method, scope", [("abs", "block"), ("floor", "block"), ("abs", "matrix")])
-def test_exact_hessian_converges_in_far_fewer_iterations_than_bfgs(method, scope):
+def test_exact_hessian_converges_in_far_fewer_iterations_than_bfgs():
     objective, constraints, hessian, x_star, lam_star = _double_well()
     x0 = np.full(x_star.size, 0.5)
     seen = []
@@ -139,8 +130,7 @@ def test_exact_hessian_converges_in_far_fewer_iterations_than_bfgs(method, scope
         seen.append(lam.copy())
         return hessian(x, lam)
 
-    settings = SQPSettings(hessian_modification=method, hessian_modification_scope=scope)
-    exact = solve_sqp(objective, x0, constraints=constraints, lagrangian_hessian=recording, settings=settings)
+    exact = solve_sqp(objective, x0, constraints=constraints, lagrangian_hessian=recording)
     bfgs = solve_sqp(objective, x0, constraints=constraints)
     blocks = solve_sqp(objective, x0, constraints=constraints, block_size=6)
     for res in (exact, bfgs, blocks):
@@ -151,8 +141,7 @@ def test_exact_hessian_converges_in_far_fewer_iterations_than_bfgs(method, scope
     assert exact.hessian == "exact" and exact.hessian_fallbacks == 0 and bfgs.hessian == "bfgs"
     assert all(r.hessian == "exact" for r in exact.history)
     assert exact.history[0].hessian_modified > 0  # indefinite at the start
-    expected_backend = "lifted" if scope == "block" else "dense"
-    assert {r.qp_backend for r in exact.history} == {expected_backend}
+    assert {r.qp_backend for r in exact.history} == {"lifted"}
     assert np.all(seen[0] == 0) and all(lam.shape == (12,) and np.all(lam >= 0) for lam in seen)
     record = json.loads(json.dumps(exact.to_dict(), allow_nan=False))
     assert record["hessian"] == "exact" and record["history"][0]["hessian"] == "exact"

@@ -359,13 +359,13 @@ def test_agrees_with_scipy_slsqp_on_a_random_smooth_problem():
     ("tol_feasibility", float("nan")), ("step_bound", 2.0), ("min_step_bound", 0.0),
     ("active_margin", -0.1), ("bfgs_damping", 1.0), ("armijo", 0.6), ("backtrack", 1.5),
     ("max_backtracks", -1), ("qp_polish", "yes"), ("step_bound_ratio", 0.5),
-    ("qp_eps_abs", 0.0), ("hessian", "newton"), ("qp_backend", "osqp"),
+    ("qp_eps_abs", 0.0), ("qp_backend", "osqp"),
 ])
 def test_bad_settings_raise_clear_errors(field, value):
     with pytest.raises(SQPSettingsError, match=field) as info:
         SQPSettings(**{field: value})
     assert isinstance(info.value, ValueError) and info.value.name == field
-    if field in ("hessian", "qp_backend"):
+    if field == "qp_backend":
         assert info.value.valid and all(repr(v) in str(info.value) for v in info.value.valid)
 
 
@@ -462,37 +462,6 @@ def test_unreachable_rows_are_found_without_solving():
     assert unreachable_rows(c.toarray(), lower, bl, bu, 1e-12).tolist() == [1]
     # infinite box sides: any row with a nonzero is reachable
     assert unreachable_rows(c, lower, np.full(2, -np.inf), np.full(2, np.inf), 0.0).size == 0
-
-
-def test_structured_hessian_with_block_remainder():
-    """A known coupled quadratic part plus per-block curvature: same optimum, fewer iterations."""
-    rng = np.random.default_rng(5)
-    n, bs = 12, 3
-    a = rng.normal(size=(n, n))
-    q_known = a @ a.T / n  # dense, known, PSD coupling
-    b = rng.normal(size=n)
-
-    def objective(x):
-        # f = 1/2 x'Qx + b'x + sum cosh(x_i): the cosh part is per block and left to BFGS
-        return 0.5 * x @ q_known @ x + b @ x + np.sum(np.cosh(x)), q_known @ x + b + np.sinh(x)
-
-    def constraints(x):  # one disc per block: 1 - |x_block|^2 >= 0
-        blocks = x.reshape(-1, bs)
-        c = 1.0 - np.sum(blocks**2, axis=1)
-        jac = np.zeros((n // bs, n))
-        for j in range(n // bs):
-            jac[j, j * bs:(j + 1) * bs] = -2 * blocks[j]
-        return c, jac
-
-    x0 = np.zeros(n)
-    plain = solve_sqp(objective, x0, constraints=constraints)
-    structured = solve_sqp(objective, x0, constraints=constraints, hessian_model=lambda x: q_known,
-                           block_size=bs)
-    assert plain.status == SQPStatus.CONVERGED and structured.status == SQPStatus.CONVERGED
-    assert structured.check() and np.allclose(structured.x, plain.x, atol=1e-5)
-    assert structured.iterations < plain.iterations
-    with pytest.raises(ShapeError):
-        solve_sqp(objective, x0, constraints=constraints, hessian_model=lambda x: q_known, block_size=5)
 
 
 def test_time_limit_stops_with_its_status():
