@@ -1,0 +1,169 @@
+r"""Tracker data of a realistic truth, the blocks :func:`~calib_oed.calibration.identification.identify` reads.
+
+For every measurement model of the scene (one per reflector, position
+measurements) and every commanded configuration :math:`q_i`:
+
+.. math::
+    \eta_i = \mathcal{T}\big(T_{W,T}^{-1}\,x_j(q_i, t_i)\big) + \varepsilon_i \;(+\;g_i)
+
+with :math:`x_j` the true world position of reflector :math:`j`
+(:meth:`RealisticTruth.compute_reflector_points`), :math:`T_{W,T}` the true
+tracker pose, :math:`\mathcal{T}` the tracker's systematics, :math:`\varepsilon_i`
+the scene's noise drawn at the true position (as
+:func:`calib_oed.calibration.simulation.simulate_observations`) and
+:math:`g_i` a gross error of ``settings.gross_size`` in a random direction on
+``settings.gross_errors`` rows chosen at random. :math:`t_i \in [0, 1]` is the
+time of row :math:`i` in the session (rows in measurement order).
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from calib_oed.calibration.realistic import RealisticTruth
+from calib_oed.calibration.simulation import add_noise
+from calib_oed.exceptions import ParameterError
+from calib_oed.io.atomic import atomic_write_text
+from calib_oed.measurement.dataset import MeasurementSet
+from calib_oed.measurement.observations import ObservationBlock
+from calib_oed.measurement.position import TrackerPosition
+
+
+@dataclass(frozen=True, eq=False)
+class RealisticMeasurements:
+    """Simulated tracker data of a realistic truth.
+
+    Attributes:
+        blocks: One :class:`ObservationBlock` per measurement model (reflector), noisy.
+        exact: The noise-free readings (systematics included), (k, n, 3) [m, tracker frame].
+        gross: ``(block, row)`` of every measurement with a gross error.
+        time: Time of each row in the session, (n,) in [0, 1].
+    """
+
+    blocks: tuple[ObservationBlock, ...]
+    exact: np.ndarray
+    gross: tuple[tuple[int, int], ...]
+    time: np.ndarray
+
+    def measurement_set(self, robot, source: str = "<realistic simulation>") -> MeasurementSet:
+        """The blocks as a :class:`MeasurementSet` (for measurement files)."""
+        return blocks_to_measurement_set(robot, self.blocks, source)
+
+
+def blocks_to_measurement_set(robot, blocks, source: str = "<simulation>") -> MeasurementSet:
+    """Position (and pose) blocks of simulated data as one :class:`MeasurementSet`."""
+    qs, pos, rot, refl = [], [], [], []
+    for b in blocks:
+        qs.append(b.q)
+        pos.append(b.values[:, :3])
+        refl.append(np.full(b.n, b.model.reflector))
+        if b.model.dim == 6:
+            rot.append(b.values[:, 3:])
+    return MeasurementSet.from_arrays(robot, np.vstack(qs), np.vstack(pos), reflector=np.concatenate(refl),
+                                      rotations=np.vstack(rot) if rot else None, source=source)
+
+
+def measure(truth: RealisticTruth, models, q: np.ndarray, rng: np.random.Generator | int,
+            time: np.ndarray | None = None) -> RealisticMeasurements:
+    """Noisy tracker readings of ``truth`` by every model of ``models`` at ``q`` (n, nq).
+
+    Args:
+        truth: The realistic robot and tracker.
+        models: The scene's measurement models (``setup.problem.models``); position models only.
+        q: Commanded configurations in measurement order, (n, nq) [rad].
+        rng: Noise and gross errors.
+        time: Time of each row in the session (n,) in [0, 1]; None: evenly spread in row order.
+
+    Raises:
+        ParameterError: a model that is not a position measurement (``measurement: pose``).
+    """
+    rng = np.random.default_rng(rng)
+    q = truth.space.robot.check_configurations(q)
+    n = q.shape[0]
+    t = np.linspace(0.0, 1.0, n) if time is None else np.asarray(time, dtype=float).reshape(n)
+    for mdl in models:
+        if not isinstance(mdl, TrackerPosition):
+            raise ParameterError(f"the realistic simulator measures reflector positions only "
+                                 f"(measurement: position), not {type(mdl).__name__}")
+    world = truth.compute_reflector_points(q, t)
+    exact = np.stack([truth.compute_tracker_readings(world[:, mdl.reflector]) for mdl in models])
+    noisy = [add_noise(mdl, exact[j], rng) for j, mdl in enumerate(models)]
+    settings = truth.settings
+    gross: list[tuple[int, int]] = []
+    n_gross = int(settings.gross_errors)
+    if n_gross:
+        if n_gross > n * len(models):
+            raise ParameterError(f"realistic.gross_errors: {n_gross} is more than the "
+                                 f"{n * len(models)} measurements")
+        picks = rng.choice(n * len(models), size=n_gross, replace=False)
+        for k in np.sort(picks):
+            j, i = divmod(int(k), n)
+            u = rng.normal(size=3)
+            noisy[j][i] += settings.gross_size * u / np.linalg.norm(u)
+            gross.append((j, i))
+    blocks = tuple(ObservationBlock(mdl, q, noisy[j]) for j, mdl in enumerate(models))
+    exact.setflags(write=False)
+    t.setflags(write=False)
+    return RealisticMeasurements(blocks, exact, tuple(gross), t)
+
+
+def truth_record(truth: RealisticTruth, scene_name: str, truth_seed: int) -> dict:
+    """Every component of ``truth`` and its values (SI; lists), for a YAML file."""
+    space, tr = truth.space, truth.transmission
+    rec = {
+        "scene": scene_name,
+        "truth_seed": int(truth_seed),
+        "kind": "realistic",
+        "units": "SI (m, rad, N·m/rad, rad/(N·m), kg; scale [1])",
+        "settings": truth.settings.describe(),
+        "parameters": {n: float(v) for n, v in zip(space.names, truth.p, strict=True)},
+        "compliance": {"stiffness": truth.stiffness.tolist(), "applied_compliance": truth.compliance.tolist(),
+                       "payload_mass": truth.payload_mass, "payload_com": truth.payload_com.tolist()},
+        "transmission": {"gear_ratios": tr.gear_ratios.tolist(), "joint_amplitude": tr.joint_amplitude.tolist(),
+                         "joint_phase": tr.joint_phase.tolist(), "motor_amplitude": tr.motor_amplitude.tolist(),
+                         "motor_phase": tr.motor_phase.tolist()},
+        "balancer": None if truth.balancer is None else {
+            "joint": truth.balancer.joint + 1, "torque": truth.balancer.torque, "theta0": truth.balancer.theta0,
+            "rho": truth.balancer.rho, "kappa": truth.balancer.kappa},
+        "thermal_expansion": truth.thermal_expansion,
+        "tracker": {"scale": truth.tracker.scale, "azimuth_eccentricity": truth.tracker.azimuth_eccentricity,
+                    "azimuth_phase": truth.tracker.azimuth_phase,
+                    "elevation_eccentricity": truth.tracker.elevation_eccentricity,
+                    "elevation_phase": truth.tracker.elevation_phase},
+    }
+    return _plain(rec)
+
+
+def _plain(obj):
+    """``obj`` with numpy scalars and arrays as Python floats and lists (for YAML)."""
+    if isinstance(obj, dict):
+        return {k: _plain(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_plain(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return _plain(obj.tolist())
+    if isinstance(obj, (bool, np.bool_)):
+        return bool(obj)
+    if isinstance(obj, (int, np.integer)):
+        return int(obj)
+    if isinstance(obj, (float, np.floating)):
+        return float(obj)
+    return obj
+
+
+def write_realistic_truth(path: str | os.PathLike, truth: RealisticTruth, scene_name: str, truth_seed: int,
+                          measurements: RealisticMeasurements | None = None) -> Path:
+    """The truth of a realistic simulation as YAML (atomic); with the gross-error rows if given.
+
+    Its ``parameters`` block is what :func:`calib_oed.calibration.workflow.read_truth` reads
+    (the geometric part of the truth).
+    """
+    rec = truth_record(truth, scene_name, truth_seed)
+    if measurements is not None:
+        rec["gross_errors"] = [{"reflector": j, "row": i} for j, i in measurements.gross]
+    return atomic_write_text(path, "# calib_oed realistic simulated truth\n" + yaml.safe_dump(rec, sort_keys=False))
