@@ -46,7 +46,10 @@ from dataclasses import dataclass, field
 import numpy as np
 import pinocchio as pin
 
-from calib_oed.calibration.realistic_defaults import RealisticSettings
+from calib_oed.calibration.realistic_defaults import (
+    RealisticSettings,
+    realistic_settings_from_scene,
+)
 from calib_oed.exceptions import ParameterError
 from calib_oed.model.compliance import Compliance, GravityLoad
 from calib_oed.model.joint_map import effective_configurations
@@ -233,10 +236,31 @@ class RealisticTruth:
         b = np.zeros(3) if point is None else np.asarray(point, dtype=float)
         return self.compute_tool_points(q, b[None], time)[:, 0]
 
+    def compute_kpi_values(self, kpi, time: float = 0.0) -> np.ndarray:
+        """The true value of a :class:`~calib_oed.calibration.kpi.TcpKpi` (its point or reflector
+        centre, world or true tracker frame, no tracker systematics), (t, 3) [m]: the counterpart of
+        ``kpi.compute_values(space, p)``, so ``kpi.compute_values(space, p_hat) - this`` is the
+        error of a calibrated model at the working configurations."""
+        point = kpi.point if kpi.reflector is None else self.space.reflector_offsets(self.p)[kpi.reflector]
+        x = self.compute_tcp(kpi.configurations, point, time)
+        if kpi.frame == "tracker":
+            tracker = self.space.tracker_placement(self.p)
+            x = (x - tracker.translation) @ tracker.rotation
+        return x
+
     def compute_tracker_readings(self, world: np.ndarray) -> np.ndarray:
         """Noise-free tracker readings (tracker frame, systematics applied) of world points (..., 3) [m]."""
         tracker = self.space.tracker_placement(self.p)
         return self.tracker.compute_readings((world - tracker.translation) @ tracker.rotation)
+
+
+def gravity_load(scene, robot, mass: float, com: np.ndarray) -> GravityLoad:
+    """The true arm's gravity load: the URDF's inertials (or the scene's ``robot.compliance.links``
+    point masses) with ``mass`` [kg] at ``com`` (tool frame, [m]) on the tool."""
+    spec = getattr(scene, "compliance", None)
+    links = spec.payload if spec is not None else Compliance()
+    return GravityLoad(robot.model, robot.tool_frame_id,
+                       Compliance(mass, com, link_masses=links.link_masses, link_coms=links.link_coms))
 
 
 def _arm_mass(model: pin.Model) -> float:
@@ -259,12 +283,14 @@ def sample_truth(setup, rng: np.random.Generator | int,
                  settings: RealisticSettings | None = None) -> RealisticTruth:
     """Draw a realistic true robot and tracker for a :class:`~calib_oed.calibration.workflow.Setup`.
 
+    ``settings``: None for the scene's ``realistic:`` block (the defaults where it says nothing).
+
     Every component is drawn whether switched on or not (in a fixed order), so
     switching one off leaves the others' values unchanged for the same ``rng``.
     """
     from calib_oed.calibration.simulation import draw_true_parameters
 
-    settings = RealisticSettings() if settings is None else settings
+    settings = realistic_settings_from_scene(setup.scene) if settings is None else settings
     rng = np.random.default_rng(rng)
     problem = setup.problem
     space = problem.space
@@ -297,7 +323,7 @@ def sample_truth(setup, rng: np.random.Generator | int,
     total = payload_mass + settings.nest_mass
     com = (payload_mass * payload_com + settings.nest_mass * offsets.mean(axis=0)) / total if total > 0 \
         else np.zeros(3)
-    gravity = GravityLoad(robot.model, robot.tool_frame_id, Compliance(total, com))
+    gravity = gravity_load(setup.scene, robot, total, com)
     # balancer on J2
     fraction = defaults.balancer_fraction * rng.uniform(0.8, 1.2)
     balancer = None

@@ -41,6 +41,8 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from calib_oed.exceptions import ParameterError
+from calib_oed.scene.fields import FieldReader
+from calib_oed.units import ANGLE_UNITS, LENGTH_UNITS
 
 ARCSEC = np.pi / (180.0 * 3600.0)
 
@@ -181,6 +183,16 @@ class RealisticSettings:
             return float(spec.payload.payload_mass), np.asarray(spec.payload.payload_com, dtype=float)
         return 0.0, np.zeros(3)
 
+    @classmethod
+    def from_record(cls, record: dict) -> RealisticSettings:
+        """The settings :meth:`describe` wrote (SI)."""
+        names = {f.name: f for f in fields(cls)}
+        unknown = sorted(set(record) - set(names))
+        if unknown:
+            raise ParameterError(f"realistic settings: unknown key(s) {', '.join(unknown)}; "
+                                 f"valid keys: {', '.join(names)}")
+        return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in record.items()})
+
     def describe(self) -> dict:
         """Every setting by name (SI; tuples as lists), for the truth file."""
         out = {}
@@ -188,3 +200,58 @@ class RealisticSettings:
             v = getattr(self, f.name)
             out[f.name] = list(map(float, v)) if isinstance(v, tuple) else v
         return out
+
+
+#: Keys of the scene's ``realistic:`` block (docs/scenes.md).
+SCENE_KEYS = ("level", "geometric", "compliance", "transmission", "balancer", "thermal", "tracker",
+              "sigma_length", "sigma_angle", "stiffness", "stiffness_spread", "payload", "nest_mass",
+              "joint_cyclic_arcsec", "motor_cyclic_arcsec", "gear_ratios", "balancer_fraction",
+              "balancer_rho", "balancer_kappa", "thermal_alpha", "thermal_delta_t", "tracker_scale_ppm",
+              "encoder_eccentricity_arcsec", "gross_errors", "gross_size")
+
+
+def realistic_settings_from_scene(scene) -> RealisticSettings:
+    """The settings of a scene's optional ``realistic:`` block (defaults where absent).
+
+    Lengths (``sigma_length``, ``gross_size``, ``payload.com``) in the file's length unit,
+    ``sigma_angle`` in its angle unit; the other keys carry their unit in the name or are
+    SI (stiffness N·m/rad, masses kg, ``thermal_alpha`` 1/K, ``thermal_delta_t`` K).
+
+    Raises:
+        SceneError: an unknown key or a bad value, naming the key.
+    """
+    block = getattr(scene, "realistic", None) or {}
+    reader = FieldReader(str(scene.source) if scene.source else None)
+    reader.length = LENGTH_UNITS[scene.units.get("length", "m")]
+    reader.angle = ANGLE_UNITS[scene.units.get("angle", "rad")]
+    spec = reader.mapping(block, "realistic", (), SCENE_KEYS)
+    nv = scene.robot.model.nv
+    values: dict = {}
+    for key in ("geometric", "compliance", "transmission", "balancer", "thermal", "tracker"):
+        if key in spec:
+            if not isinstance(spec[key], bool):
+                raise reader.fail(f"realistic.{key}", f"expected true or false, got {spec[key]!r}")
+            values[key] = spec[key]
+    scales = {"sigma_length": reader.length, "sigma_angle": reader.angle, "gross_size": reader.length,
+              "encoder_eccentricity_arcsec": ARCSEC}
+    for key in ("level", "sigma_length", "sigma_angle", "stiffness_spread", "nest_mass", "balancer_fraction",
+                "balancer_rho", "balancer_kappa", "thermal_alpha", "thermal_delta_t", "tracker_scale_ppm",
+                "encoder_eccentricity_arcsec", "gross_size"):
+        if key in spec:
+            values[key.removesuffix("_arcsec")] = reader.number(spec[key], f"realistic.{key}",
+                                                                scales.get(key, 1.0), nonnegative=True)
+    if "gross_errors" in spec:
+        values["gross_errors"] = reader.integer(spec["gross_errors"], "realistic.gross_errors", 0)
+    for key in ("stiffness", "gear_ratios"):
+        if key in spec:
+            values[key] = tuple(map(float, reader.vector(spec[key], f"realistic.{key}", nv, what="one per joint")))
+    for key in ("joint_cyclic_arcsec", "motor_cyclic_arcsec"):
+        if key in spec:
+            values[key.removesuffix("_arcsec")] = tuple(map(float, reader.vector(
+                spec[key], f"realistic.{key}", 2, ARCSEC, what="once, twice per revolution")))
+    if "payload" in spec:
+        load = reader.mapping(spec["payload"], "realistic.payload", ("mass",), ("com",))
+        values["payload_mass"] = reader.number(load["mass"], "realistic.payload.mass", nonnegative=True)
+        values["payload_com"] = tuple(map(float, reader.vector(load.get("com", [0, 0, 0]),
+                                                               "realistic.payload.com", 3, reader.length)))
+    return RealisticSettings(**values)

@@ -25,7 +25,14 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from calib_oed.calibration.realistic import RealisticTruth
+from calib_oed.calibration.realistic import (
+    Balancer,
+    RealisticTruth,
+    TrackerSystematics,
+    Transmission,
+    gravity_load,
+)
+from calib_oed.calibration.realistic_defaults import RealisticSettings
 from calib_oed.calibration.simulation import add_noise
 from calib_oed.exceptions import ParameterError
 from calib_oed.io.atomic import atomic_write_text
@@ -167,3 +174,35 @@ def write_realistic_truth(path: str | os.PathLike, truth: RealisticTruth, scene_
     if measurements is not None:
         rec["gross_errors"] = [{"reflector": j, "row": i} for j, i in measurements.gross]
     return atomic_write_text(path, "# calib_oed realistic simulated truth\n" + yaml.safe_dump(rec, sort_keys=False))
+
+
+def read_realistic_truth(data: dict, setup, source: str | os.PathLike = "<truth>") -> RealisticTruth:
+    """The :class:`RealisticTruth` of a :func:`write_realistic_truth` record (its parsed YAML).
+
+    Raises:
+        ParameterError: a missing or malformed entry, named with the file.
+    """
+    space = setup.problem.space
+    try:
+        p = np.zeros(space.size)
+        for name, value in data["parameters"].items():
+            p[space.index(name)] = float(value)
+        comp, tr, tk, bal = data["compliance"], data["transmission"], data["tracker"], data["balancer"]
+        mass, com = float(comp["payload_mass"]), np.array(comp["payload_com"], dtype=float)
+        arrays = [np.array(tr[k], dtype=float) for k in ("gear_ratios", "joint_amplitude", "joint_phase",
+                                                          "motor_amplitude", "motor_phase")]
+        truth = RealisticTruth(
+            space, RealisticSettings.from_record(data["settings"]), p,
+            np.array(comp["stiffness"], dtype=float), np.array(comp["applied_compliance"], dtype=float),
+            mass, com, Transmission(*arrays),
+            None if bal is None else Balancer(int(bal["joint"]) - 1, float(bal["torque"]), float(bal["theta0"]),
+                                              float(bal["rho"]), float(bal["kappa"])),
+            float(data["thermal_expansion"]), TrackerSystematics(**{k: float(v) for k, v in tk.items()}),
+            gravity_load(setup.scene, space.robot, mass, com))
+    except (KeyError, TypeError, ValueError, AttributeError) as exc:
+        raise ParameterError(f"{source}: not a realistic truth file of scene {setup.scene.name} "
+                             f"({type(exc).__name__}: {exc})") from exc
+    nv = space.robot.model.nv
+    if truth.stiffness.shape != (nv,) or truth.transmission.joint_amplitude.shape != (nv, 2):
+        raise ParameterError(f"{source}: the truth has joint arrays for another robot (expected {nv} joints)")
+    return truth

@@ -24,6 +24,7 @@ from calib_oed.calibration.realistic_measure import (
     RealisticMeasurements,
     blocks_to_measurement_set,
     measure,
+    read_realistic_truth,
 )
 from calib_oed.calibration.simulation import draw_true_parameters, simulate_observations
 from calib_oed.exceptions import DesignError, ExportError, SceneError
@@ -141,9 +142,12 @@ def write_truth(path: str | os.PathLike, s: Setup, p_true: np.ndarray, truth_see
     return atomic_write_text(path, "# calib_oed simulated truth\n" + yaml.safe_dump(data, sort_keys=False))
 
 
-def read_truth(path: str | os.PathLike, s: Setup) -> np.ndarray:
-    """Read :func:`write_truth` output back into a parameter vector."""
+def read_truth(path: str | os.PathLike, s: Setup) -> np.ndarray | RealisticTruth:
+    """Read :func:`write_truth` output back into a parameter vector; a realistic truth
+    (``simulate --realistic``) into its :class:`RealisticTruth`."""
     data = yaml.safe_load(Path(path).read_text())
+    if isinstance(data, dict) and data.get("kind") == "realistic":
+        return read_realistic_truth(data, s, path)
     params = data.get("parameters", {}) if isinstance(data, dict) else {}
     space = s.problem.space
     p = np.zeros(space.size)
@@ -199,9 +203,12 @@ def round_trip_error(s: Setup, p: np.ndarray, urdf_path: str | os.PathLike, n: i
     return worst
 
 
-def tcp_errors(s: Setup, p_true: np.ndarray, p_est: np.ndarray | None) -> np.ndarray:
-    """KPI error of the model ``p_est`` (None: nominal) against the truth, (t, 3) [m]."""
+def tcp_errors(s: Setup, p_true: np.ndarray | RealisticTruth, p_est: np.ndarray | None) -> np.ndarray:
+    """KPI error of the model ``p_est`` (None: nominal) against the truth (true parameters
+    or a realistic truth), (t, 3) [m]."""
     kpi, space = s.problem.kpi, s.problem.space
+    if isinstance(p_true, RealisticTruth):
+        return kpi.compute_values(space, p_est) - p_true.compute_kpi_values(kpi)
     return kpi.compute_values(space, p_est) - kpi.compute_values(space, p_true)
 
 

@@ -134,9 +134,9 @@ def _realistic_settings(args):
         return None
     import dataclasses
 
-    from calib_oed.calibration.realistic_defaults import RealisticSettings
+    from calib_oed.calibration.realistic_defaults import realistic_settings_from_scene
 
-    base = getattr(_scene(args.scene), "realistic", None) or RealisticSettings()
+    base = realistic_settings_from_scene(_scene(args.scene))
     changes = {name: False for name in args.without}
     if args.level is not None:
         changes["level"] = args.level

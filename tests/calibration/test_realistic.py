@@ -214,3 +214,50 @@ def test_cli_simulate_realistic_writes_every_component(tmp_path, capsys):
     assert rec["balancer"] is None and rec["settings"]["balancer"] is False and len(rec["gross_errors"]) == 1
     assert main(["simulate", "fms_kr16", "-n", "8", "--level", "2", "-o", str(out)]) == EXIT_BAD_INPUT
     assert "need --realistic" in capsys.readouterr().err
+
+
+def test_scene_block_in_file_units(tmp_path):
+    from importlib import resources
+
+    from calib_oed.calibration.realistic_defaults import realistic_settings_from_scene
+    from calib_oed.exceptions import SceneError
+    from calib_oed.scene.reader import load_scene
+
+    text = resources.files("calib_oed.scene.shipped").joinpath("fms_kr16.yaml").read_text()
+    block = ("\nrealistic:\n  level: 2\n  thermal: true\n  payload: {mass: 10, com: [0, 0, 100]}\n"
+             "  joint_cyclic_arcsec: [20, 10]\n  gross_size: 3\n  sigma_angle: 0.01\n"
+             "  stiffness: [1.0e+6, 2.0e+6, 1.0e+6, 2.0e+5, 2.0e+5, 1.0e+5]\n")
+    path = tmp_path / "scene.yaml"
+    path.write_text(text + block)
+    got = realistic_settings_from_scene(load_scene(path))
+    want = RealisticSettings(level=2.0, thermal=True, payload_mass=10.0, payload_com=(0.0, 0.0, 0.1),
+                             joint_cyclic=(20 * ARCSEC, 10 * ARCSEC), gross_size=3e-3,
+                             sigma_angle=np.deg2rad(0.01), stiffness=(1e6, 2e6, 1e6, 2e5, 2e5, 1e5))
+    for key, value in want.describe().items():
+        assert value is None and got.describe()[key] is None or np.allclose(got.describe()[key], value), key
+    assert sample_truth(setup(load_scene(path)), 0).settings.level == 2.0  # the scene's block by default
+    path.write_text(text + block.replace("gross_size", "gross_sise"))
+    with pytest.raises(SceneError, match="realistic.gross_sise: unknown key"):
+        realistic_settings_from_scene(load_scene(path))
+    assert realistic_settings_from_scene(load_scene("fms_kr16")) == RealisticSettings()
+
+
+def test_truth_file_round_trip_and_identify_reports_the_true_tcp_error(kr16, tmp_path, capsys):
+    from calib_oed.calibration.workflow import read_truth, tcp_errors
+    from calib_oed.cli import EXIT_OK, main
+
+    out = tmp_path / "m.csv"
+    assert main(["simulate", "fms_kr16", "-n", "30", "--realistic", "--thermal", "--truth-seed", "4",
+                 "-o", str(out), "--quiet"]) == EXIT_OK
+    truth = read_truth(tmp_path / "m_truth.yaml", kr16)
+    again = sample_truth(kr16, np.random.default_rng(4), RealisticSettings(thermal=True))
+    q = kr16.problem.robot.random_configurations(6, 9)
+    assert np.array_equal(truth.compute_reflector_points(q, 0.5), again.compute_reflector_points(q, 0.5))
+    before = np.linalg.norm(tcp_errors(kr16, truth, None), axis=1)
+    rigid = np.linalg.norm(tcp_errors(kr16, truth.p, None), axis=1)
+    assert not np.allclose(before, rigid)  # the unmodelled part is in the true TCP
+    capsys.readouterr()
+    assert main(["identify", "fms_kr16", str(out), "--loss", "linear", "--truth",
+                 str(tmp_path / "m_truth.yaml"), "--json"]) == EXIT_OK
+    data = json.loads(capsys.readouterr().out)
+    assert data["tcp_error_mm"]["before"][0] == pytest.approx(before[0] * 1e3, rel=1e-9)
