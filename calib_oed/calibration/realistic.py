@@ -263,7 +263,11 @@ def gravity_load(scene, robot, mass: float, com: np.ndarray) -> GravityLoad:
                        Compliance(mass, com, link_masses=links.link_masses, link_coms=links.link_coms))
 
 
-def _arm_mass(model: pin.Model) -> float:
+def _arm_mass(model: pin.Model, scene) -> float:
+    """The arm's mass [kg]: the scene's ``robot.compliance.links`` masses if given, else the URDF's."""
+    spec = getattr(scene, "compliance", None)
+    if spec is not None and spec.payload.link_masses is not None:
+        return float(np.sum(spec.payload.link_masses))
     return float(sum(model.inertias[i].mass for i in range(1, model.njoints)))
 
 
@@ -304,7 +308,7 @@ def sample_truth(setup, rng: np.random.Generator | int,
     p[space.compliance_slice] = 0.0
     if not settings.geometric:
         p[: space.compliance_slice.start] = 0.0
-    size = settings.size_class_of(_arm_mass(robot.model))
+    size = settings.size_class_of(_arm_mass(robot.model, setup.scene))
     defaults = settings.table(size, nv)
     level = settings.level
     # stiffness: log-normal about the size class's typical value
