@@ -51,6 +51,7 @@ from calib_oed.calibration.realistic_defaults import (
     realistic_settings_from_scene,
 )
 from calib_oed.exceptions import ParameterError
+from calib_oed.measurement.base import evaluate_setup
 from calib_oed.model.compliance import Compliance, GravityLoad
 from calib_oed.model.joint_map import effective_configurations
 from calib_oed.model.kinematics import compute_tool_kinematics
@@ -247,6 +248,17 @@ class RealisticTruth:
             tracker = self.space.tracker_placement(self.p)
             x = (x - tracker.translation) @ tracker.rotation
         return x
+
+    def compute_model_errors(self, p_model: np.ndarray | None, q: np.ndarray, point: np.ndarray | None = None,
+                             time: float | np.ndarray = 0.0) -> np.ndarray:
+        """World position error of the model ``p_model`` (``space``'s layout, None: nominal) at ``q``
+        (n, nq): predicted minus true, (n, k, 3) [m] for every reflector centre, or (n, 3) for
+        the tool point ``point`` [m, tool frame]. The achieved error of a calibration at new poses."""
+        state = evaluate_setup(self.space, p_model, q, regressor=False, jacobian=False)
+        if point is not None:
+            return state.kin.points(point) - self.compute_tcp(q, point, time)
+        predicted = np.stack([state.kin.points(c) for c in state.reflectors], axis=1)
+        return predicted - self.compute_reflector_points(q, time)
 
     def compute_tracker_readings(self, world: np.ndarray) -> np.ndarray:
         """Noise-free tracker readings (tracker frame, systematics applied) of world points (..., 3) [m]."""

@@ -190,8 +190,12 @@ def test_default_level_leaves_several_times_the_noise_after_the_geometric_fit(na
         q, q_new = robot.random_configurations(60, 10 + seed), robot.random_configurations(30, 50 + seed)
         meas = measure(truth, s.problem.models, q, 100 + seed)
         result = identify(space, list(meas.blocks), s.problem.identifiability, loss="linear")
+        error = truth.compute_model_errors(result.p, q_new)[:, 0]
         state = evaluate_setup(space, result.p, q_new, regressor=False, jacobian=False)
-        error = state.tool_point(state.reflectors[0], "world") - truth.compute_reflector_points(q_new)[:, 0]
+        assert np.allclose(error, state.tool_point(state.reflectors[0], "world")
+                           - truth.compute_reflector_points(q_new)[:, 0], atol=1e-14)
+        tcp = truth.compute_model_errors(result.p, q_new, point=np.zeros(3))
+        assert np.allclose(tcp, state.kin.translation - truth.compute_tcp(q_new), atol=1e-14)
         noise = s.problem.models[0].noise.sample(meas.exact[0], np.random.default_rng(seed))
         ratios.append(np.sqrt(np.mean(np.sum(error**2, 1)) / np.mean(np.sum(noise**2, 1))))
         sigma0.append(float(result.sigma0))
