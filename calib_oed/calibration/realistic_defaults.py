@@ -198,7 +198,13 @@ class RealisticSettings:
         out = {}
         for f in fields(self):
             v = getattr(self, f.name)
-            out[f.name] = list(map(float, v)) if isinstance(v, tuple) else v
+            if isinstance(v, tuple):
+                v = list(map(float, v))
+            elif isinstance(v, (bool, np.bool_)):
+                v = bool(v)
+            elif v is not None:
+                v = int(v) if f.name == "gross_errors" else float(v)
+            out[f.name] = v
         return out
 
 

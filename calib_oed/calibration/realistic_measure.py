@@ -18,6 +18,7 @@ time of row :math:`i` in the session (rows in measurement order).
 
 from __future__ import annotations
 
+import dataclasses
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -120,47 +121,25 @@ def measure(truth: RealisticTruth, models, q: np.ndarray, rng: np.random.Generat
 
 
 def truth_record(truth: RealisticTruth, scene_name: str, truth_seed: int) -> dict:
-    """Every component of ``truth`` and its values (SI; lists), for a YAML file."""
-    space, tr = truth.space, truth.transmission
-    rec = {
+    """Every component of ``truth`` and its values (SI; Python floats and lists), for a YAML file."""
+    space, tr, b = truth.space, truth.transmission, truth.balancer
+    return {
         "scene": scene_name,
         "truth_seed": int(truth_seed),
         "kind": "realistic",
-        "units": "SI (m, rad, N·m/rad, rad/(N·m), kg; scale [1])",
+        "units": "SI (m, rad, N m/rad, rad/(N m), kg; scale [1])",
         "settings": truth.settings.describe(),
-        "parameters": {n: float(v) for n, v in zip(space.names, truth.p, strict=True)},
+        "parameters": dict(zip(space.names, truth.p.tolist(), strict=True)),
         "compliance": {"stiffness": truth.stiffness.tolist(), "applied_compliance": truth.compliance.tolist(),
-                       "payload_mass": truth.payload_mass, "payload_com": truth.payload_com.tolist()},
-        "transmission": {"gear_ratios": tr.gear_ratios.tolist(), "joint_amplitude": tr.joint_amplitude.tolist(),
-                         "joint_phase": tr.joint_phase.tolist(), "motor_amplitude": tr.motor_amplitude.tolist(),
-                         "motor_phase": tr.motor_phase.tolist()},
-        "balancer": None if truth.balancer is None else {
-            "joint": truth.balancer.joint + 1, "torque": truth.balancer.torque, "theta0": truth.balancer.theta0,
-            "rho": truth.balancer.rho, "kappa": truth.balancer.kappa},
-        "thermal_expansion": truth.thermal_expansion,
-        "tracker": {"scale": truth.tracker.scale, "azimuth_eccentricity": truth.tracker.azimuth_eccentricity,
-                    "azimuth_phase": truth.tracker.azimuth_phase,
-                    "elevation_eccentricity": truth.tracker.elevation_eccentricity,
-                    "elevation_phase": truth.tracker.elevation_phase},
+                       "payload_mass": float(truth.payload_mass), "payload_com": truth.payload_com.tolist()},
+        "transmission": {k: np.asarray(getattr(tr, k)).tolist() for k in (
+            "gear_ratios", "joint_amplitude", "joint_phase", "motor_amplitude", "motor_phase")},
+        "balancer": None if b is None else {"joint": b.joint + 1, "torque": float(b.torque),
+                                            "theta0": float(b.theta0), "rho": float(b.rho),
+                                            "kappa": float(b.kappa)},
+        "thermal_expansion": float(truth.thermal_expansion),
+        "tracker": {k: float(v) for k, v in dataclasses.asdict(truth.tracker).items()},
     }
-    return _plain(rec)
-
-
-def _plain(obj):
-    """``obj`` with numpy scalars and arrays as Python floats and lists (for YAML)."""
-    if isinstance(obj, dict):
-        return {k: _plain(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_plain(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return _plain(obj.tolist())
-    if isinstance(obj, (bool, np.bool_)):
-        return bool(obj)
-    if isinstance(obj, (int, np.integer)):
-        return int(obj)
-    if isinstance(obj, (float, np.floating)):
-        return float(obj)
-    return obj
 
 
 def write_realistic_truth(path: str | os.PathLike, truth: RealisticTruth, scene_name: str, truth_seed: int,
