@@ -21,20 +21,22 @@ and those to tracker readings. Per row, in this order:
    (:class:`calib_oed.model.compliance.GravityLoad`, the model's own convention);
 4. **J2 balancer** (unmodelled): a spring torque on the second joint,
    :math:`\tau_{b,2}(q_2)` (:class:`Balancer`), part of the torque the J2 gear carries;
-5. **thermal drift** (unmodelled, off by default): the arm expands uniformly,
+5. **joint gain errors** (unmodelled unless the scene identifies joint gains):
+   :math:`\nu\circ q`, a small scale error of every joint's angle (gear ratio, encoder);
+6. **thermal drift** (unmodelled, off by default): the arm expands uniformly,
    every world point scaled about the base by :math:`1 + \alpha\,\Delta T\,t`,
    :math:`t \in [0, 1]` the time of the measurement in the session (row order);
-6. **tracker systematics** (unmodelled), in the tracker frame, range
+7. **tracker systematics** (unmodelled), in the tracker frame, range
    :math:`r`, azimuth :math:`\theta` = atan2(y, x), elevation :math:`\varphi`:
    :math:`r' = (1 + s)\,r`, :math:`\theta' = \theta + e_\theta\sin(\theta + \gamma_\theta)`,
    :math:`\varphi' = \varphi + e_\varphi\sin(\varphi + \gamma_\varphi)`: scale
    error :math:`s` and the eccentricity of the two angle encoders (once per revolution);
-7. the scene's measurement noise (``tracker.noise`` / ``sigma``, robot
+8. the scene's measurement noise (``tracker.noise`` / ``sigma``, robot
    repeatability) and optionally a few gross errors (:mod:`calib_oed.calibration.realistic_measure`).
 
-The joint errors of 2-4 add: the kinematics run at
-:math:`q_{eff} = q + g\circ q + e(q) + c\circ(\tau_g + \tau_b)` (gains only if the
-scene identifies them). ``level`` scales every unmodelled part (2-6)
+The joint errors of 2-5 add: the kinematics run at
+:math:`q_{eff} = q + g\circ q + \nu\circ q + e(q) + c\circ(\tau_g + \tau_b)` (:math:`g` the
+modelled gains, only if the scene identifies them). ``level`` scales every unmodelled part (2-7)
 together. The defaults and their sources: ``docs/identification.md`` (the
 realistic simulator) and :mod:`calib_oed.calibration.realistic_defaults`.
 """
@@ -159,7 +161,7 @@ class TrackerSystematics:
 
 @dataclass(frozen=True, eq=False)
 class RealisticTruth:
-    """One realistic true robot and tracker (:func:`sample_truth`).
+    r"""One realistic true robot and tracker (:func:`sample_truth`).
 
     Attributes:
         space: The scene's parameter layout (robot, nominal tracker and reflectors).
@@ -175,6 +177,8 @@ class RealisticTruth:
         thermal_expansion: :math:`\\alpha\\,\\Delta T` over the session [1] (0: off).
         tracker: Tracker systematics.
         gravity: Gravity torques of the nominal arm with the payload (not serialized).
+        gain_errors: Joint gain (scale) errors :math:`\nu` (nv,) [rad/rad], applied as
+            :math:`\nu\circ q` (level applied; None: zeros).
     """
 
     space: ParameterSpace
@@ -189,6 +193,7 @@ class RealisticTruth:
     thermal_expansion: float
     tracker: TrackerSystematics
     gravity: GravityLoad = field(repr=False)
+    gain_errors: np.ndarray | None = None
 
     # ------------------------------------------------------------ joints
     def compute_gravity_torques(self, q: np.ndarray) -> np.ndarray:
@@ -199,6 +204,8 @@ class RealisticTruth:
         r""":math:`q_{eff} - q`: gains, transmission, compliance (gravity + balancer), (n, nv) [rad]."""
         q = self.space.robot.check_configurations(q)
         dq = self.transmission.compute_errors(q)
+        if self.gain_errors is not None:
+            dq = dq + self.gain_errors * q
         if np.any(self.compliance != 0):
             tau = self.compute_gravity_torques(q)
             if self.balancer is not None:
@@ -354,7 +361,9 @@ def sample_truth(setup, rng: np.random.Generator | int,
     tracker = TrackerSystematics(tk * settings.tracker_scale_ppm * 1e-6 * draws[0],
                                  tk * settings.encoder_eccentricity * draws[1][0], float(draws[2][0]),
                                  tk * settings.encoder_eccentricity * draws[1][1], float(draws[2][1]))
-    for arr in (p, stiffness, compliance, com):
+    # joint gain errors: drawn last, so the draws above do not depend on them
+    gains = (level if settings.gains else 0.0) * settings.sigma_gain * rng.normal(size=nv)
+    for arr in (p, stiffness, compliance, com, gains):
         arr.setflags(write=False)
     return RealisticTruth(space, settings, p, stiffness, compliance, float(total), com, transmission,
-                          balancer, float(thermal), tracker, gravity)
+                          balancer, float(thermal), tracker, gravity, gains)

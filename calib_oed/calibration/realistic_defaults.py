@@ -24,6 +24,9 @@ reasoning in ``docs/identification.md`` (the realistic simulator):
   half of the arm's gravity torque on J2; collaborative arms have none;
 - thermal drift (off by default): steel/cast arm, :math:`\alpha` = 11.7e-6 /K,
   2 K warming over the session;
+- joint gain errors: a scale error of each joint's angle (gear ratio, encoder),
+  normal with standard deviation 5e-5 (0.05 mrad per rad: 0.1 mrad over a 2 rad
+  sweep; identified gains of real arms are of the order 1e-4, -0.5 % is implausible);
 - tracker: range scale error normal with 2 ppm standard deviation (air
   refraction: 1 ppm per 1 K or per 3.7 hPa of error in the weather station);
   residual angle-encoder eccentricity 1.5 arcsec (7 µrad, about the 6 µm/m
@@ -81,7 +84,7 @@ class RealisticSettings:
 
     Attributes:
         level: Scale of every unmodelled component (>= 0; 0: today's geometric truth).
-        geometric, compliance, transmission, balancer, thermal, tracker: Switches.
+        geometric, compliance, transmission, balancer, thermal, tracker: Switches (``gains`` below).
         sigma_length: Geometric errors' standard deviation, lengths [m].
         sigma_angle: The same, angles [rad].
         stiffness: Joint stiffness (nv,) [N·m/rad] or None: the size class's.
@@ -99,6 +102,7 @@ class RealisticSettings:
         encoder_eccentricity: Typical angle-encoder eccentricity of each axis [rad].
         gross_errors: Number of measurements with a gross error.
         gross_size: Size of each gross error [m].
+        gains: Switch of the joint gain errors; ``sigma_gain``: their standard deviation [rad/rad].
     """
 
     level: float = 1.0
@@ -108,6 +112,7 @@ class RealisticSettings:
     balancer: bool = True
     thermal: bool = False
     tracker: bool = True
+    gains: bool = True
     sigma_length: float = 0.5e-3
     sigma_angle: float = 0.5e-3
     stiffness: tuple[float, ...] | None = None
@@ -127,6 +132,7 @@ class RealisticSettings:
     encoder_eccentricity: float = 1.5 * ARCSEC
     gross_errors: int = 0
     gross_size: float = 5e-3
+    sigma_gain: float = 5e-5
 
     def __post_init__(self):
         for f in fields(self):
@@ -209,11 +215,11 @@ class RealisticSettings:
 
 
 #: Keys of the scene's ``realistic:`` block (docs/scenes.md).
-SCENE_KEYS = ("level", "geometric", "compliance", "transmission", "balancer", "thermal", "tracker",
+SCENE_KEYS = ("level", "geometric", "compliance", "transmission", "balancer", "thermal", "tracker", "gains",
               "sigma_length", "sigma_angle", "stiffness", "stiffness_spread", "payload", "nest_mass",
               "joint_cyclic_arcsec", "motor_cyclic_arcsec", "gear_ratios", "balancer_fraction",
               "balancer_rho", "balancer_kappa", "thermal_alpha", "thermal_delta_t", "tracker_scale_ppm",
-              "encoder_eccentricity_arcsec", "gross_errors", "gross_size")
+              "encoder_eccentricity_arcsec", "gross_errors", "gross_size", "sigma_gain")
 
 
 def realistic_settings_from_scene(scene) -> RealisticSettings:
@@ -233,7 +239,7 @@ def realistic_settings_from_scene(scene) -> RealisticSettings:
     spec = reader.mapping(block, "realistic", (), SCENE_KEYS)
     nv = scene.robot.model.nv
     values: dict = {}
-    for key in ("geometric", "compliance", "transmission", "balancer", "thermal", "tracker"):
+    for key in ("geometric", "compliance", "transmission", "balancer", "thermal", "tracker", "gains"):
         if key in spec:
             if not isinstance(spec[key], bool):
                 raise reader.fail(f"realistic.{key}", f"expected true or false, got {spec[key]!r}")
@@ -242,7 +248,7 @@ def realistic_settings_from_scene(scene) -> RealisticSettings:
               "encoder_eccentricity_arcsec": ARCSEC}
     for key in ("level", "sigma_length", "sigma_angle", "stiffness_spread", "nest_mass", "balancer_fraction",
                 "balancer_rho", "balancer_kappa", "thermal_alpha", "thermal_delta_t", "tracker_scale_ppm",
-                "encoder_eccentricity_arcsec", "gross_size"):
+                "encoder_eccentricity_arcsec", "gross_size", "sigma_gain"):
         if key in spec:
             values[key.removesuffix("_arcsec")] = reader.number(spec[key], f"realistic.{key}",
                                                                 scales.get(key, 1.0), nonnegative=True)

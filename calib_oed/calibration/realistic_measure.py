@@ -139,6 +139,7 @@ def truth_record(truth: RealisticTruth, scene_name: str, truth_seed: int) -> dic
                                             "kappa": float(b.kappa)},
         "thermal_expansion": float(truth.thermal_expansion),
         "tracker": {k: float(v) for k, v in dataclasses.asdict(truth.tracker).items()},
+        "gain_errors": None if truth.gain_errors is None else truth.gain_errors.tolist(),
     }
 
 
@@ -177,7 +178,8 @@ def read_realistic_truth(data: dict, setup, source: str | os.PathLike = "<truth>
             None if bal is None else Balancer(int(bal["joint"]) - 1, float(bal["torque"]), float(bal["theta0"]),
                                               float(bal["rho"]), float(bal["kappa"])),
             float(data["thermal_expansion"]), TrackerSystematics(**{k: float(v) for k, v in tk.items()}),
-            gravity_load(setup.scene, space.robot, mass, com))
+            gravity_load(setup.scene, space.robot, mass, com),
+            np.array(data.get("gain_errors", [0.0] * space.robot.model.nv), dtype=float))
     except (KeyError, TypeError, ValueError, AttributeError) as exc:
         raise ParameterError(f"{source}: not a realistic truth file of scene {setup.scene.name} "
                              f"({type(exc).__name__}: {exc})") from exc

@@ -235,7 +235,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="with --realistic: scale of the unmodelled errors (default 1, or the scene's "
                    "realistic.level)")
     p.add_argument("--without", action="append", default=[], metavar="COMPONENT",
-                   choices=("geometric", "compliance", "transmission", "balancer", "tracker"),
+                   choices=("geometric", "compliance", "transmission", "balancer", "tracker", "gains"),
                    help="with --realistic: switch a component off (repeatable)")
     p.add_argument("--thermal", action="store_true", help="with --realistic: add thermal drift")
     p.add_argument("--gross-errors", type=_non_negative_int, default=None, metavar="K",
