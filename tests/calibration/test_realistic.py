@@ -23,8 +23,7 @@ COMPONENTS = ("compliance", "transmission", "balancer", "tracker", "gains")
 
 def only(component: str | None, **extra) -> RealisticSettings:
     """Settings with one unmodelled component on (None: none) and no geometric errors."""
-    off = {c: c == component for c in COMPONENTS}
-    return RealisticSettings(geometric=False, **off, **extra)
+    return RealisticSettings(**{"geometric": False, **{c: c == component for c in COMPONENTS}, **extra})
 
 
 @pytest.fixture(scope="module")
@@ -220,7 +219,8 @@ def test_cli_simulate_realistic_writes_every_component(tmp_path, capsys):
                  "--gross-errors", "1", "-o", str(out), "--json"]) == EXIT_OK
     assert json.loads(capsys.readouterr().out)["realistic"] is True
     rec = yaml.safe_load((tmp_path / "m_truth.yaml").read_text())
-    for key in ("parameters", "compliance", "transmission", "balancer", "tracker", "settings", "gross_errors"):
+    for key in ("parameters", "compliance", "transmission", "balancer", "tracker", "gain_errors", "settings",
+                "gross_errors"):
         assert key in rec
     assert rec["balancer"] is None and rec["settings"]["balancer"] is False and len(rec["gross_errors"]) == 1
     assert main(["simulate", "fms_kr16", "-n", "8", "--level", "2", "-o", str(out)]) == EXIT_BAD_INPUT
@@ -272,3 +272,43 @@ def test_truth_file_round_trip_and_identify_reports_the_true_tcp_error(kr16, tmp
                  str(tmp_path / "m_truth.yaml"), "--json"]) == EXIT_OK
     data = json.loads(capsys.readouterr().out)
     assert data["tcp_error_mm"]["before"][0] == pytest.approx(before[0] * 1e3, rel=1e-9)
+
+
+def test_gain_errors_are_what_the_models_gain_parameters_capture():
+    """With gains identified (and the rest of the truth geometric), the fitted gain of each joint is
+    the truth's modelled gain plus its gain error (the same convention), within 4 predicted std."""
+    from importlib import resources
+
+    import yaml
+
+    from calib_oed.scene.reader import scene_from_dict
+
+    raw = yaml.safe_load((resources.files("calib_oed.scene.shipped") / "fms_kr16.yaml").read_text())
+    raw["robot"]["joint_gains"] = True
+    s = setup(scene_from_dict(raw))
+    space = s.problem.space
+    truth = sample_truth(s, 2, only("gains", sigma_gain=1e-3, geometric=True))
+    q = s.problem.robot.random_configurations(60, 8)
+    fit = identify(space, list(measure(truth, s.problem.models, q, 5).blocks), s.problem.identifiability)
+    free = [k for k in fit.free_indices if space.names[k].endswith(".gain")]
+    joints = [int(space.names[k][5]) - 1 for k in free]
+    assert len(free) == 5  # joint6.gain: no effect with the reflector on the A6 axis
+    expected = truth.p[free] + truth.gain_errors[joints]
+    std = np.array([fit.estimate(space.names[k]).std for k in free])
+    assert np.all(np.abs(fit.p[free] - expected) < 4 * std)  # within the noise's share
+    assert np.all(4 * std < 0.2 * np.abs(truth.gain_errors[joints]))  # which is far below the errors
+
+
+def test_a_pose_scene_is_refused_with_the_reason():
+    from importlib import resources
+
+    import yaml
+
+    from calib_oed.scene.reader import scene_from_dict
+
+    raw = yaml.safe_load((resources.files("calib_oed.scene.shipped") / "fms_kr16.yaml").read_text())
+    raw["measurement"] = "pose"
+    del raw["tracker"]["noise"], raw["robot"]["repeatability"]
+    s = setup(scene_from_dict(raw))
+    with pytest.raises(ParameterError, match="measurement: position"):
+        measure(sample_truth(s, 0), s.problem.models, s.problem.robot.random_configurations(3, 0), 0)
