@@ -312,3 +312,28 @@ def test_a_pose_scene_is_refused_with_the_reason():
     s = setup(scene_from_dict(raw))
     with pytest.raises(ParameterError, match="measurement: position"):
         measure(sample_truth(s, 0), s.problem.models, s.problem.robot.random_configurations(3, 0), 0)
+
+
+def test_compliance_is_what_the_models_compliance_parameters_capture():
+    """fms_kr300 with compliance modelled, its 300 kg payload, no nest: the fitted compliances
+    are the truth's, within 4 predicted std."""
+    from calib_oed.model.compliance import Compliance
+    from calib_oed.scene.reader import load_scene
+    from calib_oed.scene.records import ComplianceSpec
+
+    scene = load_scene("fms_kr300")
+    scene = dataclasses.replace(scene, compliance=ComplianceSpec(True, scene.compliance.payload))
+    assert isinstance(scene.compliance.payload, Compliance)
+    s = setup(scene)
+    space = s.problem.space
+    truth = sample_truth(s, 3, only("compliance", geometric=True, nest_mass=0.0))
+    q = s.problem.robot.random_configurations(60, 9)
+    fit = identify(space, list(measure(truth, s.problem.models, q, 6).blocks), s.problem.identifiability)
+    free = [k for k in fit.free_indices if space.names[k].endswith(".c")]
+    joints = [int(space.names[k][5]) - 1 for k in free]
+    assert {1, 2} <= set(joints)  # A2 and A3 carry the weight
+    std = np.array([fit.estimate(space.names[k]).std for k in free])
+    assert np.all(np.abs(fit.p[free] - truth.compliance[joints]) < 4 * std)
+    a2 = joints.index(1)
+    assert 4 * std[a2] < 0.1 * truth.compliance[1]  # a real test: A2's compliance well determined
+    assert fit.sigma0 < 1.3
