@@ -52,6 +52,7 @@ from calib_oed.calibration.realistic_defaults import (
     RealisticSettings,
     realistic_settings_from_scene,
 )
+from calib_oed.calibration.simulation import draw_true_parameters
 from calib_oed.exceptions import ParameterError
 from calib_oed.measurement.base import evaluate_setup
 from calib_oed.model.compliance import Compliance, GravityLoad
@@ -311,8 +312,6 @@ def sample_truth(setup, rng: np.random.Generator | int,
     Every component is drawn whether switched on or not (in a fixed order), so
     switching one off leaves the others' values unchanged for the same ``rng``.
     """
-    from calib_oed.calibration.simulation import draw_true_parameters
-
     settings = realistic_settings_from_scene(setup.scene) if settings is None else settings
     rng = np.random.default_rng(rng)
     problem = setup.problem
