@@ -18,18 +18,20 @@ configuration, then component. The Jacobian is analytic,
 (the measurement models' ``compute_param_jacobian``). Solver:
 ``scipy.optimize.least_squares``. How to read the result: ``docs/identification.md``.
 
-Full covariances (opt-in): a block whose model carries an error model
-(``model.noise``, :class:`~calib_oed.measurement.noise.TrackerNoise`) is
-whitened per measurement by :math:`L_i^{-1}` instead of :math:`\Sigma^{-1}`,
-:math:`r_i = L_i^{-1}(h_i - \eta_i)`, :math:`\Sigma_i = L_i L_i^\top` evaluated
-at the positions :math:`h(\hat p, q_i)` predicted by the CURRENT ESTIMATE.
+Every block is whitened per measurement by its model's noise contract
+(``model.noise_whitening``), :math:`r_i = L_i^{-1}(h_i - \eta_i)`: for
+independent components :math:`L_i = \mathrm{diag}(\sigma_i)` (the block's
+per-row sigmas), so :math:`r = \Sigma^{-1}(h - \eta)` as above. With a full
+error model (:class:`~calib_oed.measurement.noise.TrackerNoise`: tracker and
+repeatability) :math:`\Sigma_i = L_i L_i^\top` is evaluated at the positions
+:math:`h(\hat p, q_i)` predicted by the CURRENT ESTIMATE.
 :math:`L_i` is frozen during one solve (so the Jacobian
 :math:`L_i^{-1}\partial h_i/\partial p_f` is exact for the solved cost); it is
 evaluated at the start :math:`p_0`, and after the solve re-evaluated at
 :math:`\hat p` and solved once more from :math:`\hat p` (a fixed point; the
 second solve moves the estimate by a tiny fraction of its standard deviation,
 since :math:`\Sigma_i` changes by :math:`O(\lVert\Delta h\rVert/d)`).
-Models without ``noise`` behave exactly as before.
+Models without a full error model need no second solve.
 
 This module owns the estimator: the residual :math:`r` and its Jacobian
 (:func:`residual_function`), the options and :func:`identify`. The record it
@@ -142,21 +144,21 @@ class _Residuals:
         self.slices = [slice(a, z) for a, z in zip(sizes[:-1], sizes[1:], strict=True)]
         self._x: np.ndarray | None = None
         self._states: list | None = None
-        self.chol: list[np.ndarray | None] = [None] * len(self.blocks)
-        self.whiten: list[np.ndarray | None] = [None] * len(self.blocks)
-        self.has_noise = any(getattr(b.model, "noise", None) is not None for b in self.blocks)
-        if self.has_noise:
-            self.freeze_noise(p0[free])
+        self.chol: list[np.ndarray] = [np.empty(0)] * len(self.blocks)
+        self.whiten: list[np.ndarray] = [np.empty(0)] * len(self.blocks)
+        #: Whether some block's covariance depends on the position (the tracker error model).
+        self.has_noise = any(b.model.noise is not None for b in self.blocks)
+        self.freeze_noise(p0[free])
 
     def freeze_noise(self, x: np.ndarray) -> None:
-        """Evaluate :math:`L_i` and :math:`L_i^{-1}` of the noise-model blocks at ``x`` and keep them."""
+        """Evaluate every block's :math:`L_i` and :math:`L_i^{-1}` (the models' noise contract)
+        at the positions predicted by ``x`` and keep them."""
         for state, (_, members) in zip(self._states_at(x), self.groups, strict=True):
             for k in members:
-                noise = getattr(self.blocks[k].model, "noise", None)
-                if noise is not None:
-                    y = self.blocks[k].model.compute_values(state)
-                    self.chol[k] = noise.cholesky(y)
-                    self.whiten[k] = np.linalg.inv(self.chol[k])
+                b = self.blocks[k]
+                y = b.model.compute_values(state)
+                self.chol[k] = b.model.noise_cholesky(y, b.sigma)
+                self.whiten[k] = b.model.noise_whitening(y, b.sigma)
 
     def full(self, x: np.ndarray) -> np.ndarray:
         p = self.p0.copy()
@@ -177,12 +179,10 @@ class _Residuals:
         for state, (_, members) in zip(self._states_at(x), self.groups, strict=True):
             for k in members:
                 h[self.slices[k]] = self.blocks[k].model.compute_values(state).ravel()
-        r = (h - self.eta) / self.sigma
-        if self.has_noise:
-            for k, w in enumerate(self.whiten):
-                if w is not None:
-                    e = (h - self.eta)[self.slices[k]].reshape(w.shape[0], 3)
-                    r[self.slices[k]] = np.einsum("nij,nj->ni", w, e).ravel()
+        r = np.empty_like(h)
+        for k, w in enumerate(self.whiten):
+            e = (h - self.eta)[self.slices[k]].reshape(w.shape[:2])
+            r[self.slices[k]] = np.einsum("nij,nj->ni", w, e).ravel()
         return r
 
     def jac(self, x: np.ndarray) -> np.ndarray:
@@ -191,10 +191,7 @@ class _Residuals:
             for k in members:
                 b = self.blocks[k]
                 dh = b.model.compute_param_jacobian(state)[:, :, self.free]
-                if self.whiten[k] is not None:
-                    dh = np.einsum("nij,njk->nik", self.whiten[k], dh)
-                else:
-                    dh = dh / b.sigma[:, :, None]
+                dh = np.einsum("nij,njk->nik", self.whiten[k], dh)
                 out[self.slices[k]] = dh.reshape(-1, self.free.size)
         return out
 
@@ -278,8 +275,7 @@ def _block_diagnostics(res: _Residuals, r: np.ndarray, threshold: float):
     raw, pos_mm, ang_mrad, norms, outliers = [], [], [], [], []
     for k, b in enumerate(res.blocks):
         rk = r[res.slices[k]].reshape(b.values.shape)
-        raw.append(_readonly(rk * b.sigma if res.chol[k] is None
-                             else np.einsum("nij,nj->ni", res.chol[k], rk)))
+        raw.append(_readonly(np.einsum("nij,nj->ni", res.chol[k], rk)))
         units = np.array(b.model.units)
         pos_mm.append(_readonly(np.linalg.norm(raw[-1][:, units == "m"], axis=1) / LENGTH_SCALE))
         ang_mrad.append(

@@ -78,13 +78,8 @@ def simulate_observations(
     state = evaluate_setup(space, p_true, q, regressor=False, jacobian=False)
     blocks = []
     for mdl in models:
-        exact = mdl.compute_values(state)
-        noise = getattr(mdl, "noise", None)
-        if noise is None:
-            noisy = exact + rng.normal(size=exact.shape) * mdl.sigma
-        else:  # full covariance Sigma_i at the true positions
-            noisy = exact + noise.sample(exact, rng)
-        blocks.append(ObservationBlock(mdl, q, noisy))
+        exact = mdl.compute_values(state)  # the noise contract at the true positions
+        blocks.append(ObservationBlock(mdl, q, exact + mdl.sample_noise(exact, rng)))
     return blocks
 
 

@@ -204,9 +204,7 @@ def validate_calibration(scene: Scene, calibration: str | os.PathLike, mset: Mea
         raise MeasurementFileError(mset.source, [(None, f"the data use reflectors {list(mset.reflectors)}, "
                                                         f"the calibration has {len(offsets)}")],
                                    kind="measurement file")
-    sigma, sigma_angle = scene.tracker.sigma, scene.tracker.sigma_angle
-    noise = scene.position_noise() if mset.rotations is None else None
-    blocks = mset.blocks(sigma=sigma, sigma_angle=sigma_angle, noise=noise)
+    blocks = mset.blocks(error_model=scene.error_model())
     nominal_space = ParameterSpace(robot, scene.tracker.placement(),
                                    np.array([r.offset for r in scene.reflectors]))
     calibrated_space = ParameterSpace(calibrated, tracker, offsets,

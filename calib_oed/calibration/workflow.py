@@ -150,9 +150,7 @@ def read_scene_measurements(s: Setup, path: str | os.PathLike, **units) -> Measu
 
 def identify_measurements(s: Setup, mset: MeasurementSet, loss: str = "linear") -> IdentificationResult:
     """Identify the scene's free parameters from measured data."""
-    tracker = s.scene.tracker
-    blocks = mset.blocks(sigma=tracker.sigma, sigma_angle=tracker.sigma_angle,
-                         noise=s.scene.position_noise())
+    blocks = mset.blocks(error_model=s.scene.error_model())
     from calib_oed.calibration.identification import identify  # scipy.optimize: not for designs
 
     return identify(s.problem.space, blocks, s.problem.identifiability, loss=loss)

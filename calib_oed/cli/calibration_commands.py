@@ -117,11 +117,10 @@ def _identify_fit(s, mset, args):
     from calib_oed.calibration.robust import as_robust, identify_robust
     from calib_oed.calibration.sanity import check_measurements
 
-    problem, tracker = s.problem, s.scene.tracker
+    problem = s.problem
     sanity = check_measurements(problem.space, mset, args.max_registration_rms * 1e-3,
                                 s.reflector_names)
-    blocks = mset.blocks(sigma=tracker.sigma, sigma_angle=tracker.sigma_angle,
-                         noise=s.scene.position_noise())
+    blocks = mset.blocks(error_model=s.scene.error_model())
     if args.loss == "robust":
         return sanity, blocks, identify_robust(problem.space, blocks, problem.identifiability)
     result = identify(problem.space, blocks, problem.identifiability, loss=args.loss)
@@ -156,10 +155,8 @@ def cmd_identify(args) -> int:
     report = fit_report(s.problem.space, mset, blocks, sanity, robust, s.reflector_names)
     cv = None
     if args.cv:
-        tracker = s.scene.tracker
         cv = cross_validate(s.problem.space, mset, s.problem.identifiability, args.cv,
-                            sigma=tracker.sigma, sigma_angle=tracker.sigma_angle,
-                            noise=s.scene.position_noise(), exclude=report.outlier if robust.excluded else None)
+                            error_model=s.scene.error_model())
     data = result.to_dict()
     data["fit"] = fit_dict(report, robust, sanity)
     data["outliers"] = data["fit"]["outliers"]  # by file line; the fit's own a-priori list is not used

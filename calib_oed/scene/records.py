@@ -18,6 +18,7 @@ import pinocchio as pin
 from calib_oed.exceptions import NonFiniteError, SceneError, ShapeError
 from calib_oed.feasibility.shapes import Cell, FeasibilitySettings
 from calib_oed.measurement.discrepancy import DiscrepancyPrior
+from calib_oed.measurement.error_model import ErrorModel
 from calib_oed.measurement.noise import TrackerNoise
 from calib_oed.model.compliance import Compliance
 from calib_oed.model.controller import ControllerConvention
@@ -245,6 +246,12 @@ class Scene:
     #: ``robot.model_error``: the model-error prior as the scene gives it
     #: (:mod:`calib_oed.measurement.discrepancy`); None: the documented default (:meth:`discrepancy`).
     model_error: DiscrepancyPrior | None = None
+
+    def error_model(self) -> ErrorModel:
+        """The covariance contract of this scene's measurements (noise, repeatability, model error)."""
+        return ErrorModel(self.measurement, self.tracker.sigma, self.tracker.sigma_angle,
+                          self.position_noise() if self.measurement == "position" else None,
+                          self.discrepancy())
 
     def discrepancy(self) -> DiscrepancyPrior:
         """The model-error prior: ``robot.model_error``, else the default for the robot's reach."""
