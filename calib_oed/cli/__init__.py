@@ -236,10 +236,12 @@ def build_parser() -> argparse.ArgumentParser:
     scene_arg(p)
     p.add_argument("measurements", help="measurement CSV (docs/data_format.md)")
     p.add_argument("-o", "--output", metavar="DIR", help="write calibrated URDF, sensor YAML, report")
-    p.add_argument("--loss", default="robust", choices=("robust", "linear", "huber", "soft_l1"),
-                   help="robust (default: outliers judged against the estimated residual scale and "
-                   "left out; docs/identification.md), linear (plain weighted least squares), or a "
-                   "robust scipy loss")
+    p.add_argument("--loss", default="robust", choices=("robust", "linear"),
+                   help="robust (default: rows flagged against noise + model error; gross errors "
+                   "left out, flags that look like model error kept; docs/identification.md) or "
+                   "linear (every row kept, flags only reported)")
+    p.add_argument("--drop-flagged", action="store_true", help="leave every flagged row out, "
+                   "also those reported as likely model error")
     p.add_argument("--max-registration-rms", type=float, default=10.0, metavar="MM",
                    help="stop (exit 2) when the tracker pose fitted alone leaves more [mm] (default 10)")
     p.add_argument("--cv", type=_positive_int, metavar="K", help="K-fold cross-validation over the "

@@ -112,19 +112,18 @@ def cmd_simulate(args) -> int:
 
 
 def _identify_fit(s, mset, args):
-    """Sanity registration, then the fit of ``--loss``; nothing written. Returns (sanity, blocks, robust)."""
-    from calib_oed.calibration.identification import identify
-    from calib_oed.calibration.robust import as_robust, identify_robust
+    """Sanity registration, then the fit with the model error; nothing written.
+    Returns (sanity, blocks, robust)."""
+    from calib_oed.calibration.robust import identify_robust
     from calib_oed.calibration.sanity import check_measurements
 
     problem = s.problem
     sanity = check_measurements(problem.space, mset, args.max_registration_rms * 1e-3,
                                 s.reflector_names)
     blocks = mset.blocks(error_model=s.scene.error_model())
-    if args.loss == "robust":
-        return sanity, blocks, identify_robust(problem.space, blocks, problem.identifiability)
-    result = identify(problem.space, blocks, problem.identifiability, loss=args.loss)
-    return sanity, blocks, as_robust(result, blocks)
+    drop = "all" if args.drop_flagged else ("gross" if args.loss == "robust" else "none")
+    return sanity, blocks, identify_robust(problem.space, blocks, problem.identifiability,
+                                           model_error=s.scene.discrepancy(), drop=drop)
 
 
 def cmd_identify(args) -> int:
@@ -135,6 +134,7 @@ def cmd_identify(args) -> int:
         format_fit,
         write_residuals_csv,
     )
+    from calib_oed.calibration.trust import assess
     from calib_oed.calibration.workflow import (
         export_result,
         read_scene_measurements,
@@ -157,8 +157,11 @@ def cmd_identify(args) -> int:
     if args.cv:
         cv = cross_validate(s.problem.space, mset, s.problem.identifiability, args.cv,
                             error_model=s.scene.error_model())
+    trust = assess(s.problem, robust)
     data = result.to_dict()
     data["fit"] = fit_dict(report, robust, sanity)
+    data["model_error"] = robust.model_error.to_dict()
+    data.update(trust.to_dict())
     data["outliers"] = data["fit"]["outliers"]  # by file line; the fit's own a-priori list is not used
     if cv is not None:
         data["cross_validation"] = cv.to_dict()
@@ -186,6 +189,7 @@ def cmd_identify(args) -> int:
         return EXIT_OK
     print(result.summary(outliers=False))
     print(format_fit(report, robust, sanity))
+    print("\n".join(trust.lines()))
     if cv is not None:
         print(cv.summary())
     if args.truth:

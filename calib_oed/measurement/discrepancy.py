@@ -215,6 +215,15 @@ class DiscrepancyPrior:
         :meth:`kernel_hessian` (the kernel depends on :math:`q_1 - q_2` only)."""
         return -self.kernel_hessian(q1, q2)
 
+    def kernel_log_gradient(self, q1, q2) -> np.ndarray:
+        r"""Derivatives of :math:`k` in the log-hyperparameters, (n1, n2, 1 + nq) [m²]:
+        :math:`\partial k/\partial\log\sigma = 2k` and
+        :math:`\partial k/\partial\log\ell_j = -g\,d_j^2/\ell_j^2` (0 for an ignored joint),
+        for the marginal likelihood's gradient."""
+        u, _, k, g, _ = self._pieces(q1, q2)
+        d = np.asarray(q1, float)[:, None, :] - np.asarray(q2, float)[None, :, :]
+        return np.concatenate([2.0 * k[..., None], -g[..., None] * d * u], axis=-1)
+
     def point_covariance(self, q) -> np.ndarray:
         r""":math:`K = k(Q, Q)` (n, n) [m²]: the covariance of one Cartesian component of the
         model error over the configurations ``q`` (n, nq)."""

@@ -120,3 +120,20 @@ def test_scene_key_in_file_units_and_from_an_identification(tmp_path):
     data["robot"]["model_error"] = {"from": "missing.json"}
     with pytest.raises(SceneError, match="identify --json"):
         scene_from_dict(data, str(tmp_path / "s.yaml"))
+
+
+def test_kernel_log_gradient_matches_central_differences(prior):
+    q1, q2 = _points(4)
+    finite = [j for j, x in enumerate(ELL) if np.isfinite(x)]
+
+    def k_of(theta):
+        ell = list(ELL)
+        for j, t in zip(finite, theta[1:], strict=True):
+            ell[j] = np.exp(t)
+        return DiscrepancyPrior(np.exp(theta[0]), tuple(ell), prior.kernel_name).kernel(q1, q2)
+
+    theta = np.log([prior.sigma] + [ELL[j] for j in finite])
+    num = central_difference(k_of, theta, 1e-6)
+    ana = prior.kernel_log_gradient(q1, q2)
+    assert relative_error(ana[..., [0] + [1 + j for j in finite]], num) < 1e-6
+    assert np.all(ana[..., 1 + 2] == 0)  # the ignored joint

@@ -1,0 +1,256 @@
+r"""The model error left after an identification: its hyperparameters, and residuals judged against it.
+
+The identification (:mod:`calib_oed.calibration.identification`) fits
+:math:`\hat p` by weighted least squares on the noise. Linearised at
+:math:`\hat p`, with :math:`J = \partial h/\partial p_f` (m, n_f) [m per unit],
+the measured values are
+
+.. math::
+    \eta = h(p^\star) + \delta + \varepsilon, \qquad
+    \delta \sim N(0, K), \quad \varepsilon \sim N(0, N), \qquad \Sigma = K + N,
+
+:math:`K` the model-error covariance of
+:class:`~calib_oed.measurement.discrepancy.DiscrepancyPrior` over the rows'
+configurations and :math:`N` the noise (:mod:`calib_oed.measurement.error_model`).
+
+**Hyperparameters by restricted marginal likelihood** (:func:`fit_model_error`).
+The parameters are unknown, so the likelihood of the hyperparameters
+:math:`\theta = (\log\sigma, \log\ell_j)` is the restricted one (REML,
+Patterson & Thompson 1971; Rasmussen & Williams 2006 §2.7), which integrates
+:math:`p` out under a flat prior and so accounts for the part of the model
+error the fit absorbed:
+
+.. math::
+    \log L(\theta) = -\tfrac12\, e^\top P e - \tfrac12\log|\Sigma|
+      - \tfrac12\log|J^\top\Sigma^{-1}J| + \mathrm{const},\qquad
+    P = \Sigma^{-1} - \Sigma^{-1}J(J^\top\Sigma^{-1}J)^{-1}J^\top\Sigma^{-1},
+
+:math:`e = \eta - h(\hat p)` the fit's residual (:math:`Pe` does not depend on
+which :math:`p` the residual is taken at, since :math:`PJ = 0`), with the
+gradient :math:`\partial\log L/\partial\theta_k = \tfrac12\alpha^\top
+\Sigma_k\alpha - \tfrac12\mathrm{tr}(P\Sigma_k)`, :math:`\alpha = Pe`,
+:math:`\Sigma_k = \partial\Sigma/\partial\theta_k`
+(``DiscrepancyPrior.kernel_log_gradient``), maximised by L-BFGS-B from several
+starts. Why not scikit-learn's ``GaussianProcessRegressor``: its likelihood
+is the plain one of the residuals (no parametric part, so it underestimates the
+model error the fit absorbed), its noise is a diagonal per value (the tracker's
+3x3 covariances are not), and it cannot share one process between the three
+components and several reflectors.
+
+**Residuals against noise + model error** (:func:`leave_one_out`). The
+leave-one-measurement-out residual of measurement :math:`i` (its :math:`d`
+values), the parameters and the model error re-estimated from all others, is
+:math:`(P_{ii})^{-1}(Pe)_i` with covariance :math:`(P_{ii})^{-1}` (the GLS
+leave-one-out identity), so
+:math:`t_i = (Pe)_i^\top (P_{ii})^{-1} (Pe)_i \sim \chi^2_d` under the model.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from functools import cached_property
+
+import numpy as np
+import scipy.linalg
+import scipy.optimize
+
+from calib_oed.measurement.base import evaluate_setup
+from calib_oed.measurement.discrepancy import DiscrepancyPrior
+from calib_oed.measurement.error_model import block_noise, row_layout
+from calib_oed.model.parameters import ParameterSpace
+
+#: Bounds of the fitted hyperparameters: sigma [m], length scales [rad].
+SIGMA_BOUNDS = (1e-7, 1e-1)
+LENGTH_BOUNDS = (np.radians(3.0), np.radians(3600.0))
+
+
+@dataclass(frozen=True, eq=False)
+class Linearisation:
+    r"""An identification linearised at its estimate (module docstring), rows in block order.
+
+    Attributes:
+        q: Configuration of every value, (m, nq).
+        position: Whether each value is a position component, (m,).
+        component: Component index of each value in its measurement, (m,).
+        measurement: Measurement number of each value (block, then row), (m,).
+        jac: :math:`J = \partial h/\partial p_f` at :math:`\hat p`, (m, n_f) [m per unit].
+        noise: :math:`N`, (m, m) [SI²], at the positions predicted by :math:`\hat p`.
+        residual: :math:`e = \eta - h(\hat p)`, (m,) [SI].
+    """
+
+    q: np.ndarray = field(repr=False)
+    position: np.ndarray = field(repr=False)
+    component: np.ndarray = field(repr=False)
+    measurement: np.ndarray = field(repr=False)
+    jac: np.ndarray = field(repr=False)
+    noise: np.ndarray = field(repr=False)
+    residual: np.ndarray = field(repr=False)
+
+    @property
+    def m(self) -> int:
+        return self.residual.size
+
+    @cached_property
+    def _configs(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Distinct configurations (P, nq), each value's index into them (m,), and the mask of
+        value pairs the model error couples (same position component), (m, m)."""
+        configs, index = np.unique(self.q, axis=0, return_inverse=True)
+        same = (self.component[:, None] == self.component[None, :]) \
+            & self.position[:, None] & self.position[None, :]
+        return configs, index.ravel(), same
+
+    def expand(self, per_config: np.ndarray) -> np.ndarray:
+        """A (P, P) matrix over the distinct configurations as the (m, m) model-error part."""
+        _, index, same = self._configs
+        return np.where(same, per_config[np.ix_(index, index)], 0.0)
+
+    def subset(self, keep: np.ndarray) -> Linearisation:
+        """The values of the measurements ``keep`` (bool per measurement)."""
+        rows = keep[self.measurement]
+        return Linearisation(self.q[rows], self.position[rows], self.component[rows],
+                             np.unique(self.measurement[rows], return_inverse=True)[1],
+                             self.jac[rows], self.noise[np.ix_(rows, rows)], self.residual[rows])
+
+    def covariance(self, prior: DiscrepancyPrior | None) -> np.ndarray:
+        r""":math:`\Sigma = K + N` (m, m) [SI²]."""
+        if prior is None:
+            return self.noise
+        configs = self._configs[0]
+        return self.noise + self.expand(prior.kernel(configs, configs))
+
+
+def linearise(space: ParameterSpace, blocks: Sequence, p: np.ndarray, free: np.ndarray) -> Linearisation:
+    """The :class:`Linearisation` of the data ``blocks`` at the estimate ``p`` (free indices ``free``)."""
+    jac, res, predicted = [], [], []
+    for b in blocks:
+        state = evaluate_setup(space, p, b.q, regressor=True, jacobian=False)
+        h = b.model.compute_values(state)
+        predicted.append(h)
+        jac.append(b.model.compute_param_jacobian(state)[:, :, free].reshape(-1, len(free)))
+        res.append((b.values - h).ravel())
+    q, position, comp = row_layout(blocks)
+    meas = np.repeat(np.arange(sum(b.n for b in blocks)), [b.model.dim for b in blocks
+                                                            for _ in range(b.n)])
+    return Linearisation(q, position, comp, meas, np.vstack(jac), block_noise(blocks, predicted),
+                         np.concatenate(res))
+
+
+class _Restricted:
+    """Factors of the restricted likelihood at one prior (module docstring)."""
+
+    def __init__(self, lin: Linearisation, prior: DiscrepancyPrior | None):
+        sigma = lin.covariance(prior)
+        self.chol = scipy.linalg.cho_factor(sigma, lower=True)
+        s_inv_j = scipy.linalg.cho_solve(self.chol, lin.jac)
+        info = lin.jac.T @ s_inv_j
+        self.info_chol = scipy.linalg.cho_factor(info, lower=True)
+        s_inv = scipy.linalg.cho_solve(self.chol, np.eye(lin.m))
+        self.p = s_inv - s_inv_j @ scipy.linalg.cho_solve(self.info_chol, s_inv_j.T)
+        self.alpha = self.p @ lin.residual
+
+    def log_likelihood(self, lin: Linearisation) -> float:
+        logdet = 2 * np.log(np.diag(self.chol[0])).sum() + 2 * np.log(np.diag(self.info_chol[0])).sum()
+        return float(-0.5 * lin.residual @ self.alpha - 0.5 * logdet
+                     - 0.5 * (lin.m - lin.jac.shape[1]) * np.log(2 * np.pi))
+
+
+def restricted_log_likelihood(lin: Linearisation, prior: DiscrepancyPrior | None,
+                              gradient: bool = False):
+    r""":math:`\log L` of ``prior`` (module docstring); with ``gradient``, also
+    :math:`\partial\log L/\partial(\log\sigma, \log\ell_1..\log\ell_{nq})` (1 + nq,)."""
+    fac = _Restricted(lin, prior)
+    value = fac.log_likelihood(lin)
+    if not gradient:
+        return value
+    configs = lin._configs[0]
+    dk = prior.kernel_log_gradient(configs, configs)
+    grad = np.empty(dk.shape[-1])
+    for k in range(dk.shape[-1]):
+        ds = lin.expand(dk[..., k])
+        grad[k] = 0.5 * fac.alpha @ ds @ fac.alpha - 0.5 * np.sum(fac.p * ds)
+    return value, grad
+
+
+@dataclass(frozen=True)
+class ModelErrorFit:
+    """Hyperparameters by restricted marginal likelihood.
+
+    Attributes:
+        prior: The fitted model-error prior (``source`` ``"fit"``).
+        log_likelihood: Its restricted log-likelihood.
+        noise_only_log_likelihood: That of the exact model (no model error), for comparison.
+        start: The prior the fit started from (the scene's or the default).
+        converged: Whether the optimiser converged.
+    """
+
+    prior: DiscrepancyPrior
+    log_likelihood: float
+    noise_only_log_likelihood: float
+    start: DiscrepancyPrior
+    converged: bool
+
+    def to_dict(self) -> dict:
+        return {"fitted": self.prior.to_dict(), "start": self.start.to_dict(),
+                "restricted_log_likelihood": self.log_likelihood,
+                "noise_only_log_likelihood": self.noise_only_log_likelihood,
+                "converged": self.converged}
+
+
+def fit_model_error(lin: Linearisation, start: DiscrepancyPrior, *, max_iterations: int = 200
+                    ) -> ModelErrorFit:
+    """Maximise the restricted likelihood over sigma and the finite length scales of ``start``.
+
+    Joints ``start`` ignores (length scale inf) stay ignored. Starts: ``start``
+    itself, and the same length scales with sigma from the residuals' RMS per axis.
+    """
+    finite = [j for j, ell in enumerate(start.length_scales) if np.isfinite(ell)]
+    lo = np.log([SIGMA_BOUNDS[0]] + [LENGTH_BOUNDS[0]] * len(finite))
+    hi = np.log([SIGMA_BOUNDS[1]] + [LENGTH_BOUNDS[1]] * len(finite))
+
+    def prior_of(theta):
+        ell = np.array(start.length_scales, dtype=float)
+        ell[finite] = np.exp(theta[1:])
+        return start.with_values(float(np.exp(theta[0])), ell, "fit")
+
+    def objective(theta):
+        value, grad = restricted_log_likelihood(lin, prior_of(theta), gradient=True)
+        return -value, -grad[[0] + [1 + j for j in finite]]
+
+    rms = float(np.sqrt(np.mean(lin.residual[lin.position] ** 2))) if lin.position.any() else start.sigma
+    starts = [np.log([max(start.sigma, SIGMA_BOUNDS[0])] + [start.length_scales[j] for j in finite])]
+    starts.append(starts[0].copy())
+    starts[1][0] = np.log(np.clip(rms, *SIGMA_BOUNDS))
+    best = None
+    for theta0 in starts:
+        theta0 = np.clip(theta0, lo, hi)
+        sol = scipy.optimize.minimize(objective, theta0, jac=True, method="L-BFGS-B",
+                                      bounds=list(zip(lo, hi, strict=True)),
+                                      options={"maxiter": max_iterations})
+        if best is None or sol.fun < best.fun:
+            best = sol
+    prior = prior_of(best.x)
+    return ModelErrorFit(prior, float(-best.fun), restricted_log_likelihood(lin, None), start,
+                         bool(best.success))
+
+
+def leave_one_out(lin: Linearisation, prior: DiscrepancyPrior | None) -> tuple[np.ndarray, np.ndarray]:
+    r"""Per measurement: :math:`t_i = (Pe)_i^\top (P_{ii})^{-1}(Pe)_i` (~ :math:`\chi^2_{d_i}`
+    under noise + model error, module docstring) and :math:`d_i`; each (M,)."""
+    fac = _Restricted(lin, prior)
+    n = int(lin.measurement.max()) + 1
+    t, dim = np.empty(n), np.bincount(lin.measurement, minlength=n)
+    for i in range(n):
+        rows = np.flatnonzero(lin.measurement == i)
+        a = fac.alpha[rows]
+        t[i] = a @ np.linalg.solve(fac.p[np.ix_(rows, rows)], a)
+    return t, dim
+
+
+def estimate_covariance(lin: Linearisation, prior: DiscrepancyPrior | None) -> np.ndarray:
+    r"""Covariance of the weighted least-squares estimate under noise + model error,
+    :math:`A\Sigma A^\top`, :math:`A = (J^\top N^{-1}J)^{-1}J^\top N^{-1}` (n_f, n_f) [SI]."""
+    noise_f = scipy.linalg.cho_factor(lin.noise, lower=True)
+    wj = scipy.linalg.cho_solve(noise_f, lin.jac)
+    a = np.linalg.solve(lin.jac.T @ wj, wj.T)
+    return a @ lin.covariance(prior) @ a.T
