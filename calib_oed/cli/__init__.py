@@ -189,8 +189,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--length-unit", choices=("m", "mm"), help="if the file states no units")
     p.add_argument("--angle-unit", choices=("rad", "deg"), help="if the file states no units")
     p.add_argument("--json", action="store_true", help="machine-readable output")
-    p.add_argument("--max-rms", type=float, metavar="MM", help="verdict: fail (exit 3) above this "
-                   "calibrated RMS [mm] (default: 2 x the identified sigma0 x the noise floor)")
+    p.add_argument("--max-rms", type=float, metavar="MM", help="tolerance: fail (exit 3) above "
+                   "this calibrated RMS position error [mm]")
+    p.add_argument("--max-error", type=float, metavar="MM", help="tolerance: fail (exit 3) when "
+                   "the largest calibrated position error exceeds this [mm]")
+    p.add_argument("--compensate", action="store_true", help="add the fitted model error's mean "
+                   "(from identification.json) to the calibrated predictions")
     p.add_argument("--max-registration-rms", type=float, default=10.0, metavar="MM",
                    help="stop (exit 2) when the tracker pose fitted alone leaves more [mm] (default 10)")
     p.set_defaults(func=cmd_validate)

@@ -207,7 +207,14 @@ def cmd_identify(args) -> int:
 
 def cmd_validate(args) -> int:
     from calib_oed.calibration.sanity import check_measurements
-    from calib_oed.calibration.validation import identified_sigma0, judge, validate_calibration
+    from calib_oed.calibration.validation import validate_calibration
+    from calib_oed.calibration.verdict import (
+        judge,
+        pose_lines,
+        pose_table,
+        predicted_rms_mm,
+        read_identification,
+    )
     from calib_oed.calibration.workflow import read_scene_measurements
     from calib_oed.exceptions import ParameterError
 
@@ -218,16 +225,23 @@ def cmd_validate(args) -> int:
     units = {k: v for k, v in (("length_unit", args.length_unit), ("angle_unit", args.angle_unit)) if v}
     mset = read_scene_measurements(s, args.measurements, **units)
     check_measurements(s.problem.space, mset, args.max_registration_rms * 1e-3, s.reflector_names)
-    result = validate_calibration(s.scene, args.calibrated, mset)
-    verdict = judge(result, args.max_rms, identified_sigma0(result.files))
+    result = validate_calibration(s.scene, args.calibrated, mset, compensated=args.compensate)
+    ident = read_identification(result.files)
+    verdict = judge(result.calibrated.position_mm, args.max_rms, args.max_error,
+                    predicted_rms_mm(ident, args.compensate))
+    table = pose_table(mset.q, result.calibrated.position_mm, mset.lines, mset.joint_names,
+                       (ident or {}).get("training_joint_ranges"))
     if args.json:
         data = result.to_dict()
+        data["compensated"] = bool(args.compensate)
         data["verdict"] = verdict.to_dict()
+        data["poses"] = table
         print(json.dumps(data, indent=2))
     else:
         print(result.summary())
-        print(verdict.line())
-    return EXIT_OK if verdict.passed else EXIT_VALIDATION_FAILED
+        print("\n".join(pose_lines(table)))
+        print("\n".join(verdict.lines()))
+    return EXIT_VALIDATION_FAILED if verdict.passed is False else EXIT_OK
 
 
 def cmd_montecarlo(args) -> int:
