@@ -100,16 +100,34 @@ class Linearisation:
             & self.position[:, None] & self.position[None, :]
         return configs, index.ravel(), same
 
+    @cached_property
+    def _gather(self) -> tuple[np.ndarray, np.ndarray]:
+        """Flat indices of the coupled value pairs in (m, m) and of their configurations in (P, P)."""
+        configs, index, same = self._configs
+        a, b = np.nonzero(same)
+        return a * self.m + b, index[a] * configs.shape[0] + index[b]
+
     def expand(self, per_config: np.ndarray) -> np.ndarray:
         """A (P, P) matrix over the distinct configurations as the (m, m) model-error part."""
-        _, index, same = self._configs
-        return np.where(same, per_config[np.ix_(index, index)], 0.0)
+        target, source = self._gather
+        out = np.zeros(self.m * self.m)
+        out[target] = per_config.ravel()[source]
+        return out.reshape(self.m, self.m)
+
+    @cached_property
+    def selectors(self) -> np.ndarray:
+        """:math:`E_c` (3, m, P): value a is position component c at distinct configuration u."""
+        _, index, _ = self._configs
+        out = np.zeros((3, self.m, int(index.max()) + 1))
+        rows = np.flatnonzero(self.position)
+        out[self.component[rows], rows, index[rows]] = 1.0
+        return out
 
     def subset(self, keep: np.ndarray) -> Linearisation:
         """The values of the measurements ``keep`` (bool per measurement)."""
         rows = keep[self.measurement]
         return Linearisation(self.q[rows], self.position[rows], self.component[rows],
-                             np.unique(self.measurement[rows], return_inverse=True)[1],
+                             np.unique(self.measurement[rows], return_inverse=True)[1].ravel(),
                              self.jac[rows], self.noise[np.ix_(rows, rows)], self.residual[rows])
 
     def covariance(self, prior: DiscrepancyPrior | None) -> np.ndarray:
@@ -137,22 +155,49 @@ def linearise(space: ParameterSpace, blocks: Sequence, p: np.ndarray, free: np.n
 
 
 class _Restricted:
-    """Factors of the restricted likelihood at one prior (module docstring)."""
+    r"""Factors of the restricted likelihood at one prior (module docstring): with
+    :math:`\Sigma = LL^\top`, :math:`W = L^{-1}[J, e, E_0, E_1, E_2]` holds all it needs."""
 
     def __init__(self, lin: Linearisation, prior: DiscrepancyPrior | None):
-        sigma = lin.covariance(prior)
-        self.chol = scipy.linalg.cho_factor(sigma, lower=True)
-        s_inv_j = scipy.linalg.cho_solve(self.chol, lin.jac)
-        info = lin.jac.T @ s_inv_j
-        self.info_chol = scipy.linalg.cho_factor(info, lower=True)
-        s_inv = scipy.linalg.cho_solve(self.chol, np.eye(lin.m))
-        self.p = s_inv - s_inv_j @ scipy.linalg.cho_solve(self.info_chol, s_inv_j.T)
-        self.alpha = self.p @ lin.residual
+        self.lin = lin
+        self.chol = scipy.linalg.cholesky(lin.covariance(prior), lower=True, check_finite=False)
+        n_f = lin.jac.shape[1]
+        sel = lin.selectors
+        rhs = np.hstack([lin.jac, lin.residual[:, None], *sel])
+        w = scipy.linalg.solve_triangular(self.chol, rhs, lower=True, check_finite=False)
+        self.w_j, self.w_e = w[:, :n_f], w[:, n_f]
+        self.w_sel = [w[:, n_f + 1 + k * sel.shape[2]: n_f + 1 + (k + 1) * sel.shape[2]]
+                      for k in range(3)]
+        self.info_chol = scipy.linalg.cho_factor(self.w_j.T @ self.w_j, lower=True)
+        self.proj_e = self.w_e - self.w_j @ scipy.linalg.cho_solve(self.info_chol, self.w_j.T @ self.w_e)
 
-    def log_likelihood(self, lin: Linearisation) -> float:
-        logdet = 2 * np.log(np.diag(self.chol[0])).sum() + 2 * np.log(np.diag(self.info_chol[0])).sum()
-        return float(-0.5 * lin.residual @ self.alpha - 0.5 * logdet
+    def log_likelihood(self) -> float:
+        lin = self.lin
+        logdet = 2 * np.log(np.diag(self.chol)).sum() + 2 * np.log(np.diag(self.info_chol[0])).sum()
+        return float(-0.5 * self.w_e @ self.proj_e - 0.5 * logdet
                      - 0.5 * (lin.m - lin.jac.shape[1]) * np.log(2 * np.pi))
+
+    def gradient_weight(self) -> np.ndarray:
+        r""":math:`\tfrac12(\bar a\bar a^\top - \sum_c E_c^\top P E_c)` (P, P): the gradient is
+        its sum against :math:`\partial K/\partial\theta_k` over the distinct configurations."""
+        a = np.stack([ws.T @ self.proj_e for ws in self.w_sel], axis=1)  # E_c^T alpha, (P, 3)
+        contracted = 0.0
+        for ws in self.w_sel:
+            cross = self.w_j.T @ ws
+            contracted = contracted + ws.T @ ws - cross.T @ scipy.linalg.cho_solve(self.info_chol, cross)
+        return 0.5 * (a @ a.T - contracted)
+
+    @cached_property
+    def alpha(self) -> np.ndarray:
+        """:math:`Pe`, (m,)."""
+        return scipy.linalg.solve_triangular(self.chol, self.proj_e, lower=True, trans="T")
+
+    @cached_property
+    def p(self) -> np.ndarray:
+        """:math:`P` (m, m)."""
+        l_inv = scipy.linalg.solve_triangular(self.chol, np.eye(self.lin.m), lower=True)
+        g = l_inv.T @ self.w_j  # Sigma^-1 J
+        return l_inv.T @ l_inv - g @ scipy.linalg.cho_solve(self.info_chol, g.T)
 
 
 def restricted_log_likelihood(lin: Linearisation, prior: DiscrepancyPrior | None,
@@ -160,16 +205,12 @@ def restricted_log_likelihood(lin: Linearisation, prior: DiscrepancyPrior | None
     r""":math:`\log L` of ``prior`` (module docstring); with ``gradient``, also
     :math:`\partial\log L/\partial(\log\sigma, \log\ell_1..\log\ell_{nq})` (1 + nq,)."""
     fac = _Restricted(lin, prior)
-    value = fac.log_likelihood(lin)
+    value = fac.log_likelihood()
     if not gradient:
         return value
     configs = lin._configs[0]
     dk = prior.kernel_log_gradient(configs, configs)
-    grad = np.empty(dk.shape[-1])
-    for k in range(dk.shape[-1]):
-        ds = lin.expand(dk[..., k])
-        grad[k] = 0.5 * fac.alpha @ ds @ fac.alpha - 0.5 * np.sum(fac.p * ds)
-    return value, grad
+    return value, np.einsum("uvk,uv->k", dk, fac.gradient_weight())
 
 
 @dataclass(frozen=True)
@@ -226,7 +267,7 @@ def fit_model_error(lin: Linearisation, start: DiscrepancyPrior, *, max_iteratio
         theta0 = np.clip(theta0, lo, hi)
         sol = scipy.optimize.minimize(objective, theta0, jac=True, method="L-BFGS-B",
                                       bounds=list(zip(lo, hi, strict=True)),
-                                      options={"maxiter": max_iterations})
+                                      options={"maxiter": max_iterations, "ftol": 1e-8})
         if best is None or sol.fun < best.fun:
             best = sol
     prior = prior_of(best.x)
