@@ -95,13 +95,13 @@ def test_bad_values_name_the_problem():
 
 def test_scene_key_in_file_units_and_from_an_identification(tmp_path):
     import json
+    from importlib import resources
 
     import yaml
 
     from calib_oed import load_scene
     from calib_oed.exceptions import SceneError
     from calib_oed.scene.reader import scene_from_dict
-    from importlib import resources
 
     data = yaml.safe_load(resources.files("calib_oed.scene.shipped").joinpath("fms_kr16.yaml").read_text())
     assert load_scene("fms_kr16").discrepancy().source == "default"
