@@ -204,7 +204,7 @@ def format_fit(report: FitReport, robust: RobustIdentification, sanity: SanityRe
         rule = (f"normalised residual above the chi-square {1 - robust.alpha:g} quantile, about "
                 f"{robust.threshold.max():.2f}; left out of the fit")
     else:
-        rule = (f"loss {res.loss}: |r|/sqrt(d) above {res.outlier_threshold:g} stated sigma; kept "
+        rule = (f"plain fit: |r|/sqrt(d) above {res.outlier_threshold:g} stated sigma; kept "
                 "in the fit")
     lines.append(f"outliers ({rule}): {robust.n_flagged or 'none'}")
     lines += report.outlier_lines()[:30]

@@ -1,7 +1,7 @@
 r"""Robust identification with an estimated residual scale: outliers judged against the data's scale.
 
 The plain estimator (:func:`calib_oed.calibration.identification.identify`,
-linear loss) judges residuals against the stated :math:`\sigma`. On real data
+linear least squares) judges residuals against the stated :math:`\sigma`. On real data
 the residual scale is set by model error (gravity, gear play) as often as by
 the tracker: :math:`\hat\sigma_0 \approx 10` flags most rows as "outliers".
 :func:`identify_robust` estimates the scale from the data instead:
@@ -177,19 +177,15 @@ def identify_robust(space: ParameterSpace, blocks: Sequence[ObservationBlock], f
         drop: With ``model_error``, which flagged measurements the final estimate leaves out:
             ``"gross"`` (default: the gross errors; flags that look like model error are
             kept), ``"all"`` or ``"none"``.
-        options: Passed to every :func:`identify` call (not ``loss``: the fits are linear).
+        options: Passed to every :func:`identify` call.
 
     Raises:
-        ParameterError: bad ``alpha`` or a ``loss`` option.
+        ParameterError: bad ``alpha`` or ``drop``.
         NotIdentifiableError: as :func:`identify`, also when the kept measurements
             no longer determine the parameters.
     """
     if not 0 < alpha < 0.5:
         raise ParameterError(f"alpha (false-flag probability) must be in (0, 0.5), got {alpha}")
-    if options.get("loss", "linear") != "linear":
-        raise ParameterError("identify_robust fits with the linear loss; use identify() for "
-                             f"loss {options['loss']!r}")
-    options.pop("loss", None)
     blocks = list(blocks)
     if drop not in DROPS:
         raise ParameterError(f"unknown drop {drop!r}; valid: {', '.join(DROPS)}")
@@ -254,7 +250,7 @@ def identify_robust(space: ParameterSpace, blocks: Sequence[ObservationBlock], f
 
 
 def as_robust(result: IdentificationResult, blocks: Sequence[ObservationBlock]) -> RobustIdentification:
-    """A fit of another loss in the record of :func:`identify_robust`, for the same reports.
+    """A plain :func:`identify` fit in the record of :func:`identify_robust`, for the same reports.
 
     No measurement is left out; ``flagged`` marks the fit's own outliers (judged
     against the stated sigma, ``result.outlier_threshold``), the scale is its sigma0.

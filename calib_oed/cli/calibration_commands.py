@@ -183,7 +183,10 @@ def cmd_identify(args) -> int:
     if args.plot:
         from calib_oed.viz.plots import plot_residuals, save_figure
 
-        data["plot"] = str(save_figure(plot_residuals(result), args.plot))
+        flagged = [(int(robust.block[i]), int(robust.row[i])) for i in np.flatnonzero(robust.flagged)]
+        rule = f"noise + model error, chi-square {1 - robust.alpha:g}"
+        data["plot"] = str(save_figure(plot_residuals(result, flagged, rule, s.reflector_names),
+                                       args.plot))
     if args.json:
         print(json.dumps(data, indent=2))
         return EXIT_OK

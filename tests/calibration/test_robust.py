@@ -101,8 +101,8 @@ def test_options_and_the_plain_record(fms):
     blocks = mset.blocks(sigma=tracker.sigma, sigma_angle=tracker.sigma_angle)
     with pytest.raises(ParameterError, match="alpha"):
         identify_robust(problem.space, blocks, problem.identifiability, alpha=0.7)
-    with pytest.raises(ParameterError, match="linear loss"):
-        identify_robust(problem.space, blocks, problem.identifiability, loss="huber")
+    with pytest.raises(ParameterError, match="drop"):
+        identify_robust(problem.space, blocks, problem.identifiability, drop="some")
     rob = identify_robust(problem.space, blocks, problem.identifiability)
     plain = as_robust(rob.linear, blocks)
     assert np.array_equal(plain.result.p, rob.result.p) and np.all(plain.weight == 1)
