@@ -63,6 +63,8 @@ from calib_oed.model.parameters import ParameterSpace
 #: Bounds of the fitted hyperparameters: sigma [m], length scales [rad].
 SIGMA_BOUNDS = (1e-7, 1e-1)
 LENGTH_BOUNDS = (np.radians(3.0), np.radians(3600.0))
+#: Bounds of the fitted white part [m].
+WHITE_BOUNDS = (1e-8, 1e-2)
 
 
 @dataclass(frozen=True, eq=False)
@@ -135,7 +137,7 @@ class Linearisation:
         if prior is None:
             return self.noise
         configs = self._configs[0]
-        return self.noise + self.expand(prior.kernel(configs, configs))
+        return self.noise + self.expand(prior.covariance_kernel(configs, configs))
 
 
 def linearise(space: ParameterSpace, blocks: Sequence, p: np.ndarray, free: np.ndarray) -> Linearisation:
@@ -203,14 +205,16 @@ class _Restricted:
 def restricted_log_likelihood(lin: Linearisation, prior: DiscrepancyPrior | None,
                               gradient: bool = False):
     r""":math:`\log L` of ``prior`` (module docstring); with ``gradient``, also
-    :math:`\partial\log L/\partial(\log\sigma, \log\ell_1..\log\ell_{nq})` (1 + nq,)."""
+    :math:`\partial\log L/\partial(\log\sigma, \log\ell_1..\log\ell_{nq}, \log\sigma_w)` (2 + nq,)."""
     fac = _Restricted(lin, prior)
     value = fac.log_likelihood()
     if not gradient:
         return value
     configs = lin._configs[0]
     dk = prior.kernel_log_gradient(configs, configs)
-    return value, np.einsum("uvk,uv->k", dk, fac.gradient_weight())
+    weight = fac.gradient_weight()
+    white = 2 * prior.sigma_white**2 * np.trace(weight)  # d(sigma_w^2 I)/d log sigma_w
+    return value, np.r_[np.einsum("uvk,uv->k", dk, weight), white]
 
 
 @dataclass(frozen=True)
@@ -240,32 +244,36 @@ class ModelErrorFit:
 
 def fit_model_error(lin: Linearisation, start: DiscrepancyPrior, *, max_iterations: int = 200
                     ) -> ModelErrorFit:
-    """Maximise the restricted likelihood over sigma and the finite length scales of ``start``.
+    """Maximise the restricted likelihood over sigma, the finite length scales of ``start`` and
+    the white part.
 
     Joints ``start`` ignores (length scale inf) stay ignored. Starts: ``start``
-    itself, and the same length scales with sigma from the residuals' RMS per axis.
+    itself (its white part at least a fifth of its sigma), and the same with sigma
+    from the residuals' RMS per axis.
     """
     finite = [j for j, ell in enumerate(start.length_scales) if np.isfinite(ell)]
-    lo = np.log([SIGMA_BOUNDS[0]] + [LENGTH_BOUNDS[0]] * len(finite))
-    hi = np.log([SIGMA_BOUNDS[1]] + [LENGTH_BOUNDS[1]] * len(finite))
+    lo = np.log([SIGMA_BOUNDS[0]] + [LENGTH_BOUNDS[0]] * len(finite) + [WHITE_BOUNDS[0]])
+    hi = np.log([SIGMA_BOUNDS[1]] + [LENGTH_BOUNDS[1]] * len(finite) + [WHITE_BOUNDS[1]])
+    pick = [0] + [1 + j for j in finite] + [1 + len(start.length_scales)]
 
     def prior_of(theta):
         ell = np.array(start.length_scales, dtype=float)
-        ell[finite] = np.exp(theta[1:])
-        return start.with_values(float(np.exp(theta[0])), ell, "fit")
+        ell[finite] = np.exp(theta[1:-1])
+        return start.with_values(float(np.exp(theta[0])), ell, "fit", float(np.exp(theta[-1])))
 
     def objective(theta):
         value, grad = restricted_log_likelihood(lin, prior_of(theta), gradient=True)
-        return -value, -grad[[0] + [1 + j for j in finite]]
+        return -value, -grad[pick]
 
     rms = float(np.sqrt(np.mean(lin.residual[lin.position] ** 2))) if lin.position.any() else start.sigma
-    starts = [np.log([max(start.sigma, SIGMA_BOUNDS[0])] + [start.length_scales[j] for j in finite])]
-    starts.append(starts[0].copy())
-    starts[1][0] = np.log(np.clip(rms, *SIGMA_BOUNDS))
+    sigma0 = max(start.sigma, SIGMA_BOUNDS[0])
+    white0 = max(start.sigma_white, 0.2 * sigma0)
+    first = np.log([sigma0] + [start.length_scales[j] for j in finite] + [white0])
+    second = first.copy()
+    second[0] = np.log(np.clip(rms, *SIGMA_BOUNDS))
     best = None
-    for theta0 in starts:
-        theta0 = np.clip(theta0, lo, hi)
-        sol = scipy.optimize.minimize(objective, theta0, jac=True, method="L-BFGS-B",
+    for theta0 in (first, second):
+        sol = scipy.optimize.minimize(objective, np.clip(theta0, lo, hi), jac=True, method="L-BFGS-B",
                                       bounds=list(zip(lo, hi, strict=True)),
                                       options={"maxiter": max_iterations, "ftol": 1e-8})
         if best is None or sol.fun < best.fun:

@@ -50,7 +50,7 @@ def _cross(lin: Linearisation, prior: DiscrepancyPrior | None, q_new: np.ndarray
     out = np.zeros((lin.m, 3 * n))
     if prior is None:
         return out
-    k = prior.kernel(lin.q, q_new)
+    k = prior.covariance_kernel(lin.q, q_new)
     for c in range(3):
         out[:, c::3] = np.where((lin.position & (lin.component == c))[:, None], k, 0.0)
     return out
@@ -84,7 +84,7 @@ def error_covariances(lin: Linearisation, prior: DiscrepancyPrior | None, jac_ne
     v = (b @ sigma) @ b.T - bc - bc.T
     blocks = np.stack([v[3 * i:3 * i + 3, 3 * i:3 * i + 3] for i in range(n)])
     if prior is not None:
-        blocks += prior.sigma**2 * np.eye(3)
+        blocks += prior.variance * np.eye(3)
     if noise_new is not None:
         blocks += noise_new
     return 0.5 * (blocks + np.swapaxes(blocks, 1, 2))

@@ -45,7 +45,7 @@ def compensation_weights(lin: Linearisation, prior: DiscrepancyPrior) -> tuple[n
 def compensate(prior: DiscrepancyPrior, configs: np.ndarray, weights: np.ndarray,
                q: np.ndarray) -> np.ndarray:
     r""":math:`\mu(q)` (n, 3) [m], tracker frame, from :func:`compensation_weights`' output."""
-    return prior.kernel(np.asarray(q, float), configs) @ weights
+    return prior.covariance_kernel(np.asarray(q, float), configs) @ weights
 
 
 @dataclass(frozen=True, eq=False)

@@ -23,6 +23,14 @@ same :math:`q` share their model error (correlation 1): the error is the arm's.
   :math:`k = \sigma^2(1 + ar + a^2r^2/3)\,e^{-ar}`;
 - ``"squared_exponential"``: :math:`k = \sigma^2 e^{-r^2/2}`.
 
+**White part** (``sigma_white``, default 0): an error independent between distinct
+configurations but shared by every reflector measured at one (the motor-side
+transmission errors of a joint repeat every few degrees, far below any length scale),
+:math:`k_w(q_1, q_2) = \sigma_w^2\,[q_1 = q_2]`. It is not differentiable in
+:math:`q` and not part of :meth:`DiscrepancyPrior.kernel` (the smooth part a design
+differentiates): a design counts it as extra noise of each distinct arm position.
+:meth:`DiscrepancyPrior.covariance_kernel` is the sum, which the statistics use.
+
 Both are radial; with :math:`g(r) = k'(r)/r` and :math:`h(r) = g'(r)/r`
 (smooth at :math:`r = 0`: Matérn 5/2
 :math:`g = -\sigma^2\tfrac{a^2}{3}(1 + ar)e^{-ar}`, :math:`h = \sigma^2\tfrac{a^4}{3}e^{-ar}`;
@@ -110,18 +118,21 @@ class DiscrepancyPrior:
         length_scales: Per joint [rad, or m for prismatic joints]; ``np.inf`` ignores a joint.
         kernel_name: One of :data:`KERNELS`.
         source: Where the numbers come from (``"default"``, ``"scene"``, a file, ``"fit"``).
+        sigma_white: Amplitude of the white part per Cartesian axis [m] (module docstring).
     """
 
     sigma: float
     length_scales: tuple[float, ...]
     kernel_name: str = "matern52"
     source: str = "given"
+    sigma_white: float = 0.0
 
     def __post_init__(self):
-        sigma = float(self.sigma)
-        if not (np.isfinite(sigma) and sigma >= 0):
-            raise ParameterError(f"model_error.sigma must be finite and >= 0 [m], got {self.sigma}")
-        object.__setattr__(self, "sigma", sigma)
+        for name in ("sigma", "sigma_white"):
+            value = float(getattr(self, name))
+            if not (np.isfinite(value) and value >= 0):
+                raise ParameterError(f"model_error.{name} must be finite and >= 0 [m], got {value}")
+            object.__setattr__(self, name, value)
         object.__setattr__(self, "length_scales", _length_scales(self.length_scales))
         if self.kernel_name not in KERNELS:
             raise ParameterError(f"unknown model_error.kernel {self.kernel_name!r}; valid kernels "
@@ -149,18 +160,22 @@ class DiscrepancyPrior:
                                  f"length_scales_deg (and optionally kernel), got {data!r}")
         ell = [np.inf if v is None else float(v) for v in np.atleast_1d(data["length_scales_deg"])]
         return cls(float(data["sigma_mm"]) * 1e-3, _length_scales(np.radians(ell), nq),
-                   str(data.get("kernel", "matern52")), source)
+                   str(data.get("kernel", "matern52")), source,
+                   float(data.get("sigma_white_mm", 0.0)) * 1e-3)
 
     def to_dict(self) -> dict:
         """JSON form in report units: ``sigma_mm``, ``length_scales_deg`` (None = ignored joint)."""
-        return {"sigma_mm": self.sigma * 1e3, "kernel": self.kernel_name,
+        return {"sigma_mm": self.sigma * 1e3, "sigma_white_mm": self.sigma_white * 1e3,
+                "kernel": self.kernel_name,
                 "length_scales_deg": [None if np.isinf(x) else float(np.degrees(x))
                                       for x in self.length_scales],
                 "source": self.source}
 
-    def with_values(self, sigma: float, length_scales, source: str) -> DiscrepancyPrior:
-        """The same kernel with new hyperparameters."""
-        return DiscrepancyPrior(sigma, tuple(length_scales), self.kernel_name, source)
+    def with_values(self, sigma: float, length_scales, source: str,
+                    sigma_white: float | None = None) -> DiscrepancyPrior:
+        """The same kernel with new hyperparameters (``sigma_white`` None: unchanged)."""
+        white = self.sigma_white if sigma_white is None else sigma_white
+        return DiscrepancyPrior(sigma, tuple(length_scales), self.kernel_name, source, white)
 
     @property
     def nq(self) -> int:
@@ -170,7 +185,8 @@ class DiscrepancyPrior:
         """One line in report units."""
         ell = ", ".join("-" if np.isinf(x) else f"{np.degrees(x):.0f}" for x in self.length_scales)
         return (f"model error {self.kernel_name}: sigma {self.sigma * 1e3:.4f} mm per axis, "
-                f"length scales [{ell}] deg ({self.source})")
+                f"length scales [{ell}] deg, white part {self.sigma_white * 1e3:.4f} mm "
+                f"({self.source})")
 
     # ------------------------------------------------------------- kernel
     def _pieces(self, q1, q2):
@@ -224,16 +240,31 @@ class DiscrepancyPrior:
         d = np.asarray(q1, float)[:, None, :] - np.asarray(q2, float)[None, :, :]
         return np.concatenate([2.0 * k[..., None], -g[..., None] * d * u], axis=-1)
 
+    def white_kernel(self, q1, q2) -> np.ndarray:
+        r""":math:`\sigma_w^2\,[q_{1,a} = q_{2,b}]` (n1, n2) [m²] (module docstring)."""
+        q1, q2 = self._check(q1, "Q1"), self._check(q2, "Q2")
+        same = np.all(q1[:, None, :] == q2[None, :, :], axis=-1)
+        return self.sigma_white**2 * same
+
+    def covariance_kernel(self, q1, q2) -> np.ndarray:
+        """The smooth and the white part, (n1, n2) [m²]: what the statistics use."""
+        return self.kernel(q1, q2) + self.white_kernel(q1, q2)
+
+    @property
+    def variance(self) -> float:
+        """:math:`k(q, q)` of one component, both parts [m²]."""
+        return self.sigma**2 + self.sigma_white**2
+
     def point_covariance(self, q) -> np.ndarray:
-        r""":math:`K = k(Q, Q)` (n, n) [m²]: the covariance of one Cartesian component of the
-        model error over the configurations ``q`` (n, nq)."""
-        return self.kernel(q, q)
+        r""":math:`K = k(Q, Q) + k_w(Q, Q)` (n, n) [m²]: the covariance of one Cartesian component
+        of the model error over the configurations ``q`` (n, nq)."""
+        return self.covariance_kernel(q, q)
 
     def sample(self, q, rng: np.random.Generator | int, jitter: float = 1e-12) -> np.ndarray:
         """One draw of the model error at configurations ``q`` (n, nq): (n, 3) [m]."""
         rng = np.random.default_rng(rng)
         k = self.point_covariance(q)
-        w, v = np.linalg.eigh(k + jitter * max(self.sigma**2, 1e-30) * np.eye(k.shape[0]))
+        w, v = np.linalg.eigh(k + jitter * max(self.variance, 1e-30) * np.eye(k.shape[0]))
         root = v * np.sqrt(np.maximum(w, 0.0))
         return root @ rng.normal(size=(k.shape[0], 3))
 

@@ -140,4 +140,4 @@ def discrepancy_covariance(prior: DiscrepancyPrior, blocks) -> np.ndarray:
     r"""The model-error part :math:`k(q_a, q_b)\,\delta_{cc'}` on position components, (m, m) [m²]."""
     q, position, comp = row_layout(blocks)
     same = (comp[:, None] == comp[None, :]) & position[:, None] & position[None, :]
-    return np.where(same, prior.kernel(q, q), 0.0)
+    return np.where(same, prior.covariance_kernel(q, q), 0.0)

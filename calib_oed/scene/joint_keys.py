@@ -101,14 +101,14 @@ def read_joint_gains(reader: FieldReader, value, n: int,
 def read_model_error(reader: FieldReader, value, robot) -> DiscrepancyPrior:
     """``robot.model_error``: the model-error prior (:mod:`calib_oed.measurement.discrepancy`).
 
-    ``{sigma, length_scales, kernel}`` in the file's units (``sigma`` a length per
-    Cartesian axis; ``length_scales`` one angle per joint, a length for a prismatic
+    ``{sigma, length_scales, kernel, sigma_white}`` in the file's units (``sigma`` and the
+    white part ``sigma_white`` lengths per Cartesian axis; ``length_scales`` one angle per joint, a length for a prismatic
     joint, or one number for all; ``.inf`` ignores a joint), or
     ``{from: identification.json}``: the hyperparameters an earlier
     ``calib-oed identify --json`` fitted (its ``model_error``), path relative to the scene.
     """
     key = "robot.model_error"
-    spec = reader.mapping(value, key, (), ("sigma", "length_scales", "kernel", "from"))
+    spec = reader.mapping(value, key, (), ("sigma", "length_scales", "kernel", "sigma_white", "from"))
     if "from" in spec:
         if set(spec) != {"from"}:
             raise reader.fail(key, "give either 'from' (an identification JSON) or sigma and "
@@ -135,7 +135,9 @@ def read_model_error(reader: FieldReader, value, robot) -> DiscrepancyPrior:
     if all(np.isinf(values)):
         raise reader.fail(f"{key}.length_scales", "at least one joint needs a finite length scale")
     kernel = reader.string(spec.get("kernel", "matern52"), f"{key}.kernel", KERNELS)
-    return DiscrepancyPrior(sigma, tuple(values), kernel, "scene")
+    white = reader.number(spec.get("sigma_white", 0.0), f"{key}.sigma_white", reader.length,
+                          nonnegative=True)
+    return DiscrepancyPrior(sigma, tuple(values), kernel, "scene", white)
 
 
 def _model_error_from_file(reader: FieldReader, value, nq: int) -> DiscrepancyPrior:

@@ -57,13 +57,18 @@ def test_ignored_joint_and_covariance():
 
 
 def test_sample_has_the_kernel_covariance():
-    prior = DiscrepancyPrior(1e-3, (0.5, 0.5, np.inf, np.inf, np.inf, np.inf), "squared_exponential")
-    q = np.zeros((3, 6))
+    """Smooth and white parts: the white part couples only equal configurations (rows 0 and 3)."""
+    prior = DiscrepancyPrior(1e-3, (0.5, 0.5, np.inf, np.inf, np.inf, np.inf), "squared_exponential",
+                             sigma_white=5e-4)
+    q = np.zeros((4, 6))
     q[1, 0], q[2, 1] = 0.3, 0.8
     rng = np.random.default_rng(3)
     draws = np.stack([prior.sample(q, rng) for _ in range(4000)])  # (N, 3, 3)
     emp = np.einsum("nia,nja->ij", draws, draws) / (3 * draws.shape[0])
-    assert np.allclose(emp, prior.kernel(q, q), atol=4 * prior.sigma**2 / np.sqrt(3 * 4000) * 1.5)
+    expected = prior.kernel(q, q) + prior.sigma_white**2 * np.array(
+        [[1, 0, 0, 1], [0, 1, 0, 0], [0, 0, 1, 0], [1, 0, 0, 1]])
+    assert np.allclose(prior.point_covariance(q), expected)
+    assert np.allclose(emp, expected, atol=4 * prior.variance / np.sqrt(3 * 4000) * 1.5)
 
 
 def test_defaults_scale_with_reach_and_json_round_trip():
@@ -72,8 +77,10 @@ def test_defaults_scale_with_reach_and_json_round_trip():
     assert a.sigma < b.sigma
     assert b.sigma == pytest.approx(1e-4 * robot_reach(large))
     assert a.nq == small.nq and a.source == "default"
-    back = DiscrepancyPrior.from_dict(b.to_dict(), large.nq)
+    white = b.with_values(b.sigma, b.length_scales, "t", 3e-5)
+    back = DiscrepancyPrior.from_dict(white.to_dict(), large.nq)
     assert back.sigma == pytest.approx(b.sigma) and np.allclose(back.length_scales, b.length_scales)
+    assert back.sigma_white == pytest.approx(3e-5)
     ignored = DiscrepancyPrior.from_dict({"sigma_mm": 0.1, "length_scales_deg": [30, None, 60]})
     assert np.isinf(ignored.length_scales[1])
 
