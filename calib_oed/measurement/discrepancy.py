@@ -16,8 +16,12 @@ frame (tracker or world) does not matter. Several reflectors measured at the
 same :math:`q` share their model error (correlation 1): the error is the arm's.
 
 **Kernel** (automatic relevance determination over the joints), with
-:math:`d = q_1 - q_2`, :math:`u_k = d_k/\ell_k^2`,
-:math:`r^2 = \sum_k d_k^2/\ell_k^2` (a joint with :math:`\ell_k = \infty` is ignored):
+:math:`\Delta = q_1 - q_2` and per joint the chordal distance
+:math:`\delta_k = 2\sin(\Delta_k/2)` (a revolute joint: the arm at :math:`q_k` and
+:math:`q_k + 2\pi` is the same; :math:`\delta_k = \Delta_k` for a joint listed in
+``linear_joints``, e.g. prismatic), :math:`r^2 = \sum_k \delta_k^2/\ell_k^2` (a joint
+with :math:`\ell_k = \infty` is ignored), :math:`u_k = \sin\Delta_k/\ell_k^2`,
+:math:`c_k = \cos\Delta_k/\ell_k^2` (linear: :math:`\Delta_k/\ell_k^2`, :math:`1/\ell_k^2`):
 
 - ``"matern52"`` (the default, Rasmussen & Williams 2006, eq. 4.17), :math:`a = \sqrt5`:
   :math:`k = \sigma^2(1 + ar + a^2r^2/3)\,e^{-ar}`;
@@ -38,10 +42,10 @@ squared exponential :math:`g = -k`, :math:`h = k`), the derivatives in :math:`q_
 
 .. math::
     \frac{\partial k}{\partial q_{1,k}} = g\,u_k, \qquad
-    \frac{\partial^2 k}{\partial q_{1,k}\partial q_{1,l}} = g\,\frac{\delta_{kl}}{\ell_k^2} + h\,u_k u_l,
+    \frac{\partial^2 k}{\partial q_{1,k}\partial q_{1,l}} = g\,c_k\,[k = l] + h\,u_k u_l,
     \qquad \frac{\partial^2 k}{\partial q_{1,k}\partial q_{2,l}} = -\frac{\partial^2 k}{\partial q_{1,k}\partial q_{1,l}}
 
-(a function of :math:`d` only). Checked by central finite differences in
+(a function of :math:`\Delta` only). Checked by central finite differences in
 ``tests/measurement/test_discrepancy.py``.
 
 **Defaults for design time** (:meth:`DiscrepancyPrior.default_for`), when no data
@@ -119,6 +123,8 @@ class DiscrepancyPrior:
         kernel_name: One of :data:`KERNELS`.
         source: Where the numbers come from (``"default"``, ``"scene"``, a file, ``"fit"``).
         sigma_white: Amplitude of the white part per Cartesian axis [m] (module docstring).
+        linear_joints: Indices of joints measured by plain differences (prismatic); the
+            others by the chordal distance of their angles.
     """
 
     sigma: float
@@ -126,6 +132,7 @@ class DiscrepancyPrior:
     kernel_name: str = "matern52"
     source: str = "given"
     sigma_white: float = 0.0
+    linear_joints: tuple[int, ...] = ()
 
     def __post_init__(self):
         for name in ("sigma", "sigma_white"):
@@ -134,6 +141,11 @@ class DiscrepancyPrior:
                 raise ParameterError(f"model_error.{name} must be finite and >= 0 [m], got {value}")
             object.__setattr__(self, name, value)
         object.__setattr__(self, "length_scales", _length_scales(self.length_scales))
+        linear = tuple(int(j) for j in self.linear_joints)
+        if any(not 0 <= j < len(self.length_scales) for j in linear):
+            raise ParameterError(f"model_error.linear_joints: joint indices 0..{len(self.length_scales) - 1}, "
+                                 f"got {list(linear)}")
+        object.__setattr__(self, "linear_joints", linear)
         if self.kernel_name not in KERNELS:
             raise ParameterError(f"unknown model_error.kernel {self.kernel_name!r}; valid kernels "
                                  f"are: {', '.join(KERNELS)}")
@@ -144,7 +156,7 @@ class DiscrepancyPrior:
         """The documented design-time default for ``robot`` (module docstring)."""
         sigma = max(SIGMA_PER_REACH * robot_reach(robot), MIN_SIGMA)
         ell = [ARM_LENGTH_SCALE if i < 3 else WRIST_LENGTH_SCALE for i in range(robot.nq)]
-        return cls(sigma, tuple(ell), kernel_name, "default")
+        return cls(sigma, tuple(ell), kernel_name, "default", 0.0, linear_joints_of(robot))
 
     @classmethod
     def from_dict(cls, data: Mapping, nq: int | None = None, source: str = "identification"
@@ -161,12 +173,13 @@ class DiscrepancyPrior:
         ell = [np.inf if v is None else float(v) for v in np.atleast_1d(data["length_scales_deg"])]
         return cls(float(data["sigma_mm"]) * 1e-3, _length_scales(np.radians(ell), nq),
                    str(data.get("kernel", "matern52")), source,
-                   float(data.get("sigma_white_mm", 0.0)) * 1e-3)
+                   float(data.get("sigma_white_mm", 0.0)) * 1e-3,
+                   tuple(int(j) for j in data.get("linear_joints", ())))
 
     def to_dict(self) -> dict:
         """JSON form in report units: ``sigma_mm``, ``length_scales_deg`` (None = ignored joint)."""
         return {"sigma_mm": self.sigma * 1e3, "sigma_white_mm": self.sigma_white * 1e3,
-                "kernel": self.kernel_name,
+                "kernel": self.kernel_name, "linear_joints": list(self.linear_joints),
                 "length_scales_deg": [None if np.isinf(x) else float(np.degrees(x))
                                       for x in self.length_scales],
                 "source": self.source}
@@ -175,7 +188,8 @@ class DiscrepancyPrior:
                     sigma_white: float | None = None) -> DiscrepancyPrior:
         """The same kernel with new hyperparameters (``sigma_white`` None: unchanged)."""
         white = self.sigma_white if sigma_white is None else sigma_white
-        return DiscrepancyPrior(sigma, tuple(length_scales), self.kernel_name, source, white)
+        return DiscrepancyPrior(sigma, tuple(length_scales), self.kernel_name, source, white,
+                                self.linear_joints)
 
     @property
     def nq(self) -> int:
@@ -190,11 +204,16 @@ class DiscrepancyPrior:
 
     # ------------------------------------------------------------- kernel
     def _pieces(self, q1, q2):
+        """u (n1, n2, nq), c (n1, n2, nq), k, g, h (n1, n2) and the distances delta (module docstring)."""
         q1 = self._check(q1, "Q1")
         q2 = self._check(q2, "Q2")
         inv = 1.0 / np.asarray(self.length_scales) ** 2  # 0 for an ignored joint
-        d = q1[:, None, :] - q2[None, :, :]
-        r = np.sqrt(np.maximum(np.einsum("abk,k->ab", d * d, inv), 0.0))
+        diff = q1[:, None, :] - q2[None, :, :]
+        delta, u, c = 2.0 * np.sin(0.5 * diff), np.sin(diff) * inv, np.cos(diff) * inv
+        if self.linear_joints:
+            j = list(self.linear_joints)
+            delta[..., j], u[..., j], c[..., j] = diff[..., j], diff[..., j] * inv[j], inv[j]
+        r = np.sqrt(np.maximum(np.einsum("abk,k->ab", delta * delta, inv), 0.0))
         s2 = self.sigma**2
         if self.kernel_name == "matern52":
             e = np.exp(-_A * r)
@@ -204,7 +223,7 @@ class DiscrepancyPrior:
         else:
             k = s2 * np.exp(-0.5 * r**2)
             g, h = -k, k
-        return d * inv, inv, k, g, h
+        return u, c, k, g, h, delta * delta * inv
 
     def _check(self, q, what) -> np.ndarray:
         q = np.asarray(q, dtype=float)
@@ -218,13 +237,14 @@ class DiscrepancyPrior:
 
     def kernel_gradient(self, q1, q2) -> np.ndarray:
         r""":math:`\partial k/\partial q_1` (n1, n2, nq) [m²/rad]."""
-        u, _, _, g, _ = self._pieces(q1, q2)
+        u, _, _, g, _, _ = self._pieces(q1, q2)
         return g[:, :, None] * u
 
     def kernel_hessian(self, q1, q2) -> np.ndarray:
         r""":math:`\partial^2 k/\partial q_1^2` (n1, n2, nq, nq) [m²/rad²], per pair."""
-        u, inv, _, g, h = self._pieces(q1, q2)
-        return g[:, :, None, None] * np.diag(inv) + h[:, :, None, None] * u[..., :, None] * u[..., None, :]
+        u, c, _, g, h, _ = self._pieces(q1, q2)
+        diag = (g[:, :, None] * c)[..., None] * np.eye(self.nq)
+        return diag + h[:, :, None, None] * u[..., :, None] * u[..., None, :]
 
     def kernel_cross_hessian(self, q1, q2) -> np.ndarray:
         r""":math:`\partial^2 k/\partial q_1\partial q_2` (n1, n2, nq, nq) [m²/rad²]: minus
@@ -234,16 +254,15 @@ class DiscrepancyPrior:
     def kernel_log_gradient(self, q1, q2) -> np.ndarray:
         r"""Derivatives of :math:`k` in the log-hyperparameters, (n1, n2, 1 + nq) [m²]:
         :math:`\partial k/\partial\log\sigma = 2k` and
-        :math:`\partial k/\partial\log\ell_j = -g\,d_j^2/\ell_j^2` (0 for an ignored joint),
+        :math:`\partial k/\partial\log\ell_j = -g\,\delta_j^2/\ell_j^2` (0 for an ignored joint),
         for the marginal likelihood's gradient."""
-        u, _, k, g, _ = self._pieces(q1, q2)
-        d = np.asarray(q1, float)[:, None, :] - np.asarray(q2, float)[None, :, :]
-        return np.concatenate([2.0 * k[..., None], -g[..., None] * d * u], axis=-1)
+        _, _, k, g, _, scaled = self._pieces(q1, q2)
+        return np.concatenate([2.0 * k[..., None], -g[..., None] * scaled], axis=-1)
 
     def white_kernel(self, q1, q2) -> np.ndarray:
         r""":math:`\sigma_w^2\,[q_{1,a} = q_{2,b}]` (n1, n2) [m²] (module docstring)."""
         q1, q2 = self._check(q1, "Q1"), self._check(q2, "Q2")
-        same = np.all(q1[:, None, :] == q2[None, :, :], axis=-1)
+        same = np.all(q1[:, None, :] == q2[None, :, :], axis=-1)  # the same commanded configuration
         return self.sigma_white**2 * same
 
     def covariance_kernel(self, q1, q2) -> np.ndarray:
@@ -267,6 +286,11 @@ class DiscrepancyPrior:
         w, v = np.linalg.eigh(k + jitter * max(self.variance, 1e-30) * np.eye(k.shape[0]))
         root = v * np.sqrt(np.maximum(w, 0.0))
         return root @ rng.normal(size=(k.shape[0], 3))
+
+
+def linear_joints_of(robot) -> tuple[int, ...]:
+    """Indices of the robot's prismatic joints (measured by plain differences)."""
+    return tuple(i for i, j in enumerate(robot.model.joints[1:]) if j.shortname().startswith("JointModelP"))
 
 
 def length_scale_list(value: float | Sequence[float], nq: int) -> tuple[float, ...]:

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from calib_oed.exceptions import ParameterError, ShapeError
-from calib_oed.measurement.discrepancy import KERNELS, DiscrepancyPrior
+from calib_oed.measurement.discrepancy import KERNELS, DiscrepancyPrior, linear_joints_of
 from calib_oed.model.compliance import Compliance
 from calib_oed.model.controller import ControllerConvention
 from calib_oed.model.joint_map import JointGains
@@ -137,7 +137,7 @@ def read_model_error(reader: FieldReader, value, robot) -> DiscrepancyPrior:
     kernel = reader.string(spec.get("kernel", "matern52"), f"{key}.kernel", KERNELS)
     white = reader.number(spec.get("sigma_white", 0.0), f"{key}.sigma_white", reader.length,
                           nonnegative=True)
-    return DiscrepancyPrior(sigma, tuple(values), kernel, "scene", white)
+    return DiscrepancyPrior(sigma, tuple(values), kernel, "scene", white, linear_joints_of(robot))
 
 
 def _model_error_from_file(reader: FieldReader, value, nq: int) -> DiscrepancyPrior:

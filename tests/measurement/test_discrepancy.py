@@ -11,9 +11,11 @@ from tests.conftest import central_difference, relative_error
 ELL = (0.7, 0.9, np.inf, 1.3, 0.5, 2.0)
 
 
-@pytest.fixture(params=KERNELS)
+@pytest.fixture(params=[(k, lin) for k in KERNELS for lin in ((), (1, 4))])
 def prior(request):
-    return DiscrepancyPrior(2e-4, ELL, request.param)
+    """Both kernels; revolute joints (chordal distance), and two joints measured linearly."""
+    kernel, linear = request.param
+    return DiscrepancyPrior(2e-4, ELL, kernel, linear_joints=linear)
 
 
 def _points(seed=0, n1=4, n2=5):
@@ -42,6 +44,16 @@ def test_kernel_hessians_match_central_differences(prior):
             num = central_difference(
                 lambda x, a=a: prior.kernel_gradient(q1[a][None], x[None])[0, 0], q2[b], 1e-6)
             assert relative_error(cross[a, b], num) < 1e-5
+
+
+def test_a_revolute_joint_turned_a_full_revolution_is_the_same_arm():
+    prior = DiscrepancyPrior(3e-4, ELL)
+    q = np.random.default_rng(5).uniform(-2, 2, (10, 6))
+    turned = q.copy()
+    turned[:, 0] += 2 * np.pi
+    assert np.allclose(prior.kernel(q, turned), prior.kernel(q, q), rtol=1e-12)
+    linear = DiscrepancyPrior(3e-4, ELL, linear_joints=(0,))
+    assert np.all(linear.kernel(q, turned).diagonal() < 0.01 * linear.sigma**2)
 
 
 def test_ignored_joint_and_covariance():
@@ -137,7 +149,8 @@ def test_kernel_log_gradient_matches_central_differences(prior):
         ell = list(ELL)
         for j, t in zip(finite, theta[1:], strict=True):
             ell[j] = np.exp(t)
-        return DiscrepancyPrior(np.exp(theta[0]), tuple(ell), prior.kernel_name).kernel(q1, q2)
+        return DiscrepancyPrior(np.exp(theta[0]), tuple(ell), prior.kernel_name,
+                                linear_joints=prior.linear_joints).kernel(q1, q2)
 
     theta = np.log([prior.sigma] + [ELL[j] for j in finite])
     num = central_difference(k_of, theta, 1e-6)
