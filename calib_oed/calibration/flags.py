@@ -24,7 +24,13 @@ what the model misses are reported as likely model error and kept in the fit
   joint's range at the same end): an effect of that joint the model lacks
   (compliance, a gain, a transmission error), or too few poses there.
 
-The others are gross errors (a mis-read reflector, a bumped nest).
+Of the others, a flag whose leave-one-out residual is beyond :data:`GROSS_Z`
+standard deviations of noise + model error (:math:`\sqrt{t_i} \ge 10`; probability
+below 1e-20 under the model) is a gross error (a misread reflector, a bumped
+nest) and is left out; the rest are reported as suspect and kept: a real arm's
+model error has heavier tails than a Gaussian process (on the realistic
+simulator's UR5, flags at :math:`\sqrt{t_i}` 5-6.5 with no gross error at all),
+and leaving such rows out makes the fit extrapolate.
 """
 
 from __future__ import annotations
@@ -41,6 +47,8 @@ from calib_oed.measurement.discrepancy import DiscrepancyPrior
 DEFAULT_ALPHA = 1e-3
 #: A flag is at a joint's end when within this fraction of the measured range of it.
 END_FRACTION = 0.1
+#: A flag this many standard deviations of noise + model error out (sqrt(t)) is a gross error.
+GROSS_Z = 10.0
 #: At most this fraction of the measurements is set aside by the sequential deletion.
 MAX_FLAGGED_FRACTION = 0.25
 
@@ -80,15 +88,18 @@ class FlagClasses:
     Attributes:
         model_error: Per measurement (M,): flagged and classified as likely model error.
         findings: One sentence per finding, naming the poses or the joint and the remedy.
+        gross: Per measurement (M,): flagged, not model error, beyond :data:`GROSS_Z`.
     """
 
     model_error: np.ndarray = field(repr=False)
     findings: tuple[str, ...]
+    gross: np.ndarray | None = field(default=None, repr=False)
 
 
 def classify_flags(flagged: np.ndarray, pose: np.ndarray, q: np.ndarray,
-                   joint_names) -> FlagClasses:
-    """Classify the flags of measurements with pose numbers ``pose`` (M,) at ``q`` (M, nq)."""
+                   joint_names, t: np.ndarray | None = None) -> FlagClasses:
+    """Classify the flags of measurements with pose numbers ``pose`` (M,) at ``q`` (M, nq)
+    and leave-one-out statistics ``t`` (M,) (None: every flag that is not model error is gross)."""
     flagged = np.asarray(flagged, bool)
     model_error = np.zeros(flagged.size, bool)
     findings = []
@@ -119,4 +130,12 @@ def classify_flags(flagged: np.ndarray, pose: np.ndarray, q: np.ndarray,
                     f"error of {name}, not outliers; kept in the fit. Remedy: model a "
                     "non-geometric parameter of that joint (robot.compliance, robot.joint_gains) "
                     f"or measure more poses near that end of {name}")
-    return FlagClasses(model_error & flagged, tuple(findings))
+    model_error &= flagged
+    beyond = np.ones(flagged.size, bool) if t is None else np.sqrt(t) >= GROSS_Z
+    gross = flagged & ~model_error & beyond
+    suspect = flagged & ~model_error & ~gross
+    if suspect.any():
+        findings.append(f"{int(suspect.sum())} flagged measurement(s) within {GROSS_Z:g} standard "
+                        "deviations of noise + model error: suspect, kept in the fit (re-measure "
+                        "them if in doubt)")
+    return FlagClasses(model_error, tuple(findings), gross)

@@ -175,8 +175,8 @@ def identify_robust(space: ParameterSpace, blocks: Sequence[ObservationBlock], f
         max_iterations: Of the IRLS pass.
         model_error: The model-error prior the hyperparameters start from.
         drop: With ``model_error``, which flagged measurements the final estimate leaves out:
-            ``"gross"`` (default: the gross errors; flags that look like model error are
-            kept), ``"all"`` or ``"none"``.
+            ``"gross"`` (default: the gross errors; flags that look like model error and
+            suspect ones are kept, :mod:`calib_oed.calibration.flags`), ``"all"`` or ``"none"``.
         options: Passed to every :func:`identify` call.
 
     Raises:
@@ -283,9 +283,8 @@ def _with_model_error(space, blocks, free, prior, alpha, drop, options) -> Robus
             break
         flagged = new
     q = np.concatenate([b.q for b in blocks])
-    classes = classify_flags(flagged, pose_index(q), q, space.robot.joint_names)
-    dropped = {"gross": flagged & ~classes.model_error, "all": flagged,
-               "none": np.zeros(flagged.size, bool)}[drop]
+    classes = classify_flags(flagged, pose_index(q), q, space.robot.joint_names, t)
+    dropped = {"gross": classes.gross, "all": flagged, "none": np.zeros(flagged.size, bool)}[drop]
     result, final = linear, lin
     if dropped.any():
         kept = _subset(blocks, [~dropped[block == k] for k in range(len(blocks))])

@@ -81,5 +81,11 @@ def test_whole_poses_and_joint_ends_are_called_model_error():
     flagged[50] = True  # an isolated flag
     classes = classify_flags(flagged, pose, q, names)
     assert np.flatnonzero(classes.model_error).tolist() == [0, 4, 7, 30, 31, 32]
+    assert np.flatnonzero(classes.gross).tolist() == [50]
     assert any("pose(s) 11" in f for f in classes.findings)
     assert any("upper end of a2" in f and "Remedy" in f for f in classes.findings)
+    # the isolated flag within 10 standard deviations of noise + model error: suspect, kept
+    t = np.full(60, 30.0)
+    assert not classify_flags(flagged, pose, q, names, t).gross.any()
+    t[50] = 2500.0  # 5 mm against 0.1 mm
+    assert np.flatnonzero(classify_flags(flagged, pose, q, names, t).gross).tolist() == [50]
