@@ -290,7 +290,8 @@ def _with_model_error(space, blocks, free, prior, alpha, drop, options) -> Robus
         kept = _subset(blocks, [~dropped[block == k] for k in range(len(blocks))])
         result = identify(space, kept, free, p0=linear.p, **options)
         final = linearise(space, kept, result.p, result.free_indices)
-        fit = fit_model_error(final, prior)
+    if flagged.any():  # the model error of what the fit keeps (suspects and model error too)
+        fit = fit_model_error(final, fit.prior)
     std = np.sqrt(np.diag(estimate_covariance(final, fit.prior)))
     scale = float(result.sigma0)
     return RobustIdentification(
