@@ -433,6 +433,14 @@ class MeasurementModel(abc.ABC):
     def _row_sigma(self, n: int, sigma) -> np.ndarray:
         return np.broadcast_to(self.sigma if sigma is None else np.asarray(sigma, float), (n, self.dim))
 
+    def _noise_matrix(self, values, sigma, full: str, power: int) -> np.ndarray:
+        """The full error model's ``full`` matrices, or :math:`\\mathrm{diag}(\\sigma^{power})`."""
+        values = np.asarray(values, dtype=float)
+        if self.noise is not None:
+            return getattr(self.noise, full)(values[:, :3])
+        s = self._row_sigma(values.shape[0], sigma)
+        return (s**power)[:, :, None] * np.eye(self.dim)
+
     def noise_cholesky(self, values: np.ndarray, sigma: np.ndarray | None = None) -> np.ndarray:
         r"""Lower :math:`L_i` with :math:`\Sigma_i = L_i L_i^\top` per measurement, (n, d, d) [SI].
 
@@ -440,27 +448,15 @@ class MeasurementModel(abc.ABC):
         model depends on range and direction); ``sigma`` (n, d): per-row standard
         deviations of a measurement file, used when the model has no full error model.
         """
-        values = np.asarray(values, dtype=float)
-        if self.noise is not None:
-            return self.noise.cholesky(values[:, :3])
-        s = self._row_sigma(values.shape[0], sigma)
-        return s[:, :, None] * np.eye(self.dim)
+        return self._noise_matrix(values, sigma, "cholesky", 1)
 
     def noise_covariance(self, values: np.ndarray, sigma: np.ndarray | None = None) -> np.ndarray:
         r""":math:`\Sigma_i` (n, d, d) [SI²] of each measurement (:meth:`noise_cholesky`)."""
-        values = np.asarray(values, dtype=float)
-        if self.noise is not None:
-            return self.noise.covariance(values[:, :3])
-        s = self._row_sigma(values.shape[0], sigma)
-        return (s**2)[:, :, None] * np.eye(self.dim)
+        return self._noise_matrix(values, sigma, "covariance", 2)
 
     def noise_whitening(self, values: np.ndarray, sigma: np.ndarray | None = None) -> np.ndarray:
         r""":math:`W_i = L_i^{-1}` (n, d, d): :math:`W_i e_i \sim N(0, I)` for the noise :math:`e_i`."""
-        values = np.asarray(values, dtype=float)
-        if self.noise is not None:
-            return self.noise.whitening(values[:, :3])
-        s = self._row_sigma(values.shape[0], sigma)
-        return (1.0 / s)[:, :, None] * np.eye(self.dim)
+        return self._noise_matrix(values, sigma, "whitening", -1)
 
     def sample_noise(self, values: np.ndarray, rng: np.random.Generator,
                      sigma: np.ndarray | None = None) -> np.ndarray:
