@@ -53,7 +53,7 @@ def test_model_error_ten_times_the_noise_drops_no_pose(fms):
     assert flagged <= 0.02 * total, (flagged, total)
 
 
-@pytest.mark.parametrize("three", [False, True])
+@pytest.mark.parametrize("three", [False, pytest.param(True, marks=pytest.mark.slow)])
 def test_one_gross_error_among_60_poses_is_flagged_alone(fms, three):
     problem = _three_reflectors(fms) if three else fms.problem
     blocks = _blocks(problem, 7)

@@ -63,6 +63,7 @@ def test_prediction_against_monte_carlo_with_the_true_model_error(fms):
         assert abs(inside / n - 0.95) < 0.025, (compensate, inside / n)
 
 
+@pytest.mark.slow  # (the realistic simulator's test_trust.py covers fitted hyperparameters fast)
 def test_prediction_with_fitted_hyperparameters(fms):
     """The same with the hyperparameters fitted from each training set (restricted likelihood):
     predicted over achieved RMS within 0.8-1.25, coverage within 0.90-0.98 (400 points of 4 truths,
