@@ -3,7 +3,7 @@ r"""K-fold cross-validation over poses: the accuracy a calibration will have on 
 Poses (distinct configurations; every reflector measured there goes with
 its pose) are split into :math:`K` folds; each fold is predicted by the
 calibration identified from the other :math:`K-1` (linear weighted least
-squares, outliers excluded), and the held-out position errors
+squares, every row: flagged rows too), and the held-out position errors
 :math:`\lVert\eta_i - h(\hat p_{-f}, q_i)\rVert` [mm] pooled over all folds give
 the predicted RMS error on unseen poses.
 
@@ -41,6 +41,7 @@ from calib_oed.calibration.identification import identify
 from calib_oed.exceptions import NotIdentifiableError, ParameterError
 from calib_oed.measurement.base import evaluate_setup
 from calib_oed.measurement.dataset import MeasurementSet
+from calib_oed.measurement.error_model import ErrorModel
 from calib_oed.model.parameters import ParameterSpace
 
 MM_PER_M = 1e3
@@ -113,8 +114,8 @@ class CrossValidation:
 
     Attributes:
         k: Folds. seed: Of the fold assignment.
-        fold: Fold of every measurement row (n,) (-1 for excluded outliers).
-        errors_mm: Held-out position error per row [mm] (NaN for excluded rows).
+        fold: Fold of every measurement row (n,): every row is used, flagged or not.
+        errors_mm: Held-out position error per row [mm].
         rms_mm, se_mm: Pooled held-out RMS and its standard error [mm].
         fold_rms_mm: Per fold [mm].
         noise_floor_mm: RMS a perfect model would show (measurement noise, :func:`noise_floor`) [mm].
@@ -132,7 +133,8 @@ class CrossValidation:
     warnings: tuple[str, ...]
 
     def summary(self) -> str:
-        lines = [f"cross-validation, {self.k} folds balanced over the joint ranges (seed {self.seed}): "
+        lines = [f"cross-validation, {self.k} folds balanced over the joint ranges (seed {self.seed}), "
+                 f"every one of the {self.fold.size} rows used (flagged rows too): "
                  f"predicted position error on unseen poses RMS {self.rms_mm:.4f} ± {self.se_mm:.4f} mm "
                  f"(standard error; noise floor {self.noise_floor_mm:.4f} mm, ratio "
                  f"{self.rms_mm / self.noise_floor_mm:.2f})",
@@ -158,43 +160,39 @@ def noise_floor(mset: MeasurementSet, blocks) -> float:
     """RMS position error [m] a perfect model shows on ``mset``: :math:`\\sqrt{\\mathrm{mean}_i\\,
     \\mathrm{tr}\\,\\Sigma_i}` (module docstring), ``blocks`` = ``mset.blocks(...)``."""
     var = np.empty(mset.n)
-    for j, block in zip(mset.reflectors, blocks, strict=True):
-        noise = getattr(block.model, "noise", None)
-        if noise is None:
-            var[mset.reflector == j] = (block.sigma[:, :3] ** 2).sum(axis=1)
-        else:  # Sigma_i at the measured position (tracker frame)
-            var[mset.reflector == j] = np.trace(noise.covariance(block.values[:, :3]), axis1=1, axis2=2)
+    for j, block in zip(mset.reflectors, blocks, strict=True):  # Sigma_i at the measured position
+        cov = block.model.noise_covariance(block.values, block.sigma)[:, :3, :3]
+        var[mset.reflector == j] = np.trace(cov, axis1=1, axis2=2)
     return float(np.sqrt(np.mean(var)))
 
 
 def held_out_errors(space: ParameterSpace, mset: MeasurementSet, p: np.ndarray | None,
-                    sigma, sigma_angle, noise=None) -> np.ndarray:
+                    error_model: ErrorModel) -> np.ndarray:
     """Position error :math:`\\lVert\\eta - h(p, q)\\rVert` per row of ``mset`` [mm]
-    (``noise``: ``scene.position_noise()``, only to build the blocks)."""
+    (``error_model``: ``scene.error_model()``, only to build the blocks)."""
     out = np.empty(mset.n)
-    for j, block in zip(mset.reflectors, mset.blocks(sigma=sigma, sigma_angle=sigma_angle, noise=noise),
-                        strict=True):
+    for j, block in zip(mset.reflectors, mset.blocks(error_model=error_model), strict=True):
         state = evaluate_setup(space, p, block.q, regressor=False, jacobian=False)
         predicted = block.model.compute_values(state)
         out[mset.reflector == j] = np.linalg.norm(block.values[:, :3] - predicted[:, :3], axis=1)
     return out * MM_PER_M
 
 
-def cross_validate(space: ParameterSpace, mset: MeasurementSet, free, k: int, *, sigma, sigma_angle,
-                   noise=None, exclude: np.ndarray | None = None, seed: int = 0) -> CrossValidation:
-    """K-fold cross-validation over the poses of ``mset`` (rows ``exclude`` left out).
+def cross_validate(space: ParameterSpace, mset: MeasurementSet, free, k: int, *,
+                   error_model: ErrorModel, seed: int = 0) -> CrossValidation:
+    """K-fold cross-validation over the poses of ``mset``, every row included.
 
-    ``sigma``, ``sigma_angle``, ``noise``: the measurement model of the fits and of the
-    noise floor, as :meth:`~calib_oed.measurement.dataset.MeasurementSet.blocks`
-    (``noise``: ``scene.position_noise()``, the tracker error model with repeatability).
+    No row is left out, flagged or not: a flagged row that is model error is what
+    new poses will show too, and leaving it out made the prediction optimistic.
+    ``error_model``: the measurement model of the fits and of the noise floor
+    (``scene.error_model()``).
 
     Raises:
         ParameterError: K not in 2..number of poses.
         NotIdentifiableError: a fold's training poses do not determine the parameters
             (the message names the fold; use fewer folds).
     """
-    keep = np.ones(mset.n, bool) if exclude is None else ~np.asarray(exclude, bool)
-    data = subset(mset, keep)
+    data = mset
     pose = pose_index(data.q)
     poses = data.q[np.unique(pose, return_index=True)[1]]
     fold_of_pose = balanced_folds(poses, k, seed)
@@ -204,13 +202,12 @@ def cross_validate(space: ParameterSpace, mset: MeasurementSet, free, k: int, *,
     for f in range(k):
         train, test = subset(data, fold != f), subset(data, fold == f)
         try:
-            result = identify(space, train.blocks(sigma=sigma, sigma_angle=sigma_angle, noise=noise),
-                              free)
+            result = identify(space, train.blocks(error_model=error_model), free)
         except NotIdentifiableError as exc:
             raise NotIdentifiableError(exc.names, f"cross-validation fold {f + 1} of {k}: its "
                                        f"{int((fold != f).sum())} training rows do not determine "
                                        "them; use fewer folds (--cv)") from exc
-        e = held_out_errors(space, test, result.p, sigma, sigma_angle, noise)
+        e = held_out_errors(space, test, result.p, error_model)
         errors[fold == f] = e
         fold_rms.append(float(np.sqrt(np.mean(e**2))))
     e_pose = np.bincount(pose, errors**2)
@@ -218,12 +215,8 @@ def cross_validate(space: ParameterSpace, mset: MeasurementSet, free, k: int, *,
     ms = e_pose.sum() / n_pose.sum()
     se_ms = np.std(e_pose - ms * n_pose, ddof=1) / (np.sqrt(e_pose.size) * n_pose.mean())
     rms = float(np.sqrt(ms))
-    floor = noise_floor(data, data.blocks(sigma=sigma, sigma_angle=sigma_angle, noise=noise))
-    all_fold = np.full(mset.n, -1)
-    all_fold[keep] = fold
-    all_err = np.full(mset.n, np.nan)
-    all_err[keep] = errors
-    return CrossValidation(k, int(seed) if isinstance(seed, (int, np.integer)) else 0, all_fold,
-                           all_err, rms, float(se_ms / (2 * rms)), tuple(fold_rms),
+    floor = noise_floor(data, data.blocks(error_model=error_model))
+    return CrossValidation(k, int(seed) if isinstance(seed, (int, np.integer)) else 0, fold,
+                           errors, rms, float(se_ms / (2 * rms)), tuple(fold_rms),
                            floor * MM_PER_M, tuple(coverage_warnings(poses, fold_of_pose,
                                                                      mset.joint_names)))

@@ -145,7 +145,7 @@ def fit_report(space: ParameterSpace, mset: MeasurementSet, blocks, sanity: Sani
 def worst_determined(robust: RobustIdentification, top: int = 5) -> list[dict]:
     """The ``top`` free parameters with the largest a-posteriori std relative to :data:`PLAUSIBLE_STD`."""
     res = robust.result
-    post = res.std * robust.scale
+    post = robust.parameter_std
     rows = []
     for name, unit, s in zip(res.free_names, res.units, post, strict=True):
         bound = PLAUSIBLE_STD.get(unit)
@@ -190,18 +190,26 @@ def format_fit(report: FitReport, robust: RobustIdentification, sanity: SanityRe
               f"scale {robust.robust_scale:.3f}): {SIGMA0_MEANING}",
               f"condition number of the weighted Jacobian (columns in mm, mrad): "
               f"{res.condition_number:.4g}",
-              "worst-determined parameters (a-posteriori std, x sigma0):"]
+              "worst-determined parameters (a-posteriori std"
+              + (", under noise + model error):" if robust.std is not None else ", x sigma0):")]
     for w in worst_determined(robust, top):
         flag = "  WARNING: implausibly large, the data barely determine it" if w["implausible"] else ""
         lines.append(f"  {w['name']:<14s} std {w['std_report']:.4f} {w['report_unit']}{flag}")
-    if np.isfinite(robust.alpha):
+    if robust.classes is not None:
+        kept = int(np.sum(robust.flagged & (robust.weight > 0)))
+        rule = (f"leave-one-out residual against noise + model error, normalised, above the "
+                f"chi-square {1 - robust.alpha:g} quantile, about {robust.threshold.max():.2f}; "
+                f"{robust.n_flagged - kept} left out of the fit, {kept} kept")
+    elif np.isfinite(robust.alpha):
         rule = (f"normalised residual above the chi-square {1 - robust.alpha:g} quantile, about "
                 f"{robust.threshold.max():.2f}; left out of the fit")
     else:
-        rule = (f"loss {res.loss}: |r|/sqrt(d) above {res.outlier_threshold:g} stated sigma; kept "
+        rule = (f"plain fit: |r|/sqrt(d) above {res.outlier_threshold:g} stated sigma; kept "
                 "in the fit")
     lines.append(f"outliers ({rule}): {robust.n_flagged or 'none'}")
     lines += report.outlier_lines()[:30]
+    if robust.classes is not None:
+        lines += [f"  {f}" for f in robust.classes.findings]
     return "\n".join(lines)
 
 
@@ -211,6 +219,10 @@ def fit_dict(report: FitReport, robust: RobustIdentification, sanity: SanityRepo
         "sanity": sanity.to_dict(), "sigma0": robust.scale, "robust_scale": robust.robust_scale,
         "sigma0_meaning": SIGMA0_MEANING,
         "alpha": robust.alpha if np.isfinite(robust.alpha) else None,
+        "flag_rule": ("leave-one-out residual against noise + model error above the chi-square "
+                      "1 - alpha quantile" if robust.classes is not None else
+                      "normalised residual above the chi-square 1 - alpha quantile"),
+        "findings": list(robust.classes.findings) if robust.classes is not None else [],
         "before_rms_mm": _rms(report.before_mm), "after_rms_mm": _rms(report.after_mm),
         "nominal_rms_mm": _rms(report.nominal_mm),
         "per_reflector": dict(report.groups("reflector")), "per_pose": dict(report.groups("pose")),

@@ -6,30 +6,31 @@ the free parameters :math:`p_f` (paper eq. 5–6), the fixed ones held at
 :math:`p_0`:
 
 .. math::
-    \hat p_f = \arg\min_{p_f}\ \tfrac12 \sum_{i=1}^{m} f_s^2\,\rho\big((r_i(p)/f_s)^2\big),
-    \qquad r(p) = \Sigma^{-1}\big(h(p, q) - \eta\big) \in \mathbb{R}^m,
+    \hat p_f = \arg\min_{p_f}\ \tfrac12 \lVert r(p)\rVert^2,
+    \qquad r(p) = \Sigma^{-1}\big(h(p, q) - \eta\big) \in \mathbb{R}^m.
 
-with :math:`\rho(z) = z` for ``loss="linear"`` (then the cost is
-:math:`\tfrac12\lVert r\rVert^2`) or a robust :math:`\rho` (``"huber"``,
-``"soft_l1"``, scipy's definitions) and :math:`f_s` = ``f_scale`` in units of
-:math:`\sigma`. :math:`r` is the paper's :math:`-f_1`. Rows: block order, then
+:math:`r` is the paper's :math:`-f_1`. Outliers are the business of
+:mod:`calib_oed.calibration.robust` (judged against noise + model error), not of a
+robust loss here: a robust loss mistakes the model error of a real arm for outliers. Rows: block order, then
 configuration, then component. The Jacobian is analytic,
 :math:`\partial r/\partial p_f = \Sigma^{-1}\,\partial h/\partial p_f = F_1[:, f]`
 (the measurement models' ``compute_param_jacobian``). Solver:
 ``scipy.optimize.least_squares``. How to read the result: ``docs/identification.md``.
 
-Full covariances (opt-in): a block whose model carries an error model
-(``model.noise``, :class:`~calib_oed.measurement.noise.TrackerNoise`) is
-whitened per measurement by :math:`L_i^{-1}` instead of :math:`\Sigma^{-1}`,
-:math:`r_i = L_i^{-1}(h_i - \eta_i)`, :math:`\Sigma_i = L_i L_i^\top` evaluated
-at the positions :math:`h(\hat p, q_i)` predicted by the CURRENT ESTIMATE.
+Every block is whitened per measurement by its model's noise contract
+(``model.noise_whitening``), :math:`r_i = L_i^{-1}(h_i - \eta_i)`: for
+independent components :math:`L_i = \mathrm{diag}(\sigma_i)` (the block's
+per-row sigmas), so :math:`r = \Sigma^{-1}(h - \eta)` as above. With a full
+error model (:class:`~calib_oed.measurement.noise.TrackerNoise`: tracker and
+repeatability) :math:`\Sigma_i = L_i L_i^\top` is evaluated at the positions
+:math:`h(\hat p, q_i)` predicted by the CURRENT ESTIMATE.
 :math:`L_i` is frozen during one solve (so the Jacobian
 :math:`L_i^{-1}\partial h_i/\partial p_f` is exact for the solved cost); it is
 evaluated at the start :math:`p_0`, and after the solve re-evaluated at
 :math:`\hat p` and solved once more from :math:`\hat p` (a fixed point; the
 second solve moves the estimate by a tiny fraction of its standard deviation,
 since :math:`\Sigma_i` changes by :math:`O(\lVert\Delta h\rVert/d)`).
-Models without ``noise`` behave exactly as before.
+Models without a full error model need no second solve.
 
 This module owns the estimator: the residual :math:`r` and its Jacobian
 (:func:`residual_function`), the options and :func:`identify`. The record it
@@ -61,7 +62,6 @@ from calib_oed.model.identifiability import IdentifiabilityReport
 from calib_oed.model.parameters import ANGLE_SCALE, LENGTH_SCALE, ParameterSpace
 
 __all__ = [
-    "LOSSES",
     "METHODS",
     "IdentificationResult",
     "IdentificationStatus",
@@ -72,9 +72,7 @@ __all__ = [
     "residual_function",
 ]
 
-#: Loss functions :func:`identify` accepts (scipy's names).
-LOSSES = ("linear", "huber", "soft_l1")
-#: Solvers of ``scipy.optimize.least_squares``; ``"lm"`` needs the linear loss.
+#: Solvers of ``scipy.optimize.least_squares``.
 METHODS = ("lm", "trf")
 
 
@@ -142,21 +140,21 @@ class _Residuals:
         self.slices = [slice(a, z) for a, z in zip(sizes[:-1], sizes[1:], strict=True)]
         self._x: np.ndarray | None = None
         self._states: list | None = None
-        self.chol: list[np.ndarray | None] = [None] * len(self.blocks)
-        self.whiten: list[np.ndarray | None] = [None] * len(self.blocks)
-        self.has_noise = any(getattr(b.model, "noise", None) is not None for b in self.blocks)
-        if self.has_noise:
-            self.freeze_noise(p0[free])
+        self.chol: list[np.ndarray] = [np.empty(0)] * len(self.blocks)
+        self.whiten: list[np.ndarray] = [np.empty(0)] * len(self.blocks)
+        #: Whether some block's covariance depends on the position (the tracker error model).
+        self.has_noise = any(b.model.noise is not None for b in self.blocks)
+        self.freeze_noise(p0[free])
 
     def freeze_noise(self, x: np.ndarray) -> None:
-        """Evaluate :math:`L_i` and :math:`L_i^{-1}` of the noise-model blocks at ``x`` and keep them."""
+        """Evaluate every block's :math:`L_i` and :math:`L_i^{-1}` (the models' noise contract)
+        at the positions predicted by ``x`` and keep them."""
         for state, (_, members) in zip(self._states_at(x), self.groups, strict=True):
             for k in members:
-                noise = getattr(self.blocks[k].model, "noise", None)
-                if noise is not None:
-                    y = self.blocks[k].model.compute_values(state)
-                    self.chol[k] = noise.cholesky(y)
-                    self.whiten[k] = np.linalg.inv(self.chol[k])
+                b = self.blocks[k]
+                y = b.model.compute_values(state)
+                self.chol[k] = b.model.noise_cholesky(y, b.sigma)
+                self.whiten[k] = b.model.noise_whitening(y, b.sigma)
 
     def full(self, x: np.ndarray) -> np.ndarray:
         p = self.p0.copy()
@@ -177,12 +175,10 @@ class _Residuals:
         for state, (_, members) in zip(self._states_at(x), self.groups, strict=True):
             for k in members:
                 h[self.slices[k]] = self.blocks[k].model.compute_values(state).ravel()
-        r = (h - self.eta) / self.sigma
-        if self.has_noise:
-            for k, w in enumerate(self.whiten):
-                if w is not None:
-                    e = (h - self.eta)[self.slices[k]].reshape(w.shape[0], 3)
-                    r[self.slices[k]] = np.einsum("nij,nj->ni", w, e).ravel()
+        r = np.empty_like(h)
+        for k, w in enumerate(self.whiten):
+            e = (h - self.eta)[self.slices[k]].reshape(w.shape[:2])
+            r[self.slices[k]] = np.einsum("nij,nj->ni", w, e).ravel()
         return r
 
     def jac(self, x: np.ndarray) -> np.ndarray:
@@ -191,10 +187,7 @@ class _Residuals:
             for k in members:
                 b = self.blocks[k]
                 dh = b.model.compute_param_jacobian(state)[:, :, self.free]
-                if self.whiten[k] is not None:
-                    dh = np.einsum("nij,njk->nik", self.whiten[k], dh)
-                else:
-                    dh = dh / b.sigma[:, :, None]
+                dh = np.einsum("nij,njk->nik", self.whiten[k], dh)
                 out[self.slices[k]] = dh.reshape(-1, self.free.size)
         return out
 
@@ -222,25 +215,15 @@ def _readonly(a) -> np.ndarray:
     return a
 
 
-def _check_options(loss, method, f_scale, max_nfev, correlation_threshold, outlier_threshold):
-    if loss not in LOSSES:
-        raise ParameterError(f"unknown loss {loss!r}; valid losses are: {', '.join(LOSSES)}")
-    if method is None:
-        method = "lm" if loss == "linear" else "trf"
+def _check_options(method, max_nfev, correlation_threshold, outlier_threshold):
     if method not in METHODS:
         raise ParameterError(f"unknown method {method!r}; valid methods are: {', '.join(METHODS)}")
-    if method == "lm" and loss != "linear":
-        raise ParameterError(f"method 'lm' needs loss 'linear' (got {loss!r}); "
-                             "use method 'trf' with a robust loss")
-    if not (np.isfinite(f_scale) and f_scale > 0):
-        raise ParameterError(f"f_scale must be positive [sigma], got {f_scale}")
     if max_nfev is not None and int(max_nfev) < 1:
         raise ParameterError(f"max_nfev must be >= 1 or None, got {max_nfev}")
     if not 0 < correlation_threshold <= 1:
         raise ParameterError(f"correlation_threshold must be in (0, 1], got {correlation_threshold}")
     if not outlier_threshold > 0:
         raise ParameterError(f"outlier_threshold must be positive [sigma], got {outlier_threshold}")
-    return method
 
 
 def _status(code: int) -> IdentificationStatus:
@@ -278,8 +261,7 @@ def _block_diagnostics(res: _Residuals, r: np.ndarray, threshold: float):
     raw, pos_mm, ang_mrad, norms, outliers = [], [], [], [], []
     for k, b in enumerate(res.blocks):
         rk = r[res.slices[k]].reshape(b.values.shape)
-        raw.append(_readonly(rk * b.sigma if res.chol[k] is None
-                             else np.einsum("nij,nj->ni", res.chol[k], rk)))
+        raw.append(_readonly(np.einsum("nij,nj->ni", res.chol[k], rk)))
         units = np.array(b.model.units)
         pos_mm.append(_readonly(np.linalg.norm(raw[-1][:, units == "m"], axis=1) / LENGTH_SCALE))
         ang_mrad.append(
@@ -298,9 +280,7 @@ def identify(
     free,
     *,
     p0: np.ndarray | None = None,
-    loss: str = "linear",
-    f_scale: float = 3.0,
-    method: str | None = None,
+    method: str = "lm",
     max_nfev: int | None = None,
     xtol: float = 1e-10,
     ftol: float = 1e-10,
@@ -318,10 +298,7 @@ def identify(
         p0: Start and value of the fixed parameters (SI); nominal by default. Joint gains
             and coupling ratios the data cannot separate are held at it too, and named in
             ``message`` (:mod:`calib_oed.calibration.gain_gauge`).
-        loss: ``"linear"``, ``"huber"`` or ``"soft_l1"``.
-        f_scale: Where a robust loss turns from quadratic to linear [sigma].
-        method: ``"lm"`` (default for the linear loss) or ``"trf"`` (default
-            for robust losses, and possible with the linear loss).
+        method: ``"lm"`` (default) or ``"trf"``.
         max_nfev: Maximum residual evaluations (scipy's default ``100 n_f`` if None).
         xtol, ftol, gtol: scipy's stopping tolerances.
         correlation_threshold: ``|rho|`` above which a pair is reported.
@@ -331,12 +308,11 @@ def identify(
     Raises:
         NotIdentifiableError: :math:`F_1` at ``p0`` is rank-deficient on the free
             parameters, or the data have fewer values than free parameters.
-        ParameterError: bad ``free``, ``loss``, ``method`` or thresholds.
+        ParameterError: bad ``free``, ``method`` or thresholds.
 
     Not converging within ``max_nfev`` is reported in ``status``, not raised.
     """
-    method = _check_options(loss, method, f_scale, max_nfev, correlation_threshold,
-                            outlier_threshold)
+    _check_options(method, max_nfev, correlation_threshold, outlier_threshold)
     free_idx = _free_indices(space, free)
     res = _Residuals(space, blocks, free_idx, space.check(p0, "p0").copy())
     unseen = [] if space.joint_gains is None else gains_the_data_fix(
@@ -351,15 +327,14 @@ def identify(
     x0 = res.p0[free_idx]
     information_cholesky(res.jac(x0) * scale, free_names)  # raises NotIdentifiableError
     sol = scipy.optimize.least_squares(
-        res.fun, x0, jac=res.jac, method=method, loss=loss, f_scale=f_scale, x_scale="jac",
+        res.fun, x0, jac=res.jac, method=method, x_scale="jac",
         xtol=xtol, ftol=ftol, gtol=gtol, max_nfev=max_nfev,
     )
     if res.has_noise:  # Sigma_i at the estimate, then one more solve (module docstring)
         nfev, njev = sol.nfev, sol.njev
         res.freeze_noise(np.asarray(sol.x, dtype=float))
         sol = scipy.optimize.least_squares(
-            res.fun, sol.x, jac=res.jac, method=method, loss=loss, f_scale=f_scale,
-            x_scale="jac", xtol=xtol, ftol=ftol, gtol=gtol, max_nfev=max_nfev,
+            res.fun, sol.x, jac=res.jac, method=method, x_scale="jac", xtol=xtol, ftol=ftol, gtol=gtol, max_nfev=max_nfev,
         )
         sol.nfev += nfev
         sol.njev = None if sol.njev is None or njev is None else sol.njev + njev
@@ -387,8 +362,6 @@ def identify(
         nfev=int(sol.nfev),
         njev=None if sol.njev is None else int(sol.njev),
         method=method,
-        loss=loss,
-        f_scale=float(f_scale),
         cost=float(sol.cost),
         residuals=_readonly(r),
         block_names=tuple(b.model.name for b in res.blocks),

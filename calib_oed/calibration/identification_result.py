@@ -63,16 +63,6 @@ class ParameterEstimate:
         return report_scale_of(self.unit)
 
 
-def _loss_weights(r: np.ndarray, loss: str, f_scale: float) -> np.ndarray:
-    r""":math:`\rho'(z)`, :math:`z = (r/f_s)^2`: the gradient of the cost is :math:`J^\top(\rho' r)`."""
-    z = (r / f_scale) ** 2
-    if loss == "huber":
-        return np.where(z <= 1.0, 1.0, 1.0 / np.sqrt(np.maximum(z, 1.0)))
-    if loss == "soft_l1":
-        return 1.0 / np.sqrt(1.0 + z)
-    return np.ones_like(r)
-
-
 @dataclass(frozen=True, eq=False)
 class IdentificationResult:
     """Estimate, fit and uncertainty of one identification (arrays read-only, SI).
@@ -83,9 +73,8 @@ class IdentificationResult:
         p: Full estimate (n_p,); fixed parameters at ``p0``. ``p_free`` (n_f,).
         status, message, nfev, njev: How the solver stopped (scipy's message
             and counts of residual and Jacobian evaluations).
-        method, loss, f_scale: Solver settings.
-        cost: Final value of the minimised cost (``loss``-dependent, see
-            :mod:`calib_oed.calibration.identification`).
+        method: The solver.
+        cost: Final value of the minimised cost :math:`\\tfrac12\\lVert r\\rVert^2`.
         residuals: Weighted residuals :math:`r` (m,) [sigma].
         block_names: Model name of every block.
         block_residuals: Per block, raw residuals :math:`h - \\eta` (n, d) [m, rad].
@@ -99,7 +88,7 @@ class IdentificationResult:
             sigma0 its square root.
         covariance: A priori :math:`C_p = (F_1^\\top F_1)^{-1}` at the estimate, free
             parameters [m², m·rad, rad²]; std its root diagonal; std_posterior scaled
-            by :math:`\\hat\\sigma_0` (without outliers for a robust loss, see ``posterior_factor``).
+            by :math:`\\hat\\sigma_0`.
         correlation: :math:`C_{ij}/\\sqrt{C_{ii}C_{jj}}`; strong_correlations:
             ``(a, b, rho)`` with ``|rho| > correlation_threshold``, largest first.
         condition_number: Of :math:`F_1 D` (columns in mm, mrad) at the estimate.
@@ -117,8 +106,6 @@ class IdentificationResult:
     nfev: int
     njev: int | None
     method: str
-    loss: str
-    f_scale: float
     cost: float
     residuals: np.ndarray
     block_names: tuple[str, ...]
@@ -173,12 +160,8 @@ class IdentificationResult:
 
     @property
     def posterior_factor(self) -> float:
-        """The :math:`\\hat\\sigma_0^2` that scales the a-posteriori std.
-
-        ``noise_factor`` for the linear loss; for a robust loss, which discounts
-        the outliers, ``noise_factor_inliers``.
-        """
-        return self.noise_factor if self.loss == "linear" else self.noise_factor_inliers
+        """The :math:`\\hat\\sigma_0^2` that scales the a-posteriori std: ``noise_factor``."""
+        return self.noise_factor
 
     @property
     def std_posterior(self) -> np.ndarray:
@@ -202,14 +185,12 @@ class IdentificationResult:
     def check(self) -> float:
         r"""Norm of the cost's gradient at the estimate, unit-scaled (per mm, per mrad).
 
-        :math:`\lVert D\,F_1^\top(\rho'\,r)\rVert_2` (:math:`\rho' = 1` for the linear
-        loss): near 0 at a stationary point. The estimate's distance from the
+        :math:`\lVert D\,F_1^\top r\rVert_2`: near 0 at a stationary point. The estimate's distance from the
         stationary point is about this divided by the square of the smallest
         singular value of :math:`F_1 D`.
         """
         scale = np.array([report_scale_of(u) for u in self.units])
-        w = _loss_weights(self.residuals, self.loss, self.f_scale)
-        return float(np.linalg.norm(scale * (self.f1.T @ (w * self.residuals))))
+        return float(np.linalg.norm(scale * (self.f1.T @ self.residuals)))
 
     def _free_estimates(self) -> list[ParameterEstimate]:
         return [self.estimate(n) for n in self.free_names]
@@ -219,9 +200,8 @@ class IdentificationResult:
         for callers that judge outliers against an estimated scale, :mod:`calib_oed.calibration.robust`)."""
         n_meas = sum(len(x) for x in self.point_residuals_mm)
         lines = [
-            f"Identification: {self.status.value} ({self.method}, loss {self.loss}"
-            + (f", f_scale {self.f_scale:g} sigma" if self.loss != "linear" else "")
-            + f"): {self.nfev} residual and {self.njev} Jacobian evaluations",
+            f"Identification: {self.status.value} ({self.method}): {self.nfev} residual and "
+            f"{self.njev} Jacobian evaluations",
             f"  solver: {self.message}",
             f"  data: {len(self.block_names)} block(s), {n_meas} measurements, "
             f"{self.residuals.size} values; {len(self.free_names)} free parameters, "
@@ -241,9 +221,8 @@ class IdentificationResult:
             f"{self.condition_number:.4g}",
         ]
         est = sorted(self._free_estimates(), key=lambda e: -abs(e.value / e.report_scale))
-        which = "sigma0" if self.loss == "linear" else "sigma0 without the outliers"
         lines.append(f"Largest estimates ({min(top, len(est))} of {len(est)} free), "
-                     f"value ± a-priori std (a-posteriori std, x {which}):")
+                     "value ± a-priori std (a-posteriori std, x sigma0):")
         for e in est[:top]:
             s = e.report_scale
             lines.append(f"  {e.name:<14s} [{e.report_unit:>4s}] {e.value / s:+10.4f} ± "
@@ -271,7 +250,7 @@ class IdentificationResult:
         return plain({
             "status": self.status.value, "message": self.message,
             "nfev": self.nfev, "njev": self.njev,
-            "method": self.method, "loss": self.loss, "f_scale": self.f_scale,
+            "method": self.method,
             "cost": self.cost, "dof": self.dof,
             "noise_factor": self.noise_factor, "sigma0": self.sigma0,
             "noise_factor_inliers": self.noise_factor_inliers,

@@ -13,7 +13,7 @@ import numpy as np
 
 from calib_oed.calibration.covariance import kpi_covariance
 from calib_oed.calibration.kpi import TcpKpi
-from calib_oed.measurement import MeasurementModel, PoseMeasurement, TrackerPosition
+from calib_oed.measurement import MeasurementModel
 from calib_oed.measurement.sensitivity import weighted_jacobian
 from calib_oed.model.identifiability import (
     DEFAULT_TOL,
@@ -67,14 +67,7 @@ class CalibrationProblem:
         space = ParameterSpace(scene.robot, scene.tracker.placement(), offsets,
                                compliance=compliance.model() if compliance is not None else None,
                                joint_gains=getattr(scene, "joint_gains", None))
-        if scene.measurement == "pose":
-            models = [
-                PoseMeasurement(j, scene.tracker.sigma, scene.tracker.sigma_angle)
-                for j in range(len(offsets))
-            ]
-        else:
-            noise = scene.position_noise() if hasattr(scene, "position_noise") else None
-            models = [TrackerPosition(j, scene.tracker.sigma, noise) for j in range(len(offsets))]
+        models = scene.error_model().models(range(len(offsets)))
         kpi = TcpKpi(
             np.array([w.q for w in scene.kpi.configurations]),
             point=scene.kpi.point,

@@ -1,7 +1,7 @@
 r"""Robust identification with an estimated residual scale: outliers judged against the data's scale.
 
 The plain estimator (:func:`calib_oed.calibration.identification.identify`,
-linear loss) judges residuals against the stated :math:`\sigma`. On real data
+linear least squares) judges residuals against the stated :math:`\sigma`. On real data
 the residual scale is set by model error (gravity, gear play) as often as by
 the tracker: :math:`\hat\sigma_0 \approx 10` flags most rows as "outliers".
 :func:`identify_robust` estimates the scale from the data instead:
@@ -40,17 +40,29 @@ import numpy as np
 import scipy.optimize
 from scipy.stats import chi2
 
+from calib_oed.calibration.crossval import pose_index
+from calib_oed.calibration.flags import (
+    DEFAULT_ALPHA,
+    FlagClasses,
+    classify_flags,
+    judge_measurements,
+)
 from calib_oed.calibration.identification import (
     IdentificationResult,
     identify,
     residual_function,
 )
+from calib_oed.calibration.model_error import (
+    Linearisation,
+    ModelErrorFit,
+    estimate_covariance,
+    fit_model_error,
+    linearise,
+)
 from calib_oed.exceptions import ParameterError
+from calib_oed.measurement.discrepancy import DiscrepancyPrior
 from calib_oed.measurement.observations import ObservationBlock
 from calib_oed.model.parameters import ParameterSpace
-
-#: Default false-flag probability of a Gaussian measurement.
-DEFAULT_ALPHA = 1e-3
 
 
 @dataclass(frozen=True, eq=False)
@@ -86,12 +98,28 @@ class RobustIdentification:
     iterations: int
     rounds: int
     excluded: bool = True
+    #: With a model-error prior (:func:`identify_robust` ``model_error=``): the fitted
+    #: hyperparameters, which flags look like model error, the measurements left out of the
+    #: final estimate, and the parameter std under noise + model error (n_f,) [SI].
+    model_error: ModelErrorFit | None = None
+    classes: FlagClasses | None = None
+    dropped: np.ndarray | None = field(default=None, repr=False)
+    std: np.ndarray | None = field(default=None, repr=False)
+    linearisation: Linearisation | None = field(default=None, repr=False)
 
     @property
     def weight(self) -> np.ndarray:
-        """Weight in the final estimate: 0 for a flagged measurement, 1 otherwise (all 1 when
+        """Weight in the final estimate: 0 for a measurement left out, 1 otherwise (all 1 when
         ``excluded`` is False: a fit of :func:`as_robust` keeps its outliers)."""
+        if self.dropped is not None:
+            return (~self.dropped).astype(float)
         return (~self.flagged).astype(float) if self.excluded else np.ones(self.flagged.size)
+
+    @property
+    def parameter_std(self) -> np.ndarray:
+        """A-posteriori std of the free parameters [SI]: under noise + model error when fitted,
+        else the noise-only std times the residual scale."""
+        return self.std if self.std is not None else self.result.std * self.scale
 
     @property
     def threshold(self) -> np.ndarray:
@@ -101,6 +129,10 @@ class RobustIdentification:
     @property
     def n_flagged(self) -> int:
         return int(self.flagged.sum())
+
+
+#: Which flagged measurements :func:`identify_robust` leaves out (with a model-error prior).
+DROPS = ("gross", "all", "none")
 
 
 def _layout(blocks):
@@ -127,27 +159,38 @@ def _subset(blocks, keep_by_block):
 
 def identify_robust(space: ParameterSpace, blocks: Sequence[ObservationBlock], free, *,
                     alpha: float = DEFAULT_ALPHA, max_iterations: int = 50,
+                    model_error: DiscrepancyPrior | None = None, drop: str = "gross",
                     **options) -> RobustIdentification:
-    """Huber IRLS with an estimated scale to find the outliers, then the linear fit without them.
+    """Outliers judged against the data, then the linear fit without the gross errors.
+
+    With ``model_error`` (the scene's prior, ``scene.discrepancy()``): the model
+    error's hyperparameters by restricted likelihood, flags against noise + model
+    error (:mod:`calib_oed.calibration.flags`), gross errors left out (``drop``),
+    flags that look like model error kept. Without: Huber IRLS with an estimated
+    scale (module docstring), every flag left out.
 
     Args:
         space, blocks, free: As :func:`~calib_oed.calibration.identification.identify`.
         alpha: False-flag probability of a Gaussian measurement, in (0, 0.5).
         max_iterations: Of the IRLS pass.
-        options: Passed to every :func:`identify` call (not ``loss``: the fits are linear).
+        model_error: The model-error prior the hyperparameters start from.
+        drop: With ``model_error``, which flagged measurements the final estimate leaves out:
+            ``"gross"`` (default: the gross errors; flags that look like model error and
+            suspect ones are kept, :mod:`calib_oed.calibration.flags`), ``"all"`` or ``"none"``.
+        options: Passed to every :func:`identify` call.
 
     Raises:
-        ParameterError: bad ``alpha`` or a ``loss`` option.
+        ParameterError: bad ``alpha`` or ``drop``.
         NotIdentifiableError: as :func:`identify`, also when the kept measurements
             no longer determine the parameters.
     """
     if not 0 < alpha < 0.5:
         raise ParameterError(f"alpha (false-flag probability) must be in (0, 0.5), got {alpha}")
-    if options.get("loss", "linear") != "linear":
-        raise ParameterError("identify_robust fits with the linear loss; use identify() for "
-                             f"loss {options['loss']!r}")
-    options.pop("loss", None)
     blocks = list(blocks)
+    if drop not in DROPS:
+        raise ParameterError(f"unknown drop {drop!r}; valid: {', '.join(DROPS)}")
+    if model_error is not None:
+        return _with_model_error(space, blocks, free, model_error, alpha, drop, options)
     linear = identify(space, blocks, free, **options)
     block, row, dim = _layout(blocks)
     meas = np.repeat(np.arange(block.size), dim)
@@ -207,7 +250,7 @@ def identify_robust(space: ParameterSpace, blocks: Sequence[ObservationBlock], f
 
 
 def as_robust(result: IdentificationResult, blocks: Sequence[ObservationBlock]) -> RobustIdentification:
-    """A fit of another loss in the record of :func:`identify_robust`, for the same reports.
+    """A plain :func:`identify` fit in the record of :func:`identify_robust`, for the same reports.
 
     No measurement is left out; ``flagged`` marks the fit's own outliers (judged
     against the stated sigma, ``result.outlier_threshold``), the scale is its sigma0.
@@ -222,3 +265,37 @@ def as_robust(result: IdentificationResult, blocks: Sequence[ObservationBlock]) 
                                 normalised=norms / scale, robust_weight=np.ones(block.size),
                                 flagged=flagged, scale=scale, robust_scale=scale, alpha=float("nan"),
                                 iterations=0, rounds=0, excluded=False)
+
+
+def _with_model_error(space, blocks, free, prior, alpha, drop, options) -> RobustIdentification:
+    """:func:`identify_robust` with a model-error prior (its docstring)."""
+    linear = identify(space, blocks, free, **options)
+    block, row, dim = _layout(blocks)
+    lin = linearise(space, blocks, linear.p, linear.free_indices)
+    fit = fit_model_error(lin, prior)
+    flagged, t, _ = judge_measurements(lin, fit.prior, alpha)
+    rounds = 0
+    while flagged.any() and rounds < 3:  # hyperparameters without the flagged, flags again
+        rounds += 1
+        fit = fit_model_error(lin.subset(~flagged), prior)
+        new, t, _ = judge_measurements(lin, fit.prior, alpha)
+        if np.array_equal(new, flagged):
+            break
+        flagged = new
+    q = np.concatenate([b.q for b in blocks])
+    classes = classify_flags(flagged, pose_index(q), q, space.robot.joint_names, t)
+    dropped = {"gross": classes.gross, "all": flagged, "none": np.zeros(flagged.size, bool)}[drop]
+    result, final = linear, lin
+    if dropped.any():
+        kept = _subset(blocks, [~dropped[block == k] for k in range(len(blocks))])
+        result = identify(space, kept, free, p0=linear.p, **options)
+        final = linearise(space, kept, result.p, result.free_indices)
+    if flagged.any():  # the model error of what the fit keeps (suspects and model error too)
+        fit = fit_model_error(final, fit.prior)
+    std = np.sqrt(np.diag(estimate_covariance(final, fit.prior)))
+    scale = float(result.sigma0)
+    return RobustIdentification(
+        result=result, linear=linear, block=block, row=row, dim=dim, normalised=np.sqrt(t),
+        robust_weight=np.ones(block.size), flagged=flagged, scale=scale, robust_scale=scale,
+        alpha=float(alpha), iterations=0, rounds=rounds, model_error=fit, classes=classes,
+        dropped=dropped, std=std, linearisation=final)

@@ -31,6 +31,7 @@ import numpy as np
 
 from calib_oed.calibration.identification import identify
 from calib_oed.measurement.base import MeasurementModel, evaluate_setup
+from calib_oed.measurement.discrepancy import DiscrepancyPrior
 from calib_oed.measurement.observations import ObservationBlock
 from calib_oed.model.compliance import draw_compliance
 from calib_oed.model.parameters import ParameterSpace
@@ -71,24 +72,32 @@ def simulate_observations(
     q: np.ndarray,
     p_true: np.ndarray,
     rng: np.random.Generator | int,
+    model_error: DiscrepancyPrior | None = None,
 ) -> list[ObservationBlock]:
-    """Noisy measurements of every model at every configuration of ``q`` (n, nq)."""
+    """Noisy measurements of every model at every configuration of ``q`` (n, nq).
+
+    ``model_error``: a model error drawn from this Gaussian process (after the
+    noise, from the same generator), added to the positions; the draw at one
+    configuration is shared by every reflector measured there.
+    """
     rng = np.random.default_rng(rng)
     q = space.robot.check_configurations(q)
     state = evaluate_setup(space, p_true, q, regressor=False, jacobian=False)
-    blocks = []
+    values = []
     for mdl in models:
-        blocks.append(ObservationBlock(mdl, q, add_noise(mdl, mdl.compute_values(state), rng)))
-    return blocks
+        values.append(add_noise(mdl, mdl.compute_values(state), rng))  # at the true positions
+    if model_error is not None:  # one draw per distinct configuration, shared by the reflectors
+        distinct, inverse = np.unique(q, axis=0, return_inverse=True)
+        offset = model_error.sample(distinct, rng)[inverse.ravel()]
+        for v in values:
+            v[:, :3] += offset
+    return [ObservationBlock(mdl, q, v) for mdl, v in zip(models, values, strict=True)]
 
 
 def add_noise(model: MeasurementModel, exact: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    r"""``exact`` (n, d) plus a draw of ``model``'s measurement noise: its full error model
-    (``model.noise``, :math:`\Sigma_i` at the true positions) or independent ``sigma``."""
-    noise = getattr(model, "noise", None)
-    if noise is None:
-        return exact + rng.normal(size=exact.shape) * model.sigma
-    return exact + noise.sample(exact, rng)
+    r"""``exact`` (n, d) plus one draw of ``model``'s measurement noise (its noise contract,
+    :math:`\Sigma_i` at the true positions)."""
+    return exact + model.sample_noise(exact, rng)
 
 
 @dataclass(frozen=True, eq=False)

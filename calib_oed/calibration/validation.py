@@ -31,7 +31,6 @@ configuration :math:`q + c \circ \tau_g(q)` under the payload written there
 
 from __future__ import annotations
 
-import json
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -45,9 +44,12 @@ from calib_oed.calibration.sensor_file import (
     read_sensor_gains,
     read_sensor_yaml,
 )
+from calib_oed.calibration.trust import compensate
+from calib_oed.calibration.verdict import read_identification
 from calib_oed.exceptions import ExportError, MeasurementFileError, ParameterError
 from calib_oed.measurement.base import evaluate_setup
 from calib_oed.measurement.dataset import MeasurementSet
+from calib_oed.measurement.discrepancy import DiscrepancyPrior
 from calib_oed.model.parameters import ParameterSpace
 from calib_oed.model.robot import load_robot
 from calib_oed.scene.records import Scene
@@ -164,13 +166,16 @@ def find_calibration_files(path: str | os.PathLike, robot_name: str) -> dict[str
     return {"urdf": urdf, "sensor": sensor}
 
 
-def _errors(space: ParameterSpace, mset: MeasurementSet, blocks, model: str, p=None) -> ErrorStatistics:
+def _errors(space: ParameterSpace, mset: MeasurementSet, blocks, model: str, p=None,
+            offset=None) -> ErrorStatistics:
     position = np.empty(mset.n)
     rotation = None if mset.rotations is None else np.empty(mset.n)
     for j, block in zip(mset.reflectors, blocks, strict=True):
         rows = np.flatnonzero(mset.reflector == j)
         state = evaluate_setup(space, p, block.q, regressor=False, jacobian=False)
-        predicted = block.model.compute_values(state)
+        predicted = np.array(block.model.compute_values(state))
+        if offset is not None:  # the fitted model error's mean, tracker frame
+            predicted[:, :3] += offset(block.q)
         position[rows] = np.linalg.norm(block.values[:, :3] - predicted[:, :3], axis=1) * MM_PER_M
         if rotation is not None:
             rotation[rows] = [np.linalg.norm(pin.log3(pin.exp3(a).T @ pin.exp3(b))) * MRAD_PER_RAD
@@ -178,13 +183,31 @@ def _errors(space: ParameterSpace, mset: MeasurementSet, blocks, model: str, p=N
     return ErrorStatistics(model, position, rotation)
 
 
-def validate_calibration(scene: Scene, calibration: str | os.PathLike, mset: MeasurementSet) -> ValidationResult:
+def _compensation(files: dict):
+    """:math:`\\mu(q)` of the identification beside the URDF (:mod:`calib_oed.calibration.trust`)."""
+    data = read_identification(files)
+    try:
+        prior = DiscrepancyPrior.from_dict(data["model_error"]["fitted"])
+        comp = data["compensation"]
+        configs = np.array(comp["configurations_rad"], float)
+        weights = np.array(comp["weights_per_m"], float)
+    except (TypeError, KeyError, ValueError, ParameterError) as exc:
+        raise ExportError(f"--compensate needs the model error and its compensation data in "
+                          f"{Path(files['urdf']).parent / 'identification.json'} (written by "
+                          f"`calib-oed identify -o` of this version): {exc}") from exc
+    return lambda q: compensate(prior, configs, weights, q)
+
+
+def validate_calibration(scene: Scene, calibration: str | os.PathLike, mset: MeasurementSet,
+                         compensated: bool = False) -> ValidationResult:
     """Errors of the nominal model and of the exported calibration on ``mset``.
 
     Args:
         scene: The cell the data were measured in (robot, tracker, reflectors, noise).
         calibration: The folder ``calib-oed identify -o DIR`` wrote, or its URDF.
         mset: Validation measurements (not used for the identification).
+        compensated: Add the fitted model error's mean to the calibrated predictions
+            (from ``identification.json`` beside the URDF).
 
     Raises:
         ExportError: calibration files missing or unreadable.
@@ -204,9 +227,7 @@ def validate_calibration(scene: Scene, calibration: str | os.PathLike, mset: Mea
         raise MeasurementFileError(mset.source, [(None, f"the data use reflectors {list(mset.reflectors)}, "
                                                         f"the calibration has {len(offsets)}")],
                                    kind="measurement file")
-    sigma, sigma_angle = scene.tracker.sigma, scene.tracker.sigma_angle
-    noise = scene.position_noise() if mset.rotations is None else None
-    blocks = mset.blocks(sigma=sigma, sigma_angle=sigma_angle, noise=noise)
+    blocks = mset.blocks(error_model=scene.error_model())
     nominal_space = ParameterSpace(robot, scene.tracker.placement(),
                                    np.array([r.offset for r in scene.reflectors]))
     calibrated_space = ParameterSpace(calibrated, tracker, offsets,
@@ -222,74 +243,9 @@ def validate_calibration(scene: Scene, calibration: str | os.PathLike, mset: Mea
     floor = noise_floor(mset, blocks)
     return ValidationResult(
         nominal=_errors(nominal_space, mset, blocks, "nominal"),
-        calibrated=_errors(calibrated_space, mset, blocks, "calibrated", p_calibrated),
+        calibrated=_errors(calibrated_space, mset, blocks, "calibrated", p_calibrated,
+                           _compensation(files) if compensated else None),
         noise_floor_mm=floor * MM_PER_M,
         source=mset.source,
         files={k: str(v) for k, v in files.items()},
     )
-
-
-#: The default verdict threshold is this many times the identified residual scale times the noise floor.
-DEFAULT_RMS_FACTOR = 2.0
-
-
-@dataclass(frozen=True)
-class Verdict:
-    """Pass or fail of a validation: calibrated RMS against a threshold [mm].
-
-    Attributes:
-        passed: ``rms_mm <= threshold_mm``.
-        basis: Where the threshold comes from (``--max-rms``, or the identified scale).
-    """
-
-    passed: bool
-    rms_mm: float
-    threshold_mm: float
-    basis: str
-
-    def line(self) -> str:
-        word = "PASS" if self.passed else "FAIL"
-        return (f"verdict: {word}: calibrated RMS {self.rms_mm:.4f} mm "
-                f"{'<=' if self.passed else '>'} {self.threshold_mm:.4f} mm ({self.basis})")
-
-    def to_dict(self) -> dict:
-        return {"passed": self.passed, "rms_mm": self.rms_mm, "threshold_mm": self.threshold_mm,
-                "basis": self.basis}
-
-
-def identified_sigma0(files: dict) -> float | None:
-    """sigma0 of the identification that wrote the calibration (``identification.json`` beside
-    the URDF, key ``fit.sigma0``, else ``sigma0``), or None when not recorded."""
-    path = Path(files["urdf"]).parent / "identification.json"
-    try:
-        data = json.loads(path.read_text())
-    except (OSError, ValueError):
-        return None
-    value = (data.get("fit") or {}).get("sigma0", data.get("sigma0"))
-    return float(value) if isinstance(value, (int, float)) and np.isfinite(value) else None
-
-
-def judge(result: ValidationResult, max_rms_mm: float | None = None, sigma0: float | None = None,
-          factor: float = DEFAULT_RMS_FACTOR) -> Verdict:
-    """The verdict: ``max_rms_mm`` if given, else ``factor`` x max(sigma0, 1) x noise floor.
-
-    The calibrated RMS on new poses of a calibration whose residual scale was
-    :math:`\\hat\\sigma_0` is about :math:`\\hat\\sigma_0` times the noise floor (plus the
-    estimation error, a few per cent for a well-conditioned design), so twice that
-    fails only a calibration that does not carry over to the validation poses.
-
-    Raises:
-        ParameterError: a non-positive ``max_rms_mm``.
-    """
-    if max_rms_mm is not None:
-        if not (np.isfinite(max_rms_mm) and max_rms_mm > 0):
-            raise ParameterError(f"--max-rms must be a positive length in mm, got {max_rms_mm:g}")
-        threshold, basis = float(max_rms_mm), "--max-rms"
-    else:
-        s = 1.0 if sigma0 is None else max(float(sigma0), 1.0)
-        threshold = factor * s * result.noise_floor_mm
-        basis = (f"{factor:g} x max(sigma0, 1) x noise floor, sigma0 = {sigma0:.3f} from the "
-                 "identification" if sigma0 is not None else
-                 f"{factor:g} x noise floor: no identified sigma0 found beside the URDF")
-    rms = result.calibrated.rms_mm
-    return Verdict(bool(rms <= threshold), rms, threshold, basis)

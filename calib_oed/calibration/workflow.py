@@ -162,14 +162,12 @@ def read_scene_measurements(s: Setup, path: str | os.PathLike, **units) -> Measu
                              controller=s.scene.controller, **units)
 
 
-def identify_measurements(s: Setup, mset: MeasurementSet, loss: str = "linear") -> IdentificationResult:
+def identify_measurements(s: Setup, mset: MeasurementSet) -> IdentificationResult:
     """Identify the scene's free parameters from measured data."""
-    tracker = s.scene.tracker
-    blocks = mset.blocks(sigma=tracker.sigma, sigma_angle=tracker.sigma_angle,
-                         noise=s.scene.position_noise())
+    blocks = mset.blocks(error_model=s.scene.error_model())
     from calib_oed.calibration.identification import identify  # scipy.optimize: not for designs
 
-    return identify(s.problem.space, blocks, s.problem.identifiability, loss=loss)
+    return identify(s.problem.space, blocks, s.problem.identifiability)
 
 
 def export_result(s: Setup, result: IdentificationResult, folder: str | os.PathLike) -> dict[str, Path]:

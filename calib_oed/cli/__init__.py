@@ -189,8 +189,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--length-unit", choices=("m", "mm"), help="if the file states no units")
     p.add_argument("--angle-unit", choices=("rad", "deg"), help="if the file states no units")
     p.add_argument("--json", action="store_true", help="machine-readable output")
-    p.add_argument("--max-rms", type=float, metavar="MM", help="verdict: fail (exit 3) above this "
-                   "calibrated RMS [mm] (default: 2 x the identified sigma0 x the noise floor)")
+    p.add_argument("--max-rms", type=float, metavar="MM", help="tolerance: fail (exit 3) above "
+                   "this calibrated RMS position error [mm]")
+    p.add_argument("--max-error", type=float, metavar="MM", help="tolerance: fail (exit 3) when "
+                   "the largest calibrated position error exceeds this [mm]")
+    p.add_argument("--compensate", action="store_true", help="add the fitted model error's mean "
+                   "(from identification.json) to the calibrated predictions")
     p.add_argument("--max-registration-rms", type=float, default=10.0, metavar="MM",
                    help="stop (exit 2) when the tracker pose fitted alone leaves more [mm] (default 10)")
     p.set_defaults(func=cmd_validate)
@@ -248,10 +252,12 @@ def build_parser() -> argparse.ArgumentParser:
     scene_arg(p)
     p.add_argument("measurements", help="measurement CSV (docs/data_format.md)")
     p.add_argument("-o", "--output", metavar="DIR", help="write calibrated URDF, sensor YAML, report")
-    p.add_argument("--loss", default="robust", choices=("robust", "linear", "huber", "soft_l1"),
-                   help="robust (default: outliers judged against the estimated residual scale and "
-                   "left out; docs/identification.md), linear (plain weighted least squares), or a "
-                   "robust scipy loss")
+    p.add_argument("--loss", default="robust", choices=("robust", "linear"),
+                   help="robust (default: rows flagged against noise + model error; gross errors "
+                   "left out, flags that look like model error kept; docs/identification.md) or "
+                   "linear (every row kept, flags only reported)")
+    p.add_argument("--drop-flagged", action="store_true", help="leave every flagged row out, "
+                   "also those reported as likely model error")
     p.add_argument("--max-registration-rms", type=float, default=10.0, metavar="MM",
                    help="stop (exit 2) when the tracker pose fitted alone leaves more [mm] (default 10)")
     p.add_argument("--cv", type=_positive_int, metavar="K", help="K-fold cross-validation over the "

@@ -148,20 +148,18 @@ def _realistic_settings(args):
 
 
 def _identify_fit(s, mset, args):
-    """Sanity registration, then the fit of ``--loss``; nothing written. Returns (sanity, blocks, robust)."""
-    from calib_oed.calibration.identification import identify
-    from calib_oed.calibration.robust import as_robust, identify_robust
+    """Sanity registration, then the fit with the model error; nothing written.
+    Returns (sanity, blocks, robust)."""
+    from calib_oed.calibration.robust import identify_robust
     from calib_oed.calibration.sanity import check_measurements
 
-    problem, tracker = s.problem, s.scene.tracker
+    problem = s.problem
     sanity = check_measurements(problem.space, mset, args.max_registration_rms * 1e-3,
                                 s.reflector_names)
-    blocks = mset.blocks(sigma=tracker.sigma, sigma_angle=tracker.sigma_angle,
-                         noise=s.scene.position_noise())
-    if args.loss == "robust":
-        return sanity, blocks, identify_robust(problem.space, blocks, problem.identifiability)
-    result = identify(problem.space, blocks, problem.identifiability, loss=args.loss)
-    return sanity, blocks, as_robust(result, blocks)
+    blocks = mset.blocks(error_model=s.scene.error_model())
+    drop = "all" if args.drop_flagged else ("gross" if args.loss == "robust" else "none")
+    return sanity, blocks, identify_robust(problem.space, blocks, problem.identifiability,
+                                           model_error=s.scene.discrepancy(), drop=drop)
 
 
 def cmd_identify(args) -> int:
@@ -172,6 +170,7 @@ def cmd_identify(args) -> int:
         format_fit,
         write_residuals_csv,
     )
+    from calib_oed.calibration.trust import assess
     from calib_oed.calibration.workflow import (
         export_result,
         read_scene_measurements,
@@ -192,12 +191,13 @@ def cmd_identify(args) -> int:
     report = fit_report(s.problem.space, mset, blocks, sanity, robust, s.reflector_names)
     cv = None
     if args.cv:
-        tracker = s.scene.tracker
         cv = cross_validate(s.problem.space, mset, s.problem.identifiability, args.cv,
-                            sigma=tracker.sigma, sigma_angle=tracker.sigma_angle,
-                            noise=s.scene.position_noise(), exclude=report.outlier if robust.excluded else None)
+                            error_model=s.scene.error_model())
+    trust = assess(s.problem, robust)
     data = result.to_dict()
     data["fit"] = fit_dict(report, robust, sanity)
+    data["model_error"] = robust.model_error.to_dict()
+    data.update(trust.to_dict())
     data["outliers"] = data["fit"]["outliers"]  # by file line; the fit's own a-priori list is not used
     if cv is not None:
         data["cross_validation"] = cv.to_dict()
@@ -219,12 +219,16 @@ def cmd_identify(args) -> int:
     if args.plot:
         from calib_oed.viz.plots import plot_residuals, save_figure
 
-        data["plot"] = str(save_figure(plot_residuals(result), args.plot))
+        flagged = [(int(robust.block[i]), int(robust.row[i])) for i in np.flatnonzero(robust.flagged)]
+        rule = f"noise + model error, chi-square {1 - robust.alpha:g}"
+        data["plot"] = str(save_figure(plot_residuals(result, flagged, rule, s.reflector_names),
+                                       args.plot))
     if args.json:
         print(json.dumps(data, indent=2))
         return EXIT_OK
     print(result.summary(outliers=False))
     print(format_fit(report, robust, sanity))
+    print("\n".join(trust.lines()))
     if cv is not None:
         print(cv.summary())
     if args.truth:
@@ -242,7 +246,14 @@ def cmd_identify(args) -> int:
 
 def cmd_validate(args) -> int:
     from calib_oed.calibration.sanity import check_measurements
-    from calib_oed.calibration.validation import identified_sigma0, judge, validate_calibration
+    from calib_oed.calibration.validation import validate_calibration
+    from calib_oed.calibration.verdict import (
+        judge,
+        pose_lines,
+        pose_table,
+        predicted_rms_mm,
+        read_identification,
+    )
     from calib_oed.calibration.workflow import read_scene_measurements
     from calib_oed.exceptions import ParameterError
 
@@ -253,16 +264,23 @@ def cmd_validate(args) -> int:
     units = {k: v for k, v in (("length_unit", args.length_unit), ("angle_unit", args.angle_unit)) if v}
     mset = read_scene_measurements(s, args.measurements, **units)
     check_measurements(s.problem.space, mset, args.max_registration_rms * 1e-3, s.reflector_names)
-    result = validate_calibration(s.scene, args.calibrated, mset)
-    verdict = judge(result, args.max_rms, identified_sigma0(result.files))
+    result = validate_calibration(s.scene, args.calibrated, mset, compensated=args.compensate)
+    ident = read_identification(result.files)
+    verdict = judge(result.calibrated.position_mm, args.max_rms, args.max_error,
+                    predicted_rms_mm(ident, args.compensate))
+    table = pose_table(mset.q, result.calibrated.position_mm, mset.lines, mset.joint_names,
+                       (ident or {}).get("training_joint_ranges"))
     if args.json:
         data = result.to_dict()
+        data["compensated"] = bool(args.compensate)
         data["verdict"] = verdict.to_dict()
+        data["poses"] = table
         print(json.dumps(data, indent=2))
     else:
         print(result.summary())
-        print(verdict.line())
-    return EXIT_OK if verdict.passed else EXIT_VALIDATION_FAILED
+        print("\n".join(pose_lines(table)))
+        print("\n".join(verdict.lines()))
+    return EXIT_VALIDATION_FAILED if verdict.passed is False else EXIT_OK
 
 
 def cmd_montecarlo(args) -> int:

@@ -15,11 +15,12 @@ from typing import Any
 
 import numpy as np
 
-from calib_oed.exceptions import NonFiniteError, ParameterError, ShapeError
+from calib_oed.exceptions import NonFiniteError, ShapeError
+from calib_oed.measurement.error_model import ErrorModel
 from calib_oed.measurement.noise import TrackerNoise
 from calib_oed.measurement.observations import ObservationBlock
-from calib_oed.measurement.pose import DEFAULT_SIGMA_ANGLE, PoseMeasurement
-from calib_oed.measurement.position import DEFAULT_SIGMA, TrackerPosition
+from calib_oed.measurement.pose import DEFAULT_SIGMA_ANGLE
+from calib_oed.measurement.position import DEFAULT_SIGMA
 from calib_oed.model.robot import Robot
 from calib_oed.values import readonly
 
@@ -127,37 +128,40 @@ class MeasurementSet:
         sigma: float | np.ndarray = DEFAULT_SIGMA,
         sigma_angle: float | np.ndarray = DEFAULT_SIGMA_ANGLE,
         noise: TrackerNoise | None = None,
+        *,
+        error_model: ErrorModel | None = None,
     ) -> list[ObservationBlock]:
         """One observation block per reflector present, in :attr:`reflectors` order.
 
-        Position rows give ``TrackerPosition(j, sigma)`` blocks, pose rows
-        ``PoseMeasurement(j, sigma, sigma_angle)`` blocks with values
-        ``(x, y, z, rx, ry, rz)``. Each block keeps the rows of its reflector in
-        file order (their lines: ``self.lines[self.reflector == j]``). The
-        per-row :attr:`sigma`, when present, replaces ``sigma`` on the position
-        components; ``sigma_angle`` always applies to the rotation components.
+        The measurement models come from ``error_model`` (the scene's
+        ``scene.error_model()``; its kind follows the rows: position rows give
+        ``TrackerPosition`` blocks, pose rows ``PoseMeasurement`` blocks with values
+        ``(x, y, z, rx, ry, rz)``), or, without it, from ``sigma``, ``sigma_angle``
+        and ``noise``. Each block keeps the rows of its reflector in file order
+        (their lines: ``self.lines[self.reflector == j]``). The per-row :attr:`sigma`,
+        when present, replaces ``sigma`` on the position components; ``sigma_angle``
+        always applies to the rotation components.
 
         Args:
             sigma: Position noise per tracker axis [m], scalar or (3,).
             sigma_angle: Rotation noise per axis [rad], scalar or (3,) (pose rows only).
             noise: Full error model of position rows (``scene.position_noise()``); when
                 given, the fit whitens with its covariance and per-row sigmas are not used.
+            error_model: The whole contract instead of the three above.
 
         Raises:
             ParameterError: ``noise`` with pose rows (it models positions only).
         """
-        if noise is not None and self.rotations is not None:
-            raise ParameterError("noise: the tracker error model applies to position rows only; "
-                                 "this file has pose rows (give noise=None)")
+        pose = self.rotations is not None
+        if error_model is None:
+            error_model = ErrorModel("pose" if pose else "position", sigma, sigma_angle, noise)
+        else:
+            error_model = error_model.for_rows(pose)
         out = []
-        for j in self.reflectors:
+        for j, model in zip(self.reflectors, error_model.models(self.reflectors), strict=True):
             rows = self.reflector == j
-            if self.rotations is None:
-                model = TrackerPosition(j, sigma, noise)
-                values = self.positions[rows]
-            else:
-                model = PoseMeasurement(j, sigma, sigma_angle)
-                values = np.hstack([self.positions[rows], self.rotations[rows]])
+            values = self.positions[rows] if not pose else np.hstack([self.positions[rows],
+                                                                     self.rotations[rows]])
             row_sigma = None
             if self.sigma is not None:
                 row_sigma = np.tile(model.sigma, (int(rows.sum()), 1))

@@ -10,10 +10,11 @@ component:
 
 with :math:`\Sigma = \mathrm{diag}(\sigma)` (paper eq. 6 and 24d). Multiplying
 by :math:`\Sigma^{-1}` makes the rows dimensionless, so :math:`F_1` has units
-[1/unit of the parameter] per column. A model with a full error model
-(``model.noise``, :class:`~calib_oed.measurement.noise.TrackerNoise`) is
-whitened per configuration by :math:`L_i^{-1}`, :math:`\Sigma_i = L_i L_i^\top`
-evaluated at the state's positions :math:`h(p, q_i)`, instead of the division by :math:`\sigma`.
+[1/unit of the parameter] per column. Every model is whitened per configuration by
+its noise contract, :math:`L_i^{-1}` with :math:`\Sigma_i = L_i L_i^\top`
+(``model.noise_whitening``: :math:`\mathrm{diag}(1/\sigma)` for independent
+components, the tracker error model's factor evaluated at the state's positions
+:math:`h(p, q_i)` otherwise).
 """
 
 from __future__ import annotations
@@ -43,11 +44,7 @@ def weighted_jacobian_from_state(
     blocks = []
     for mdl in models:
         jac = mdl.compute_param_jacobian(state)
-        noise = getattr(mdl, "noise", None)
-        if noise is None:
-            jac = jac / mdl.sigma[None, :, None]
-        else:
-            jac = np.einsum("nij,njk->nik", noise.whitening(mdl.compute_values(state)), jac)
+        jac = np.einsum("nij,njk->nik", mdl.noise_whitening(mdl.compute_values(state)), jac)
         blocks.append(jac.reshape(-1, state.space.size))
     return np.concatenate(blocks, axis=0)
 

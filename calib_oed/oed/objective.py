@@ -192,7 +192,7 @@ class DesignObjective:
     def _rows(self, state) -> np.ndarray:
         blocks = []
         for mdl in self.problem.models:
-            if getattr(mdl, "noise", None) is None:  # the isotropic model, unchanged
+            if mdl.noise is None:  # independent components: the closed form
                 jac = mdl.compute_param_jacobian(state)[:, :, self.free]
                 blocks.append(jac / mdl.sigma[None, :, None])
             else:
@@ -202,7 +202,7 @@ class DesignObjective:
     def _row_derivatives(self, state) -> np.ndarray:
         blocks = []
         for mdl in self.problem.models:
-            if getattr(mdl, "noise", None) is None:
+            if mdl.noise is None:
                 d_jac = mdl.compute_param_config_jacobian(state)[:, :, self.free, :]
                 blocks.append(d_jac / mdl.sigma[None, :, None, None])
             else:
@@ -220,7 +220,7 @@ class DesignObjective:
                                + dd.shape[3:])
             rows = slice(start, start + mdl.dim)
             start += mdl.dim
-            if getattr(mdl, "noise", None) is None:
+            if mdl.noise is None:
                 factor = self.scale[None, :] / mdl.sigma[:, None]  # (d, n_f)
                 np.multiply(dd[:, :, self.free], factor[None, :, :, None, None], out=out[:, rows])
             else:

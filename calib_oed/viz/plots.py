@@ -259,13 +259,17 @@ def _residual_components(result: IdentificationResult) -> tuple[np.ndarray, np.n
     return np.vstack(pos), (None if np.all(np.isnan(rot_all)) else rot_all), np.array(offsets)
 
 
-def plot_residuals(result: IdentificationResult) -> Figure:
+def plot_residuals(result: IdentificationResult, flagged=None, flag_rule: str | None = None,
+                   block_names=None) -> Figure:
     r"""Residuals of an identification: per measurement and as a histogram.
 
     Left: the raw residual components :math:`h - \eta` of every measurement,
     position x, y, z [mm] (and, for pose data, rotation [mrad] below), against
     the measurement index (blocks one after the other, separated by dotted
-    lines); outliers (``result.outliers``) are circled in red. Right: the
+    lines, labelled ``block_names``: the scene's reflector names); the flagged
+    measurements are circled in red: ``flagged`` ((block, row) pairs, the rule
+    of the report, described by ``flag_rule``), or without it the plain fit's
+    ``result.outliers``. Right: the
     histogram of the weighted residuals :math:`r` (``result.residuals``,
     [σ]) with the expected counts of the standard normal density; values
     beyond ±:data:`HISTOGRAM_LIMIT` σ are counted in the edge bins, so the
@@ -276,7 +280,11 @@ def plot_residuals(result: IdentificationResult) -> Figure:
         histogram (last). Outlier markers have ``gid`` ``"outliers"``.
     """
     pos, rot, offsets = _residual_components(result)
-    out_rows = np.array([offsets[o.block] + o.row for o in result.outliers], dtype=int)
+    if flagged is None:
+        flagged = [(o.block, o.row) for o in result.outliers]
+        flag_rule = f"> {result.outlier_threshold:g} \u03c3"
+    out_rows = np.array([offsets[b] + r for b, r in flagged], dtype=int)
+    names = result.block_names if block_names is None else tuple(block_names)
     fig = Figure(figsize=(13.0, 5.0 if rot is None else 7.0), layout="constrained")
     grid = fig.add_gridspec(1 if rot is None else 2, 2, width_ratios=(2.2, 1.0))
     scatter_axes = [fig.add_subplot(grid[0, 0])]
@@ -292,11 +300,11 @@ def plot_residuals(result: IdentificationResult) -> Figure:
             rows = np.repeat(out_rows, 3)
             ax.plot(rows, values[out_rows].ravel(), "o", mfc="none", mec="C3", ms=9, mew=1.4,
                     gid="outliers",
-                    label=f"outlier (> {result.outlier_threshold:g} \u03c3)")
+                    label=f"flagged ({flag_rule}): {out_rows.size}")
         for b, start in enumerate(offsets[:-1]):
             if len(offsets) > 2:
                 ax.axvline(start - 0.5, color="0.5", ls=":", lw=1)
-                ax.annotate(result.block_names[b], (start, 0.98), xycoords=("data", "axes fraction"),
+                ax.annotate(names[b], (start, 0.98), xycoords=("data", "axes fraction"),
                             va="top", fontsize=8, color="0.4")
         ax.axhline(0.0, color="0.5", lw=0.8)
         ax.set_ylabel(f"{what} residual h \u2212 \u03b7 [{unit}]")
@@ -322,7 +330,7 @@ def plot_residuals(result: IdentificationResult) -> Figure:
     width = edges[1] - edges[0]
     hist_ax.plot(x, m * width * scipy.stats.norm.pdf(x), color="k", lw=1.5, gid="normal",
                  label="standard normal N(0, 1), expected counts")
-    note = f"\u03c3\u0302\u2080 = {result.sigma0:.3f}, {len(result.outliers)} outlier(s)"
+    note = f"\u03c3\u0302\u2080 = {result.sigma0:.3f}, {out_rows.size} flagged"
     if beyond:
         note += f"\n{beyond} value(s) beyond \u00b1{limit:g} \u03c3 counted in the edge bins"
     hist_ax.set_xlabel("normalised residual r = (h \u2212 \u03b7)/\u03c3 [\u03c3]")

@@ -53,21 +53,19 @@ def test_pose_index_groups_rows_of_one_configuration():
 def test_cross_validation_predicts_the_validation_error():
     """CV on 60 poses against 200 fresh poses with the full-data calibration (simulated)."""
     s = setup(load_scene("fms_kr16"))
-    problem, tracker = s.problem, s.scene.tracker
-    noise = s.scene.position_noise()  # the shipped tracker error model + repeatability
+    problem = s.problem
+    errors = s.scene.error_model()  # the shipped tracker error model + repeatability
     mset, _ = simulated_measurements(s, problem.robot.random_configurations(260, 31), 32)
     cal, val = subset(mset, np.arange(60)), subset(mset, np.arange(60, 260))
-    cv = cross_validate(problem.space, cal, problem.identifiability, 5, sigma=tracker.sigma,
-                        sigma_angle=tracker.sigma_angle, noise=noise, seed=0)
-    fit = identify(problem.space, cal.blocks(sigma=tracker.sigma, sigma_angle=tracker.sigma_angle,
-                                             noise=noise), problem.identifiability)
-    e = held_out_errors(problem.space, val, fit.p, tracker.sigma, tracker.sigma_angle, noise)
+    cv = cross_validate(problem.space, cal, problem.identifiability, 5, error_model=errors, seed=0)
+    fit = identify(problem.space, cal.blocks(error_model=errors), problem.identifiability)
+    e = held_out_errors(problem.space, val, fit.p, errors)
     rms = np.sqrt(np.mean(e**2))
     se = np.std(e**2, ddof=1) / np.sqrt(e.size) / (2 * rms)
     assert abs(cv.rms_mm - rms) <= 2 * np.hypot(cv.se_mm, se), (cv.rms_mm, cv.se_mm, rms, se)
     assert 1.0 < cv.rms_mm / cv.noise_floor_mm < 1.3 and cv.warnings == ()
     assert np.all(cv.fold >= 0) and np.isfinite(cv.errors_mm).all() and len(cv.fold_rms_mm) == 5
-    assert "cross-validation, 5 folds" in cv.summary()
+    assert "cross-validation, 5 folds" in cv.summary() and "every one of the 60 rows" in cv.summary()
 
 
 def test_noise_floor_is_the_rms_error_of_a_perfect_model_against_monte_carlo():
@@ -87,3 +85,32 @@ def test_noise_floor_is_the_rms_error_of_a_perfect_model_against_monte_carlo():
     iso = noise_floor(mset, mset.blocks(sigma=tracker.sigma))
     assert iso == pytest.approx(np.sqrt(3) * 1e-5, rel=1e-12)
     assert floor > 1.5 * iso
+
+
+def test_cross_validation_with_model_error_predicts_a_separate_validation_set():
+    """GP-drawn model error of 10x the noise (the model's own assumptions), 3 truths: the 5-fold
+    RMS on 60 poses is within two of its standard errors (combined with the validation RMS's)
+    of the RMS of the full calibration on 200 separate poses in the same joint ranges."""
+    from calib_oed.calibration.prediction import new_poses
+    from calib_oed.calibration.simulation import draw_true_parameters, simulate_observations
+    from calib_oed.measurement.dataset import MeasurementSet
+    from calib_oed.measurement.discrepancy import DiscrepancyPrior
+
+    s = setup(load_scene("fms_kr16"))
+    pr, errors = s.problem, s.scene.error_model()
+    prior = DiscrepancyPrior(1e-4, tuple(np.radians([45, 45, 45, 90, 90, 90])))
+    for seed in range(3):
+        rng = np.random.default_rng(300 + seed)
+        q = pr.robot.random_configurations(60, rng)
+        q_all = np.vstack([q, new_poses(q, 200, 400 + seed)])
+        p = draw_true_parameters(pr.space, pr.identifiability.free_indices, rng)
+        (b,) = simulate_observations(pr.space, pr.models, q_all, p, rng, model_error=prior)
+        mset = MeasurementSet.from_arrays(pr.robot, q_all, b.values)
+        cal, val = subset(mset, np.arange(60)), subset(mset, np.arange(60, 260))
+        cv = cross_validate(pr.space, cal, pr.identifiability, 5, error_model=errors)
+        fit = identify(pr.space, cal.blocks(error_model=errors), pr.identifiability)
+        e = held_out_errors(pr.space, val, fit.p, errors)
+        rms = np.sqrt(np.mean(e**2))
+        se = np.std(e**2, ddof=1) / np.sqrt(e.size) / (2 * rms)
+        assert cv.rms_mm / cv.noise_floor_mm > 4  # the model error dominates
+        assert abs(cv.rms_mm - rms) <= 2 * np.hypot(cv.se_mm, se), (seed, cv.rms_mm, cv.se_mm, rms, se)

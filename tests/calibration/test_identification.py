@@ -10,7 +10,6 @@ from conftest import central_difference, make_space, relative_error
 
 from calib_oed import load_robot
 from calib_oed.calibration.identification import (
-    LOSSES,
     IdentificationStatus,
     identify,
     residual_function,
@@ -198,35 +197,6 @@ def test_noise_factor_and_covariance_against_monte_carlo(fms):
     assert n_f - 4.5 < np.mean(chi2) < n_f + 4.5
 
 
-# ------------------------------------------------------------------ robust loss
-@pytest.mark.parametrize("loss", ["soft_l1", "huber"])
-def test_robust_loss_resists_and_reports_outliers(fms, loss):
-    problem, space = fms, fms.space
-    rng = np.random.default_rng(71)
-    p_true = true_parameters(problem, 72)
-    q = problem.robot.random_configurations(60, 73)
-    block = simulate(space, problem.models[0], q, p_true, rng)
-    bad = [5, 23, 47]
-    values = np.array(block.values)
-    direction = rng.normal(size=(3, 3))
-    # +4 mm: ~200 sigma of the scene's noise (lateral tracker + repeatability ~ 20 um at 3 m)
-    values[bad] += 4e-3 * direction / np.linalg.norm(direction, axis=1)[:, None]
-    blocks = [ObservationBlock(block.model, q, values)]
-    linear = identify(space, blocks, problem.identifiability)
-    robust = identify(space, blocks, problem.identifiability, loss=loss)
-    e_lin, e_rob = scaled_error(problem, linear, p_true), scaled_error(problem, robust, p_true)
-    print(f"largest error with 3 outliers: linear {e_lin:.3f}, {loss} {e_rob:.3f} [mm, mrad], "
-          f"{robust.nfev} evaluations")
-    assert robust.status is IdentificationStatus.CONVERGED and robust.method == "trf"
-    assert e_rob < e_lin / 5
-    assert [(o.block, o.row) for o in robust.outliers] == [(0, r) for r in bad]
-    assert all(o.norm > 100 for o in robust.outliers)  # 4 mm ~ 200 sigma
-    assert {(0, r) for r in bad} <= {(o.block, o.row) for o in linear.outliers}
-    assert robust.noise_factor_inliers < 1.5 < robust.noise_factor
-    assert robust.std_posterior == pytest.approx(robust.std * np.sqrt(robust.noise_factor_inliers))
-    assert distance_to_stationary_point(robust) < 1e-6
-
-
 def test_max_nfev_reached_is_a_status(ur5):
     p_true = true_parameters(ur5, 81)
     q = ur5.robot.random_configurations(40, 82)
@@ -255,13 +225,10 @@ def test_too_few_poses_are_not_identifiable(fms):
 def test_bad_options_list_the_valid_choices(ur5):
     q = ur5.robot.random_configurations(40, 93)
     blocks = [simulate(ur5.space, ur5.models[0], q, ur5.space.zeros())]
-    with pytest.raises(ValueError, match="valid losses are: linear, huber, soft_l1") as info:
-        identify(ur5.space, blocks, ur5.identifiability, loss="cauchy")
-    assert isinstance(info.value, ParameterError) and LOSSES == ("linear", "huber", "soft_l1")
     with pytest.raises(ParameterError, match="valid methods are: lm, trf"):
         identify(ur5.space, blocks, ur5.identifiability, method="newton")
-    with pytest.raises(ParameterError, match="needs loss 'linear'"):
-        identify(ur5.space, blocks, ur5.identifiability, loss="huber", method="lm")
+    with pytest.raises(TypeError):  # scipy's robust losses are gone: flags are robust.py's
+        identify(ur5.space, blocks, ur5.identifiability, loss="huber")
     with pytest.raises(UnknownParameterError):
         identify(ur5.space, blocks, ["tracker.tx", "joint9.tx"])
 

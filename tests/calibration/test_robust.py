@@ -43,10 +43,10 @@ def test_one_gross_error_is_exactly_the_flagged_row(fms):
     assert 0.8 < rob.scale < 1.2 and rob.result.converged
     assert len(rob.linear.outliers) > 30  # the a-priori rule on the plain fit: most rows
     floor = noise_floor(val, val.blocks(noise=noise)) * 1e3  # RMS of a perfect model [mm]
-    e = held_out_errors(problem.space, val, rob.result.p, tracker.sigma, tracker.sigma_angle, noise)
+    e = held_out_errors(problem.space, val, rob.result.p, fms.scene.error_model())
     ratio = np.sqrt(np.mean(e**2)) / floor
     assert ratio <= 1.2, ratio  # 200 fresh validation poses
-    e_lin = held_out_errors(problem.space, val, rob.linear.p, tracker.sigma, tracker.sigma_angle, noise)
+    e_lin = held_out_errors(problem.space, val, rob.linear.p, fms.scene.error_model())
     assert np.sqrt(np.mean(e_lin**2)) / floor > 3 * ratio
 
 
@@ -101,8 +101,8 @@ def test_options_and_the_plain_record(fms):
     blocks = mset.blocks(sigma=tracker.sigma, sigma_angle=tracker.sigma_angle)
     with pytest.raises(ParameterError, match="alpha"):
         identify_robust(problem.space, blocks, problem.identifiability, alpha=0.7)
-    with pytest.raises(ParameterError, match="linear loss"):
-        identify_robust(problem.space, blocks, problem.identifiability, loss="huber")
+    with pytest.raises(ParameterError, match="drop"):
+        identify_robust(problem.space, blocks, problem.identifiability, drop="some")
     rob = identify_robust(problem.space, blocks, problem.identifiability)
     plain = as_robust(rob.linear, blocks)
     assert np.array_equal(plain.result.p, rob.result.p) and np.all(plain.weight == 1)

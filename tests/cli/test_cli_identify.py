@@ -77,11 +77,17 @@ def test_outlier_flagged_by_line_and_validation_verdict(files, capsys):
     assert 0.8 < fit["sigma0"] < 1.2
     cv = data["cross_validation"]
     assert cv["k"] == 4 and cv["rms_mm"] > 0 and cv["warnings"] == []
-    # verdict: default threshold (2 x sigma0 x floor) passes, a tiny --max-rms fails with exit 3
+    assert "every one of the 60 rows" not in json.dumps(cv)  # (the text report says it)
+    # the predicted accuracy covers parameter uncertainty, model error and noise, in JSON too
+    pred = data["predicted_accuracy"]["uncompensated"]
+    assert "model error" in pred["covers"] and pred["new_pose_rms_mm"] > 0
+    assert [w["name"] for w in pred["working_configurations"]] == ["car_side"]
+    assert data["model_error"]["fitted"]["sigma_mm"] > 0 and data["training_joint_ranges"]
+    # no tolerance: no verdict (exit 0), the achieved error against the prediction
     assert main(["validate", "fms_kr16", str(out), str(val), "--json"]) == EXIT_OK
     report = json.loads(capsys.readouterr().out)
     verdict = report["verdict"]
-    assert verdict["passed"] and "sigma0" in verdict["basis"]
+    assert verdict["passed"] is None and 0.6 < verdict["achieved_over_predicted"] < 1.25
     # the floor of the scene's tracker error model and repeatability (sqrt(mean tr Sigma_i))
     floor = report["noise_floor_mm"]
     assert floor > 1.5 * 0.01 * np.sqrt(3)
@@ -89,6 +95,11 @@ def test_outlier_flagged_by_line_and_validation_verdict(files, capsys):
     assert main(["validate", "fms_kr16", str(out), str(val), "--max-rms", "0.001"]) \
         == EXIT_VALIDATION_FAILED
     assert "verdict: FAIL" in capsys.readouterr().out
+    assert main(["validate", "fms_kr16", str(out), str(val), "--max-error", "1", "--compensate"]) \
+        == EXIT_OK
+    assert "verdict: PASS" in capsys.readouterr().out
+    assert main(["validate", "fms_kr16", str(out), str(val), "--max-error", "-1"]) == EXIT_BAD_INPUT
+    assert "--max-error" in capsys.readouterr().err
 
 
 def test_validate_stops_on_a_unit_mistake(files, capsys):

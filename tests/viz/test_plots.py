@@ -330,10 +330,15 @@ def test_residual_plot_marks_outliers(identified):
     s, mset, _ = identified
     pos = np.array(mset.positions)
     pos[[4, 17]] += 2e-3 / np.sqrt(3)
-    res = identify_measurements(s, dataclasses.replace(mset, positions=pos), loss="soft_l1")
-    assert [(o.block, o.row) for o in res.outliers] == [(0, 4), (0, 17)]
-    fig = plots.plot_residuals(res)
+    from calib_oed.calibration.robust import identify_robust
+
+    rob = identify_robust(s.problem.space, dataclasses.replace(mset, positions=pos).blocks(
+        error_model=s.scene.error_model()), s.problem.identifiability, model_error=s.scene.discrepancy())
+    assert np.flatnonzero(rob.flagged).tolist() == [4, 17]  # the report's rule
+    res = rob.linear  # (the plain fit's residuals, flags of the report's rule)
+    fig = plots.plot_residuals(res, [(0, 4), (0, 17)], "noise + model error", ["smr0"])
     marks = _line(fig.axes[0], "outliers")
+    assert marks.get_label() == "flagged (noise + model error): 2"
     assert sorted(set(marks.get_xdata())) == [4, 17]
     assert np.allclose(sorted(marks.get_ydata()),
                        np.sort(res.block_residuals[0][[4, 17]].ravel() * 1e3))

@@ -1,0 +1,182 @@
+r"""Predicted accuracy at any pose: parameter uncertainty + model error + noise.
+
+With the identification linearised at :math:`\hat p`
+(:class:`~calib_oed.calibration.model_error.Linearisation`: :math:`J`, noise
+:math:`N`, :math:`\Sigma = K + N`), the weighted least-squares estimate is
+:math:`\hat p - p^\star = A(\delta + \varepsilon)`,
+:math:`A = (J^\top N^{-1}J)^{-1}J^\top N^{-1}`. A point at a new configuration
+:math:`q_\ast` with Jacobian :math:`G_\ast = \partial y_\ast/\partial p_f`
+(3, n_f) is predicted as :math:`\hat y_\ast = y_\ast(\hat p) + c\,\mu_\ast`,
+:math:`\mu_\ast = C_\ast^\top\Sigma^{-1}e` the model error's conditional mean
+(the optional compensation, :math:`c \in \{0, 1\}`), :math:`C_\ast` (m, 3) the
+covariance of the training values' model error with the point's,
+:math:`e = \eta - h(\hat p)` the residuals. Its error
+:math:`y_\ast - \hat y_\ast = \delta_\ast + \varepsilon_\ast - B(\delta + \varepsilon)`,
+:math:`B = G_\ast A + c\,C_\ast^\top\Sigma^{-1}(I - JA)`, is linear in the
+Gaussian errors, so exactly (for the linearised model)
+
+.. math::
+    V_\ast = k(q_\ast, q_\ast)\,I_3 - BC_\ast - C_\ast^\top B^\top + B\Sigma B^\top + N_\ast
+    \quad [\mathrm{m}^2],
+
+:math:`N_\ast` the noise of a measured point (tracker and repeatability), or
+the robot's repeatability alone for a TCP at a working configuration (no
+tracker there). :math:`\sqrt{\mathrm{tr}\,V_\ast}` is the expected RMS of the
+3-D error; the 95 % prediction region is :math:`e^\top V_\ast^{-1}e \le \chi^2_3(0.95)`.
+With no model error (:math:`K = 0`) this is the noise-only :math:`G C_p G^\top + N_\ast`.
+Checked against Monte Carlo of Gaussian-process model errors in
+``tests/calibration/test_prediction.py``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg
+
+from calib_oed.calibration.model_error import Linearisation
+from calib_oed.measurement.base import evaluate_setup
+from calib_oed.measurement.discrepancy import DiscrepancyPrior
+
+MM_PER_M = 1e3
+#: New poses for the expected RMS: this many, uniform in the training joint ranges, this seed.
+N_NEW_POSES, NEW_POSE_SEED = 200, 0
+
+
+def _cross(lin: Linearisation, prior: DiscrepancyPrior | None, q_new: np.ndarray) -> np.ndarray:
+    """:math:`C_\\ast` for all new points, (m, 3n) [m²], columns point-major then component."""
+    n = q_new.shape[0]
+    out = np.zeros((lin.m, 3 * n))
+    if prior is None:
+        return out
+    k = prior.covariance_kernel(lin.q, q_new)
+    for c in range(3):
+        out[:, c::3] = np.where((lin.position & (lin.component == c))[:, None], k, 0.0)
+    return out
+
+
+def error_covariances(lin: Linearisation, prior: DiscrepancyPrior | None, jac_new: np.ndarray,
+                      q_new: np.ndarray, noise_new: np.ndarray | None = None,
+                      compensate: bool = False) -> np.ndarray:
+    r""":math:`V_\ast` (n, 3, 3) [m²] of n new points (module docstring).
+
+    Args:
+        lin: The identification, linearised.
+        prior: The model error (None: the model is exact).
+        jac_new: :math:`G_\ast` per point, (n, 3, n_f) [m per unit].
+        q_new: Their configurations, (n, nq).
+        noise_new: :math:`N_\ast` per point, (n, 3, 3) [m²], or None.
+        compensate: Whether the prediction adds the model error's conditional mean.
+    """
+    n = q_new.shape[0]
+    g = jac_new.reshape(3 * n, -1)
+    noise_f = scipy.linalg.cho_factor(lin.noise, lower=True)
+    wj = scipy.linalg.cho_solve(noise_f, lin.jac)
+    a = np.linalg.solve(lin.jac.T @ wj, wj.T)  # (n_f, m)
+    b = g @ a
+    sigma = lin.covariance(prior)
+    cross = _cross(lin, prior, q_new)
+    if compensate and prior is not None:
+        s_inv_c = scipy.linalg.cho_solve(scipy.linalg.cho_factor(sigma, lower=True), cross)
+        b = b + s_inv_c.T - (s_inv_c.T @ lin.jac) @ a
+    bc = b @ cross
+    v = (b @ sigma) @ b.T - bc - bc.T
+    blocks = np.stack([v[3 * i:3 * i + 3, 3 * i:3 * i + 3] for i in range(n)])
+    if prior is not None:
+        blocks += prior.variance * np.eye(3)
+    if noise_new is not None:
+        blocks += noise_new
+    return 0.5 * (blocks + np.swapaxes(blocks, 1, 2))
+
+
+def compensation(lin: Linearisation, prior: DiscrepancyPrior, q_new: np.ndarray) -> np.ndarray:
+    r""":math:`\mu_\ast = C_\ast^\top\Sigma^{-1}e` (n, 3) [m]: the model error's conditional mean
+    at ``q_new``, in the frame of the residuals (the tracker frame)."""
+    alpha = scipy.linalg.cho_solve(scipy.linalg.cho_factor(lin.covariance(prior), lower=True),
+                                   lin.residual)
+    return (_cross(lin, prior, q_new).T @ alpha).reshape(-1, 3)
+
+
+def new_poses(q_train: np.ndarray, n: int = N_NEW_POSES, seed: int = NEW_POSE_SEED) -> np.ndarray:
+    """``n`` configurations uniform in the training data's joint ranges (per joint min..max)."""
+    lo, hi = q_train.min(axis=0), q_train.max(axis=0)
+    return np.random.default_rng(seed).uniform(lo, hi, size=(n, q_train.shape[1]))
+
+
+@dataclass(frozen=True)
+class PredictedAccuracy:
+    """Predicted error of the calibrated model, per working configuration and on new poses [mm].
+
+    Attributes:
+        names: Working configurations.
+        tcp_sigma_mm: Per working configuration, :math:`\\sqrt{\\mathrm{tr} V/3}` (per axis) [mm].
+        tcp_rms_mm: Per working configuration, :math:`\\sqrt{\\mathrm{tr} V}` (3-D RMS) [mm].
+        new_pose_rms_mm: Expected RMS of the measured position error (3-D) on new poses
+            uniform in the training joint ranges, noise included [mm].
+        noise_only_new_pose_rms_mm: The same if the model were exact (noise only) [mm].
+        compensated: Whether the predictions add the fitted model error's mean.
+        covers: What the numbers cover, in words.
+    """
+
+    names: tuple[str, ...]
+    tcp_sigma_mm: tuple[float, ...]
+    tcp_rms_mm: tuple[float, ...]
+    new_pose_rms_mm: float
+    noise_only_new_pose_rms_mm: float
+    compensated: bool
+    covers: str
+
+    def to_dict(self) -> dict:
+        return {"compensated": self.compensated, "covers": self.covers,
+                "new_pose_rms_mm": self.new_pose_rms_mm,
+                "noise_only_new_pose_rms_mm": self.noise_only_new_pose_rms_mm,
+                "working_configurations": [
+                    {"name": n, "sigma_mm": s, "rms_mm": r}
+                    for n, s, r in zip(self.names, self.tcp_sigma_mm, self.tcp_rms_mm, strict=True)]}
+
+    def lines(self) -> list[str]:
+        head = "with the model error's mean compensated" if self.compensated else "uncompensated"
+        out = [f"predicted accuracy ({head}; {self.covers}):",
+               f"  new poses in the training joint ranges: expected RMS position error "
+               f"{self.new_pose_rms_mm:.4f} mm (3-D; noise alone would give "
+               f"{self.noise_only_new_pose_rms_mm:.4f} mm)"]
+        out += [f"  TCP at {n}: {s:.4f} mm per axis, {r:.4f} mm RMS (3-D)"
+                for n, s, r in zip(self.names, self.tcp_sigma_mm, self.tcp_rms_mm, strict=True)]
+        return out
+
+
+def _repeatability(models) -> float:
+    rho = [float(m.noise.repeatability) for m in models if m.noise is not None]
+    return max(rho) if rho else 0.0
+
+
+def predict_accuracy(problem, lin: Linearisation, prior: DiscrepancyPrior | None, p: np.ndarray,
+                     free: np.ndarray, q_train: np.ndarray, compensate: bool = False,
+                     n_new: int = N_NEW_POSES, seed: int = NEW_POSE_SEED) -> PredictedAccuracy:
+    """:class:`PredictedAccuracy` of the calibration ``p`` of ``problem`` (a
+    :class:`~calib_oed.calibration.problem.CalibrationProblem`) identified from ``lin``."""
+    space = problem.space
+    q_new = new_poses(q_train, n_new, seed)
+    state = evaluate_setup(space, p, q_new, regressor=True, jacobian=False)
+    tr, tr_noise = [], []
+    for mdl in problem.models:
+        h = mdl.compute_values(state)
+        jac = mdl.compute_param_jacobian(state)[:, :3][:, :, free]
+        noise = mdl.noise_covariance(h)[:, :3, :3]
+        tr.append(np.trace(error_covariances(lin, prior, jac, q_new, noise, compensate), axis1=1, axis2=2))
+        tr_noise.append(np.trace(error_covariances(lin, None, jac, q_new, noise), axis1=1, axis2=2))
+    kpi = problem.kpi
+    g = kpi.compute_param_jacobian(space, p)[:, free].reshape(-1, 3, free.size)
+    rho = _repeatability(problem.models)
+    v = error_covariances(lin, prior, g, kpi.configurations,
+                          np.broadcast_to(rho**2 * np.eye(3), (g.shape[0], 3, 3)), compensate)
+    t = np.trace(v, axis1=1, axis2=2)
+    parts = ["parameter uncertainty"] + (["model error"] if prior is not None else []) \
+        + ["tracker noise and robot repeatability on measured points; repeatability at the TCP"]
+    return PredictedAccuracy(
+        tuple(kpi.names), tuple(float(x) for x in np.sqrt(t / 3) * MM_PER_M),
+        tuple(float(x) for x in np.sqrt(t) * MM_PER_M),
+        float(np.sqrt(np.mean(np.concatenate(tr))) * MM_PER_M),
+        float(np.sqrt(np.mean(np.concatenate(tr_noise))) * MM_PER_M), bool(compensate),
+        ", ".join(parts))
