@@ -26,6 +26,7 @@ from calib_oed.cli._common import (
     _length_mm,
     _non_negative_int,
     _pose_count,
+    _position_tol_mm,
     _positive_int,
     _seed,
 )
@@ -131,6 +132,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="each configuration may be measured up to K times (default 1: the "
                    "start's poses are distinct, though the refinement may bring two together); "
                    "the record says how many distinct poses")
+    p.add_argument("--position-tol", type=_position_tol_mm, default=1.0, metavar="MM",
+                   help="reflector positions closer than this [mm] count as one arm position in "
+                   "the record's distinct_positions (default 1)")
     p.add_argument("--no-certificate", action="store_true",
                    help="skip the optimality certificate (the efficiency against a lower bound "
                    "valid for any feasible design of this size)")
@@ -161,6 +165,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--criterion", default="kpi", choices=CRITERIA, help="criterion of the "
                    "contribution plot (default kpi); all criterion values are always reported")
     p.add_argument("--no-mesh-check", action="store_true", help="skip the URDF mesh check")
+    p.add_argument("--position-tol", type=_position_tol_mm, default=1.0, metavar="MM",
+                   help="reflector positions closer than this [mm] count as one arm position "
+                   "(default 1)")
     p.add_argument("--plot", metavar="DIR", help="write DIR/kpi_ellipsoid.png and DIR/pose_contributions.png")
     p.add_argument("--certificate", action="store_true", help="optimality certificate: a lower bound "
                    "on the criterion of any design of this many poses, and this design's efficiency "

@@ -102,7 +102,7 @@ def cmd_evaluate(args) -> int:
 
     s = _setup(args.scene)
     q, what = _design(s, args)
-    result = evaluate_design(s, q, args.criterion, method="given")
+    result = evaluate_design(s, q, args.criterion, method="given", position_tol=1e-3 * args.position_tol)
     problem = s.problem
     estimable = problem.kpi_estimability()
     mesh = None if args.no_mesh_check else _mesh_check(s, q)
@@ -128,6 +128,7 @@ def cmd_evaluate(args) -> int:
         print(json.dumps(data, indent=2))
         return EXIT_OK
     print(f"scene {s.scene.name!r}: {what}, {result.n} poses")
+    print(result.distinct_line().strip())
     print(format_kpi_sigma(problem, result.kpi_sigma_mm * 1e-3, what))
     if len(result.kpi_names) > 1:
         print(f"{len(result.kpi_names)} KPI points: mean variance {result.kpi_variance:.5g} mm² "

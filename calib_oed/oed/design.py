@@ -40,6 +40,7 @@ from calib_oed.oed.criterion_base import Criterion
 from calib_oed.oed.hessian import has_exact_hessian
 from calib_oed.oed.memory import check_memory
 from calib_oed.oed.objective import DesignObjective
+from calib_oed.oed.positions import POSITION_TOL, distinct_positions
 from calib_oed.oed.refine import (  # noqa: F401 (DESIGN_SQP, HESSIANS, optimise_from: re-exported)
     DESIGN_SQP,
     HESSIANS,
@@ -78,6 +79,16 @@ def _check_aggregate(aggregate: str, criterion) -> None:
                              "'mean' with it")
 
 
+def check_position_tol(tol: float) -> None:
+    """The tolerance of distinct arm positions must be a number >= 0 [m]."""
+    try:
+        ok = float(tol) >= 0 and np.isfinite(float(tol))
+    except (TypeError, ValueError):
+        ok = False
+    if not ok:
+        raise DesignError("position_tol", tol, "a distance >= 0 [m] (default 1e-3: 1 mm)")
+
+
 def _setup(scene: Scene | Setup) -> Setup:
     return scene if isinstance(scene, Setup) else Setup(scene)
 
@@ -114,14 +125,18 @@ def evaluate_design(
     collisions: bool = True,
     aggregate: str = "mean",
     certificate: dict | None = None,
+    position_tol: float = POSITION_TOL,
 ) -> Design:
     r"""The :class:`~calib_oed.oed.result.Design` record of configurations ``q`` (n, nq).
 
     ``aggregate="max"`` (criterion ``kpi`` only): the value is the worst-case
     KPI variance :math:`\max_i v_i` [mm²] and the record's criterion ``kpi_max``.
+    ``position_tol`` [m]: reflector positions closer than this are one arm
+    position in the record's ``distinct_positions`` (:mod:`calib_oed.oed.positions`).
     """
     s = _setup(s)
     _check_aggregate(aggregate, criterion)
+    check_position_tol(position_tol)
     problem = s.problem
     q = problem.robot.check_configurations(q, "design")
     objective = DesignObjective(problem, criterion)
@@ -150,6 +165,8 @@ def evaluate_design(
         method=method,
         certificate=certificate or {},
         joint_window=s.pairs.window,
+        position_multiplicity=tuple(distinct_positions(problem.space, q, position_tol)),
+        position_tolerance=float(position_tol),
     )
 
 
@@ -205,6 +222,7 @@ def design(
     structured_hessian: bool = False,
     aggregate: str = "mean",
     hessian: str = "exact",
+    position_tol: float = POSITION_TOL,
 ) -> Design:
     r"""An optimal design of ``n`` measurement configurations, and how good it is.
 
@@ -242,6 +260,11 @@ def design(
             (1: the start's poses are distinct); the record's ``multiplicity`` says
             how many distinct poses and how often each (the refinement may merge
             two poses where that lowers the criterion, and the record then says so).
+            Distinct joint vectors may still put the reflectors at one place (a turn
+            of the last joint about a reflector on its axis): the record's
+            ``distinct_positions`` counts those as one.
+        position_tol: Reflector positions closer than this [m] are one arm
+            position in the record (default :data:`~calib_oed.oed.positions.POSITION_TOL`, 1 mm).
         enrich: Add the off-pool local maxima of the approximate design's
             sensitivity to a random pool before the exchange start (default;
             about 3 s on fms_kr16); ``False``: the approximate design on the pool
@@ -281,6 +304,7 @@ def design(
     if int(replicates) != replicates or replicates < 1:
         raise DesignError("replicates", replicates, "an integer >= 1 (1: every pose distinct)")
     _check_aggregate(aggregate, criterion)
+    check_position_tol(position_tol)
     exact = (hessian == "exact" and not structured_hessian and aggregate == "mean"
              and (criterion in EXACT_CRITERIA if isinstance(criterion, str)
                   else has_exact_hessian(criterion)))
@@ -329,7 +353,7 @@ def design(
     return evaluate_design(
         s, q, criterion, method=method, start_value=phi0, solver=record,
         seconds=design_seconds, seed=start_seed, collisions=collisions,
-        aggregate=aggregate, certificate=cert,
+        aggregate=aggregate, certificate=cert, position_tol=position_tol,
     )
 
 
