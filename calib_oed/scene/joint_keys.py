@@ -1,4 +1,5 @@
-"""Scene keys for the optional joint parameters: ``robot.compliance`` and ``robot.joint_gains``.
+"""Scene keys for the optional joint parameters: ``robot.compliance``, ``robot.joint_gains``
+and the model-error prior ``robot.model_error``.
 
 Both sit under ``robot:`` and are read after the robot (they need its joint
 count) and, for the couplings, the ``controller:`` block. Units follow the
@@ -7,8 +8,13 @@ file's ``units:`` (lengths of centres of mass); masses are in kg.
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
+
 import numpy as np
 
+from calib_oed.exceptions import ParameterError, ShapeError
+from calib_oed.measurement.discrepancy import KERNELS, DiscrepancyPrior
 from calib_oed.model.compliance import Compliance
 from calib_oed.model.controller import ControllerConvention
 from calib_oed.model.joint_map import JointGains
@@ -90,3 +96,63 @@ def read_joint_gains(reader: FieldReader, value, n: int,
     if not joints and not pairs:
         raise reader.fail(key, "expected at least one joint or couplings: true")
     return JointGains(tuple(joints), pairs) if enabled else None
+
+
+def read_model_error(reader: FieldReader, value, robot) -> DiscrepancyPrior:
+    """``robot.model_error``: the model-error prior (:mod:`calib_oed.measurement.discrepancy`).
+
+    ``{sigma, length_scales, kernel}`` in the file's units (``sigma`` a length per
+    Cartesian axis; ``length_scales`` one angle per joint, a length for a prismatic
+    joint, or one number for all; ``.inf`` ignores a joint), or
+    ``{from: identification.json}``: the hyperparameters an earlier
+    ``calib-oed identify --json`` fitted (its ``model_error``), path relative to the scene.
+    """
+    key = "robot.model_error"
+    spec = reader.mapping(value, key, (), ("sigma", "length_scales", "kernel", "from"))
+    if "from" in spec:
+        if set(spec) != {"from"}:
+            raise reader.fail(key, "give either 'from' (an identification JSON) or sigma and "
+                              f"length_scales, not both (got {sorted(spec)})")
+        return _model_error_from_file(reader, spec["from"], robot.nq)
+    for k in ("sigma", "length_scales"):
+        if k not in spec:
+            raise reader.fail(f"{key}.{k}", "missing; robot.model_error needs sigma and "
+                              "length_scales, or from: <identification JSON>")
+    sigma = reader.number(spec["sigma"], f"{key}.sigma", reader.length, nonnegative=True)
+    prismatic = [j.shortname().startswith("JointModelP") for j in robot.model.joints[1:]]
+    scale = np.where(prismatic, reader.length, reader.angle)
+    ell = spec["length_scales"]
+    raw = ell if isinstance(ell, list) else [ell] * robot.nq
+    if len(raw) != robot.nq:
+        raise reader.fail(f"{key}.length_scales", f"expected one number or {robot.nq} (one per "
+                          f"joint: {', '.join(robot.joint_names)}), got {len(raw)}")
+    values = []
+    for i, v in enumerate(raw):
+        if isinstance(v, (int, float)) and not isinstance(v, bool) and v == np.inf:
+            values.append(np.inf)
+        else:
+            values.append(reader.number(v, f"{key}.length_scales[{i}]", scale[i], positive=True))
+    if all(np.isinf(values)):
+        raise reader.fail(f"{key}.length_scales", "at least one joint needs a finite length scale")
+    kernel = reader.string(spec.get("kernel", "matern52"), f"{key}.kernel", KERNELS)
+    return DiscrepancyPrior(sigma, tuple(values), kernel, "scene")
+
+
+def _model_error_from_file(reader: FieldReader, value, nq: int) -> DiscrepancyPrior:
+    key = "robot.model_error.from"
+    path = Path(reader.string(value, key)).expanduser()
+    if not path.is_absolute():
+        path = (Path(reader.source).parent if reader.source else Path.cwd()) / path
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        raise reader.fail(key, f"cannot read {path} as JSON ({exc}); give the file "
+                          "`calib-oed identify --json` wrote") from exc
+    found = data.get("model_error") if isinstance(data, dict) else None
+    if not isinstance(found, dict) or "fitted" not in found:
+        raise reader.fail(key, f"{path} has no model_error.fitted; give the JSON of "
+                          "`calib-oed identify --json` (this version or later)")
+    try:
+        return DiscrepancyPrior.from_dict(found["fitted"], nq, source=str(path))
+    except (ParameterError, ShapeError) as exc:
+        raise reader.fail(key, f"{path}: {exc}") from exc

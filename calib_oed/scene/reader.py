@@ -31,7 +31,7 @@ from calib_oed.model.robot import Robot, load_robot
 from calib_oed.scene.cell import read_cell, read_feasibility, reflector_normal
 from calib_oed.scene.checks import check_scene
 from calib_oed.scene.fields import FieldReader
-from calib_oed.scene.joint_keys import read_compliance, read_joint_gains
+from calib_oed.scene.joint_keys import read_compliance, read_joint_gains, read_model_error
 from calib_oed.scene.records import (
     DEFAULT_SIGMA_ANGLE,
     KPI_AGGREGATES,
@@ -159,6 +159,8 @@ class SceneReader(FieldReader):
             controller=controller,
             joint_gains=joint_gains,
             repeatability=self.repeatability(top),
+            model_error=(read_model_error(self, top["robot"]["model_error"], robot)
+                         if "model_error" in top["robot"] else None),
         )
 
     def repeatability(self, top) -> float:
@@ -198,7 +200,8 @@ class SceneReader(FieldReader):
     def robot(self, value) -> Robot:
         spec = self.mapping(value, "robot", (), ("name", "urdf", "xacro", "args", "tool_frame",
                                                  "joint_limits", "lock_joints", "package_dirs",
-                                                 "compliance", "repeatability", "joint_gains"))
+                                                 "compliance", "repeatability", "joint_gains",
+                                                 "model_error"))
         given = [k for k in ("name", "urdf", "xacro") if k in spec]
         if len(given) != 1:
             raise self.fail("robot", "expected exactly one of 'name' (a robot name), 'urdf' "

@@ -17,6 +17,7 @@ import pinocchio as pin
 
 from calib_oed.exceptions import NonFiniteError, SceneError, ShapeError
 from calib_oed.feasibility.shapes import Cell, FeasibilitySettings
+from calib_oed.measurement.discrepancy import DiscrepancyPrior
 from calib_oed.measurement.noise import TrackerNoise
 from calib_oed.model.compliance import Compliance
 from calib_oed.model.controller import ControllerConvention
@@ -241,6 +242,14 @@ class Scene:
     #: ``robot.joint_gains``: joint gains and coupling ratios to identify
     #: (:mod:`calib_oed.model.joint_map`); None if the file has none or disables them.
     joint_gains: JointGains | None = None
+    #: ``robot.model_error``: the model-error prior as the scene gives it
+    #: (:mod:`calib_oed.measurement.discrepancy`); None: the documented default (:meth:`discrepancy`).
+    model_error: DiscrepancyPrior | None = None
+
+    def discrepancy(self) -> DiscrepancyPrior:
+        """The model-error prior: ``robot.model_error``, else the default for the robot's reach."""
+        return self.model_error if self.model_error is not None else \
+            DiscrepancyPrior.default_for(self.robot)
 
 
 @dataclass(frozen=True, eq=False)

@@ -1,0 +1,234 @@
+r"""Model error of a measured point as a Gaussian process over the joint configuration.
+
+After the parametric fit a real arm keeps an error that is a smooth function of
+the configuration (gravity, gear and transmission errors, thermal drift, tracker
+scale): not independent noise. Each Cartesian component of a measured point's
+model error is an independent zero-mean Gaussian process over the JOINT
+CONFIGURATION :math:`q` (the design variable, so a design can differentiate it):
+
+.. math::
+    \mathrm{Cov}(e_i, e_j) = k(q_i, q_j)\,I_3 + \delta_{ij}\,\Sigma_{\mathrm{noise},i}
+    \quad [\mathrm{m}^2],
+
+:math:`\Sigma_{\mathrm{noise},i}` the tracker noise and repeatability of
+:mod:`calib_oed.measurement.noise`. Isotropic in the three components, so the
+frame (tracker or world) does not matter. Several reflectors measured at the
+same :math:`q` share their model error (correlation 1): the error is the arm's.
+
+**Kernel** (automatic relevance determination over the joints), with
+:math:`d = q_1 - q_2`, :math:`u_k = d_k/\ell_k^2`,
+:math:`r^2 = \sum_k d_k^2/\ell_k^2` (a joint with :math:`\ell_k = \infty` is ignored):
+
+- ``"matern52"`` (the default, Rasmussen & Williams 2006, eq. 4.17), :math:`a = \sqrt5`:
+  :math:`k = \sigma^2(1 + ar + a^2r^2/3)\,e^{-ar}`;
+- ``"squared_exponential"``: :math:`k = \sigma^2 e^{-r^2/2}`.
+
+Both are radial; with :math:`g(r) = k'(r)/r` and :math:`h(r) = g'(r)/r`
+(smooth at :math:`r = 0`: Matérn 5/2
+:math:`g = -\sigma^2\tfrac{a^2}{3}(1 + ar)e^{-ar}`, :math:`h = \sigma^2\tfrac{a^4}{3}e^{-ar}`;
+squared exponential :math:`g = -k`, :math:`h = k`), the derivatives in :math:`q_1` are
+
+.. math::
+    \frac{\partial k}{\partial q_{1,k}} = g\,u_k, \qquad
+    \frac{\partial^2 k}{\partial q_{1,k}\partial q_{1,l}} = g\,\frac{\delta_{kl}}{\ell_k^2} + h\,u_k u_l,
+    \qquad \frac{\partial^2 k}{\partial q_{1,k}\partial q_{2,l}} = -\frac{\partial^2 k}{\partial q_{1,k}\partial q_{1,l}}
+
+(a function of :math:`d` only). Checked by central finite differences in
+``tests/measurement/test_discrepancy.py``.
+
+**Defaults for design time** (:meth:`DiscrepancyPrior.default_for`), when no data
+exist: :math:`\sigma` = :data:`SIGMA_PER_REACH` x reach (0.1 mm per metre, at least
+:data:`MIN_SIGMA`), length scales :data:`ARM_LENGTH_SCALE` for the first three
+joints and :data:`WRIST_LENGTH_SCALE` for the others. From an earlier
+identification: :meth:`DiscrepancyPrior.from_dict` of its JSON's ``model_error``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from calib_oed.exceptions import ParameterError, ShapeError
+
+__all__ = ["ARM_LENGTH_SCALE", "KERNELS", "MIN_SIGMA", "SIGMA_PER_REACH", "WRIST_LENGTH_SCALE",
+           "DiscrepancyPrior", "robot_reach"]
+
+#: Kernel families of :class:`DiscrepancyPrior`.
+KERNELS = ("matern52", "squared_exponential")
+#: Default model-error amplitude per Cartesian axis per metre of reach [m/m] (0.1 mm per m).
+SIGMA_PER_REACH = 1e-4
+#: Smallest default amplitude [m] (0.02 mm).
+MIN_SIGMA = 2e-5
+#: Default length scale of the first three joints (the arm) [rad] (45 deg).
+ARM_LENGTH_SCALE = float(np.radians(45.0))
+#: Default length scale of the wrist joints [rad] (90 deg).
+WRIST_LENGTH_SCALE = float(np.radians(90.0))
+
+_A = np.sqrt(5.0)
+
+
+def robot_reach(robot) -> float:
+    """Reach [m]: the sum of the joint-to-joint distances from joint 2 to the tool frame.
+
+    An upper bound of the distance from the shoulder to the tool at any configuration
+    (the lengths of the links in a straight line).
+    """
+    model = robot.model
+    frame = model.frames[robot.tool_frame_id]
+    chain, j = [], frame.parentJoint
+    while j > 0:
+        chain.append(j)
+        j = model.parents[j]
+    total = sum(float(np.linalg.norm(model.jointPlacements[j].translation)) for j in chain[:-1])
+    return total + float(np.linalg.norm(frame.placement.translation))
+
+
+def _length_scales(value, nq: int | None = None) -> tuple[float, ...]:
+    arr = np.atleast_1d(np.asarray(value, dtype=float))
+    if arr.ndim != 1 or arr.size == 0 or (nq is not None and arr.size not in (1, nq)):
+        raise ShapeError("model_error.length_scales", f"({nq},) or a scalar" if nq else "(nq,)",
+                         arr.shape)
+    if nq is not None and arr.size == 1:
+        arr = np.full(nq, arr[0])
+    if np.any(np.isnan(arr)) or np.any(arr <= 0):
+        raise ParameterError("model_error.length_scales: every length scale must be > 0 "
+                             f"(inf ignores a joint), got {arr.tolist()}")
+    if np.all(np.isinf(arr)):
+        raise ParameterError("model_error.length_scales: at least one joint needs a finite "
+                             "length scale (all inf is a constant offset, which the fit absorbs)")
+    return tuple(float(x) for x in arr)
+
+
+@dataclass(frozen=True)
+class DiscrepancyPrior:
+    r"""The model-error Gaussian process of a measured point (module docstring).
+
+    Attributes:
+        sigma: Amplitude per Cartesian axis [m]: :math:`k(q, q) = \sigma^2`.
+        length_scales: Per joint [rad, or m for prismatic joints]; ``np.inf`` ignores a joint.
+        kernel_name: One of :data:`KERNELS`.
+        source: Where the numbers come from (``"default"``, ``"scene"``, a file, ``"fit"``).
+    """
+
+    sigma: float
+    length_scales: tuple[float, ...]
+    kernel_name: str = "matern52"
+    source: str = "given"
+
+    def __post_init__(self):
+        sigma = float(self.sigma)
+        if not (np.isfinite(sigma) and sigma >= 0):
+            raise ParameterError(f"model_error.sigma must be finite and >= 0 [m], got {self.sigma}")
+        object.__setattr__(self, "sigma", sigma)
+        object.__setattr__(self, "length_scales", _length_scales(self.length_scales))
+        if self.kernel_name not in KERNELS:
+            raise ParameterError(f"unknown model_error.kernel {self.kernel_name!r}; valid kernels "
+                                 f"are: {', '.join(KERNELS)}")
+
+    # ------------------------------------------------------------ builders
+    @classmethod
+    def default_for(cls, robot, kernel_name: str = "matern52") -> DiscrepancyPrior:
+        """The documented design-time default for ``robot`` (module docstring)."""
+        sigma = max(SIGMA_PER_REACH * robot_reach(robot), MIN_SIGMA)
+        ell = [ARM_LENGTH_SCALE if i < 3 else WRIST_LENGTH_SCALE for i in range(robot.nq)]
+        return cls(sigma, tuple(ell), kernel_name, "default")
+
+    @classmethod
+    def from_dict(cls, data: Mapping, nq: int | None = None, source: str = "identification"
+                  ) -> DiscrepancyPrior:
+        """From :meth:`to_dict`'s form (``sigma_mm``, ``length_scales_deg``, ``kernel``),
+        as ``calib-oed identify --json`` writes it under ``model_error``.
+
+        Raises:
+            ParameterError: keys missing or values out of range.
+        """
+        if not isinstance(data, Mapping) or "sigma_mm" not in data or "length_scales_deg" not in data:
+            raise ParameterError("model_error: expected a mapping with sigma_mm and "
+                                 f"length_scales_deg (and optionally kernel), got {data!r}")
+        ell = [np.inf if v is None else float(v) for v in np.atleast_1d(data["length_scales_deg"])]
+        return cls(float(data["sigma_mm"]) * 1e-3, _length_scales(np.radians(ell), nq),
+                   str(data.get("kernel", "matern52")), source)
+
+    def to_dict(self) -> dict:
+        """JSON form in report units: ``sigma_mm``, ``length_scales_deg`` (None = ignored joint)."""
+        return {"sigma_mm": self.sigma * 1e3, "kernel": self.kernel_name,
+                "length_scales_deg": [None if np.isinf(x) else float(np.degrees(x))
+                                      for x in self.length_scales],
+                "source": self.source}
+
+    def with_values(self, sigma: float, length_scales, source: str) -> DiscrepancyPrior:
+        """The same kernel with new hyperparameters."""
+        return DiscrepancyPrior(sigma, tuple(length_scales), self.kernel_name, source)
+
+    @property
+    def nq(self) -> int:
+        return len(self.length_scales)
+
+    def describe(self) -> str:
+        """One line in report units."""
+        ell = ", ".join("-" if np.isinf(x) else f"{np.degrees(x):.0f}" for x in self.length_scales)
+        return (f"model error {self.kernel_name}: sigma {self.sigma * 1e3:.4f} mm per axis, "
+                f"length scales [{ell}] deg ({self.source})")
+
+    # ------------------------------------------------------------- kernel
+    def _pieces(self, q1, q2):
+        q1 = self._check(q1, "Q1")
+        q2 = self._check(q2, "Q2")
+        inv = 1.0 / np.asarray(self.length_scales) ** 2  # 0 for an ignored joint
+        d = q1[:, None, :] - q2[None, :, :]
+        r = np.sqrt(np.maximum(np.einsum("abk,k->ab", d * d, inv), 0.0))
+        s2 = self.sigma**2
+        if self.kernel_name == "matern52":
+            e = np.exp(-_A * r)
+            k = s2 * (1 + _A * r + 5.0 * r**2 / 3) * e
+            g = -s2 * (5.0 / 3) * (1 + _A * r) * e
+            h = s2 * (25.0 / 3) * e
+        else:
+            k = s2 * np.exp(-0.5 * r**2)
+            g, h = -k, k
+        return d * inv, inv, k, g, h
+
+    def _check(self, q, what) -> np.ndarray:
+        q = np.asarray(q, dtype=float)
+        if q.ndim != 2 or q.shape[1] != self.nq:
+            raise ShapeError(what, f"(n, {self.nq})", q.shape)
+        return q
+
+    def kernel(self, q1, q2) -> np.ndarray:
+        r""":math:`k(q_{1,a}, q_{2,b})` (n1, n2) [m²] for configurations ``q1`` (n1, nq), ``q2`` (n2, nq)."""
+        return self._pieces(q1, q2)[2]
+
+    def kernel_gradient(self, q1, q2) -> np.ndarray:
+        r""":math:`\partial k/\partial q_1` (n1, n2, nq) [m²/rad]."""
+        u, _, _, g, _ = self._pieces(q1, q2)
+        return g[:, :, None] * u
+
+    def kernel_hessian(self, q1, q2) -> np.ndarray:
+        r""":math:`\partial^2 k/\partial q_1^2` (n1, n2, nq, nq) [m²/rad²], per pair."""
+        u, inv, _, g, h = self._pieces(q1, q2)
+        return g[:, :, None, None] * np.diag(inv) + h[:, :, None, None] * u[..., :, None] * u[..., None, :]
+
+    def kernel_cross_hessian(self, q1, q2) -> np.ndarray:
+        r""":math:`\partial^2 k/\partial q_1\partial q_2` (n1, n2, nq, nq) [m²/rad²]: minus
+        :meth:`kernel_hessian` (the kernel depends on :math:`q_1 - q_2` only)."""
+        return -self.kernel_hessian(q1, q2)
+
+    def point_covariance(self, q) -> np.ndarray:
+        r""":math:`K = k(Q, Q)` (n, n) [m²]: the covariance of one Cartesian component of the
+        model error over the configurations ``q`` (n, nq)."""
+        return self.kernel(q, q)
+
+    def sample(self, q, rng: np.random.Generator | int, jitter: float = 1e-12) -> np.ndarray:
+        """One draw of the model error at configurations ``q`` (n, nq): (n, 3) [m]."""
+        rng = np.random.default_rng(rng)
+        k = self.point_covariance(q)
+        w, v = np.linalg.eigh(k + jitter * max(self.sigma**2, 1e-30) * np.eye(k.shape[0]))
+        root = v * np.sqrt(np.maximum(w, 0.0))
+        return root @ rng.normal(size=(k.shape[0], 3))
+
+
+def length_scale_list(value: float | Sequence[float], nq: int) -> tuple[float, ...]:
+    """A scalar or per-joint length scale [rad] as nq checked values."""
+    return _length_scales(value, nq)
