@@ -71,8 +71,15 @@ def simulate_observations(
     q: np.ndarray,
     p_true: np.ndarray,
     rng: np.random.Generator | int,
+    visible: np.ndarray | None = None,
 ) -> list[ObservationBlock]:
-    """Noisy measurements of every model at every configuration of ``q`` (n, nq)."""
+    """Noisy measurements of every model at every configuration of ``q`` (n, nq).
+
+    ``visible`` (n, k) bool (:func:`calib_oed.feasibility.visibility.visible_reflectors`):
+    a model of reflector j measures only the poses where it is True (a nest of
+    several SMRs measures those the tracker sees); None: every pose. The draws of
+    the hidden rows are made and discarded, so the seen rows do not depend on it.
+    """
     rng = np.random.default_rng(rng)
     q = space.robot.check_configurations(q)
     state = evaluate_setup(space, p_true, q, regressor=False, jacobian=False)
@@ -84,7 +91,9 @@ def simulate_observations(
             noisy = exact + rng.normal(size=exact.shape) * mdl.sigma
         else:  # full covariance Sigma_i at the true positions
             noisy = exact + noise.sample(exact, rng)
-        blocks.append(ObservationBlock(mdl, q, noisy))
+        seen = slice(None) if visible is None else np.asarray(visible, dtype=bool)[:, mdl.reflector]
+        if q[seen].shape[0]:
+            blocks.append(ObservationBlock(mdl, q[seen], noisy[seen]))
     return blocks
 
 

@@ -4,7 +4,8 @@ Every constraint is written :math:`g(q) \ge 0` (feasible), in SI, per pose:
 
 - **joint** (2 per joint): :math:`q_i - (\underline q_i + m_q) \ge 0`,
   :math:`(\overline q_i - m_q) - q_i \ge 0` [rad or m];
-- **incidence** (1 per reflector, paper eq. 4):
+- **incidence** (1 per reflector with a fixed aim, paper eq. 4; none for a
+  reflector the operator turns towards the tracker, ``aim: manual``):
   :math:`z^\top u - \cos(\beta_{max} - m_\beta) \ge 0` [1], with
   :math:`z = R_{W,F}\,n_j` the reflector's axis (its unit ``normal`` :math:`n_j`
   in the tool frame, default tool z) and :math:`u = (t_T - c)/\lVert t_T - c\rVert`
@@ -45,7 +46,7 @@ from calib_oed.feasibility.bodies import BodyStates, compute_body_states
 from calib_oed.feasibility.curvature import lagrangian_hessian
 from calib_oed.feasibility.hulls import HullPairs
 from calib_oed.feasibility.segments import closest_parameters
-from calib_oed.feasibility.shapes import Capsule, Cell, FeasibilitySettings
+from calib_oed.feasibility.shapes import AIMS, Capsule, Cell, FeasibilitySettings
 from calib_oed.feasibility.solids import SolidPairs, solid_candidates, solid_rows
 from calib_oed.model.robot import Robot, frame_index
 
@@ -168,6 +169,9 @@ class FeasibilityModel:
         reflector_names: Names of the reflectors.
         reflector_normals: Each reflector's axis in the tool frame, (k, 3) (normalised;
             ``None``: tool z for every reflector).
+        reflector_aims: Each reflector's aim, ``"fixed"`` (its axis turns with the tool:
+            an incidence row) or ``"manual"`` (the operator turns it towards the tracker at
+            each pose: no incidence row, the beam rows stay); ``None``: all fixed.
         solid_pairs: ``(segment, solid)`` pairs against the cell's boxes, cylinders and
             meshes, (S, 2), or ``None`` for every candidate (:func:`solid_candidates`).
         solid_kinds: Kind of each solid pair (``"obstacle"`` or ``"beam"``).
@@ -194,6 +198,7 @@ class FeasibilityModel:
         solid_pairs: np.ndarray | None = None,
         solid_kinds: Sequence[str] | None = None,
         hull_pairs=None,
+        reflector_aims: Sequence[str] | None = None,
     ):
         self.robot = robot
         self.segments = segments
@@ -206,6 +211,13 @@ class FeasibilityModel:
         self.tracker_position = np.asarray(tracker_position, dtype=float).reshape(3)
         self.reflector_offsets = np.asarray(reflector_offsets, dtype=float).reshape(-1, 3)
         self.reflector_names = tuple(reflector_names)
+        self.reflector_aims = (("fixed",) * len(self.reflector_names) if reflector_aims is None
+                               else tuple(reflector_aims))
+        if len(self.reflector_aims) != len(self.reflector_names) or not set(self.reflector_aims) <= set(AIMS):
+            raise ValueError(f"reflector_aims must give one of {AIMS} per reflector, got {self.reflector_aims}")
+        #: The reflectors with an incidence row (fixed aim), in row order, and their number.
+        self.incidence_reflectors = np.flatnonzero(np.array(self.reflector_aims) == "fixed")
+        self.n_incidence = len(self.incidence_reflectors)
         tool = robot.model.frames[robot.tool_frame_id]
         self._tool_body = int(tool.parentJoint)
         self._tool_rotation = tool.placement.rotation.copy()
@@ -247,7 +259,7 @@ class FeasibilityModel:
         for name in self.robot.joint_names:
             kinds += ["joint", "joint"]
             labels += [f"joint:{name}:lower", f"joint:{name}:upper"]
-        for name in self.reflector_names:
+        for name in np.array(self.reflector_names, dtype=object)[self.incidence_reflectors]:
             kinds.append("incidence")
             labels.append(f"incidence:{name}")
         names = self.segments.names
@@ -361,14 +373,14 @@ class FeasibilityModel:
         return values, jac
 
     def _incidence_rows(self, q, states: BodyStates, jacobian):
-        k = len(self.reflector_names)
+        k = self.n_incidence
         n = q.shape[0]
         if k == 0:
             return np.zeros((n, 0)), (np.zeros((n, 0, q.shape[1])) if jacobian else None)
         body = np.full(k, self._tool_body)
-        c = states.points(body, self._reflector_local)  # (n, k, 3)
+        c = states.points(body, self._reflector_local[self.incidence_reflectors])  # (n, k, 3)
         rot = states.rotation[:, self._tool_body] @ self._tool_rotation  # (n, 3, 3)
-        z = np.einsum("nij,kj->nki", rot, self.reflector_normals)  # (n, k, 3)
+        z = np.einsum("nij,kj->nki", rot, self.reflector_normals[self.incidence_reflectors])  # (n, k, 3)
         diff = self.tracker_position - c
         length = np.linalg.norm(diff, axis=2, keepdims=True)
         u = diff / length

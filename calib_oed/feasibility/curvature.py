@@ -202,13 +202,13 @@ def _requests(model, pose, row, nq):
     """The points each curved row needs: ``(kind, index, pose, body, local)`` per group."""
     seg, robot = model.segments, model.robot
     tool = robot.model.frames[robot.tool_frame_id]
-    k, p, ns = len(model.reflector_names), len(model.pairs), len(model.solid_pairs)
+    k, p, ns = model.n_incidence, len(model.pairs), len(model.solid_pairs)
     r = row - 2 * nq
     out = []
     sel = np.flatnonzero((r >= 0) & (r < k))
     if sel.size:
         local = np.array([tool.placement.act(c) for c in model.reflector_offsets]).reshape(-1, 3)
-        out.append(("incidence", sel, pose[sel], np.full(sel.size, tool.parentJoint), local[r[sel]]))
+        out.append(("incidence", sel, pose[sel], np.full(sel.size, tool.parentJoint), local[model.incidence_reflectors[r[sel]]]))
     sel = np.flatnonzero((r >= k) & (r < k + ns))
     if sel.size:  # two end points per solid row: a, b
         i = model.solid_pairs.pairs[r[sel] - k, 0]
@@ -237,7 +237,7 @@ def _row_hessians(model, kind, states, pose, index, x, jx, omega):
     """Hessians (K, nv, nv) of one group's rows from their points."""
     if kind == "incidence":
         tool = model.robot.model.frames[model.robot.tool_frame_id]
-        z = np.einsum("kij,kj->ki", states.rotation[pose, tool.parentJoint], model.reflector_axis_local[index])
+        z = np.einsum("kij,kj->ki", states.rotation[pose, tool.parentJoint], model.reflector_axis_local[model.incidence_reflectors[index]])
         dz = _cross(omega, z[:, :, None])
         return incidence_derivatives(z, dz, point_hessian(omega, dz), x, jx, point_hessian(omega, jx),
                                      model.tracker_position)[2]
@@ -249,9 +249,9 @@ def _row_hessians(model, kind, states, pose, index, x, jx, omega):
 
         return segment_distance_derivatives(x.reshape(-1, 4, 3), jx.reshape(-1, 4, 3, nv), hess_along)[2]
     if kind == "solid":
-        return solid_hessians(model.solid_pairs, index - len(model.reflector_names), x.reshape(-1, 2, 3),
+        return solid_hessians(model.solid_pairs, index - model.n_incidence, x.reshape(-1, 2, 3),
                               jx.reshape(-1, 2, 3, jx.shape[-1]), omega.reshape(-1, 2, 3, jx.shape[-1]))
-    first = len(model.reflector_names) + len(model.solid_pairs) + len(model.hull_pairs) + len(model.pairs)
+    first = model.n_incidence + len(model.solid_pairs) + len(model.hull_pairs) + len(model.pairs)
     hs = model.halfspace_pairs[(index - first) // 2, 1]
     normal = np.array([model.cell.halfspaces[h].normal for h in hs]).reshape(-1, 3)
     return point_hessian_along(omega, jx, normal)
@@ -309,7 +309,7 @@ def lagrangian_hessian(model, q: np.ndarray, lam: np.ndarray, states: BodyStates
         states = compute_body_states(model.robot.model, q[used], jacobian=True)
     else:
         local_pose = pose
-    first = 2 * nq + len(model.reflector_names) + len(model.solid_pairs)
+    first = 2 * nq + model.n_incidence + len(model.solid_pairs)
     hull = (row >= first) & (row < first + len(model.hull_pairs))
     if np.any(hull):  # convex-piece rows: the tangent-plane model of their own module
         sel = np.flatnonzero(hull)

@@ -240,6 +240,7 @@ def build_feasibility_model(
     prune: bool = True,
     reflector_normals: np.ndarray | None = None,
     mesh_pairs: bool | None = None,
+    reflector_aims: Sequence[str] | None = None,
     hulls: bool | None = None,
 ) -> tuple[FeasibilityModel, PairReport]:
     """Assemble the feasibility model of a cell and report the pair selection.
@@ -257,6 +258,8 @@ def build_feasibility_model(
             (:func:`calib_oed.feasibility.link_fit.fitted_robot_capsules`).
         prune: Run the sampling pass that drops pairs that cannot matter.
         reflector_normals: Reflector axes in the tool frame, (k, 3) (default tool z).
+        reflector_aims: ``"fixed"`` or ``"manual"`` per reflector (default all fixed): a
+            manually aimed reflector has no incidence row (its beam rows stay).
         mesh_pairs: Drop the self pairs decided on the collision meshes
             (:mod:`calib_oed.feasibility.mesh_pairs`); default: with the split fit
             to the URDF geometry (no ``capsules``, no scene table).
@@ -291,7 +294,7 @@ def build_feasibility_model(
     pairs, kinds, hs_pairs, hs_kinds, dropped = _candidates(robot, seg, cell, settings.excluded_pairs, on_meshes)
     args = (cell, settings, tracker_position, reflector_offsets, reflector_names)
     model = FeasibilityModel(robot, seg, np.array(pairs), kinds, np.array(hs_pairs), hs_kinds, *args,
-                             reflector_normals=reflector_normals)
+                             reflector_normals=reflector_normals, reflector_aims=reflector_aims)
     n_links = len({c.frame for c in capsules})
     samples = int(settings.prune_samples) if prune else 0
     if samples > 0:
@@ -346,7 +349,7 @@ def build_feasibility_model(
         hull_pairs = HullPairs(pieces, chosen)
     model = FeasibilityModel(robot, seg, np.array(pairs), kinds, np.array(hs_pairs), hs_kinds, *args,
                              reflector_normals=reflector_normals, solid_pairs=solid_pairs,
-                             solid_kinds=solid_kinds, hull_pairs=hull_pairs)
+                             solid_kinds=solid_kinds, hull_pairs=hull_pairs, reflector_aims=reflector_aims)
     counts = {k: v for k, v in model.count_per_pose().items()}
     checked = tuple(dict.fromkeys(
         lbl.replace(".a|", "|").replace(".b|", "|")
@@ -371,5 +374,6 @@ def feasibility_from_scene(scene, prune: bool = True) -> tuple[FeasibilityModel,
         [r.name for r in scene.reflectors],
         prune=prune,
         reflector_normals=np.array([r.normal for r in scene.reflectors]),
+        reflector_aims=[r.aim for r in scene.reflectors],
     )
     return model, replace(report, window=window.summary())

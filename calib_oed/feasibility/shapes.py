@@ -63,6 +63,10 @@ def _vector(value, what: str, size: int = 3) -> np.ndarray:
     return arr
 
 
+#: How a reflector is aimed: its axis fixed on the tool, or turned towards the tracker by hand.
+AIMS = ("fixed", "manual")
+
+
 @dataclass(frozen=True, eq=False)
 class Capsule:
     """A capsule: segment ``a``–``b`` [m] swept by a sphere of ``radius`` [m].

@@ -337,7 +337,7 @@ def prune_solid_pairs(model, values: np.ndarray, distance: float) -> tuple[np.nd
         The kept ``(segment, solid)`` pairs (S', 2), their kinds, and
         ``(label, reason, min clearance, max clearance)`` of each dropped pair.
     """
-    first = 2 * model.robot.nq + len(model.reflector_names)
+    first = 2 * model.robot.nq + model.n_incidence
     rows = np.arange(first, first + len(model.solid_pairs))
     raw = values[:, rows] + model.settings.margins.clearance
     lo, hi = raw.min(axis=0), raw.max(axis=0)

@@ -46,7 +46,8 @@ def _twin(model: FeasibilityModel) -> FeasibilityModel | None:
         model.robot, model.segments, model.pairs, model.pair_kinds, model.halfspace_pairs,
         model.halfspace_kinds, model.cell, model.settings, model.tracker_position,
         model.reflector_offsets, model.reflector_names, reflector_normals=model.reflector_normals,
-        solid_pairs=model.solid_pairs.pairs, solid_kinds=model.solid_kinds)
+        solid_pairs=model.solid_pairs.pairs, solid_kinds=model.solid_kinds,
+        reflector_aims=model.reflector_aims)
     hulls = set(model.hull_pairs.labels)
     rest = [(k, lbl) for k, lbl in zip(model.kinds, model.labels, strict=True) if lbl not in hulls]
     return twin if rest == list(zip(twin.kinds, twin.labels, strict=True)) else None
