@@ -40,7 +40,8 @@ from calib_oed.oed.criterion_base import Criterion
 from calib_oed.oed.hessian import has_exact_hessian
 from calib_oed.oed.memory import check_memory
 from calib_oed.oed.objective import DesignObjective
-from calib_oed.oed.positions import POSITION_TOL, distinct_positions
+from calib_oed.oed.model_error import MODEL_ERROR, MODEL_ERROR_NO_CERTIFICATE, scene_criterion
+from calib_oed.oed.positions import POSITION_TOL, check_position_tol, distinct_positions
 from calib_oed.oed.refine import (  # noqa: F401 (DESIGN_SQP, HESSIANS, optimise_from: re-exported)
     DESIGN_SQP,
     HESSIANS,
@@ -79,26 +80,18 @@ def _check_aggregate(aggregate: str, criterion) -> None:
                              "'mean' with it")
 
 
-def check_position_tol(tol: float) -> None:
-    """The tolerance of distinct arm positions must be a number >= 0 [m]."""
-    try:
-        ok = float(tol) >= 0 and np.isfinite(float(tol))
-    except (TypeError, ValueError):
-        ok = False
-    if not ok:
-        raise DesignError("position_tol", tol, "a distance >= 0 [m] (default 1e-3: 1 mm)")
-
-
 def _setup(scene: Scene | Setup) -> Setup:
     return scene if isinstance(scene, Setup) else Setup(scene)
 
 
-def criterion_values(objective: DesignObjective, q: np.ndarray) -> dict[str, float]:
+def criterion_values(objective: DesignObjective, q: np.ndarray, model_error=None) -> dict[str, float]:
     """Every criterion of :data:`calib_oed.oed.criteria.CRITERIA` at design ``q``.
 
     ``kpi`` and ``params`` are average variances [mm², (mm or mrad)²], ``D``
     is log det C, ``E`` the largest covariance eigenvalue, ``O1..O5`` the
-    observability indices (larger is better).
+    observability indices (larger is better), ``kpi_model`` the predicted mean
+    squared KPI error under model error [mm²] (with ``model_error``'s prior,
+    or the objective's own when it optimises it).
     """
     blocks = objective.compute_blocks(q)
     info = objective.information(blocks)
@@ -106,9 +99,12 @@ def criterion_values(objective: DesignObjective, q: np.ndarray) -> dict[str, flo
     out = {}
     g = objective.kpi_jacobian()
     for name in CRITERIA:
-        crit = make_criterion(name, kpi_jacobian=g, n_params=objective.n_free,
-                              kpi_weights=objective.kpi_weights)
-        out[name] = float(crit.compute_index(info, n_rows))
+        if name == MODEL_ERROR:  # a criterion of the design, not of M
+            out[name] = (objective if objective.needs_design else DesignObjective(
+                objective.problem, MODEL_ERROR, p=objective.p, model_error=model_error)).compute_value(q)
+        else:
+            out[name] = float(make_criterion(name, kpi_jacobian=g, n_params=objective.n_free,
+                                             kpi_weights=objective.kpi_weights).compute_index(info, n_rows))
     return out
 
 
@@ -137,6 +133,7 @@ def evaluate_design(
     s = _setup(s)
     _check_aggregate(aggregate, criterion)
     check_position_tol(position_tol)
+    criterion = scene_criterion(s, criterion)
     problem = s.problem
     q = problem.robot.check_configurations(q, "design")
     objective = DesignObjective(problem, criterion)
@@ -153,7 +150,7 @@ def evaluate_design(
         criterion=KPI_MAX if aggregate == "max" else objective.criterion.name,
         value=value,
         start_value=value if start_value is None else float(start_value),
-        criteria=criterion_values(objective, q),
+        criteria=criterion_values(objective, q, s.scene.discrepancy()),
         kpi_sigma_mm=problem.kpi_sigma(q) * 1e3,
         kpi_names=tuple(problem.kpi.names),
         margins=tuple(margin_report(s.feasibility, res.values)),
@@ -260,11 +257,8 @@ def design(
             (1: the start's poses are distinct); the record's ``multiplicity`` says
             how many distinct poses and how often each (the refinement may merge
             two poses where that lowers the criterion, and the record then says so).
-            Distinct joint vectors may still put the reflectors at one place (a turn
-            of the last joint about a reflector on its axis): the record's
-            ``distinct_positions`` counts those as one.
-        position_tol: Reflector positions closer than this [m] are one arm
-            position in the record (default :data:`~calib_oed.oed.positions.POSITION_TOL`, 1 mm).
+        position_tol: Reflector positions closer than this [m] are one arm position in the
+            record's ``distinct_positions`` (:mod:`calib_oed.oed.positions`, default 1 mm).
         enrich: Add the off-pool local maxima of the approximate design's
             sensitivity to a random pool before the exchange start (default;
             about 3 s on fms_kr16); ``False``: the approximate design on the pool
@@ -305,6 +299,7 @@ def design(
         raise DesignError("replicates", replicates, "an integer >= 1 (1: every pose distinct)")
     _check_aggregate(aggregate, criterion)
     check_position_tol(position_tol)
+    criterion = scene_criterion(s, criterion)
     exact = (hessian == "exact" and not structured_hessian and aggregate == "mean"
              and (criterion in EXACT_CRITERIA if isinstance(criterion, str)
                   else has_exact_hessian(criterion)))
@@ -312,13 +307,15 @@ def design(
     t0, cpu0 = time.perf_counter(), time.process_time()
     with threadpool_limits(limits=1, user_api="blas"):
         objective = DesignObjective(s.problem, criterion)
+        # a criterion of the whole design (kpi_model) starts from the paper's KPI criterion's start
+        start_objective = DesignObjective(s.problem, "kpi") if objective.needs_design else objective
         needs_pool = (isinstance(start, str) and start == "exchange") or certificate
         cands = candidate_pool(s, pool, seed, collisions) if needs_pool else None
         use = refine and isinstance(start, str) and start == "exchange" and aggregate == "mean"
-        approx, approx_record = (_approximate(s, objective, cands, n, collisions, enrich) if use
+        approx, approx_record = (_approximate(s, start_objective, cands, n, collisions, enrich) if use
                                  else (None, {"skipped": "not used by this start"}))
-        starts = _start_designs(s, objective, n, start, seed, int(n_starts), cands, int(replicates),
-                                approx)
+        starts = _start_designs(s, start_objective, n, start, seed, int(n_starts), cands,
+                                int(replicates), approx)
         if not refine:
             best = _best_start(objective, starts, aggregate)
         else:
@@ -330,6 +327,8 @@ def design(
         interrupted = result is not None and result.status is SQPStatus.INTERRUPTED
         if interrupted:
             cert = {"skipped": "interrupted before the certificate"}
+        elif certificate and objective.needs_design:
+            cert = {"skipped": MODEL_ERROR_NO_CERTIFICATE}
         elif certificate:
             try:
                 cert = _certificate(s, q, criterion, aggregate, cands, seed, collisions, approx)

@@ -22,11 +22,22 @@ from __future__ import annotations
 import numpy as np
 import scipy.spatial
 
+from calib_oed.exceptions import DesignError
 from calib_oed.measurement.base import evaluate_setup
 from calib_oed.model.parameters import ParameterSpace
 
 #: Default tolerance [m] below which two reflector positions count as one.
 POSITION_TOL = 1e-3
+
+
+def check_position_tol(tol: float) -> None:
+    """The tolerance of distinct arm positions must be a number >= 0 [m] (else DesignError)."""
+    try:
+        ok = float(tol) >= 0 and np.isfinite(float(tol))
+    except (TypeError, ValueError):
+        ok = False
+    if not ok:
+        raise DesignError("position_tol", tol, "a distance >= 0 [m] (default 1e-3: 1 mm)")
 
 
 def group_counts(n: int, pairs) -> list[int]:
