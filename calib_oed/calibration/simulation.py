@@ -85,16 +85,20 @@ def simulate_observations(
     state = evaluate_setup(space, p_true, q, regressor=False, jacobian=False)
     blocks = []
     for mdl in models:
-        exact = mdl.compute_values(state)
-        noise = getattr(mdl, "noise", None)
-        if noise is None:
-            noisy = exact + rng.normal(size=exact.shape) * mdl.sigma
-        else:  # full covariance Sigma_i at the true positions
-            noisy = exact + noise.sample(exact, rng)
+        noisy = add_noise(mdl, mdl.compute_values(state), rng)
         seen = slice(None) if visible is None else np.asarray(visible, dtype=bool)[:, mdl.reflector]
         if q[seen].shape[0]:
             blocks.append(ObservationBlock(mdl, q[seen], noisy[seen]))
     return blocks
+
+
+def add_noise(model: MeasurementModel, exact: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    r"""``exact`` (n, d) plus a draw of ``model``'s measurement noise: its full error model
+    (``model.noise``, :math:`\Sigma_i` at the true positions) or independent ``sigma``."""
+    noise = getattr(model, "noise", None)
+    if noise is None:
+        return exact + rng.normal(size=exact.shape) * model.sigma
+    return exact + noise.sample(exact, rng)
 
 
 @dataclass(frozen=True, eq=False)
