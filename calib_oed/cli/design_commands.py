@@ -56,9 +56,13 @@ def cmd_design(args) -> int:
         args.n = len(start)
     elif args.n is None:
         args.n = 60
+    from calib_oed.oed.model_error import default_criterion
+
+    # the criterion: --criterion, else kpi_model under the scene's model-error prior (kpi for max)
+    criterion = args.criterion or ("kpi" if args.aggregate == "max" else default_criterion(s.scene))
     # the KPI aggregate: --aggregate, else the scene's kpi.aggregate (for criterion kpi)
-    aggregate = args.aggregate or (s.scene.kpi.aggregate if args.criterion == "kpi" else "mean")
-    result = _optimise(s, args, args.criterion, start, aggregate)
+    aggregate = args.aggregate or (s.scene.kpi.aggregate if criterion == "kpi" else "mean")
+    result = _optimise(s, args, criterion, start, aggregate)
     paths = write_design(args.output, result, s.problem.robot) if args.output else {}
     code = EXIT_INTERRUPTED if result.interrupted else EXIT_OK
     if paths and result.interrupted:  # the CSV goes to the controller: say it there too

@@ -28,6 +28,7 @@ from calib_oed.exceptions import (
 from calib_oed.feasibility.constraints import FEASIBILITY_TOL
 from calib_oed.feasibility.margins import margin_report
 from calib_oed.feasibility.sampling import sample_feasible
+from calib_oed.oed import model_error
 from calib_oed.oed.approximate import criterion_kind
 from calib_oed.oed.approximate_pool import (
     ENRICH_ROUNDS,
@@ -40,7 +41,6 @@ from calib_oed.oed.criterion_base import Criterion
 from calib_oed.oed.hessian import has_exact_hessian
 from calib_oed.oed.memory import check_memory
 from calib_oed.oed.objective import DesignObjective
-from calib_oed.oed.model_error import MODEL_ERROR, MODEL_ERROR_NO_CERTIFICATE, scene_criterion
 from calib_oed.oed.positions import POSITION_TOL, check_position_tol, distinct_positions
 from calib_oed.oed.refine import (  # noqa: F401 (DESIGN_SQP, HESSIANS, optimise_from: re-exported)
     DESIGN_SQP,
@@ -84,13 +84,13 @@ def _setup(scene: Scene | Setup) -> Setup:
     return scene if isinstance(scene, Setup) else Setup(scene)
 
 
-def criterion_values(objective: DesignObjective, q: np.ndarray, model_error=None) -> dict[str, float]:
+def criterion_values(objective: DesignObjective, q: np.ndarray, prior=None) -> dict[str, float]:
     """Every criterion of :data:`calib_oed.oed.criteria.CRITERIA` at design ``q``.
 
     ``kpi`` and ``params`` are average variances [mm², (mm or mrad)²], ``D``
     is log det C, ``E`` the largest covariance eigenvalue, ``O1..O5`` the
     observability indices (larger is better), ``kpi_model`` the predicted mean
-    squared KPI error under model error [mm²] (with ``model_error``'s prior,
+    squared KPI error under model error [mm²] (with the model-error ``prior``,
     or the objective's own when it optimises it).
     """
     blocks = objective.compute_blocks(q)
@@ -99,9 +99,9 @@ def criterion_values(objective: DesignObjective, q: np.ndarray, model_error=None
     out = {}
     g = objective.kpi_jacobian()
     for name in CRITERIA:
-        if name == MODEL_ERROR:  # a criterion of the design, not of M
+        if name == model_error.MODEL_ERROR:  # a criterion of the design, not of M
             out[name] = (objective if objective.needs_design else DesignObjective(
-                objective.problem, MODEL_ERROR, p=objective.p, model_error=model_error)).compute_value(q)
+                objective.problem, name, p=objective.p, model_error=prior)).compute_value(q)
         else:
             out[name] = float(make_criterion(name, kpi_jacobian=g, n_params=objective.n_free,
                                              kpi_weights=objective.kpi_weights).compute_index(info, n_rows))
@@ -133,7 +133,7 @@ def evaluate_design(
     s = _setup(s)
     _check_aggregate(aggregate, criterion)
     check_position_tol(position_tol)
-    criterion = scene_criterion(s, criterion)
+    criterion = model_error.scene_criterion(s, criterion)
     problem = s.problem
     q = problem.robot.check_configurations(q, "design")
     objective = DesignObjective(problem, criterion)
@@ -203,7 +203,7 @@ def _start_designs(s: Setup, objective: DesignObjective, n: int, start, seed: in
 def design(
     scene: Scene | Setup,
     n: int = 60,
-    criterion: str | Criterion = "kpi",
+    criterion: str | Criterion | None = None,
     *,
     start: str | np.ndarray = "exchange",
     pool: int | np.ndarray = DEFAULT_POOL,
@@ -239,7 +239,8 @@ def design(
         scene: A scene, or a :class:`~calib_oed.calibration.workflow.Setup` (reuses its
             feasibility model).
         n: Number of measurements (poses).
-        criterion: A name of :data:`calib_oed.oed.criteria.CRITERIA` or a criterion.
+        criterion: A name of :data:`calib_oed.oed.criteria.CRITERIA` or a criterion; None:
+            ``kpi_model`` (:func:`~calib_oed.oed.model_error.default_criterion`).
         start: ``"exchange"`` (default: the exchange algorithm on the pool, the
             good basin), ``"heuristic"`` (random feasible poses from ``seed``,
             the paper's start) or a design (n, nq) [rad].
@@ -299,7 +300,7 @@ def design(
         raise DesignError("replicates", replicates, "an integer >= 1 (1: every pose distinct)")
     _check_aggregate(aggregate, criterion)
     check_position_tol(position_tol)
-    criterion = scene_criterion(s, criterion)
+    criterion = model_error.scene_criterion(s, criterion)
     exact = (hessian == "exact" and not structured_hessian and aggregate == "mean"
              and (criterion in EXACT_CRITERIA if isinstance(criterion, str)
                   else has_exact_hessian(criterion)))
@@ -320,15 +321,15 @@ def design(
             best = _best_start(objective, starts, aggregate)
         else:
             run = optimise_worst_case if aggregate == "max" else optimise_starts
-            best = run(s, starts, criterion, collisions, settings, callback, structured_hessian,
-                       hessian)
+            best = run(s, starts, criterion, collisions, model_error.design_settings(objective, settings), callback,
+                       structured_hessian, hessian)
         design_seconds, design_cpu = time.perf_counter() - t0, time.process_time() - cpu0
         value, q, phi0, result, start_seed = best
         interrupted = result is not None and result.status is SQPStatus.INTERRUPTED
         if interrupted:
             cert = {"skipped": "interrupted before the certificate"}
         elif certificate and objective.needs_design:
-            cert = {"skipped": MODEL_ERROR_NO_CERTIFICATE}
+            cert = {"skipped": model_error.MODEL_ERROR_NO_CERTIFICATE}
         elif certificate:
             try:
                 cert = _certificate(s, q, criterion, aggregate, cands, seed, collisions, approx)

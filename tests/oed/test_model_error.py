@@ -13,8 +13,16 @@ from calib_oed.feasibility.sampling import sample_feasible
 from calib_oed.measurement.base import evaluate_setup
 from calib_oed.measurement.discrepancy import DiscrepancyPrior
 from calib_oed.oed.criteria import CRITERIA
-from calib_oed.oed.model_error import MODEL_ERROR, design_prior
+from calib_oed.oed.design import design
+from calib_oed.oed.model_error import (
+    MODEL_ERROR,
+    MODEL_ERROR_ITERATIONS,
+    default_criterion,
+    design_prior,
+    design_settings,
+)
 from calib_oed.oed.objective import DesignObjective
+from calib_oed.solver.sqp import SQPSettings
 
 
 @pytest.fixture(scope="module")
@@ -50,10 +58,10 @@ def monte_carlo(objective: DesignObjective, q: np.ndarray, draws: int, seed: int
     k = len(problem.models)
     f = np.concatenate([j.reshape(-1, j.shape[-1]) for j in jac])  # (3nk, nf)
     r = np.zeros((3 * n * k, 3 * n * k))
-    for l in range(k):
+    for m in range(k):
         for j in range(n):
-            a = 3 * (l * n + j)
-            r[a:a + 3, a:a + 3] = cov[l][j]
+            a = 3 * (m * n + j)
+            r[a:a + 3, a:a + 3] = cov[m][j]
     rot = problem.space.tracker_placement(None).rotation  # measurements in the tracker frame
     kq = prior.kernel(q, q)
     kfull = np.kron(np.ones((k, k)), np.kron(kq, np.eye(3)))
@@ -144,3 +152,24 @@ def test_it_is_registered_and_not_a_function_of_m(kr16):
     assert obj.criterion.prior.sigma == pytest.approx(DiscrepancyPrior.default_for(s.problem.robot).sigma)
     with pytest.raises(CertificateError, match="not on the information matrix alone"):
         obj.criterion.compute_value(obj.compute_information(q))
+
+
+def test_the_default_design_optimises_it_without_a_certificate(kr16):
+    s, _ = kr16
+    assert default_criterion(s.scene) == MODEL_ERROR
+    assert design_settings(DesignObjective(s.problem, MODEL_ERROR), None).max_iterations == MODEL_ERROR_ITERATIONS
+    assert design_settings(DesignObjective(s.problem, "kpi"), None) is None
+    d = design(s, 12, pool=300, seed=0, enrich=False, settings=SQPSettings(max_iterations=3))
+    assert d.criterion == MODEL_ERROR and d.value <= d.start_value
+    assert d.criteria[MODEL_ERROR] == pytest.approx(d.value, rel=1e-9)
+    assert d.criteria[MODEL_ERROR] >= d.criteria["kpi"]  # never below the noise-only criterion
+    assert d.certificate["skipped"].startswith("no certificate for kpi_model")
+
+
+def test_a_worst_case_kpi_scene_keeps_the_paper_criterion(tmp_path):
+    from importlib import resources
+
+    text = resources.files("calib_oed.scene.shipped").joinpath("fms_kr16.yaml").read_text()
+    path = tmp_path / "worst.yaml"
+    path.write_text(text.replace("kpi:\n", "kpi:\n  aggregate: max\n", 1))
+    assert default_criterion(load_scene(path)) == "kpi"
