@@ -31,9 +31,9 @@ from calib_oed.oed.observability import ObservabilityIndex
 #: Names accepted by :func:`make_criterion`.
 #: The criteria of the information matrix alone (a :class:`Criterion` of M).
 MATRIX_CRITERIA = ("kpi", "params", "D", "E", "O1", "O2", "O3", "O4", "O5")
-#: ... and ``kpi_model``, the KPI error under model error, a criterion of the whole design
-#: (:mod:`calib_oed.oed.model_error`).
-CRITERIA = (*MATRIX_CRITERIA, "kpi_model")
+#: ... and ``kpi_model`` / ``kpi_kriging``, the KPI error under model error of the parametric
+#: fit / of GLS plus kriging, criteria of the whole design (:mod:`calib_oed.oed.model_error`).
+CRITERIA = (*MATRIX_CRITERIA, "kpi_model", "kpi_kriging")
 
 
 # ------------------------------------------------------------- A-criterion
@@ -268,14 +268,14 @@ def make_criterion(name: str, *, kpi_jacobian=None, n_params: int | None = None,
         if n_params is None:
             raise ValueError("criterion 'params' needs n_params, the number of parameters")
         return ACriterion.parameters(n_params)
-    if name == "kpi_model":
+    if name in ("kpi_model", "kpi_kriging"):
         from calib_oed.measurement.discrepancy import DiscrepancyPrior
         from calib_oed.oed.model_error import make_model_error_criterion
 
         if problem is None or kpi_jacobian is None:
-            raise ValueError("criterion 'kpi_model' needs problem= and kpi_jacobian=")
+            raise ValueError(f"criterion {name!r} needs problem= and kpi_jacobian=")
         prior = model_error if model_error is not None else DiscrepancyPrior.default_for(problem.robot)
-        return make_model_error_criterion(problem, kpi_jacobian, prior, kpi_weights)
+        return make_model_error_criterion(problem, kpi_jacobian, prior, kpi_weights, name)
     if name == "D":
         return DCriterion()
     if name == "E":

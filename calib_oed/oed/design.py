@@ -99,8 +99,8 @@ def criterion_values(objective: DesignObjective, q: np.ndarray, prior=None) -> d
     out = {}
     g = objective.kpi_jacobian()
     for name in CRITERIA:
-        if name == model_error.MODEL_ERROR:  # a criterion of the design, not of M
-            out[name] = (objective if objective.needs_design else DesignObjective(
+        if name in (model_error.MODEL_ERROR, model_error.KRIGING):  # of the design, not of M
+            out[name] = (objective if objective.criterion.name == name else DesignObjective(
                 objective.problem, name, p=objective.p, model_error=prior)).compute_value(q)
         else:
             out[name] = float(make_criterion(name, kpi_jacobian=g, n_params=objective.n_free,

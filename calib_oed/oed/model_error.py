@@ -15,9 +15,19 @@ reflectors at one pose sharing it, :math:`\varepsilon \sim N(0, R)` the tracker
 noise. In whitened rows (:math:`W = R^{-1/2}`, the objective's
 :math:`\tilde F = W F D`) the measurement covariance is
 :math:`S = I + \tilde K`, :math:`\tilde K = W\,(K \otimes I_3\text{ per reflector pair})\,W^\top`.
-The best linear unbiased predictor of :math:`s` from :math:`y` (universal
-kriging: the GLS estimate of :math:`\delta p` plus the GP's conditional mean;
-Cressie 1993, §3.4; Santner, Williams & Notz 2003, §3.2) has the error covariance
+Two predictors of :math:`s`. ``kpi_model`` (predictor ``"fit"``, the default
+design criterion): the noise-weighted least-squares fit alone, as
+:func:`calib_oed.calibration.identification.identify` computes it, with
+:math:`M = \tilde F^\top\tilde F`, :math:`X = \tilde F M^{-1}\tilde G^\top`,
+
+.. math::
+    C = K_{ww} + X^\top S X - X^\top k_w - k_w^\top X
+
+(the noise-only covariance plus what the fit makes of the model error at the
+KPI points). ``kpi_kriging`` (predictor ``"kriging"``): the best linear
+unbiased predictor (universal kriging: the GLS estimate of :math:`\delta p`
+plus the GP's conditional mean of the residuals; Cressie 1993, §3.4; Santner,
+Williams & Notz 2003, §3.2), never worse than the fit alone, with the error covariance
 
 .. math::
     C = K_{ww} - k_w^\top S^{-1} k_w + P M^{-1} P^\top, \qquad
@@ -31,12 +41,13 @@ Isotropic model error makes :math:`\mathrm{tr}\,C_{ii}` frame-free: the KPI rows
 are turned into the tracker frame, where the measurements are, and then every
 matrix above is block diagonal in the Cartesian component.
 
-**Gradient.** With :math:`Y = M^{-1}P^\top`, :math:`V = S^{-1}(k_w + \tilde F Y)`
-and :math:`\Omega` the diagonal of the weights,
-
-.. math::
-    d\phi = \mathrm{tr}(\Omega V^\top dS\, V) - 2\,\mathrm{tr}(\Omega V^\top dk_w)
-            - 2\,\mathrm{tr}(\Omega\, Y^\top d\tilde F^\top V),
+**Gradient.** With :math:`\Omega` the diagonal of the weights, both predictors give
+:math:`d\phi = \mathrm{tr}(\Omega V^\top dS\, V) - 2\,\mathrm{tr}(\Omega V^\top dk_w)
++ \langle \partial\phi/\partial\tilde F, d\tilde F\rangle`. Kriging:
+:math:`Y = M^{-1}P^\top`, :math:`V = S^{-1}(k_w + \tilde F Y)`,
+:math:`\partial\phi/\partial\tilde F = -2V\Omega Y^\top`. Fit: :math:`Y = M^{-1}\tilde G^\top`,
+:math:`V = X`, :math:`R = SX - k_w`, :math:`Q = M^{-1}\tilde F^\top R`,
+:math:`\partial\phi/\partial\tilde F = 2R\Omega Y^\top - 2\tilde F(Q\Omega Y^\top + Y\Omega Q^\top)`,
 
 and :math:`dS`, :math:`dk_w` follow the kernel's gradient, :math:`d\tilde F` the
 rows' configuration derivatives (``docs/oed.md``; checked against central
@@ -61,8 +72,12 @@ from calib_oed.measurement.discrepancy import DiscrepancyPrior
 from calib_oed.measurement.position import TrackerPosition
 from calib_oed.oed.criterion_base import Criterion, _not_identifiable
 
-#: Name of the criterion in :data:`calib_oed.oed.criteria.CRITERIA`.
+#: Names of the criteria in :data:`calib_oed.oed.criteria.CRITERIA`: the KPI error of the
+#: parametric fit (the default design criterion), and of GLS plus kriging compensation.
 MODEL_ERROR = "kpi_model"
+KRIGING = "kpi_kriging"
+#: The predictors of :class:`ModelErrorCriterion`, in the order of the names above.
+PREDICTORS = ("fit", "kriging")
 #: SQP iterations of a kpi_model design by default: on fms_kr16 (60 poses) the value at 60
 #: iterations is within 5 % of the value at 120-270 (``docs/oed.md``); keeps the design time
 #: within 1.5x of the noise-only design's.
@@ -72,7 +87,7 @@ STILL_TOL = 1e-9
 _MM = 1e3
 #: Why the design record has no certificate for this criterion (``docs/oed.md``).
 MODEL_ERROR_NO_CERTIFICATE = (
-    "no certificate for kpi_model: the model error couples the poses through the kernel, so the "
+    "no certificate for the model-error criteria (kpi_model, kpi_kriging): the model error couples the poses through the kernel, so the "
     "criterion is not a convex function of a design measure and the approximate-design bound does "
     "not apply; it is never below the noise-only kpi criterion, whose certificate bounds it loosely "
     "(docs/oed.md)")
@@ -101,11 +116,12 @@ def scene_criterion(s, criterion):
     None: :func:`default_criterion`."""
     if criterion is None:
         criterion = default_criterion(s.scene)
-    if isinstance(criterion, str) and criterion == MODEL_ERROR:
+    if isinstance(criterion, str) and criterion in (MODEL_ERROR, KRIGING):
         problem = s.problem
         free = problem.identifiability.free_indices
         g = problem.kpi_jacobian(None)[:, free] * problem.space.unit_scale[free] * _MM  # as the objective's
-        return make_model_error_criterion(problem, g, s.scene.discrepancy(), getattr(problem.kpi, "weights", None))
+        return make_model_error_criterion(problem, g, s.scene.discrepancy(),
+                                          getattr(problem.kpi, "weights", None), criterion)
     return criterion
 
 
@@ -147,14 +163,18 @@ class ModelErrorCriterion(Criterion):
             [mm/mm, mm/mrad], rows in the tracker frame.
         working: The working configurations (t, nq) [rad].
         weights: One weight >= 0 per KPI point, (t,), or None (all 1).
+        predictor: ``"fit"`` (the parametric fit alone, as ``identify`` gives it: criterion
+            ``kpi_model``) or ``"kriging"`` (GLS plus the GP's conditional mean:
+            ``kpi_kriging``); :data:`PREDICTORS`.
     """
 
     prior: DiscrepancyPrior
     kpi_jacobian: np.ndarray
     working: np.ndarray
     weights: np.ndarray | None = None
+    predictor: str = "fit"
     name: str = MODEL_ERROR
-    label: str = ("predicted KPI error under model error (universal kriging), "
+    label: str = ("predicted KPI error after calibration under model error, "
                   "sum_i w_i tr C_ii / (3 sum_i w_i) [mm^2]")
     omega: np.ndarray = field(init=False, repr=False)
 
@@ -162,6 +182,8 @@ class ModelErrorCriterion(Criterion):
     needs_design = True
 
     def __post_init__(self):
+        if self.predictor not in PREDICTORS:
+            raise DesignError("predictor", self.predictor, "how the KPI is predicted", PREDICTORS)
         t = self.working.shape[0]
         w = np.ones(t) if self.weights is None else np.asarray(self.weights, dtype=float).reshape(t)
         object.__setattr__(self, "omega", np.repeat(w / (3.0 * w.sum()), 3))
@@ -174,37 +196,54 @@ class ModelErrorCriterion(Criterion):
     compute_gradient = compute_value
 
     # ------------------------------------------------------------- pieces
-    def _solve(self, rows, q, z):
-        r"""Whitened :math:`S^{-1}\tilde F`, :math:`S^{-1}k_w`, :math:`Y`, :math:`C_{cc}` and the kernels.
+    def _covariances(self, rows, q, z):
+        r""":math:`S` (m, m), :math:`k_w` (m, 3t) [mm] in whitened rows, and the kernels.
 
         ``z`` (n, d, 3): :math:`Z_j = W_j U`, the whitening of pose j's rows applied to the
         shared point error (one 3x3 block per reflector), so :math:`S_{jl} = \delta_{jl}I
-        + k(q_j, q_l)\,Z_j Z_l^\top` and :math:`k_{w,ji} = k(q_j, q^w_i)\,Z_j` [mm].
+        + k(q_j, q_l)\,Z_j Z_l^\top` and :math:`k_{w,ji} = k(q_j, q^w_i)\,Z_j`.
         """
         n, d = rows.shape[:2]
-        flat = rows.reshape(n * d, -1)
         kq = self.prior.kernel(q, q)
         kw = self.prior.kernel(q, self.working) * _MM
         s = np.einsum("jl,jac,lbc->jalb", kq, z, z).reshape(n * d, n * d)
         s[np.diag_indices_from(s)] += 1.0
         k_w = np.einsum("ji,jac->jaic", kw, z).reshape(n * d, -1)
+        return s, k_w, kq, kw
+
+    def _solve(self, rows, q, z, gradient: bool):
+        r""":math:`C_{cc}` [mm²] (3t,), and with ``gradient`` the kernels, :math:`V` (m, 3t) and
+        :math:`\partial\phi/\partial\tilde F` (m, n_f) (module docstring, per predictor)."""
+        flat = rows.reshape(-1, rows.shape[-1])
+        s, k_w, kq, kw = self._covariances(rows, q, z)
+        k_ww = self.prior.sigma**2 * _MM**2
+        om = self.omega
+        if self.predictor == "fit":  # the parametric fit alone: X = F M^-1 G^T, M = F^T F
+            factor = _cho(flat.T @ flat)
+            y = scipy.linalg.cho_solve(factor, self.kpi_jacobian.T, check_finite=False)
+            v = flat @ y
+            sv = s @ v
+            diag = k_ww + np.sum(v * sv, axis=0) - 2.0 * np.sum(v * k_w, axis=0)
+            if not gradient:
+                return diag, None
+            r = sv - k_w
+            qq = scipy.linalg.cho_solve(factor, flat.T @ r, check_finite=False)
+            d_f = 2.0 * (r * om) @ y.T - 2.0 * flat @ ((qq * om) @ y.T + (y * om) @ qq.T)
+            return diag, (kq, kw, v, d_f)
         factor = scipy.linalg.cho_factor(s, lower=True, check_finite=False)
         a = scipy.linalg.cho_solve(factor, flat, check_finite=False)   # S^-1 F
         b = scipy.linalg.cho_solve(factor, k_w, check_finite=False)    # S^-1 k_w
-        m = flat.T @ a
         p = self.kpi_jacobian - k_w.T @ a                               # G - k_w^T S^-1 F
-        try:
-            y = scipy.linalg.cho_solve(scipy.linalg.cho_factor(0.5 * (m + m.T), lower=True,
-                                                               check_finite=False), p.T, check_finite=False)
-        except np.linalg.LinAlgError:
-            raise _not_identifiable(m) from None
-        k_ww = self.prior.sigma**2 * _MM**2
+        y = scipy.linalg.cho_solve(_cho(flat.T @ a), p.T, check_finite=False)
         diag = k_ww - np.sum(k_w * b, axis=0) + np.sum(p * y.T, axis=1)  # C_cc [mm^2]
-        return a, b, y, diag, kq, kw
+        if not gradient:
+            return diag, None
+        v = b + a @ y                                          # V = S^-1 (k_w + F Y)
+        return diag, (kq, kw, v, -2.0 * (v * om) @ y.T)
 
     def compute_point_errors(self, rows: np.ndarray, q: np.ndarray, z: np.ndarray) -> np.ndarray:
         r""":math:`\mathrm{tr}\,C_{ii}/3` per working configuration [mm²], (t,)."""
-        return self._solve(rows, q, z)[3].reshape(-1, 3).sum(axis=1) / 3.0
+        return self._solve(rows, q, z, False)[0].reshape(-1, 3).sum(axis=1) / 3.0
 
     def compute_design(self, rows: np.ndarray, q: np.ndarray, z: np.ndarray,
                        d_rows: np.ndarray | None = None, d_z: np.ndarray | None = None):
@@ -213,20 +252,20 @@ class ModelErrorCriterion(Criterion):
         Args:
             rows: :math:`\tilde F_j` per pose, (n, d, n_f).
             q: The design (n, nq) [rad].
-            z: :math:`Z_j` (n, d, 3) [1/m] (:meth:`_solve`).
+            z: :math:`Z_j` (n, d, 3) [1/m] (:meth:`_covariances`).
             d_rows: :math:`\partial\tilde F_j/\partial q_j`, (n, d, n_f, nv), or None (value only).
             d_z: :math:`\partial Z_j/\partial q_j`, (n, d, 3, nv), or None (constant whitening).
         """
-        a, b, y, diag, kq, kw = self._solve(rows, q, z)
+        diag, pieces = self._solve(rows, q, z, d_rows is not None)
         value = float(self.omega @ diag)
-        if d_rows is None:
+        if pieces is None:
             return value, None
+        kq, kw, v, d_f = pieces
         n, d = rows.shape[:2]
-        vo = (b + a @ y) * self.omega                           # V Omega, V = S^-1 (k_w + F Y)
-        d_f = -2.0 * vo @ y.T                                  # dphi/dF (m, n_f)
+        vo = v * self.omega
         grad = np.einsum("jdf,jdfk->jk", d_f.reshape(n, d, -1), d_rows)
-        u = (vo @ (b + a @ y).T).reshape(n, d, n, d)           # dphi/dS
-        x_w = -2.0 * vo.reshape(n, d, -1, 3)                    # dphi/dk_w
+        u = (vo @ v.T).reshape(n, d, n, d)                     # dphi/dS = V Omega V^T
+        x_w = -2.0 * vo.reshape(n, d, -1, 3)                    # dphi/dk_w = -2 V Omega
         t_s = np.einsum("jalb,jac,lbc->jl", u, z, z)
         t_w = np.einsum("jaic,jac->ji", x_w, z) * _MM
         grad += 2.0 * np.einsum("jl,jlk->jk", t_s, self.prior.kernel_gradient(q, q))
@@ -237,19 +276,29 @@ class ModelErrorCriterion(Criterion):
         return value, grad
 
 
+def _cho(m: np.ndarray):
+    """Cholesky factor of a symmetric information matrix, or NotIdentifiableError."""
+    try:
+        return scipy.linalg.cho_factor(0.5 * (m + m.T), lower=True, check_finite=False)
+    except np.linalg.LinAlgError:
+        raise _not_identifiable(m) from None
+
+
 def make_model_error_criterion(problem, kpi_jacobian: np.ndarray, prior: DiscrepancyPrior,
-                               weights=None) -> ModelErrorCriterion:
-    """The criterion of ``problem`` with its KPI Jacobian (unit-scaled, KPI frame) and a prior.
+                               weights=None, name: str = MODEL_ERROR) -> ModelErrorCriterion:
+    """The criterion ``name`` (``kpi_model`` or ``kpi_kriging``) of ``problem`` with its KPI
+    Jacobian (unit-scaled, KPI frame) and a prior.
 
     Raises:
-        DesignError: a measurement model other than isotropic 3-D positions.
+        DesignError: a measurement model other than 3-D positions.
     """
     if not all(isinstance(m, TrackerPosition) for m in problem.models):
-        raise DesignError("criterion", MODEL_ERROR, "needs 3-D reflector positions (measurement: position); "
+        raise DesignError("criterion", name, "needs 3-D reflector positions (measurement: position); "
                           "the model error of a 6-D pose's angles is not modelled")
     g = np.asarray(kpi_jacobian, dtype=float)
     if problem.kpi.frame == "world":  # turn each point's rows into the tracker frame
         rot = problem.space.tracker_placement(None).rotation
         g = np.einsum("ba,tbf->taf", rot, g.reshape(-1, 3, g.shape[1])).reshape(g.shape)
     working = np.asarray(problem.kpi.configurations, dtype=float)
-    return ModelErrorCriterion(design_prior(problem, prior), g, working, weights)
+    predictor = PREDICTORS[(MODEL_ERROR, KRIGING).index(name)]
+    return ModelErrorCriterion(design_prior(problem, prior), g, working, weights, predictor, name)

@@ -15,6 +15,7 @@ from calib_oed.measurement.discrepancy import DiscrepancyPrior
 from calib_oed.oed.criteria import CRITERIA
 from calib_oed.oed.design import design
 from calib_oed.oed.model_error import (
+    KRIGING,
     MODEL_ERROR,
     MODEL_ERROR_ITERATIONS,
     default_criterion,
@@ -41,7 +42,9 @@ def two_reflector_problem():
 
 
 def monte_carlo(objective: DesignObjective, q: np.ndarray, draws: int, seed: int) -> float:
-    """Weighted mean squared KPI error [mm²] of GLS + kriging on the linearised model, GP draws + noise.
+    """Weighted mean squared KPI error [mm²] on the linearised model, GP draws + noise: the
+    noise-weighted least-squares fit alone (``kpi_model``, as ``identify``) or GLS + kriging
+    (``kpi_kriging``).
 
     Built in SI and the world frame from the models and the kernel, not from the criterion's algebra.
     """
@@ -77,50 +80,66 @@ def monte_carlo(objective: DesignObjective, q: np.ndarray, draws: int, seed: int
     dp = rng.normal(size=(len(free), draws)) * 1e-4
     eps = np.linalg.cholesky(r) @ rng.normal(size=(3 * n * k, draws))
     y = f @ dp + np.tile(e_meas.reshape(3 * n, draws), (k, 1)) + eps
-    s_inv_f = np.linalg.solve(sigma, f)
-    dp_hat = np.linalg.solve(f.T @ s_inv_f, s_inv_f.T @ y)
-    s_hat = g @ dp_hat + k_wy @ np.linalg.solve(sigma, y - f @ dp_hat)
+    if objective.criterion.name == MODEL_ERROR:  # weighted by the noise only, no compensation
+        r_inv_f = np.linalg.solve(r, f)
+        s_hat = g @ np.linalg.solve(f.T @ r_inv_f, r_inv_f.T @ y)
+    else:
+        s_inv_f = np.linalg.solve(sigma, f)
+        dp_hat = np.linalg.solve(f.T @ s_inv_f, s_inv_f.T @ y)
+        s_hat = g @ dp_hat + k_wy @ np.linalg.solve(sigma, y - f @ dp_hat)
     err = (s_hat - (g @ dp + e[n:].reshape(3 * t, draws))) * 1e3  # [mm]
     w = np.ones(t) if problem.kpi.weights is None else np.asarray(problem.kpi.weights, dtype=float)
     return float(np.mean(np.repeat(w / (3 * w.sum()), 3) @ err**2))
 
 
-def test_the_criterion_is_the_monte_carlo_error_of_gls_plus_kriging(kr16):
+@pytest.mark.parametrize("name", [MODEL_ERROR, KRIGING])
+def test_the_criterion_is_the_monte_carlo_error_of_its_predictor(kr16, name):
     """fms_kr16 (range-dependent tracker noise, one SMR): the formula against 4000 draws."""
     s, q = kr16
-    obj = DesignObjective(s.problem, MODEL_ERROR, model_error=s.scene.discrepancy())
+    obj = DesignObjective(s.problem, name, model_error=s.scene.discrepancy())
     value = obj.compute_value(q)
     assert value == pytest.approx(monte_carlo(obj, q, 4000, 0), rel=0.05)
 
 
-def test_monte_carlo_with_two_reflectors_and_weighted_points():
+@pytest.mark.parametrize("name", [MODEL_ERROR, KRIGING])
+def test_monte_carlo_with_two_reflectors_and_weighted_points(name):
     problem = two_reflector_problem()
     prior = DiscrepancyPrior(1e-4, (0.8, 0.8, 0.8, 1.5, 1.5, 1.5))
-    obj = DesignObjective(problem, MODEL_ERROR, model_error=prior)
+    obj = DesignObjective(problem, name, model_error=prior)
     q = problem.robot.random_configurations(14, 3)
     assert obj.compute_value(q) == pytest.approx(monte_carlo(obj, q, 4000, 1), rel=0.05)
 
 
+@pytest.mark.parametrize("name", [MODEL_ERROR, KRIGING])
 @pytest.mark.parametrize("case", ["kr16", "two_reflectors"])
-def test_gradient_matches_central_differences(kr16, case):
+def test_gradient_matches_central_differences(kr16, case, name):
     if case == "kr16":
         s, q = kr16
-        obj = DesignObjective(s.problem, MODEL_ERROR, model_error=s.scene.discrepancy())
+        obj = DesignObjective(s.problem, name, model_error=s.scene.discrepancy())
         q = q[:12]
     else:
         problem = two_reflector_problem()
-        obj = DesignObjective(problem, MODEL_ERROR, model_error=DiscrepancyPrior(1e-4, (0.8,) * 6))
+        obj = DesignObjective(problem, name, model_error=DiscrepancyPrior(1e-4, (0.8,) * 6))
         q = problem.robot.random_configurations(9, 5)
     grad = obj.compute(q).gradient
     num = central_difference(lambda x: obj.compute_value(x.reshape(q.shape)), q.ravel()).reshape(q.shape)
     assert np.abs(grad - num).max() / np.abs(num).max() < 1e-6
 
 
-def test_without_model_error_it_is_the_paper_criterion(kr16):
+@pytest.mark.parametrize("name", [MODEL_ERROR, KRIGING])
+def test_without_model_error_it_is_the_paper_criterion(kr16, name):
     s, q = kr16
     tiny = DiscrepancyPrior(1e-12, (0.8,) * 6)
-    value = DesignObjective(s.problem, MODEL_ERROR, model_error=tiny).compute_value(q)
+    value = DesignObjective(s.problem, name, model_error=tiny).compute_value(q)
     assert value == pytest.approx(DesignObjective(s.problem, "kpi").compute_value(q), rel=1e-6)
+
+
+def test_kriging_never_predicts_worse_than_the_fit_alone(kr16):
+    """GLS + kriging is the best linear unbiased predictor: its error is at most the fit's."""
+    s, q = kr16
+    fit, krig = (DesignObjective(s.problem, n, model_error=s.scene.discrepancy()).compute_value(q)
+                 for n in (MODEL_ERROR, KRIGING))
+    assert krig <= fit
 
 
 def test_a_repeated_arm_position_shares_its_model_error(kr16):
@@ -147,7 +166,7 @@ def test_joints_that_move_no_point_are_ignored_by_the_kernel(kr16):
 
 def test_it_is_registered_and_not_a_function_of_m(kr16):
     s, q = kr16
-    assert MODEL_ERROR in CRITERIA
+    assert MODEL_ERROR in CRITERIA and KRIGING in CRITERIA
     obj = DesignObjective(s.problem, MODEL_ERROR)  # the default prior for the reach
     assert obj.criterion.prior.sigma == pytest.approx(DiscrepancyPrior.default_for(s.problem.robot).sigma)
     with pytest.raises(CertificateError, match="not on the information matrix alone"):
@@ -163,7 +182,7 @@ def test_the_default_design_optimises_it_without_a_certificate(kr16):
     assert d.criterion == MODEL_ERROR and d.value <= d.start_value
     assert d.criteria[MODEL_ERROR] == pytest.approx(d.value, rel=1e-9)
     assert d.criteria[MODEL_ERROR] >= d.criteria["kpi"]  # never below the noise-only criterion
-    assert d.certificate["skipped"].startswith("no certificate for kpi_model")
+    assert d.certificate["skipped"].startswith("no certificate for the model-error criteria")
 
 
 def test_a_worst_case_kpi_scene_keeps_the_paper_criterion(tmp_path):
