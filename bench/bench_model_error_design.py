@@ -1,7 +1,7 @@
 """The KPI criterion under model error against today's noise-only design, on the realistic simulator.
 
 For each scene: the noise-only KPI design (criterion ``kpi``) and the model-error design
-(``kpi_model``, the default) of n poses from the same seed; then the whole loop on the
+(``kpi_model``) of n poses from the same seed; then the whole loop on the
 realistic simulator (:mod:`calib_oed.calibration.realistic`): for each of ``--truths`` true
 robots and ``--noise`` noise draws, simulated tracker data at each design's poses, a plain
 identification (``identify``, linear loss) and the TCP error at the working configurations.
@@ -98,7 +98,7 @@ def figure(out: Path, scene: str) -> Path:
         for key, style in (("p_noise_only", dict(marker="o", facecolors="none", edgecolors="tab:blue",
                                                    label="noise-only kpi design")),
                            ("p_model_error", dict(marker="^", color="tab:red", s=18,
-                                                    label="kpi_model design (default)")),
+                                                    label="kpi_model design")),
                            ("p_working", dict(marker="*", color="k", s=120, label="working configurations"))):
             p = data[key] * 1e3
             ax.scatter(p[:, i], p[:, j], **style)

@@ -116,10 +116,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-n", type=_pose_count, help="number of measurements (default 60, or the rows "
                    "of a --start design file)")
     p.add_argument("--criterion", default=None, choices=CRITERIA,
-                   help="kpi_model (default: the predicted KPI error after calibration under the "
-                   "scene's model-error prior, robot.model_error; kpi with --aggregate max or a "
-                   "pose measurement), kpi (the paper's noise-only KPI A-criterion), params (A on "
-                   "the parameter covariance, mm and mrad), D, E, or an observability index O1..O5")
+                   help="kpi (the paper's noise-only KPI A-criterion; the default unless the scene "
+                   "gives robot.model_error), kpi_model (the predicted KPI error of the calibrated "
+                   "robot under the model-error prior; the default with robot.model_error), "
+                   "kpi_kriging (the same with kriging compensation), params (A on the parameter "
+                   "covariance, mm and mrad), D, E, or an observability index O1..O5")
     p.add_argument("--start", default="exchange", metavar="exchange|heuristic|DESIGN",
                    help="start design: the exchange algorithm's best poses of the candidate pool "
                    "(default), random feasible poses (the paper's start), or a design file "

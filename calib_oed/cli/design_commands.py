@@ -58,7 +58,7 @@ def cmd_design(args) -> int:
         args.n = 60
     from calib_oed.oed.model_error import default_criterion
 
-    # the criterion: --criterion, else kpi_model under the scene's model-error prior (kpi for max)
+    # the criterion: --criterion, else kpi_model if the scene gives robot.model_error, else kpi
     criterion = args.criterion or ("kpi" if args.aggregate == "max" else default_criterion(s.scene))
     # the KPI aggregate: --aggregate, else the scene's kpi.aggregate (for criterion kpi)
     aggregate = args.aggregate or (s.scene.kpi.aggregate if criterion == "kpi" else "mean")

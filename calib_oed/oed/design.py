@@ -239,8 +239,8 @@ def design(
         scene: A scene, or a :class:`~calib_oed.calibration.workflow.Setup` (reuses its
             feasibility model).
         n: Number of measurements (poses).
-        criterion: A name of :data:`calib_oed.oed.criteria.CRITERIA` or a criterion; None:
-            ``kpi_model`` (:func:`~calib_oed.oed.model_error.default_criterion`).
+        criterion: A name of :data:`calib_oed.oed.criteria.CRITERIA` or a criterion; None: ``kpi``,
+            or ``kpi_model`` with ``robot.model_error`` (:mod:`calib_oed.oed.model_error`).
         start: ``"exchange"`` (default: the exchange algorithm on the pool, the
             good basin), ``"heuristic"`` (random feasible poses from ``seed``,
             the paper's start) or a design (n, nq) [rad].

@@ -173,22 +173,31 @@ def test_it_is_registered_and_not_a_function_of_m(kr16):
         obj.criterion.compute_value(obj.compute_information(q))
 
 
-def test_the_default_design_optimises_it_without_a_certificate(kr16):
+def test_a_kpi_model_design_has_no_certificate(kr16):
     s, _ = kr16
-    assert default_criterion(s.scene) == MODEL_ERROR
     assert design_settings(DesignObjective(s.problem, MODEL_ERROR), None).max_iterations == MODEL_ERROR_ITERATIONS
     assert design_settings(DesignObjective(s.problem, "kpi"), None) is None
-    d = design(s, 12, pool=300, seed=0, enrich=False, settings=SQPSettings(max_iterations=3))
+    d = design(s, 12, MODEL_ERROR, pool=300, seed=0, enrich=False, settings=SQPSettings(max_iterations=3))
     assert d.criterion == MODEL_ERROR and d.value <= d.start_value
     assert d.criteria[MODEL_ERROR] == pytest.approx(d.value, rel=1e-9)
     assert d.criteria[MODEL_ERROR] >= d.criteria["kpi"]  # never below the noise-only criterion
     assert d.certificate["skipped"].startswith("no certificate for the model-error criteria")
 
 
-def test_a_worst_case_kpi_scene_keeps_the_paper_criterion(tmp_path):
+def scene_with(tmp_path, old: str, new: str):
     from importlib import resources
 
     text = resources.files("calib_oed.scene.shipped").joinpath("fms_kr16.yaml").read_text()
-    path = tmp_path / "worst.yaml"
-    path.write_text(text.replace("kpi:\n", "kpi:\n  aggregate: max\n", 1))
-    assert default_criterion(load_scene(path)) == "kpi"
+    path = tmp_path / "changed.yaml"
+    path.write_text(text.replace(old, new, 1))
+    return load_scene(path)
+
+
+def test_the_default_criterion_is_kpi_model_with_a_scene_prior(kr16, tmp_path):
+    """A scene's own prior (or an identification's) makes kpi_model the default; the documented
+    default prior alone does not, and neither does a worst-case KPI."""
+    s, _ = kr16
+    assert default_criterion(s.scene) == "kpi"
+    prior = "robot:\n  model_error: {sigma: 0.15, length_scales: 45}\n"
+    assert default_criterion(scene_with(tmp_path, "robot:\n", prior)) == MODEL_ERROR
+    assert default_criterion(scene_with(tmp_path, "kpi:\n", "kpi:\n  aggregate: max\n")) == "kpi"
