@@ -89,9 +89,7 @@ def criterion_values(objective: DesignObjective, q: np.ndarray, prior=None) -> d
 
     ``kpi`` and ``params`` are average variances [mm², (mm or mrad)²], ``D``
     is log det C, ``E`` the largest covariance eigenvalue, ``O1..O5`` the
-    observability indices (larger is better), ``kpi_model`` the predicted mean
-    squared KPI error under model error [mm²] (with the model-error ``prior``,
-    or the objective's own when it optimises it).
+    observability indices (larger is better), ``kpi_model``/``kpi_kriging`` under ``prior`` (NaN for poses).
     """
     blocks = objective.compute_blocks(q)
     info = objective.information(blocks)
@@ -100,8 +98,11 @@ def criterion_values(objective: DesignObjective, q: np.ndarray, prior=None) -> d
     g = objective.kpi_jacobian()
     for name in CRITERIA:
         if name in (model_error.MODEL_ERROR, model_error.KRIGING):  # of the design, not of M
-            out[name] = (objective if objective.criterion.name == name else DesignObjective(
-                objective.problem, name, p=objective.p, model_error=prior)).compute_value(q)
+            try:
+                out[name] = (objective if objective.criterion.name == name else DesignObjective(
+                    objective.problem, name, p=objective.p, model_error=prior)).compute_value(q)
+            except DesignError:  # a pose measurement: not modelled
+                out[name] = float("nan")
         else:
             out[name] = float(make_criterion(name, kpi_jacobian=g, n_params=objective.n_free,
                                              kpi_weights=objective.kpi_weights).compute_index(info, n_rows))
@@ -308,8 +309,7 @@ def design(
     t0, cpu0 = time.perf_counter(), time.process_time()
     with threadpool_limits(limits=1, user_api="blas"):
         objective = DesignObjective(s.problem, criterion)
-        # a criterion of the whole design (kpi_model) starts from the paper's KPI criterion's start
-        start_objective = DesignObjective(s.problem, "kpi") if objective.needs_design else objective
+        start_objective = DesignObjective(s.problem, "kpi") if objective.needs_design else objective  # kpi's start
         needs_pool = (isinstance(start, str) and start == "exchange") or certificate
         cands = candidate_pool(s, pool, seed, collisions) if needs_pool else None
         use = refine and isinstance(start, str) and start == "exchange" and aggregate == "mean"

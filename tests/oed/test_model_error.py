@@ -201,3 +201,18 @@ def test_the_default_criterion_is_kpi_model_with_a_scene_prior(kr16, tmp_path):
     prior = "robot:\n  model_error: {sigma: 0.15, length_scales: 45}\n"
     assert default_criterion(scene_with(tmp_path, "robot:\n", prior)) == MODEL_ERROR
     assert default_criterion(scene_with(tmp_path, "kpi:\n", "kpi:\n  aggregate: max\n")) == "kpi"
+
+
+def test_a_pose_measurement_has_no_model_error_value():
+    """The record of a 6-D pose design gives NaN for the model-error criteria, and asking for one says why."""
+    from calib_oed import PoseMeasurement
+    from calib_oed.exceptions import DesignError
+    from calib_oed.oed.design import criterion_values
+
+    scene = load_scene("ur5_table")
+    space = ParameterSpace(scene.robot, scene.tracker.placement(), np.array([[0.03, -0.01, 0.05]]))
+    problem = CalibrationProblem(space, [PoseMeasurement(0)], TcpKpi(scene.robot.random_configurations(2, 7)))
+    values = criterion_values(DesignObjective(problem, "kpi"), scene.robot.random_configurations(10, 1))
+    assert np.isnan(values[MODEL_ERROR]) and np.isnan(values[KRIGING]) and values["kpi"] > 0
+    with pytest.raises(DesignError, match="3-D reflector positions"):
+        DesignObjective(problem, MODEL_ERROR)
