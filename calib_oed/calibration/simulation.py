@@ -73,12 +73,17 @@ def simulate_observations(
     p_true: np.ndarray,
     rng: np.random.Generator | int,
     model_error: DiscrepancyPrior | None = None,
+    visible: np.ndarray | None = None,
 ) -> list[ObservationBlock]:
     """Noisy measurements of every model at every configuration of ``q`` (n, nq).
 
     ``model_error``: a model error drawn from this Gaussian process (after the
     noise, from the same generator), added to the positions; the draw at one
     configuration is shared by every reflector measured there.
+    ``visible`` (n, k) bool (:func:`calib_oed.feasibility.visibility.visible_reflectors`):
+    a model of reflector j measures only the poses where it is True (a nest of
+    several SMRs measures those the tracker sees); None: every pose. The draws of
+    the hidden rows are made and discarded, so the seen rows do not depend on it.
     """
     rng = np.random.default_rng(rng)
     q = space.robot.check_configurations(q)
@@ -91,7 +96,12 @@ def simulate_observations(
         offset = model_error.sample(distinct, rng)[inverse.ravel()]
         for v in values:
             v[:, :3] += offset
-    return [ObservationBlock(mdl, q, v) for mdl, v in zip(models, values, strict=True)]
+    blocks = []
+    for mdl, v in zip(models, values, strict=True):
+        seen = slice(None) if visible is None else np.asarray(visible, dtype=bool)[:, mdl.reflector]
+        if q[seen].shape[0]:
+            blocks.append(ObservationBlock(mdl, q[seen], v[seen]))
+    return blocks
 
 
 def add_noise(model: MeasurementModel, exact: np.ndarray, rng: np.random.Generator) -> np.ndarray:

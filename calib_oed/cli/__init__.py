@@ -26,6 +26,7 @@ from calib_oed.cli._common import (
     _length_mm,
     _non_negative_int,
     _pose_count,
+    _position_tol_mm,
     _positive_int,
     _seed,
 )
@@ -114,8 +115,11 @@ def build_parser() -> argparse.ArgumentParser:
     scene_arg(p)
     p.add_argument("-n", type=_pose_count, help="number of measurements (default 60, or the rows "
                    "of a --start design file)")
-    p.add_argument("--criterion", default="kpi", choices=CRITERIA,
-                   help="kpi (default: the paper's KPI A-criterion), params (A on the parameter "
+    p.add_argument("--criterion", default=None, choices=CRITERIA,
+                   help="kpi (the paper's noise-only KPI A-criterion; the default unless the scene "
+                   "gives robot.model_error), kpi_model (the predicted KPI error of the calibrated "
+                   "robot under the model-error prior; the default with robot.model_error), "
+                   "kpi_kriging (the same with kriging compensation), params (A on the parameter "
                    "covariance, mm and mrad), D, E, or an observability index O1..O5")
     p.add_argument("--start", default="exchange", metavar="exchange|heuristic|DESIGN",
                    help="start design: the exchange algorithm's best poses of the candidate pool "
@@ -131,6 +135,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="each configuration may be measured up to K times (default 1: the "
                    "start's poses are distinct, though the refinement may bring two together); "
                    "the record says how many distinct poses")
+    p.add_argument("--position-tol", type=_position_tol_mm, default=1.0, metavar="MM",
+                   help="reflector positions closer than this [mm] count as one arm position in "
+                   "the record's distinct_positions (default 1)")
     p.add_argument("--no-certificate", action="store_true",
                    help="skip the optimality certificate (the efficiency against a lower bound "
                    "valid for any feasible design of this size)")
@@ -161,6 +168,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--criterion", default="kpi", choices=CRITERIA, help="criterion of the "
                    "contribution plot (default kpi); all criterion values are always reported")
     p.add_argument("--no-mesh-check", action="store_true", help="skip the URDF mesh check")
+    p.add_argument("--position-tol", type=_position_tol_mm, default=1.0, metavar="MM",
+                   help="reflector positions closer than this [mm] count as one arm position "
+                   "(default 1)")
     p.add_argument("--plot", metavar="DIR", help="write DIR/kpi_ellipsoid.png and DIR/pose_contributions.png")
     p.add_argument("--certificate", action="store_true", help="optimality certificate: a lower bound "
                    "on the criterion of any design of this many poses, and this design's efficiency "

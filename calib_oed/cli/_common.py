@@ -56,6 +56,17 @@ def _positive_int(text: str) -> int:
     return value
 
 
+def _position_tol_mm(text: str) -> float:
+    """``--position-tol``: a distance >= 0 in mm."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not (value >= 0 and value < float("inf")):
+        raise argparse.ArgumentTypeError(f"expected a distance >= 0 in mm (default 1), got {text!r}")
+    return value
+
+
 def _pose_count(text: str) -> int:
     """``-n``: a number of poses, 1 .. :data:`MAX_POSES`."""
     value = _integer(text, f"a whole number of poses, 1 to {MAX_POSES}")
@@ -225,6 +236,7 @@ def _optimise(s, args, criterion: str, start, aggregate: str = "mean"):
                       replicates=getattr(args, "replicates", 1),
                       certificate=not getattr(args, "no_certificate", False),
                       hessian=getattr(args, "hessian", "exact"),
+                      position_tol=1e-3 * getattr(args, "position_tol", 1.0),
                       settings=_sqp_settings(args), callback=callback, aggregate=aggregate)
     finally:
         if bar is not None:

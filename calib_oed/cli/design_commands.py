@@ -57,9 +57,13 @@ def cmd_design(args) -> int:
         args.n = len(start)
     elif args.n is None:
         args.n = 60
+    from calib_oed.oed.model_error import default_criterion
+
+    # the criterion: --criterion, else kpi_model if the scene gives robot.model_error, else kpi
+    criterion = args.criterion or ("kpi" if args.aggregate == "max" else default_criterion(s.scene))
     # the KPI aggregate: --aggregate, else the scene's kpi.aggregate (for criterion kpi)
-    aggregate = args.aggregate or (s.scene.kpi.aggregate if args.criterion == "kpi" else "mean")
-    result = _optimise(s, args, args.criterion, start, aggregate)
+    aggregate = args.aggregate or (s.scene.kpi.aggregate if criterion == "kpi" else "mean")
+    result = _optimise(s, args, criterion, start, aggregate)
     paths = write_design(args.output, result, s.problem.robot) if args.output else {}
     code = EXIT_INTERRUPTED if result.interrupted else EXIT_OK
     if paths and result.interrupted:  # the CSV goes to the controller: say it there too
@@ -103,7 +107,7 @@ def cmd_evaluate(args) -> int:
 
     s = _setup(args.scene)
     q, what = _design(s, args)
-    result = evaluate_design(s, q, args.criterion, method="given")
+    result = evaluate_design(s, q, args.criterion, method="given", position_tol=1e-3 * args.position_tol)
     problem = s.problem
     estimable = problem.kpi_estimability()
     mesh = None if args.no_mesh_check else _mesh_check(s, q)
@@ -129,6 +133,7 @@ def cmd_evaluate(args) -> int:
         print(json.dumps(data, indent=2))
         return EXIT_OK
     print(f"scene {s.scene.name!r}: {what}, {result.n} poses")
+    print(result.distinct_line().strip())
     print(format_kpi_sigma(problem, result.kpi_sigma_mm * 1e-3, what))
     if len(result.kpi_names) > 1:
         print(f"{len(result.kpi_names)} KPI points: mean variance {result.kpi_variance:.5g} mm² "

@@ -33,7 +33,7 @@ from calib_oed.feasibility.hull_rows import HullRows
 from calib_oed.feasibility.hulls import HullPairs
 from calib_oed.feasibility.pose_rows import IncidenceRows, JointRows
 from calib_oed.feasibility.row_family import RowFamily
-from calib_oed.feasibility.shapes import Capsule, Cell, FeasibilitySettings
+from calib_oed.feasibility.shapes import AIMS, Capsule, Cell, FeasibilitySettings
 from calib_oed.feasibility.solid_rows import SolidRows
 from calib_oed.feasibility.solids import SolidPairs
 from calib_oed.model.robot import Robot, frame_index
@@ -155,6 +155,9 @@ class FeasibilityModel:
             ``None``: tool z for every reflector).
         families: The geometric row families (solids, convex pieces, capsule pairs,
             half-spaces: :func:`calib_oed.feasibility.pairs.build_feasibility_model`).
+        reflector_aims: Each reflector's aim, ``"fixed"`` (its axis turns with the tool:
+            an incidence row) or ``"manual"`` (the operator turns it towards the tracker at
+            each pose: no incidence row, its beam rows stay); ``None``: all fixed.
 
     Rows per pose, in order: joint, incidence, then ``families`` in their order.
     """
@@ -170,6 +173,7 @@ class FeasibilityModel:
         reflector_names: Sequence[str],
         reflector_normals: np.ndarray | None = None,
         families: Sequence[RowFamily] = (),
+        reflector_aims: Sequence[str] | None = None,
     ):
         self.robot = robot
         self.segments = segments
@@ -178,9 +182,19 @@ class FeasibilityModel:
         self.tracker_position = np.asarray(tracker_position, dtype=float).reshape(3)
         self.reflector_offsets = np.asarray(reflector_offsets, dtype=float).reshape(-1, 3)
         self.reflector_names = tuple(reflector_names)
-        incidence = IncidenceRows(robot, self.tracker_position, self.reflector_offsets, self.reflector_names,
-                                  reflector_normals, settings.incidence_limit - settings.margins.incidence)
-        self.reflector_normals = incidence.normals
+        k = len(self.reflector_names)
+        self.reflector_aims = ("fixed",) * k if reflector_aims is None else tuple(reflector_aims)
+        if len(self.reflector_aims) != k or not set(self.reflector_aims) <= set(AIMS):
+            raise ValueError(f"reflector_aims must give one of {AIMS} per reflector, got {self.reflector_aims}")
+        all_rows = IncidenceRows(robot, self.tracker_position, self.reflector_offsets, self.reflector_names,
+                                 reflector_normals, settings.incidence_limit - settings.margins.incidence)
+        self.reflector_normals = all_rows.normals
+        #: The reflectors with an incidence row (a fixed aim), in row order.
+        self.incidence_reflectors = np.flatnonzero(np.array(self.reflector_aims) == "fixed")
+        fixed = self.incidence_reflectors
+        incidence = all_rows if fixed.size == k else IncidenceRows(
+            robot, self.tracker_position, self.reflector_offsets[fixed],
+            [self.reflector_names[j] for j in fixed], self.reflector_normals[fixed], all_rows.limit)
         #: The row families, in row order.
         self.families: tuple[RowFamily, ...] = (JointRows(robot, settings.margins.joint), incidence,
                                                 *families)

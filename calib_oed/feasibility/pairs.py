@@ -231,6 +231,7 @@ def build_feasibility_model(
     capsules: Sequence[Capsule] | None = None,
     prune: bool = True,
     reflector_normals: np.ndarray | None = None,
+    reflector_aims: Sequence[str] | None = None,
     mesh_pairs: bool | None = None,
     hulls: bool | None = None,
 ) -> tuple[FeasibilityModel, PairReport]:
@@ -249,6 +250,8 @@ def build_feasibility_model(
             (:func:`calib_oed.feasibility.link_fit.fitted_robot_capsules`).
         prune: Run the sampling pass that drops pairs that cannot matter.
         reflector_normals: Reflector axes in the tool frame, (k, 3) (default tool z).
+        reflector_aims: ``"fixed"`` or ``"manual"`` per reflector (default all fixed): a
+            manually aimed reflector has no incidence row (its beam rows stay).
         mesh_pairs: Drop the self pairs decided on the collision meshes
             (:mod:`calib_oed.feasibility.mesh_pairs`); default: with the ``hulls``
             fit to the URDF geometry (no ``capsules``, no scene table).
@@ -287,7 +290,7 @@ def build_feasibility_model(
                   CapsulePairRows(seg, pairs, kinds, clearance),
                   HalfspaceRows(seg, cell, hs_pairs, hs_kinds, clearance))
     args = (robot, seg, cell, settings, tracker_position, reflector_offsets, reflector_names, reflector_normals)
-    model = FeasibilityModel(*args, families=candidates)
+    model = FeasibilityModel(*args, families=candidates, reflector_aims=reflector_aims)
     n_links = len({c.frame for c in capsules})
     samples = int(settings.prune_samples) if prune else 0
     ranges, reasons = [], []
@@ -331,7 +334,7 @@ def build_feasibility_model(
             chosen, hull_dropped = _prune_hulls(HullPairs(pieces, chosen), robot, q, settings)
             dropped += hull_dropped
         kept.insert(1, HullRows(HullPairs(pieces, chosen), clearance))
-    model = FeasibilityModel(*args, families=kept)
+    model = FeasibilityModel(*args, families=kept, reflector_aims=reflector_aims)
     counts = {k: v for k, v in model.count_per_pose().items()}
     checked = tuple(dict.fromkeys(
         lbl for f in model.families for lbl, kind in zip(f.row_pair_labels, f.kinds, strict=True)
@@ -356,5 +359,6 @@ def feasibility_from_scene(scene, prune: bool = True) -> tuple[FeasibilityModel,
         [r.name for r in scene.reflectors],
         prune=prune,
         reflector_normals=np.array([r.normal for r in scene.reflectors]),
+        reflector_aims=[r.aim for r in scene.reflectors],
     )
     return model, replace(report, window=window.summary())

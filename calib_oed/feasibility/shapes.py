@@ -54,6 +54,10 @@ def _positive(value, what: str) -> float:
     return v
 
 
+#: How a reflector is aimed: its axis fixed on the tool, or turned towards the tracker by hand.
+AIMS = ("fixed", "manual")
+
+
 @dataclass(frozen=True, eq=False)
 class Capsule:
     """A capsule: segment ``a``–``b`` [m] swept by a sphere of ``radius`` [m].

@@ -29,7 +29,11 @@ from calib_oed.oed.criterion_base import (
 from calib_oed.oed.observability import ObservabilityIndex
 
 #: Names accepted by :func:`make_criterion`.
-CRITERIA = ("kpi", "params", "D", "E", "O1", "O2", "O3", "O4", "O5")
+#: The criteria of the information matrix alone (a :class:`Criterion` of M).
+MATRIX_CRITERIA = ("kpi", "params", "D", "E", "O1", "O2", "O3", "O4", "O5")
+#: ... and ``kpi_model`` / ``kpi_kriging``, the KPI error under model error of the parametric
+#: fit / of GLS plus kriging, criteria of the whole design (:mod:`calib_oed.oed.model_error`).
+CRITERIA = (*MATRIX_CRITERIA, "kpi_model", "kpi_kriging")
 
 
 # ------------------------------------------------------------- A-criterion
@@ -228,7 +232,7 @@ class ECriterion(Criterion):
 
 # ----------------------------------------------------------------- factory
 def make_criterion(name: str, *, kpi_jacobian=None, n_params: int | None = None,
-                   kpi_weights=None) -> Criterion:
+                   kpi_weights=None, problem=None, model_error=None) -> Criterion:
     """The criterion called ``name`` (one of :data:`CRITERIA`).
 
     Args:
@@ -239,6 +243,10 @@ def make_criterion(name: str, *, kpi_jacobian=None, n_params: int | None = None,
             (taken from ``kpi_jacobian`` when not given).
         kpi_weights: Weights of the KPI points for ``"kpi"`` (:meth:`ACriterion.kpi`);
             None: all 1.
+        problem: The calibration problem; needed by ``"kpi_model"``, the KPI
+            criterion under model error (:mod:`calib_oed.oed.model_error`).
+        model_error: Its :class:`~calib_oed.measurement.discrepancy.DiscrepancyPrior`
+            (None: the default for the robot's reach).
 
     Raises:
         UnknownCriterionError: ``name`` is not in :data:`CRITERIA`.
@@ -260,6 +268,14 @@ def make_criterion(name: str, *, kpi_jacobian=None, n_params: int | None = None,
         if n_params is None:
             raise ValueError("criterion 'params' needs n_params, the number of parameters")
         return ACriterion.parameters(n_params)
+    if name in ("kpi_model", "kpi_kriging"):
+        from calib_oed.measurement.discrepancy import DiscrepancyPrior
+        from calib_oed.oed.model_error import make_model_error_criterion
+
+        if problem is None or kpi_jacobian is None:
+            raise ValueError(f"criterion {name!r} needs problem= and kpi_jacobian=")
+        prior = model_error if model_error is not None else DiscrepancyPrior.default_for(problem.robot)
+        return make_model_error_criterion(problem, kpi_jacobian, prior, kpi_weights, name)
     if name == "D":
         return DCriterion()
     if name == "E":

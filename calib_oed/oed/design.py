@@ -28,6 +28,7 @@ from calib_oed.exceptions import (
 from calib_oed.feasibility.constraints import FEASIBILITY_TOL
 from calib_oed.feasibility.margins import margin_report
 from calib_oed.feasibility.sampling import sample_feasible
+from calib_oed.oed import model_error
 from calib_oed.oed.approximate import criterion_kind
 from calib_oed.oed.approximate_pool import (
     ENRICH_ROUNDS,
@@ -40,6 +41,7 @@ from calib_oed.oed.criterion_base import Criterion
 from calib_oed.oed.hessian import has_exact_hessian
 from calib_oed.oed.memory import check_memory
 from calib_oed.oed.objective import DesignObjective
+from calib_oed.oed.positions import POSITION_TOL, check_position_tol, distinct_positions
 from calib_oed.oed.refine import (  # noqa: F401 (DESIGN_SQP, HESSIANS, optimise_from: re-exported)
     DESIGN_SQP,
     HESSIANS,
@@ -82,12 +84,12 @@ def _setup(scene: Scene | Setup) -> Setup:
     return scene if isinstance(scene, Setup) else Setup(scene)
 
 
-def criterion_values(objective: DesignObjective, q: np.ndarray) -> dict[str, float]:
+def criterion_values(objective: DesignObjective, q: np.ndarray, prior=None) -> dict[str, float]:
     """Every criterion of :data:`calib_oed.oed.criteria.CRITERIA` at design ``q``.
 
     ``kpi`` and ``params`` are average variances [mm², (mm or mrad)²], ``D``
     is log det C, ``E`` the largest covariance eigenvalue, ``O1..O5`` the
-    observability indices (larger is better).
+    observability indices (larger is better), ``kpi_model``/``kpi_kriging`` under ``prior`` (NaN for poses).
     """
     blocks = objective.compute_blocks(q)
     info = objective.information(blocks)
@@ -95,9 +97,15 @@ def criterion_values(objective: DesignObjective, q: np.ndarray) -> dict[str, flo
     out = {}
     g = objective.kpi_jacobian()
     for name in CRITERIA:
-        crit = make_criterion(name, kpi_jacobian=g, n_params=objective.n_free,
-                              kpi_weights=objective.kpi_weights)
-        out[name] = float(crit.compute_index(info, n_rows))
+        if name in (model_error.MODEL_ERROR, model_error.KRIGING):  # of the design, not of M
+            try:
+                out[name] = (objective if objective.criterion.name == name else DesignObjective(
+                    objective.problem, name, p=objective.p, model_error=prior)).compute_value(q)
+            except DesignError:  # a pose measurement: not modelled
+                out[name] = float("nan")
+        else:
+            out[name] = float(make_criterion(name, kpi_jacobian=g, n_params=objective.n_free,
+                                             kpi_weights=objective.kpi_weights).compute_index(info, n_rows))
     return out
 
 
@@ -114,14 +122,19 @@ def evaluate_design(
     collisions: bool = True,
     aggregate: str = "mean",
     certificate: dict | None = None,
+    position_tol: float = POSITION_TOL,
 ) -> Design:
     r"""The :class:`~calib_oed.oed.result.Design` record of configurations ``q`` (n, nq).
 
     ``aggregate="max"`` (criterion ``kpi`` only): the value is the worst-case
     KPI variance :math:`\max_i v_i` [mm²] and the record's criterion ``kpi_max``.
+    ``position_tol`` [m]: reflector positions closer than this are one arm
+    position in the record's ``distinct_positions`` (:mod:`calib_oed.oed.positions`).
     """
     s = _setup(s)
     _check_aggregate(aggregate, criterion)
+    check_position_tol(position_tol)
+    criterion = model_error.scene_criterion(s, criterion)
     problem = s.problem
     q = problem.robot.check_configurations(q, "design")
     objective = DesignObjective(problem, criterion)
@@ -138,7 +151,7 @@ def evaluate_design(
         criterion=KPI_MAX if aggregate == "max" else objective.criterion.name,
         value=value,
         start_value=value if start_value is None else float(start_value),
-        criteria=criterion_values(objective, q),
+        criteria=criterion_values(objective, q, s.scene.discrepancy()),
         kpi_sigma_mm=problem.kpi_sigma(q) * 1e3,
         kpi_names=tuple(problem.kpi.names),
         margins=tuple(margin_report(s.feasibility, res.values)),
@@ -150,6 +163,8 @@ def evaluate_design(
         method=method,
         certificate=certificate or {},
         joint_window=s.pairs.window,
+        position_multiplicity=tuple(distinct_positions(problem.space, q, position_tol)),
+        position_tolerance=float(position_tol),
     )
 
 
@@ -189,7 +204,7 @@ def _start_designs(s: Setup, objective: DesignObjective, n: int, start, seed: in
 def design(
     scene: Scene | Setup,
     n: int = 60,
-    criterion: str | Criterion = "kpi",
+    criterion: str | Criterion | None = None,
     *,
     start: str | np.ndarray = "exchange",
     pool: int | np.ndarray = DEFAULT_POOL,
@@ -204,6 +219,7 @@ def design(
     callback=None,
     aggregate: str = "mean",
     hessian: str = "exact",
+    position_tol: float = POSITION_TOL,
 ) -> Design:
     r"""An optimal design of ``n`` measurement configurations, and how good it is.
 
@@ -223,7 +239,8 @@ def design(
         scene: A scene, or a :class:`~calib_oed.calibration.workflow.Setup` (reuses its
             feasibility model).
         n: Number of measurements (poses).
-        criterion: A name of :data:`calib_oed.oed.criteria.CRITERIA` or a criterion.
+        criterion: A name of :data:`calib_oed.oed.criteria.CRITERIA` or a criterion; None: ``kpi``,
+            or ``kpi_model`` with ``robot.model_error`` (:mod:`calib_oed.oed.model_error`).
         start: ``"exchange"`` (default: the exchange algorithm on the pool, the
             good basin), ``"heuristic"`` (random feasible poses from ``seed``,
             the paper's start) or a design (n, nq) [rad].
@@ -241,6 +258,8 @@ def design(
             (1: the start's poses are distinct); the record's ``multiplicity`` says
             how many distinct poses and how often each (the refinement may merge
             two poses where that lowers the criterion, and the record then says so).
+        position_tol: Reflector positions closer than this [m] are one arm position in the
+            record's ``distinct_positions`` (:mod:`calib_oed.oed.positions`, default 1 mm).
         enrich: Add the off-pool local maxima of the approximate design's
             sensitivity to a random pool before the exchange start (default;
             about 3 s on fms_kr16); ``False``: the approximate design on the pool
@@ -277,6 +296,8 @@ def design(
     if int(replicates) != replicates or replicates < 1:
         raise DesignError("replicates", replicates, "an integer >= 1 (1: every pose distinct)")
     _check_aggregate(aggregate, criterion)
+    check_position_tol(position_tol)
+    criterion = model_error.scene_criterion(s, criterion)
     exact = (hessian == "exact" and aggregate == "mean"
              and (criterion in EXACT_CRITERIA if isinstance(criterion, str)
                   else has_exact_hessian(criterion)))
@@ -284,24 +305,28 @@ def design(
     t0, cpu0 = time.perf_counter(), time.process_time()
     with threadpool_limits(limits=1, user_api="blas"):
         objective = DesignObjective(s.problem, criterion)
+        start_objective = DesignObjective(s.problem, "kpi") if objective.needs_design else objective  # kpi's start
         needs_pool = (isinstance(start, str) and start == "exchange") or certificate
         cands = candidate_pool(s, pool, seed, collisions) if needs_pool else None
         use = refine and isinstance(start, str) and start == "exchange" and aggregate == "mean"
-        approx, approx_record = (_approximate(s, objective, cands, n, collisions, enrich) if use
+        approx, approx_record = (_approximate(s, start_objective, cands, n, collisions, enrich) if use
                                  else (None, {"skipped": "not used by this start"}))
-        starts = _start_designs(s, objective, n, start, seed, int(n_starts), cands, int(replicates),
-                                approx)
+        starts = _start_designs(s, start_objective, n, start, seed, int(n_starts), cands,
+                                int(replicates), approx)
         if not refine:
             best = _best_start(objective, starts, aggregate)
         else:
-            best = (optimise_worst_case(s, starts, criterion, collisions, settings, callback)
+            sqp = model_error.design_settings(objective, settings)
+            best = (optimise_worst_case(s, starts, criterion, collisions, sqp, callback)
                     if aggregate == "max"
-                    else optimise_starts(s, starts, criterion, collisions, settings, callback, hessian))
+                    else optimise_starts(s, starts, criterion, collisions, sqp, callback, hessian))
         design_seconds, design_cpu = time.perf_counter() - t0, time.process_time() - cpu0
         value, q, phi0, result, start_seed = best
         interrupted = result is not None and result.status is SQPStatus.INTERRUPTED
         if interrupted:
             cert = {"skipped": "interrupted before the certificate"}
+        elif certificate and objective.needs_design:
+            cert = {"skipped": model_error.MODEL_ERROR_NO_CERTIFICATE}
         elif certificate:
             try:
                 cert = _certificate(s, q, criterion, aggregate, cands, seed, collisions, approx)
@@ -325,7 +350,7 @@ def design(
     return evaluate_design(
         s, q, criterion, method=method, start_value=phi0, solver=record,
         seconds=design_seconds, seed=start_seed, collisions=collisions,
-        aggregate=aggregate, certificate=cert,
+        aggregate=aggregate, certificate=cert, position_tol=position_tol,
     )
 
 

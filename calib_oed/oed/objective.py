@@ -111,6 +111,8 @@ class DesignObjective:
             A-criterion on the parameter covariance in mm²/mrad²).
         p: Parameters the sensitivities are evaluated at (None: nominal).
         prior: Information :math:`M_0` already available, (n_f, n_f).
+        model_error: The model-error prior of criterion ``"kpi_model"``
+            (:mod:`calib_oed.oed.model_error`; None: the default for the robot's reach).
     """
 
     def __init__(
@@ -119,6 +121,7 @@ class DesignObjective:
         criterion: Criterion | str = "kpi",
         p: np.ndarray | None = None,
         prior: np.ndarray | None = None,
+        model_error=None,
     ):
         self.problem = problem
         self.p = problem.space.check(p)
@@ -127,13 +130,19 @@ class DesignObjective:
         nf = len(self.free)
         if isinstance(criterion, str):
             criterion = make_criterion(criterion, kpi_jacobian=self.kpi_jacobian(), n_params=nf,
-                                       kpi_weights=self.kpi_weights)
+                                       kpi_weights=self.kpi_weights, problem=problem,
+                                       model_error=model_error)
         self.criterion = criterion
         if prior is not None:
             prior = np.asarray(prior, dtype=float)
             if prior.shape != (nf, nf):
                 raise ShapeError("prior information", f"({nf}, {nf})", prior.shape)
         self.prior = prior
+        if prior is not None and self.needs_design:
+            from calib_oed.exceptions import DesignError
+
+            raise DesignError("criterion", criterion.name, "does not take the information of "
+                              "measurements already made (a prior); use kpi or params")
         # first-order pieces (and the kinematic state) of the last few designs: the SQP
         # asks for value, gradient and curvature at the same point
         self._cache: dict[bytes, tuple] = {}
@@ -302,8 +311,39 @@ class DesignObjective:
         """:math:`M(q)`, (n_f, n_f)."""
         return self.information(self.compute_blocks(q))
 
+    @property
+    def needs_design(self) -> bool:
+        """The criterion is evaluated from the rows and configurations, not from M alone."""
+        return bool(getattr(self.criterion, "needs_design", False))
+
+    def _point_whitening(self, state, order: int):
+        r""":math:`Z_j` (n, d, 3): each model's whitening of its reflector's point error, and
+        :math:`\partial Z_j/\partial q_j` (n, d, 3, nv) with ``order`` 1 (None if constant)."""
+        z, d_z, n = [], [], state.n
+        for mdl in self.problem.models:
+            if getattr(mdl, "noise", None) is None:
+                z.append(np.broadcast_to(np.diag(1.0 / mdl.sigma), (n, 3, 3)))
+                d_z.append(None)
+            else:
+                pieces = self._whitening(mdl, state, order)
+                z.append(pieces.w)
+                d_z.append(pieces.d_w)
+        if order == 0 or all(x is None for x in d_z):
+            return np.concatenate(z, axis=1), None
+        nv = next(x for x in d_z if x is not None).shape[-1]
+        return np.concatenate(z, axis=1), np.concatenate(
+            [np.zeros((n, 3, 3, nv)) if x is None else x for x in d_z], axis=1)
+
     def compute_value(self, q: np.ndarray) -> float:
         r""":math:`\phi(q)`."""
+        if self.needs_design:
+            q = self.problem.robot.check_configurations(q, "design")
+            state = self._state(q, second_order=False)
+            try:
+                return self.criterion.compute_design(self._rows(state), q,
+                                                     self._point_whitening(state, 0)[0])[0]
+            except NotIdentifiableError as exc:
+                raise self._named(exc) from None
         info = self.compute_information(q)
         try:
             return float(self.criterion.compute_value(info))
@@ -388,6 +428,14 @@ class DesignObjective:
     def compute(self, q: np.ndarray) -> DesignEvaluation:
         r""":math:`\phi(q)` and :math:`\partial\phi/\partial q` (n, nv), exact."""
         rows, d_rows, info = self._first_order(q)
+        if self.needs_design:
+            state = self._evaluated(q)[3]
+            z, d_z = self._point_whitening(state, 1)
+            try:
+                value, grad = self.criterion.compute_design(rows, np.asarray(q, dtype=float), z, d_rows, d_z)
+            except NotIdentifiableError as exc:
+                raise self._named(exc) from None
+            return DesignEvaluation(value, grad, info)
         try:
             grad_m = self.criterion.compute_gradient(info)
         except NotIdentifiableError as exc:

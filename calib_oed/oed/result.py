@@ -20,6 +20,7 @@ from calib_oed.feasibility.margins import KindMargin, format_margins
 from calib_oed.io.atomic import atomic_write_text
 from calib_oed.io.design_file import write_design_csv
 from calib_oed.model.robot import Robot
+from calib_oed.oed.positions import POSITION_TOL
 from calib_oed.values import plain
 
 
@@ -55,6 +56,10 @@ class Design:
             ``skipped`` with the reason; {} when not computed.
         joint_window: The joint ranges the design could use
             (:meth:`calib_oed.feasibility.window.JointWindow.summary`, degrees), or "".
+        position_multiplicity: How often each distinct arm position is measured
+            (reflector positions in the world frame within ``position_tolerance``,
+            :mod:`calib_oed.oed.positions`), order of first occurrence; () when not computed.
+        position_tolerance: The tolerance of ``position_multiplicity`` [m].
     """
 
     scene: str
@@ -75,6 +80,8 @@ class Design:
     method: str = "sqp"
     certificate: dict = field(default_factory=dict)
     joint_window: str = ""
+    position_multiplicity: tuple[int, ...] = ()
+    position_tolerance: float = POSITION_TOL
 
     @property
     def n(self) -> int:
@@ -97,6 +104,11 @@ class Design:
         from calib_oed.oed.starts import multiplicities
 
         return multiplicities(self.q)
+
+    @property
+    def distinct_positions(self) -> int | None:
+        """Number of distinct arm positions (reflectors more than ``position_tolerance`` apart), or None."""
+        return len(self.position_multiplicity) if self.position_multiplicity else None
 
     @property
     def kpi_variance(self) -> float:
@@ -130,10 +142,7 @@ class Design:
             lines.insert(3, f"  {len(self.kpi_names)} KPI points: mean variance {self.kpi_variance:.4g} mm² "
                          f"(weighted as the scene says), max {self.kpi_max_variance:.4g} mm² "
                          f"(sigma {np.sqrt(self.kpi_max_variance):.5f} mm) at {self.kpi_worst}")
-        counts = self.multiplicity
-        if len(counts) < self.n:
-            lines.append(f"  {len(counts)} distinct poses for {self.n} measurements: "
-                         f"{sum(c > 1 for c in counts)} measured more than once (at most {max(counts)} times)")
+        lines.append(self.distinct_line())
         if self.solver.get("status"):
             lines.append(f"  solver: {self.solver.get('status')}, {self.solver.get('iterations')} "
                          f"iterations, {self.solver.get('message', '')}")
@@ -143,6 +152,18 @@ class Design:
         lines.append(self.efficiency_line())
         lines.append(format_margins(list(self.margins)))
         return "\n".join(lines)
+
+    def distinct_line(self) -> str:
+        """Distinct joint vectors and distinct arm positions (reflector positions) in one line."""
+        counts = self.multiplicity
+        text = f"  {len(counts)} distinct poses (joint vectors) for {self.n} measurements"
+        if len(counts) < self.n:
+            text += (f", {sum(c > 1 for c in counts)} measured more than once "
+                     f"(at most {max(counts)} times)")
+        if self.position_multiplicity:
+            text += (f"; {self.distinct_positions} distinct arm positions (reflectors more than "
+                     f"{1e3 * self.position_tolerance:g} mm apart)")
+        return text
 
     def efficiency_line(self) -> str:
         """The certificate in one line: the efficiency, the bound, or why there is none."""
@@ -187,6 +208,9 @@ class Design:
             "joint_window": self.joint_window,
             "distinct_poses": len(self.multiplicity),
             "multiplicity": self.multiplicity,
+            "distinct_positions": self.distinct_positions,
+            "position_tolerance_mm": 1e3 * self.position_tolerance,
+            "position_multiplicity": list(self.position_multiplicity),
             "solver": self.solver,
         })
 

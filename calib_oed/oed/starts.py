@@ -33,6 +33,7 @@ from calib_oed.feasibility.constraints import FEASIBILITY_TOL
 from calib_oed.feasibility.sampling import sample_feasible
 from calib_oed.oed.exchange import ExchangeResult, exchange_design
 from calib_oed.oed.objective import DesignObjective
+from calib_oed.oed.positions import group_counts
 
 #: Named start designs of :func:`calib_oed.oed.design.design`.
 STARTS = ("heuristic", "exchange")
@@ -172,21 +173,7 @@ def multiplicities(q: np.ndarray, tol: float = SAME_POSE_TOL) -> list[int]:
     Poses within ``tol`` [rad] of each other (max over joints, chained) are one configuration.
     """
     q = np.asarray(q, dtype=float)
-    n = len(q)
-    parent = np.arange(n)
-
-    def root(i):
-        while parent[i] != i:
-            parent[i] = parent[parent[i]]
-            i = parent[i]
-        return i
-
-    for i, j in scipy.spatial.cKDTree(q).query_pairs(tol, p=np.inf):
-        ri, rj = root(i), root(j)
-        parent[max(ri, rj)] = min(ri, rj)
-    roots = [root(i) for i in range(n)]
-    order = list(dict.fromkeys(roots))
-    return [roots.count(r) for r in order]
+    return group_counts(len(q), scipy.spatial.cKDTree(q).query_pairs(tol, p=np.inf))
 
 
 __all__ = ["DEFAULT_POOL", "STARTS", "CandidatePool", "candidate_pool",

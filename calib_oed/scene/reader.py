@@ -23,7 +23,7 @@ from calib_oed.exceptions import (
     SceneError,
     UnknownSceneError,
 )
-from calib_oed.feasibility.shapes import Cell, FeasibilitySettings
+from calib_oed.feasibility.shapes import AIMS, Cell, FeasibilitySettings
 from calib_oed.measurement.noise import TrackerNoise
 from calib_oed.model.controller import controller_from_mapping
 from calib_oed.model.joint_path import sample_joint_path
@@ -139,9 +139,10 @@ class SceneReader(FieldReader):
             reflectors=tuple(
                 ReflectorSpec(r["name"], self.vector(r["offset"], f"reflectors[{i}].offset", 3,
                                                      self.length),
-                              reflector_normal(self, r.get("normal", [0.0, 0.0, 1.0]), i))
+                              reflector_normal(self, r.get("normal", [0.0, 0.0, 1.0]), i),
+                              self.string(r.get("aim", "fixed"), f"reflectors[{i}].aim", AIMS))
                 for i, r in enumerate(self.named_list(top["reflectors"], "reflectors",
-                                                      ("name", "offset"), "reflector", ("normal",)))
+                                                      ("name", "offset"), "reflector", ("normal", "aim")))
             ),
             measurement=self.string(top.get("measurement", "position"), "measurement",
                                     MEASUREMENTS),

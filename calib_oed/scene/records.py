@@ -78,11 +78,16 @@ class ReflectorSpec:
         offset: Reflector centre in the tool frame, shape (3,) [m].
         normal: Reflector axis in the tool frame, unit, shape (3,) (default tool z);
             the incidence constraint measures the beam's angle to it.
+        aim: ``"fixed"`` (default: the SMR's axis turns with the tool, the incidence
+            constraint holds) or ``"manual"`` (the operator turns the SMR in its nest
+            towards the tracker at each pose: no incidence constraint; line of sight,
+            the beam rows, still holds).
     """
 
     name: str
     offset: np.ndarray
     normal: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
+    aim: str = "fixed"
 
     def __post_init__(self):
         object.__setattr__(self, "offset", finite_vector(self.offset, f"reflector {self.name}", 3))

@@ -70,7 +70,9 @@ def _row(case: StudyCase, d: Design, kind: str, criterion: str, collisions: bool
         params_avg_variance=float(d.criteria["params"]), criterion_value=float(d.value),
         criterion_start_value=float(d.start_value), feasible=bool(d.feasible),
         colliding_fraction=colliding, iterations=int(solver.get("iterations", 0)),
-        status=str(solver.get("status", "")), seconds=float(d.seconds))
+        status=str(solver.get("status", "")), seconds=float(d.seconds),
+        distinct_poses=float(len(d.multiplicity)),
+        distinct_positions=float(d.distinct_positions or math.nan))
 
 
 def run_case(case: StudyCase) -> CaseResult:
@@ -156,4 +158,5 @@ def _median_row(case: StudyCase, rows: Sequence[DesignRow]) -> DesignRow:
         params_avg_variance=med("params_avg_variance"), criterion_value=med("criterion_value"),
         criterion_start_value=med("criterion_start_value"),
         feasible=all(r.feasible for r in rows), colliding_fraction=med("colliding_fraction"),
-        seconds=sum(r.seconds for r in rows))
+        seconds=sum(r.seconds for r in rows), distinct_poses=med("distinct_poses"),
+        distinct_positions=med("distinct_positions"))

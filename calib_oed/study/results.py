@@ -68,6 +68,10 @@ class DesignRow:
             feasible poses [mm²] (NaN without a certificate).
         kpi_efficiency: ``kpi_bound_mm2 / kpi_avg_variance_mm2`` [1] of a
             feasible design (NaN without a certificate or for an infeasible design).
+        distinct_poses: Distinct joint vectors of the design (the median over the
+            seeds for ``heuristic_median``; NaN in results stored before it was recorded).
+        distinct_positions: Distinct arm positions, reflectors more than 1 mm apart
+            (:mod:`calib_oed.oed.positions`; median and NaN as ``distinct_poses``).
     """
 
     case_id: str
@@ -92,6 +96,8 @@ class DesignRow:
     seconds: float
     kpi_bound_mm2: float = math.nan
     kpi_efficiency: float = math.nan
+    distinct_poses: float = math.nan
+    distinct_positions: float = math.nan
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)

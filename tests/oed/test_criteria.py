@@ -14,6 +14,7 @@ from calib_oed.exceptions import (
 )
 from calib_oed.oed.criteria import (
     CRITERIA,
+    MATRIX_CRITERIA,
     ACriterion,
     DCriterion,
     ECriterion,
@@ -33,7 +34,7 @@ def random_spd(n, seed):
 
 def all_criteria(n_p, seed=0):
     g = np.random.default_rng(seed).standard_normal((3, n_p))
-    return [make_criterion(name, kpi_jacobian=g, n_params=n_p) for name in CRITERIA]
+    return [make_criterion(name, kpi_jacobian=g, n_params=n_p) for name in MATRIX_CRITERIA]
 
 
 # ------------------------------------------------------------ hand values
@@ -167,8 +168,10 @@ def test_factory_needs_its_data():
     with pytest.raises(ValueError, match="n_params"):
         make_criterion("params")
     assert make_criterion("params", kpi_jacobian=np.ones((3, 4))).dim == 4
-    for name in CRITERIA:
+    for name in MATRIX_CRITERIA:
         assert make_criterion(name, kpi_jacobian=np.ones((1, 2)), n_params=2).name == name
+    with pytest.raises(ValueError, match="problem"):
+        make_criterion("kpi_model", kpi_jacobian=np.ones((3, 2)))
 
 
 def test_invalid_information_matrices():
