@@ -86,7 +86,9 @@ def _solve(weight):
     f, c, hess = _problem()
     res = solve_sqp(f, np.array([0.0, 2.0]), constraints=c, bounds=([-5, -5], [5, 5]),
                     lagrangian_hessian=hess, block_size=2,
-                    settings=SQPSettings(active_curvature=weight, tol_optimality=1e-10))
+                    settings=SQPSettings(active_curvature=weight, tol_optimality=1e-9))
+    # not 1e-10: the plain run converges linearly, and its last line searches are decided by
+    # merit differences of 1e-15 (relative), i.e. by the QP's last bits
     return res
 
 
