@@ -149,7 +149,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--aggregate", choices=("mean", "max"),
                    help="KPI of several points (criterion kpi): weighted mean variance, or the "
                    "worst-case variance max_i (epigraph SQP); default: the scene's kpi.aggregate")
-    p.add_argument("-o", "--output", metavar="DIR", help="write DIR/design.yaml and DIR/design.csv")
+    p.add_argument("-o", "--output", metavar="DIR", help="write DIR/design.yaml, DIR/design.csv and DIR/timing.yaml (the run's times)")
     p.add_argument("--controller", action="store_true", help="also write DIR/design_controller.csv "
                    "in the controller's joint values and angle unit (the scene's controller: block)")
     p.add_argument("--json", action="store_true", help="machine-readable output")

@@ -29,7 +29,10 @@ from calib_oed.units import ANGLE_UNITS, LENGTH_UNITS
 
 #: Keys of the scene's ``program:`` block.
 PROGRAM_KEYS = ("home", "dwell", "velocity_scale", "acceleration_time", "velocities",
-                "accelerations", "move_tolerance")
+                "accelerations", "move_tolerance", "planner_iterations")
+
+#: RRT-Connect iterations per blocked move (:func:`calib_oed.program.planner.plan_move`).
+DEFAULT_PLANNER_ITERATIONS = 20_000
 
 
 @dataclass(frozen=True, eq=False)
@@ -50,7 +53,8 @@ class ProgramSettings:
             (1 mm): every move keeps each capsule row :math:`g \\ge -\\delta`, i.e. at least
             ``margins.clearance - move_tolerance`` of true clearance; the measurement poses
             keep the full margin.
-        planner_time: Time budget of the motion planner per blocked move [s].
+        planner_iterations: Budget of the motion planner per blocked move, in RRT-Connect
+            iterations (not seconds: the same input gives the same program under any load).
         planner_seed: Seed of the planner's random samples.
         solver: Tour solver: ``"lkh"`` (LKH-3 through elkai) or ``"ortools"``.
         skip_unreachable: Leave out (with a note) a pose no certified path from home reaches
@@ -67,14 +71,17 @@ class ProgramSettings:
     velocities: dict = field(default_factory=dict)
     accelerations: dict = field(default_factory=dict)
     move_tolerance: float = 0.001
-    planner_time: float = 2.0
+    planner_iterations: int = DEFAULT_PLANNER_ITERATIONS
     planner_seed: int = 0
     solver: str = "lkh"
     skip_unreachable: bool = True
     wrap: bool = False
 
     def __post_init__(self):
-        for name in ("dwell", "acceleration_time", "move_tolerance", "planner_time"):
+        if (isinstance(self.planner_iterations, bool) or int(self.planner_iterations) != self.planner_iterations
+                or self.planner_iterations < 1):
+            raise ProgramError("planner_iterations", self.planner_iterations, "expected an integer >= 1")
+        for name in ("dwell", "acceleration_time", "move_tolerance"):
             value = getattr(self, name)
             if not np.isfinite(value) or value < 0 or (name == "acceleration_time" and value == 0):
                 raise ProgramError(name, value, "expected a finite number > 0 (dwell, "
@@ -126,6 +133,12 @@ def program_settings_from_scene(scene, **overrides) -> ProgramSettings:
         if table:
             values[key] = {j: reader.number(v, f"program.{key}.{j}", reader.angle, positive=True)
                            for j, v in table.items()}
+    if "planner_iterations" in spec:
+        value = spec["planner_iterations"]
+        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+            raise reader.fail("program.planner_iterations", f"expected an integer >= 1 (RRT-Connect "
+                              f"iterations per blocked move), got {value!r}")
+        values["planner_iterations"] = value
     if "velocity_scale" in values and values["velocity_scale"] > 1:
         raise reader.fail("program.velocity_scale", f"expected a number in (0, 1], got "
                           f"{values['velocity_scale']!r}")

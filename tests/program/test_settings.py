@@ -36,3 +36,14 @@ def test_bad_settings():
         ProgramSettings(solver="concorde")
     with pytest.raises(ProgramError, match="dwell"):
         ProgramSettings(dwell=-1.0)
+
+
+def test_planner_budget_is_an_iteration_count(kr16_scene):
+    scene = dataclasses.replace(kr16_scene, program={"planner_iterations": 500})
+    assert program_settings_from_scene(scene).planner_iterations == 500
+    assert program_settings_from_scene(scene, planner_iterations=7).planner_iterations == 7
+    for bad in (0, 2.5, "many", True):
+        with pytest.raises(SceneError, match="program.planner_iterations"):
+            program_settings_from_scene(dataclasses.replace(kr16_scene, program={"planner_iterations": bad}))
+    with pytest.raises(ProgramError, match="planner_iterations"):
+        ProgramSettings(planner_iterations=0)
