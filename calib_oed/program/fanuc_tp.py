@@ -10,7 +10,8 @@ J2_in`` on the controller's state, ``J23_factor`` 1 for the coupled arms). With 
 docs/scenes.md) the positions are the controller's values and the header states
 the map; without one the URDF's J3 is written unchanged and the header says so:
 convert (and check the signs of) J3 before loading on a FANUC arm.
-TP comments hold 32 characters, so the header is cut into short ``!`` lines.
+TP comments hold 32 characters, so the header is cut into short ``!`` lines;
+``;`` ends a TP statement, so a comment never holds one (written as ``,``).
 """
 
 from __future__ import annotations
@@ -34,7 +35,7 @@ def write_tp(program: Program, name: str) -> dict[str, str]:
     comments = []
     note = [] if program.controller is not None else [J2_J3_NOTE]
     for line in [*header_lines(program, "degrees (J1..J6)"), *note]:
-        comments += textwrap.wrap(line, 30)
+        comments += textwrap.wrap(line.replace(";", ","), 30)  # ';' would end the statement
     body = [f"! {c} ;" for c in comments]
     positions = {}
     for step in all_steps:

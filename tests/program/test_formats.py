@@ -13,6 +13,8 @@ import pytest
 from calib_oed.exceptions import ProgramError
 from calib_oed.program.continuous import MoveCheck
 from calib_oed.program.format_common import steps
+from calib_oed.program.fanuc_tp import J2_J3_NOTE
+from calib_oed.program.format_common import header_lines
 from calib_oed.program.formats import FORMATS, program_texts, write_program
 from calib_oed.program.records import Move, Program
 
@@ -122,6 +124,10 @@ def test_fanuc_tp(program):
         ("measure", r"\s*\d+:  ! measure pose (\d+) ;"),
         ("comment", r"\s*\d+:  ! (.{1,30}) ;")])
     assert any("J2/J3" in g[0] for name, g in rows if name == "comment")
+    # ';' ends a TP statement: each /MN line holds exactly one, its last character (the
+    # header's own sentences have ';' in them, issue 31)
+    assert all(line.count(";") == 1 and line.endswith(" ;") for line in mn.splitlines())
+    assert any(";" in line for line in header_lines(program, "degrees (J1..J6)") + [J2_J3_NOTE])
     blocks = re.findall(r"P\[(\d+)\]\{\n   GP1:\n\tUF : 0, UT : 1,\n"
                         + r"\tJ1= {0} deg,\tJ2= {0} deg,\tJ3= {0} deg,\n\tJ4= {0} deg,\tJ5= {0} deg,"
                         r"\tJ6= {0} deg\n\};".replace("{0}", NUM), pos)
