@@ -2,18 +2,28 @@
 
 ``CONST jointtarget jNAME:=[[j1,..,j6],[9E9,9E9,9E9,9E9,9E9,9E9]];`` [deg], moves
 ``MoveAbsJ jNAME\\NoEOffs, v1000, fine, tool0;``, ``WaitTime dwell;`` at each
-measurement pose with a comment naming it.
+measurement pose with a comment naming it. The routine is ``PROC <name>_run()``, not
+``main``: a task's ``main`` is the task's entry point and may exist in another module
+already (a second one does not load). Checked by ``rapidchecker`` in the tests.
 """
 
 from __future__ import annotations
 
+from calib_oed.exceptions import ProgramError
 from calib_oed.program.format_common import degrees, header_lines, require_six_axes, steps
 from calib_oed.program.records import Program
+
+
+#: Longest RAPID identifier (characters).
+RAPID_NAME_LENGTH = 32
 
 
 def write_rapid(program: Program, name: str) -> dict[str, str]:
     """``{name.mod: text}``; ``name`` is the module name."""
     require_six_axes(program, "rapid")
+    if len(name) > RAPID_NAME_LENGTH - len("_run"):
+        raise ProgramError("name", name, f"RAPID names hold {RAPID_NAME_LENGTH} characters: give at most "
+                           f"{RAPID_NAME_LENGTH - len('_run')} (the routine is NAME_run)")
     all_steps = steps(program)
     lines = [f"MODULE {name}"]
     lines += [f"  ! {line}" for line in header_lines(program, "degrees (robax rax_1..rax_6)")]
@@ -24,7 +34,7 @@ def write_rapid(program: Program, name: str) -> dict[str, str]:
         seen.add(step.name)
         lines.append(f"  CONST jointtarget j{step.name}:=[[{','.join(degrees(step.q))}],"
                      "[9E9,9E9,9E9,9E9,9E9,9E9]];")
-    lines.append("  PROC main()")
+    lines.append(f"  PROC {name}_run()")
     for step in all_steps:
         what = {"home": "home", "via": "via point (no measurement)"}.get(step.kind, f"pose {step.pose}")
         lines.append(f"    MoveAbsJ j{step.name}\\NoEOffs, v1000, fine, tool0; ! {what}")

@@ -83,25 +83,31 @@ def test_krl(program):
     files = program_texts(program, "krl", "calib_program")
     dat = _parse(files["calib_program.dat"].splitlines(), [
         ("head", r"&ACCESS RVP|&REL 1|DEFDAT CALIB_PROGRAM|ENDDAT"),
-        ("decl", r"DECL E6AXIS X(\w+)=\{" + ",".join(f"A{i} {NUM}" for i in range(1, 7))
+        ("decl", r"DECL E6AXIS XCAL_(\w+)=\{" + ",".join(f"A{i} {NUM}" for i in range(1, 7))
          + r",E1 0\.0,E2 0\.0,E3 0\.0,E4 0\.0,E5 0\.0,E6 0\.0\}")])
     targets = {g[0]: np.array(g[1:], float) for name, g in dat if name == "decl"}
     src = _parse(files["calib_program.src"].splitlines(), [
-        ("head", r"&ACCESS RVP|&REL 1|DEF CALIB_PROGRAM\( \)|END|  BAS\(#INITMOV, 0\)"
+        ("head", r"&ACCESS RVP|&REL 1|DEF CALIB_PROGRAM\( \)|END|  BAS \(#INITMOV,0 \)"
+         r"|  GLOBAL INTERRUPT DECL 3 WHEN \$STOPMESS==TRUE DO IR_STOPM \( \)|  INTERRUPT ON 3"
          r"|  \$VEL_AXIS\[\d\]=100"),
         ("comment", r"; .*"),
-        ("ptp", r"  PTP X(\w+) ; (.*)"),
+        ("ptp", r"  PTP XCAL_(\w+) ; (.*)"),
         ("wait", r"  WAIT SEC " + NUM + r" ; measure pose (\d+)")])
     got = [(*_kind(g[1]), targets[g[0]]) for name, g in src if name == "ptp"]
     dwells = [(float(g[0]), int(g[1])) for name, g in src if name == "wait"]
     _check([(k, q, p) for k, p, q in got], dwells, program)
     assert "; joint values: URDF joint angles in degrees" in files["calib_program.src"]
+    # no global name of the controller redefined; the stop-message interrupt before the first move
+    assert "XHOME" not in files["calib_program.dat"].replace("XCAL_HOME", "")
+    src_lines = files["calib_program.src"].splitlines()
+    assert src_lines.index("  INTERRUPT ON 3") < src_lines.index("  BAS (#INITMOV,0 )") < min(
+        i for i, line in enumerate(src_lines) if line.startswith("  PTP"))
 
 
 def test_rapid(program):
     text = program_texts(program, "rapid", "CalibProgram")["CalibProgram.mod"]
     rows = _parse(text.splitlines(), [
-        ("head", r"MODULE CalibProgram|ENDMODULE|  PROC main\(\)|  ENDPROC"),
+        ("head", r"MODULE CalibProgram|ENDMODULE|  PROC CalibProgram_run\(\)|  ENDPROC"),
         ("comment", r"  ! .*"),
         ("target", r"  CONST jointtarget j(\w+):=\[\[" + ",".join([NUM] * 6)
          + r"\],\[9E9,9E9,9E9,9E9,9E9,9E9\]\];"),
@@ -111,6 +117,19 @@ def test_rapid(program):
     got = [(*_kind(g[1]), targets[g[0]]) for name, g in rows if name == "move"]
     dwells = [(float(g[0]), int(g[1])) for name, g in rows if name == "wait"]
     _check([(k, q, p) for k, p, q in got], dwells, program)
+
+
+@pytest.mark.filterwarnings("ignore::DeprecationWarning")  # rapidchecker's own pyparsing calls
+def test_rapid_passes_an_independent_checker(program):
+    """rapidchecker (PyPI; a pyparsing grammar of RAPID and ABB's formatting rules): 0 findings,
+    and it does find a missing comma (so the check can fail)."""
+    from rapidchecker.cli import check_file
+
+    text = program_texts(program, "rapid", "CalibProgram")["CalibProgram.mod"]
+    assert [str(e) for e in check_file(text)] == []
+    assert check_file(text.replace("\\NoEOffs, v1000", "\\NoEOffs v1000", 1))
+    with pytest.raises(ProgramError, match="28"):
+        program_texts(program, "rapid", "N" * 29)
 
 
 def test_fanuc_tp(program):
