@@ -14,7 +14,12 @@ import pytest
 
 import calib_oed.study.runner as study_module
 from calib_oed.calibration.workflow import setup
-from calib_oed.exceptions import OptionalDependencyError, StudyConfigError, StudyResumeError
+from calib_oed.exceptions import (
+    OptionalDependencyError,
+    StudyConfigError,
+    StudyLockError,
+    StudyResumeError,
+)
 from calib_oed.model.kuka import notional_grid
 from calib_oed.scene.reader import load_scene
 from calib_oed.study.case import colliding_poses
@@ -278,6 +283,43 @@ def test_failed_case_is_reported_not_stored(tmp_path, monkeypatch):
     assert list((tmp_path / "cases").iterdir()) == []
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert len(summary["failures"]) == 2
+
+
+def test_interrupted_case_is_not_stored(tmp_path, monkeypatch):
+    """A design stopped by Ctrl-C/SIGTERM returns its best-so-far design (interrupted); the
+    case then stops the study instead of being saved as finished (issue 31)."""
+    import dataclasses
+
+    import calib_oed.study.case as case_module
+
+    real = case_module.design
+
+    def stopped(*args, **kwargs):
+        d = real(*args, **{**kwargs, "settings": dataclasses.replace(kwargs["settings"], max_iterations=1)})
+        return dataclasses.replace(d, solver={**d.solver, "interrupted": True})
+
+    monkeypatch.setattr(case_module, "design", stopped)
+    with pytest.raises(KeyboardInterrupt):
+        run_study(study_config_from_dict(smoke()), tmp_path, n_jobs=1, progress=False)
+    assert list((tmp_path / "cases").iterdir()) == []
+    assert not (tmp_path / "summary.json").exists()
+
+
+def test_one_process_owns_a_study_folder(tmp_path, monkeypatch):
+    calls = []
+    monkeypatch.setattr(study_module, "run_case", lambda case: calls.append(case))
+    with study_module.folder_lock(tmp_path):
+        with pytest.raises(StudyLockError, match=r"in use by another study process \(pid \d+\).*-o"):
+            run_study(study_config_from_dict(smoke()), tmp_path, n_jobs=1, progress=False)
+    assert calls == [] and not (tmp_path / "summary.json").exists()
+
+
+def test_a_cluster_without_workers_is_an_error(tmp_path):
+    distributed = pytest.importorskip("distributed")
+    with distributed.LocalCluster(n_workers=0, processes=False, dashboard_address=None) as cluster:
+        with pytest.raises(StudyConfigError, match="has no workers"):
+            run_study(study_config_from_dict(smoke()), tmp_path, scheduler=cluster.scheduler_address,
+                      progress=False)
 
 
 def test_dask_cluster_gives_the_same_results(smoke_study, tmp_path):
