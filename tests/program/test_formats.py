@@ -215,3 +215,21 @@ def test_csv_reads_back_for_the_viewer(program, tmp_path):
     write_program(program, "krl", tmp_path / "krl")
     with pytest.raises(ProgramError, match="--format csv"):
         read_program_csv(tmp_path / "krl", JOINTS)
+
+
+def test_fanuc_tp_has_the_controller_written_layout(program):
+    """The layout of .ls files a FANUC controller writes itself (`OWNER = MNEDITOR`; e.g.
+    ros-industrial/fanuc, fanuc_driver/TPE/ros.ls): `/PROG  NAME` (two spaces), then `/ATTR`
+    with `KEY<tabs>= value;` lines, `/MN` with numbered statements `<4-wide number>:` each
+    ending in `;`, `/POS` and `/END` last, in that order and each once."""
+    text = program_texts(program, "tp", "calib_program")["calib_program.ls"]
+    lines = text.splitlines()
+    sections = [line.split()[0] for line in lines if line.startswith("/")]
+    assert sections == ["/PROG", "/ATTR", "/MN", "/POS", "/END"] and lines[-1] == "/END"
+    assert re.fullmatch(r"/PROG  [A-Z][A-Z0-9_]*", lines[0])
+    attr = lines[lines.index("/ATTR") + 1:lines.index("/MN")]
+    assert attr and all(re.fullmatch(r"[A-Z_]+\t+= .*;", line) for line in attr)
+    mn = lines[lines.index("/MN") + 1:lines.index("/POS")]
+    numbers = [int(re.match(r"\s*(\d+):", line).group(1)) for line in mn]
+    assert numbers == list(range(1, len(mn) + 1))
+    assert all(re.match(r"[ \d]{4}:  \S", line) and line.endswith(" ;") for line in mn)

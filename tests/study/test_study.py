@@ -465,3 +465,41 @@ def test_certificate_bounds_every_feasible_design(tmp_path):
     assert tables["cases"][True][0]["efficiency"] == pytest.approx(kpi_opt.kpi_efficiency)
     report = write_report(again, tmp_path, figures=False)["report"].read_text()
     assert "lower bound [mm²]" in report and "## Optimality certificate" in report
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not Path(sys.executable).with_name("dask").exists(), reason="needs the dask command")
+def test_sigterm_on_a_command_line_cluster_then_resume_equals_jobs_1(smoke_study, tmp_path):
+    """Issue 31's target: scheduler and worker started from the command line on 127.0.0.1, the
+    study SIGTERM'd while it runs, resumed: the same table as the uninterrupted --jobs 1 run."""
+    import signal
+    import subprocess
+    import time
+
+    dask = str(Path(sys.executable).with_name("dask"))
+    info = tmp_path / "scheduler.json"
+    procs = [subprocess.Popen([dask, "scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
+                               "--scheduler-file", str(info)], stderr=subprocess.DEVNULL)]
+    try:
+        t0 = time.monotonic()
+        while not info.exists() and time.monotonic() - t0 < 60:
+            time.sleep(0.2)
+        address = json.loads(info.read_text())["address"]
+        procs.append(subprocess.Popen([dask, "worker", address, "--nthreads", "1", "--nworkers", "1",
+                                       "--no-dashboard"], stderr=subprocess.DEVNULL))
+        out = tmp_path / "out"
+        argv = [sys.executable, "-m", "calib_oed", "study", "smoke", "-o", str(out), "--scheduler", address,
+                "--no-report"]
+        first = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        time.sleep(20)  # inside the first case (smoke: two cases)
+        first.send_signal(signal.SIGTERM)
+        _, err = first.communicate(timeout=120)
+        assert first.returncode in (0, 130), err
+        second = subprocess.run(argv, capture_output=True, text=True, timeout=1800)
+        assert second.returncode == 0, second.stderr
+    finally:
+        for p in reversed(procs):
+            p.terminate()
+            p.wait(timeout=60)
+    assert without_timing(read_csv(out / "results.csv")) == without_timing(
+        read_csv(smoke_study.out_dir / "results.csv"))
