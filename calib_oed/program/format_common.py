@@ -16,6 +16,7 @@ import numpy as np
 
 from calib_oed.exceptions import ProgramError
 from calib_oed.program.records import Program
+from calib_oed.program.timing import JointDynamics
 
 #: Decimals of the angles written in degrees, and in radians (URScript, CSV).
 DEG_DECIMALS = 4
@@ -32,17 +33,24 @@ class Step:
             controller convention, else URDF angles.
         pose: Pose number (1-based row of the design) for measurement poses, else ``None``.
         name: A target name unique in the program (``HOME``, ``P12``, ``V3``).
+        time: The estimated time [s] of the move into this target from the one before, at
+            the joint limits of the program's timing (the time of its slowest joint, as the
+            cycle time estimate counts it); ``None`` for the first target or without limits.
     """
 
     kind: str
     q: np.ndarray
     pose: int | None
     name: str
+    time: float | None = None
 
 
 def steps(program: Program) -> list[Step]:
     """The program's targets in order, named (home at both ends, via points numbered)."""
-    out, vias = [], 0
+    out, vias, before = [], 0, None
+    limits = program.velocity is not None and program.acceleration is not None
+    if limits:
+        dyn = JointDynamics(np.asarray(program.velocity, float), np.asarray(program.acceleration, float))
     for kind, q, index in program.steps():
         if kind == "via":
             vias += 1
@@ -52,9 +60,11 @@ def steps(program: Program) -> list[Step]:
         else:
             name = "HOME"
         q = np.asarray(q, dtype=float)
+        time = float(dyn.move_time(before, q)) if limits and before is not None else None
+        before = q
         if program.controller is not None:
             q = program.controller.to_controller(q)
-        out.append(Step(kind, q, None if index is None else index + 1, name))
+        out.append(Step(kind, q, None if index is None else index + 1, name, time))
     return out
 
 

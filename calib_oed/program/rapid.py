@@ -1,8 +1,10 @@
 """ABB RAPID: a ``.mod`` with ``MoveAbsJ`` to ``jointtarget`` constants.
 
 ``CONST jointtarget jNAME:=[[j1,..,j6],[9E9,9E9,9E9,9E9,9E9,9E9]];`` [deg], moves
-``MoveAbsJ jNAME\\NoEOffs, v1000, fine, tool0;``, ``WaitTime dwell;`` at each
-measurement pose with a comment naming it. The routine is ``PROC <name>_run()``, not
+``MoveAbsJ jNAME\\NoEOffs, v1000\\T:=t, fine, tool0;``, ``WaitTime dwell;`` at each
+measurement pose with a comment naming it. ``\\T:=t`` is the move's estimated time [s]
+(its slowest joint at the timing's limits): without it ``v1000`` caps the TCP at
+1000 mm/s and long moves take longer than the estimate. The routine is ``PROC <name>_run()``, not
 ``main``: a task's ``main`` is the task's entry point and may exist in another module
 already (a second one does not load). Checked by ``rapidchecker`` in the tests.
 """
@@ -13,6 +15,9 @@ from calib_oed.exceptions import ProgramError
 from calib_oed.program.format_common import degrees, header_lines, require_six_axes, steps
 from calib_oed.program.records import Program
 
+
+#: Moves shorter than this [s] get no ``\\T`` (a zero time is not a RAPID move time).
+MIN_TIME = 1e-3
 
 #: Longest RAPID identifier (characters).
 RAPID_NAME_LENGTH = 32
@@ -37,7 +42,9 @@ def write_rapid(program: Program, name: str) -> dict[str, str]:
     lines.append(f"  PROC {name}_run()")
     for step in all_steps:
         what = {"home": "home", "via": "via point (no measurement)"}.get(step.kind, f"pose {step.pose}")
-        lines.append(f"    MoveAbsJ j{step.name}\\NoEOffs, v1000, fine, tool0; ! {what}")
+        # \T: the move takes the estimated time (v1000 alone caps the TCP at 1 m/s)
+        speed = "v1000" if not step.time or step.time < MIN_TIME else f"v1000\\T:={step.time:.3f}"
+        lines.append(f"    MoveAbsJ j{step.name}\\NoEOffs, {speed}, fine, tool0; ! {what}")
         if step.kind == "pose":
             lines.append(f"    WaitTime {program.dwell:.2f}; ! measure pose {step.pose}")
     lines += ["  ENDPROC", "ENDMODULE"]
