@@ -14,7 +14,6 @@ from __future__ import annotations
 from calib_oed.program.format_common import degrees, header_lines, require_six_axes, steps
 from calib_oed.program.records import Program
 
-
 #: Prefix of the targets' names in the ``.dat`` (not ``X``: ``XHOME`` is the controller's).
 TARGET_PREFIX = "XCAL_"
 

@@ -15,7 +15,6 @@ from calib_oed.exceptions import ProgramError
 from calib_oed.program.format_common import degrees, header_lines, require_six_axes, steps
 from calib_oed.program.records import Program
 
-
 #: Moves shorter than this [s] get no ``\\T`` (a zero time is not a RAPID move time).
 MIN_TIME = 1e-3
 

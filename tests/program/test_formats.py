@@ -12,7 +12,6 @@ import pytest
 
 from calib_oed.exceptions import ProgramError
 from calib_oed.program.continuous import MoveCheck
-from calib_oed.program.format_common import steps
 from calib_oed.program.fanuc_tp import J2_J3_NOTE
 from calib_oed.program.format_common import header_lines, steps
 from calib_oed.program.formats import FORMATS, program_texts, write_program
