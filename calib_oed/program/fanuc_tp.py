@@ -27,6 +27,16 @@ J2_J3_NOTE = ("J2/J3: J3 is the URDF angle relative to the upper arm, NOT the FA
               "or add a controller: block to the scene")
 
 
+def _measure(program: Program) -> list[str]:
+    """The statements at a measurement pose: the dwell, or the handshake (docs/program.md)."""
+    hs = program.handshake
+    if hs is None:
+        return [f"WAIT {program.dwell:6.2f}(sec) ;"]
+    if hs.routine is not None:
+        return [f"CALL {hs.routine.upper()} ;"]
+    return [f"DO[{hs.output}]=ON ;", f"WAIT DI[{hs.input}]=ON ;", f"DO[{hs.output}]=OFF ;"]
+
+
 def write_tp(program: Program, name: str) -> dict[str, str]:
     """``{name.ls: text}``; ``name`` is the TP program name."""
     require_six_axes(program, "tp")
@@ -46,7 +56,7 @@ def write_tp(program: Program, name: str) -> dict[str, str]:
         body.append(f"J P[{k}:{what}] 100% FINE ;")
         if step.kind == "pose":
             body.append(f"! measure pose {step.pose} ;")
-            body.append(f"WAIT {program.dwell:6.2f}(sec) ;")
+            body += _measure(program)
     lines = [f"/PROG  {prog}", "/ATTR", "COMMENT\t\t= \"calib_oed\";", "DEFAULT_GROUP\t= 1,*,*,*,*;",
              "/MN"]
     lines += [f"{i:4d}:  {text}" for i, text in enumerate(body, start=1)]

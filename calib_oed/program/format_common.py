@@ -68,6 +68,17 @@ def steps(program: Program) -> list[Step]:
     return out
 
 
+def _at_pose(program: Program) -> str:
+    """The header line saying what happens at each measurement pose."""
+    hs = program.handshake
+    if hs is None:
+        return f"at each measurement pose: dwell {program.dwell:.2f} s (settle, tracker measures)"
+    if hs.routine is not None:
+        return f"at each measurement pose: call {hs.routine} (the tracker's handshake, no dwell)"
+    return (f"at each measurement pose: set digital output {hs.output}, wait for digital input "
+            f"{hs.input}, reset the output (the tracker's handshake, no dwell)")
+
+
 def require_six_axes(program: Program, fmt: str) -> None:
     """Controller languages here take 6 robot axes; other robots get the CSV."""
     if len(program.joint_names) != 6:
@@ -93,7 +104,7 @@ def header_lines(program: Program, units: str) -> list[str]:
     return [
         f"calib_oed measurement program, scene {program.scene}: {len(program.poses)} poses",
         *convention,
-        f"at each measurement pose: dwell {program.dwell:.2f} s (settle, tracker measures)",
+        _at_pose(program),
         "pose N = row N of the design file (from 1); via points are not measured",
         f"estimated cycle time {t['optimised']:.1f} s (design order {t['design order']:.1f} s)",
         "every move checked collision-free against the scene's capsule model",

@@ -18,6 +18,17 @@ from calib_oed.program.records import Program
 TARGET_PREFIX = "XCAL_"
 
 
+def _measure(program: Program, pose: int) -> list[str]:
+    """The lines at a measurement pose: the dwell, or the handshake (docs/program.md)."""
+    hs = program.handshake
+    if hs is None:
+        return [f"  WAIT SEC {program.dwell:.2f} ; measure pose {pose}"]
+    if hs.routine is not None:
+        return [f"  {hs.routine.upper()}( ) ; measure pose {pose}"]
+    return [f"  $OUT[{hs.output}]=TRUE ; measure pose {pose}", f"  WAIT FOR $IN[{hs.input}]",
+            f"  $OUT[{hs.output}]=FALSE"]
+
+
 def write_krl(program: Program, name: str) -> dict[str, str]:
     """``{name.src: text, name.dat: text}``; ``name`` is the KRL module name."""
     require_six_axes(program, "krl")
@@ -32,7 +43,7 @@ def write_krl(program: Program, name: str) -> dict[str, str]:
         what = {"home": "home", "via": "via point (no measurement)"}.get(step.kind, f"pose {step.pose}")
         src.append(f"  PTP {TARGET_PREFIX}{step.name} ; {what}")
         if step.kind == "pose":
-            src.append(f"  WAIT SEC {program.dwell:.2f} ; measure pose {step.pose}")
+            src += _measure(program, step.pose)
     src.append("END")
     dat = ["&ACCESS RVP", "&REL 1", f"DEFDAT {module}"]
     seen = set()

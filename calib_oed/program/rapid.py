@@ -22,6 +22,17 @@ MIN_TIME = 1e-3
 RAPID_NAME_LENGTH = 32
 
 
+def _measure(program: Program, pose: int) -> list[str]:
+    """The lines at a measurement pose: the dwell, or the handshake (docs/program.md)."""
+    hs = program.handshake
+    if hs is None:
+        return [f"    WaitTime {program.dwell:.2f}; ! measure pose {pose}"]
+    if hs.routine is not None:
+        return [f"    {hs.routine}; ! measure pose {pose}"]
+    do, di = hs.output_name or f"do{hs.output}", hs.input_name or f"di{hs.input}"
+    return [f"    SetDO {do}, 1; ! measure pose {pose}", f"    WaitDI {di}, 1;", f"    SetDO {do}, 0;"]
+
+
 def write_rapid(program: Program, name: str) -> dict[str, str]:
     """``{name.mod: text}``; ``name`` is the module name."""
     require_six_axes(program, "rapid")
@@ -45,6 +56,6 @@ def write_rapid(program: Program, name: str) -> dict[str, str]:
         speed = "v1000" if not step.time or step.time < MIN_TIME else f"v1000\\T:={step.time:.3f}"
         lines.append(f"    MoveAbsJ j{step.name}\\NoEOffs, {speed}, fine, tool0; ! {what}")
         if step.kind == "pose":
-            lines.append(f"    WaitTime {program.dwell:.2f}; ! measure pose {step.pose}")
+            lines += _measure(program, step.pose)
     lines += ["  ENDPROC", "ENDMODULE"]
     return {f"{name}.mod": "\n".join(lines) + "\n"}

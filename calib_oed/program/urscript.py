@@ -13,6 +13,18 @@ from calib_oed.program.format_common import RAD_DECIMALS, header_lines, require_
 from calib_oed.program.records import Program
 
 
+def _measure(program: Program, pose: int) -> list[str]:
+    """The lines at a measurement pose: the dwell, or the handshake (docs/program.md)."""
+    hs = program.handshake
+    if hs is None:
+        return [f"  sleep({program.dwell:.2f})  # measure pose {pose}"]
+    if hs.routine is not None:
+        return [f"  {hs.routine}()  # measure pose {pose}"]
+    return [f"  set_standard_digital_out({hs.output}, True)  # measure pose {pose}",
+            f"  while not get_standard_digital_in({hs.input}):", "    sync()", "  end",
+            f"  set_standard_digital_out({hs.output}, False)"]
+
+
 def write_urscript(program: Program, name: str) -> dict[str, str]:
     """``{name.script: text}``; ``movej``'s ``v`` [rad/s] and ``a`` [rad/s²] are the smallest
     joint limits of the program's timing (URScript's defaults 1.05 and 1.4 if it has none)."""
@@ -28,7 +40,7 @@ def write_urscript(program: Program, name: str) -> dict[str, str]:
         timed = f", t={step.time:.3f}" if step.time and step.time >= 1e-3 else ""
         lines.append(f"  movej([{values}], a={acceleration:.4f}, v={velocity:.4f}{timed})")
         if step.kind == "pose":
-            lines.append(f"  sleep({program.dwell:.2f})  # measure pose {step.pose}")
+            lines += _measure(program, step.pose)
     lines.append("end")
     lines.append(f"{name}()")
     return {f"{name}.script": "\n".join(lines) + "\n"}

@@ -16,6 +16,7 @@ from calib_oed.program.fanuc_tp import J2_J3_NOTE
 from calib_oed.program.format_common import header_lines, steps
 from calib_oed.program.formats import FORMATS, program_texts, write_program
 from calib_oed.program.records import Move, Program
+from calib_oed.program.settings import Handshake
 
 NUM = r"(-?\d+\.\d+)"
 JOINTS = tuple(f"joint_a{i}" for i in range(1, 7))
@@ -254,3 +255,39 @@ def test_written_move_times_are_the_estimate(built_program, fmt, pattern):
     assert len(times) == len(steps(program)) - 1
     written = sum(times) + program.dwell * len(program.order)
     assert written == pytest.approx(program.cycle_times["optimised"], rel=1e-3)
+
+
+@pytest.mark.filterwarnings("ignore::DeprecationWarning")  # rapidchecker's own pyparsing calls
+@pytest.mark.parametrize("handshake, expected", [
+    (Handshake(output=3, input=4), {"krl": ["  $OUT[3]=TRUE ; measure pose {p}", "  WAIT FOR $IN[4]", "  $OUT[3]=FALSE"],
+                                    "rapid": ["    SetDO do3, 1; ! measure pose {p}", "    WaitDI di4, 1;",
+                                              "    SetDO do3, 0;"],
+                                    "tp": ["DO[3]=ON ;", "WAIT DI[4]=ON ;", "DO[3]=OFF ;"],
+                                    "urscript": ["  set_standard_digital_out(3, True)  # measure pose {p}",
+                                                 "  while not get_standard_digital_in(4):", "    sync()", "  end",
+                                                 "  set_standard_digital_out(3, False)"]}),
+    (Handshake(routine="TrackerMeasure"), {"krl": ["  TRACKERMEASURE( ) ; measure pose {p}"],
+                                           "rapid": ["    TrackerMeasure; ! measure pose {p}"],
+                                           "tp": ["CALL TRACKERMEASURE ;"],
+                                           "urscript": ["  TrackerMeasure()  # measure pose {p}"]}),
+])
+def test_handshake_replaces_the_dwell(program, handshake, expected):
+    """After every measurement pose (in the tour's order) the handshake's lines, and no dwell."""
+    import dataclasses
+
+    from rapidchecker.cli import check_file
+
+    prog = dataclasses.replace(program, handshake=handshake)
+    poses = [s.pose for s in steps(prog) if s.kind == "pose"]
+    for fmt, block in expected.items():
+        files = program_texts(prog, fmt, "CalibProgram")
+        text = files.get("CalibProgram.src") or next(iter(files.values()))
+        lines = [re.sub(r"^\s*\d+:  ", "", line) if fmt == "tp" else line for line in text.splitlines()]
+        assert not any(w in text for w in ("WAIT SEC", "WaitTime", "(sec)", "sleep("))
+        stripped = [line.strip() for line in lines]
+        for p in poses:
+            want = [line.format(p=p).strip() for line in block]
+            assert any(stripped[i:i + len(want)] == want for i in range(len(lines))), (fmt, p, want)
+        assert "handshake" in text
+        if fmt == "rapid":
+            assert [str(e) for e in check_file(text)] == []

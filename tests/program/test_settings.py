@@ -47,3 +47,18 @@ def test_planner_budget_is_an_iteration_count(kr16_scene):
             program_settings_from_scene(dataclasses.replace(kr16_scene, program={"planner_iterations": bad}))
     with pytest.raises(ProgramError, match="planner_iterations"):
         ProgramSettings(planner_iterations=0)
+
+
+def test_handshake_block(kr16_scene):
+    from calib_oed.program.settings import Handshake
+
+    def read(block):
+        return program_settings_from_scene(dataclasses.replace(kr16_scene, program={"handshake": block}))
+
+    assert read({"output": 1, "input": 2}).handshake == Handshake(output=1, input=2)
+    assert read({"routine": "measure"}).handshake == Handshake(routine="measure")
+    assert ProgramSettings().handshake is None
+    for bad in ({"output": 1}, {"output": 1, "input": 2, "routine": "x"}, {"routine": "a b"},
+                {"output": -1, "input": 2}, {"signal": 1}):
+        with pytest.raises(SceneError, match="program.handshake"):
+            read(bad)
