@@ -302,6 +302,23 @@ class StudyConfigError(CalibOedError):
         super().__init__(f"{where}{at}{message}")
 
 
+class StudyLockError(CalibOedError):
+    """Another process is running a study into the same output folder.
+
+    Attributes:
+        folder: The output folder.
+        owner: What the lock file says about the other process (its pid), or ``""``.
+    """
+
+    def __init__(self, folder, owner: str = ""):
+        self.folder = str(folder)
+        self.owner = owner
+        super().__init__(
+            f"the study folder {self.folder} is in use by another study process"
+            f"{f' ({owner})' if owner else ''}; wait for it to finish, or give another -o folder"
+        )
+
+
 class StudyResumeError(CalibOedError):
     """A study output folder holds a case result computed with other settings.
 

@@ -11,6 +11,7 @@ what they share in :mod:`calib_oed.cli._common`.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import sys
 import traceback
@@ -155,7 +156,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--aggregate", choices=("mean", "max"),
                    help="KPI of several points (criterion kpi): weighted mean variance, or the "
                    "worst-case variance max_i (epigraph SQP); default: the scene's kpi.aggregate")
-    p.add_argument("-o", "--output", metavar="DIR", help="write DIR/design.yaml and DIR/design.csv")
+    p.add_argument("-o", "--output", metavar="DIR", help="write DIR/design.yaml, DIR/design.csv and DIR/timing.yaml (the run's times)")
     p.add_argument("--controller", action="store_true", help="also write DIR/design_controller.csv "
                    "in the controller's joint values and angle unit (the scene's controller: block)")
     p.add_argument("--json", action="store_true", help="machine-readable output")
@@ -365,14 +366,27 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Run the command line; returns the exit code (docs/cli.md)."""
+def main(argv: list[str] | None = None, *, as_command: bool | None = None) -> int:
+    """Run the command line; returns the exit code (docs/cli.md).
+
+    Args:
+        argv: The arguments; ``None`` reads ``sys.argv``, as the console script and
+            ``python -m calib_oed`` do.
+        as_command: Whether this process is the command, so that SIGTERM and
+            SIGINT handlers may be installed (:func:`sigterm_as_interrupt`).
+            Default: only when ``argv`` is ``None``. A test that calls
+            ``main([...])`` in its own process keeps the process's handlers, so a
+            time limit that sends SIGTERM to pytest stops pytest.
+    """
+    if as_command is None:
+        as_command = argv is None
     parser = build_parser()
     argv = list(sys.argv[1:] if argv is None else argv)
     args = parser.parse_args(join_signed_values(argv, parser))
     args.argv = argv
+    signals = sigterm_as_interrupt() if as_command else contextlib.nullcontext()
     try:
-        with sigterm_as_interrupt(), notes_as_lines():
+        with signals, notes_as_lines():
             check_outputs(args)  # before any work: a bad path costs nothing
             _apply_compliance(args)
             return args.func(args)

@@ -27,6 +27,9 @@ def add_program_parser(sub) -> None:
                    "configuration); write --home=-9,-73,... when it starts with a minus")
     p.add_argument("--dwell", type=float, metavar="SECONDS", help="settle and measure time per "
                    "pose (default: the scene's program.dwell, else 2 s)")
+    p.add_argument("--planner-iterations", type=int, metavar="N", help="RRT-Connect iterations per "
+                   "blocked move (default: the scene's program.planner_iterations, else 20000); "
+                   "a count, not seconds, so the same input gives the same program under any load")
     p.add_argument("--strict", action="store_true", help="stop with an error when a pose cannot "
                    "be reached from home (default: leave it out, named in the output and the files)")
     p.add_argument("--wrap", action="store_true", help="measure each pose at the joint values whole "
@@ -74,7 +77,7 @@ def cmd_program(args) -> int:
                            "(letters, digits, _)")
     q = read_design_file(args.design, scene.robot, controller=scene.controller)
     settings = program_settings_from_scene(scene, home=_home(args.home, scene.robot),
-                                           dwell=args.dwell,
+                                           planner_iterations=args.planner_iterations,
                                            skip_unreachable=not args.strict, wrap=args.wrap)
     _say(args, f"ordering and checking {len(q)} poses of {args.design} in scene {scene.name!r} ...")
     program = build_program(scene, q, settings)

@@ -54,7 +54,9 @@ The efficiency of a design is bound/value (A) or
 Newton steps. The working set is the support plus the candidates with the
 largest :math:`d_i > \bar d`; on it one QP
 :math:`\min_s \tfrac12 s^\top H s - d^\top s`, :math:`\mathbf 1^\top s = 0`,
-:math:`s \ge -w` (ProxQP) with the exact Hessian
+:math:`s \ge -w` (a deterministic active-set QP, :mod:`calib_oed.solver.simplex_qp`:
+ProxQP's last bits depend on where its buffers lie, which made designs differ
+between processes) with the exact Hessian
 :math:`H_{ij} = c\sum (F_i(-\Gamma)F_j^\top)\odot(F_i M^{-1}F_j^\top)`
 (:math:`c = 2` for A, 1 for D; ``docs/derivations.md`` §12), then an
 Armijo line search; a pairwise (vertex-exchange) step when the QP gives no
@@ -71,13 +73,13 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
-import proxsuite
 import scipy.linalg
 
 from calib_oed.exceptions import CertificateError, NotIdentifiableError
 from calib_oed.oed.criteria import ACriterion, DCriterion
 from calib_oed.oed.criterion_base import Criterion
 from calib_oed.oed.exchange import check_blocks
+from calib_oed.solver.simplex_qp import solve_simplex_qp
 
 __all__ = ["CERTIFIABLE", "DROP_WEIGHT", "NEWTON_REGULARISATION", "ApproximateDesign",
            "criterion_kind", "efficiency", "information", "lower_bound", "mean_sensitivity",
@@ -234,20 +236,16 @@ def _hessian(blocks_s: np.ndarray, gamma: np.ndarray, cov: np.ndarray, kind: str
 
 
 def _newton_direction(h: np.ndarray, grad: np.ndarray, w: np.ndarray) -> np.ndarray | None:
-    r"""Step :math:`s` of :math:`\min \tfrac12 s^\top H s + g^\top s`, :math:`\mathbf 1^\top s = 0`, :math:`-w \le s \le 1 - w` (ProxQP)."""
+    r"""Step :math:`s` of :math:`\min \tfrac12 s^\top H s + g^\top s`, :math:`\mathbf 1^\top s = 0`,
+    :math:`-w \le s \le 1 - w`, by the deterministic active-set QP
+    (:func:`calib_oed.solver.simplex_qp.solve_simplex_qp`: same bits in every process).
+    """
     m = w.size
     # H is singular for rank-deficient W (kpi: rank 3) once the working set is large; a
-    # Levenberg term keeps ProxQP fast (seconds per QP without it) and the step a descent one
+    # Levenberg term keeps the KKT systems regular and the step a descent one
     reg = NEWTON_REGULARISATION * max(float(np.max(np.diag(h))), 1e-300)
-    qp = proxsuite.proxqp.dense.QP(m, 1, 0, True)
-    st = qp.settings
-    st.eps_abs, st.eps_rel, st.verbose = 1e-10, 0.0, False
-    st.max_iter, st.max_iter_in = 500, 200  # bound the time of a degenerate QP
-    qp.init(h + reg * np.eye(m), grad, np.ones((1, m)), np.zeros(1), None, None, None, -w, 1.0 - w)
-    qp.solve()
-    step = np.array(qp.results.x, dtype=float)
-    # ProxQP does not flag failures: check the constraints ourselves
-    if not np.all(np.isfinite(step)) or abs(step.sum()) > 1e-6 or np.min(w + step) < -1e-6:
+    step = solve_simplex_qp(h + reg * np.eye(m), grad, np.ones(m), -w, 1.0 - w, np.zeros(m))
+    if step is None or not np.all(np.isfinite(step)) or abs(step.sum()) > 1e-6 or np.min(w + step) < -1e-6:
         return None
     return step
 

@@ -3,8 +3,11 @@
 ``DIR/design.yaml`` holds the scene, the joint names, the configurations (rad
 and deg), the criterion values, the KPI standard deviations, the constraint
 margins and the solver record; ``DIR/design.csv`` the plain joint values
-(header = URDF joint names, one row per pose, rad). Both are written
-atomically (:mod:`calib_oed.io.atomic`).
+(header = URDF joint names, one row per pose, rad); ``DIR/timing.yaml`` the
+run's wall and CPU times (every ``seconds``, ``cpu_seconds``, ``time`` and
+``times`` entry, at the same place in the record), which depend on the
+machine and its load, so that the design files of one seed are the same bytes
+in every run. All are written atomically (:mod:`calib_oed.io.atomic`).
 """
 
 from __future__ import annotations
@@ -215,17 +218,48 @@ class Design:
         })
 
 
+#: Keys of a design record that hold wall or CPU times (they go to ``timing.yaml``).
+TIMING_KEYS = frozenset({"seconds", "cpu_seconds", "time", "times"})
+
+
+def split_timing(record):
+    """``(content, timing)``: the record without its :data:`TIMING_KEYS` entries, and those
+    entries alone at the same place (dicts and lists kept where they hold one); ``None``
+    for a part with nothing in it."""
+    if isinstance(record, dict):
+        content, timing = {}, {}
+        for key, value in record.items():
+            if key in TIMING_KEYS:
+                timing[key] = value
+                continue
+            content[key], t = split_timing(value)
+            if t is not None:
+                timing[key] = t
+        return content, (timing or None)
+    if isinstance(record, list):
+        parts = [split_timing(v) for v in record]
+        timing = [t for _, t in parts]
+        return [c for c, _ in parts], (timing if any(t is not None for t in timing) else None)
+    return record, None
+
+
 def write_design(folder: str | os.PathLike, design: Design, robot: Robot) -> dict[str, Path]:
-    """Write ``design.yaml`` and ``design.csv`` into ``folder`` (created if needed)."""
+    """Write ``design.yaml``, ``design.csv`` and ``timing.yaml`` into ``folder`` (created if needed).
+
+    ``design.yaml`` and ``design.csv`` depend only on the input (scene, options,
+    seed): the same bytes in every run on one machine; the times go to ``timing.yaml``.
+    """
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    text = yaml.safe_dump(design.to_dict(), sort_keys=False, width=120)
+    content, timing = split_timing(design.to_dict())
+    text = yaml.safe_dump(content, sort_keys=False, width=120)
     yaml_path = atomic_write_text(folder / "design.yaml", text)
+    timing_path = atomic_write_text(folder / "timing.yaml", yaml.safe_dump(timing or {}, sort_keys=False, width=120))
     csv_path = write_design_csv(
         folder / "design.csv", robot, design.q,
         comment=f"scene {design.scene}: {design.criterion}-optimal design of {design.n} poses",
     )
-    return {"yaml": yaml_path, "csv": csv_path}
+    return {"yaml": yaml_path, "csv": csv_path, "timing": timing_path}
 
 
 def design_label(path: str | os.PathLike) -> str:

@@ -114,7 +114,7 @@ class _Moves:
         a, b = min(i, j), max(i, j)
         if move.direct.verified or move.plan is not None:
             return move
-        plan = plan_move(self.checker, self.nodes[a], self.nodes[b], self.settings.planner_time,
+        plan = plan_move(self.checker, self.nodes[a], self.nodes[b], self.settings.planner_iterations,
                          self.settings.planner_seed, self.joint_margin)
         cost = self.dyn.path_time(plan.waypoints) if plan.success else UNREACHABLE
         self.cost[a, b] = self.cost[b, a] = cost
@@ -263,7 +263,8 @@ def build_program(scene, q: np.ndarray, settings: ProgramSettings | None = None,
     stats["cpu_s"] = time.process_time() - start
     return Program(scene.name, tuple(robot.joint_names), home, q, order - 1, program_moves,
                    settings.dwell, cycle, winner[0], stats, note, dyn.velocity, dyn.acceleration,
-                   scene.controller, tuple(sorted((k - 1, why) for k, why in skipped.items())))
+                   scene.controller, tuple(sorted((k - 1, why) for k, why in skipped.items())),
+                   settings.handshake)
 
 
 def _resolve_unreachable(moves: _Moves, dead, keep, skipped: dict[int, str], settings, nodes) -> np.ndarray:
@@ -280,11 +281,11 @@ def _resolve_unreachable(moves: _Moves, dead, keep, skipped: dict[int, str], set
             move = moves.get(0, p)
             why = (f"no certified path from home found: direct move blocked ({move.direct.worst_row} "
                    f"{move.direct.min_sampled * 1e3:.1f} mm), planner: "
-                   f"{move.plan.status if move.plan else '-'} in {settings.planner_time:g} s"
+                   f"{move.plan.status if move.plan else '-'} in {settings.planner_iterations} iterations"
                    + _wrap_hint(nodes[p], nodes[0], moves.checker.robot))
             if not settings.skip_unreachable:
                 raise ProgramError(f"pose {p}", move.direct.worst_row, why + "; leave it out "
-                                   "(skip_unreachable) or raise program.planner_time")
+                                   "(skip_unreachable) or raise program.planner_iterations")
             skipped[p] = why
             out.discard(p)
     if not out:

@@ -10,7 +10,8 @@ J2_in`` on the controller's state, ``J23_factor`` 1 for the coupled arms). With 
 docs/scenes.md) the positions are the controller's values and the header states
 the map; without one the URDF's J3 is written unchanged and the header says so:
 convert (and check the signs of) J3 before loading on a FANUC arm.
-TP comments hold 32 characters, so the header is cut into short ``!`` lines.
+TP comments hold 32 characters, so the header is cut into short ``!`` lines;
+``;`` ends a TP statement, so a comment never holds one (written as ``,``).
 """
 
 from __future__ import annotations
@@ -26,6 +27,16 @@ J2_J3_NOTE = ("J2/J3: J3 is the URDF angle relative to the upper arm, NOT the FA
               "or add a controller: block to the scene")
 
 
+def _measure(program: Program) -> list[str]:
+    """The statements at a measurement pose: the dwell, or the handshake (docs/program.md)."""
+    hs = program.handshake
+    if hs is None:
+        return [f"WAIT {program.dwell:6.2f}(sec) ;"]
+    if hs.routine is not None:
+        return [f"CALL {hs.routine.upper()} ;"]
+    return [f"DO[{hs.output}]=ON ;", f"WAIT DI[{hs.input}]=ON ;", f"DO[{hs.output}]=OFF ;"]
+
+
 def write_tp(program: Program, name: str) -> dict[str, str]:
     """``{name.ls: text}``; ``name`` is the TP program name."""
     require_six_axes(program, "tp")
@@ -34,7 +45,7 @@ def write_tp(program: Program, name: str) -> dict[str, str]:
     comments = []
     note = [] if program.controller is not None else [J2_J3_NOTE]
     for line in [*header_lines(program, "degrees (J1..J6)"), *note]:
-        comments += textwrap.wrap(line, 30)
+        comments += textwrap.wrap(line.replace(";", ","), 30)  # ';' would end the statement
     body = [f"! {c} ;" for c in comments]
     positions = {}
     for step in all_steps:
@@ -45,7 +56,7 @@ def write_tp(program: Program, name: str) -> dict[str, str]:
         body.append(f"J P[{k}:{what}] 100% FINE ;")
         if step.kind == "pose":
             body.append(f"! measure pose {step.pose} ;")
-            body.append(f"WAIT {program.dwell:6.2f}(sec) ;")
+            body += _measure(program)
     lines = [f"/PROG  {prog}", "/ATTR", "COMMENT\t\t= \"calib_oed\";", "DEFAULT_GROUP\t= 1,*,*,*,*;",
              "/MN"]
     lines += [f"{i:4d}:  {text}" for i, text in enumerate(body, start=1)]

@@ -16,6 +16,7 @@ import numpy as np
 
 from calib_oed.exceptions import ProgramError
 from calib_oed.program.records import Program
+from calib_oed.program.timing import JointDynamics
 
 #: Decimals of the angles written in degrees, and in radians (URScript, CSV).
 DEG_DECIMALS = 4
@@ -32,17 +33,24 @@ class Step:
             controller convention, else URDF angles.
         pose: Pose number (1-based row of the design) for measurement poses, else ``None``.
         name: A target name unique in the program (``HOME``, ``P12``, ``V3``).
+        time: The estimated time [s] of the move into this target from the one before, at
+            the joint limits of the program's timing (the time of its slowest joint, as the
+            cycle time estimate counts it); ``None`` for the first target or without limits.
     """
 
     kind: str
     q: np.ndarray
     pose: int | None
     name: str
+    time: float | None = None
 
 
 def steps(program: Program) -> list[Step]:
     """The program's targets in order, named (home at both ends, via points numbered)."""
-    out, vias = [], 0
+    out, vias, before = [], 0, None
+    limits = program.velocity is not None and program.acceleration is not None
+    if limits:
+        dyn = JointDynamics(np.asarray(program.velocity, float), np.asarray(program.acceleration, float))
     for kind, q, index in program.steps():
         if kind == "via":
             vias += 1
@@ -52,10 +60,23 @@ def steps(program: Program) -> list[Step]:
         else:
             name = "HOME"
         q = np.asarray(q, dtype=float)
+        time = float(dyn.move_time(before, q)) if limits and before is not None else None
+        before = q
         if program.controller is not None:
             q = program.controller.to_controller(q)
-        out.append(Step(kind, q, None if index is None else index + 1, name))
+        out.append(Step(kind, q, None if index is None else index + 1, name, time))
     return out
+
+
+def _at_pose(program: Program) -> str:
+    """The header line saying what happens at each measurement pose."""
+    hs = program.handshake
+    if hs is None:
+        return f"at each measurement pose: dwell {program.dwell:.2f} s (settle, tracker measures)"
+    if hs.routine is not None:
+        return f"at each measurement pose: call {hs.routine} (the tracker's handshake, no dwell)"
+    return (f"at each measurement pose: set digital output {hs.output}, wait for digital input "
+            f"{hs.input}, reset the output (the tracker's handshake, no dwell)")
 
 
 def require_six_axes(program: Program, fmt: str) -> None:
@@ -83,7 +104,7 @@ def header_lines(program: Program, units: str) -> list[str]:
     return [
         f"calib_oed measurement program, scene {program.scene}: {len(program.poses)} poses",
         *convention,
-        f"at each measurement pose: dwell {program.dwell:.2f} s (settle, tracker measures)",
+        _at_pose(program),
         "pose N = row N of the design file (from 1); via points are not measured",
         f"estimated cycle time {t['optimised']:.1f} s (design order {t['design order']:.1f} s)",
         "every move checked collision-free against the scene's capsule model",

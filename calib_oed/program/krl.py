@@ -1,13 +1,32 @@
 """KUKA KRL: a ``.src`` with ``PTP`` moves to ``E6AXIS`` joint targets declared in the ``.dat``.
 
-Each target is ``DECL E6AXIS XNAME={A1 ..,A2 ..,...,A6 ..,E1 0.0,...,E6 0.0}`` [deg];
-each measurement pose is followed by ``WAIT SEC dwell`` and a comment naming it.
+Each target is ``DECL E6AXIS XCAL_NAME={A1 ..,A2 ..,...,A6 ..,E1 0.0,...,E6 0.0}`` [deg]
+(``XCAL_HOME``, ``XCAL_P1``, ``XCAL_V1``: never a global name of the controller such as
+``$config.dat``'s ``XHOME``, which a declaration in the module would shadow);
+each measurement pose is followed by ``WAIT SEC dwell`` and a comment naming it. The
+``.src`` opens with KUKA's usual initialisation: the stop-message interrupt
+(``INTERRUPT DECL 3 WHEN $STOPMESS==TRUE DO IR_STOPM ( )``, ``INTERRUPT ON 3``) and
+``BAS (#INITMOV,0 )``.
 """
 
 from __future__ import annotations
 
 from calib_oed.program.format_common import degrees, header_lines, require_six_axes, steps
 from calib_oed.program.records import Program
+
+#: Prefix of the targets' names in the ``.dat`` (not ``X``: ``XHOME`` is the controller's).
+TARGET_PREFIX = "XCAL_"
+
+
+def _measure(program: Program, pose: int) -> list[str]:
+    """The lines at a measurement pose: the dwell, or the handshake (docs/program.md)."""
+    hs = program.handshake
+    if hs is None:
+        return [f"  WAIT SEC {program.dwell:.2f} ; measure pose {pose}"]
+    if hs.routine is not None:
+        return [f"  {hs.routine.upper()}( ) ; measure pose {pose}"]
+    return [f"  $OUT[{hs.output}]=TRUE ; measure pose {pose}", f"  WAIT FOR $IN[{hs.input}]",
+            f"  $OUT[{hs.output}]=FALSE"]
 
 
 def write_krl(program: Program, name: str) -> dict[str, str]:
@@ -17,13 +36,14 @@ def write_krl(program: Program, name: str) -> dict[str, str]:
     all_steps = steps(program)
     src = ["&ACCESS RVP", "&REL 1", f"DEF {module}( )"]
     src += [f"; {line}" for line in header_lines(program, "degrees (A1..A6)")]
-    src += ["  BAS(#INITMOV, 0)", "  $VEL_AXIS[1]=100", "  $VEL_AXIS[2]=100", "  $VEL_AXIS[3]=100",
+    src += ["  GLOBAL INTERRUPT DECL 3 WHEN $STOPMESS==TRUE DO IR_STOPM ( )", "  INTERRUPT ON 3",
+            "  BAS (#INITMOV,0 )", "  $VEL_AXIS[1]=100", "  $VEL_AXIS[2]=100", "  $VEL_AXIS[3]=100",
             "  $VEL_AXIS[4]=100", "  $VEL_AXIS[5]=100", "  $VEL_AXIS[6]=100"]
     for step in all_steps:
         what = {"home": "home", "via": "via point (no measurement)"}.get(step.kind, f"pose {step.pose}")
-        src.append(f"  PTP X{step.name} ; {what}")
+        src.append(f"  PTP {TARGET_PREFIX}{step.name} ; {what}")
         if step.kind == "pose":
-            src.append(f"  WAIT SEC {program.dwell:.2f} ; measure pose {step.pose}")
+            src += _measure(program, step.pose)
     src.append("END")
     dat = ["&ACCESS RVP", "&REL 1", f"DEFDAT {module}"]
     seen = set()
@@ -32,6 +52,6 @@ def write_krl(program: Program, name: str) -> dict[str, str]:
             continue
         seen.add(step.name)
         axes = ",".join(f"A{i + 1} {v}" for i, v in enumerate(degrees(step.q)))
-        dat.append(f"DECL E6AXIS X{step.name}={{{axes},E1 0.0,E2 0.0,E3 0.0,E4 0.0,E5 0.0,E6 0.0}}")
+        dat.append(f"DECL E6AXIS {TARGET_PREFIX}{step.name}={{{axes},E1 0.0,E2 0.0,E3 0.0,E4 0.0,E5 0.0,E6 0.0}}")
     dat.append("ENDDAT")
     return {f"{name}.src": "\n".join(src) + "\n", f"{name}.dat": "\n".join(dat) + "\n"}

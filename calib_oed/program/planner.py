@@ -12,9 +12,11 @@ the same validator) and every one of its moves is certified once more before it 
 returned, so a returned path is collision-free by the same certificate as a
 direct move.
 
-Randomness: OMPL seeds every planner from one process-wide seed, set here
-once from the settings' ``planner_seed`` (``ompl.util.RNG.setSeed``): a run is
-reproducible for a given sequence of plans.
+Randomness and budget: OMPL seeds every planner from one process-wide seed, set
+here once from the settings' ``planner_seed`` (``ompl.util.RNG.setSeed``), and
+the budget is a number of RRT-Connect iterations (a termination condition that
+counts its calls), not seconds: the same sequence of plans gives the same paths
+under any load.
 """
 
 from __future__ import annotations
@@ -51,7 +53,18 @@ class PlannedPath:
         return self.waypoints[1:-1]
 
 
-def plan_move(checker: MoveChecker, q0: np.ndarray, q1: np.ndarray, time_limit: float = 2.0,
+def _iteration_budget(ob, iterations: int):
+    """OMPL's termination condition after ``iterations`` checks (RRT-Connect checks once per iteration)."""
+    count = [0]
+
+    def done() -> bool:
+        count[0] += 1
+        return count[0] > iterations
+
+    return ob.PlannerTerminationCondition(done)
+
+
+def plan_move(checker: MoveChecker, q0: np.ndarray, q1: np.ndarray, iterations: int = 20_000,
               seed: int = 0, joint_margin: float = 0.0, step: float = 0.5,
               span: float = np.pi) -> PlannedPath:
     """A certified path from ``q0`` to ``q1`` through via points (see the module docstring).
@@ -59,7 +72,7 @@ def plan_move(checker: MoveChecker, q0: np.ndarray, q1: np.ndarray, time_limit: 
     Args:
         checker: The continuous check (and state validity).
         q0, q1: Start and goal [rad], (nq,); both must keep the full margin.
-        time_limit: OMPL's planning time [s].
+        iterations: RRT-Connect's budget, in iterations (deterministic, unlike seconds).
         seed: The process-wide OMPL seed (used on the first call only).
         joint_margin: Margin kept inside the joint limits by the via points [rad].
         step: RRT-Connect's range, the longest edge it adds [rad, joint-space norm]:
@@ -120,7 +133,9 @@ def plan_move(checker: MoveChecker, q0: np.ndarray, q1: np.ndarray, time_limit: 
     planner.setRange(float(step))
     planner.setProblemDefinition(pdef)
     planner.setup()
-    status = str(planner.solve(float(time_limit)))
+    ptc = _iteration_budget(ob, int(iterations))
+    status = str(planner.solve(ptc))
+    del ptc
     waypoints = np.array([q0, q1])
     success = False
     if pdef.hasExactSolution():

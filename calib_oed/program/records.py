@@ -9,6 +9,7 @@ import numpy as np
 from calib_oed.model.controller import ControllerConvention
 from calib_oed.program.continuous import MoveCheck
 from calib_oed.program.planner import PlannedPath
+from calib_oed.program.settings import Handshake
 
 
 @dataclass(frozen=True, eq=False)
@@ -63,6 +64,8 @@ class Program:
         controller: The scene's controller convention: the writers write controller
             values :math:`c = A^{-1}(q - b)` instead of URDF angles; ``None``: URDF angles.
         skipped: Poses left out (design index, 0-based; why): no certified path from home.
+        handshake: What the writers put at each measurement pose instead of the dwell, or
+            ``None`` (the dwell).
     """
 
     scene: str
@@ -80,6 +83,7 @@ class Program:
     acceleration: np.ndarray | None = None
     controller: ControllerConvention | None = None
     skipped: tuple[tuple[int, str], ...] = ()
+    handshake: Handshake | None = None
 
     @property
     def cycle_time(self) -> float:

@@ -29,7 +29,41 @@ from calib_oed.units import ANGLE_UNITS, LENGTH_UNITS
 
 #: Keys of the scene's ``program:`` block.
 PROGRAM_KEYS = ("home", "dwell", "velocity_scale", "acceleration_time", "velocities",
-                "accelerations", "move_tolerance")
+                "accelerations", "move_tolerance", "planner_iterations", "handshake")
+
+
+@dataclass(frozen=True)
+class Handshake:
+    """What the controller does at each measurement pose instead of the blind dwell.
+
+    Either a signal exchange with the tracker's software (``output`` set, wait until
+    ``input`` is on, ``output`` reset) or a call of a routine on the controller that
+    does its own (``routine``). Signals are numbers (KRL ``$OUT[n]``/``$IN[n]``, TP
+    ``DO[n]``/``DI[n]``, URScript digital outputs/inputs) or, for RAPID, signal names
+    (``do<n>``/``di<n>`` unless ``output_name``/``input_name`` are given).
+
+    Attributes:
+        output: Digital output set when the pose is reached, or ``None``.
+        input: Digital input waited for (on), or ``None``.
+        routine: Name of a routine called instead, or ``None``.
+        output_name, input_name: RAPID's signal names (default ``do<output>``, ``di<input>``).
+    """
+
+    output: int | None = None
+    input: int | None = None
+    routine: str | None = None
+    output_name: str | None = None
+    input_name: str | None = None
+
+    def __post_init__(self):
+        if (self.routine is None) == (self.output is None or self.input is None):
+            raise ProgramError("handshake", vars(self), "give either output and input (signal "
+                               "numbers) or routine (a routine name)")
+        if self.routine is not None and not self.routine.isidentifier():
+            raise ProgramError("handshake.routine", self.routine, "a routine name must be an identifier")
+
+#: RRT-Connect iterations per blocked move (:func:`calib_oed.program.planner.plan_move`).
+DEFAULT_PLANNER_ITERATIONS = 20_000
 
 
 @dataclass(frozen=True, eq=False)
@@ -50,8 +84,11 @@ class ProgramSettings:
             (1 mm): every move keeps each capsule row :math:`g \\ge -\\delta`, i.e. at least
             ``margins.clearance - move_tolerance`` of true clearance; the measurement poses
             keep the full margin.
-        planner_time: Time budget of the motion planner per blocked move [s].
+        planner_iterations: Budget of the motion planner per blocked move, in RRT-Connect
+            iterations (not seconds: the same input gives the same program under any load).
         planner_seed: Seed of the planner's random samples.
+        handshake: A signal exchange or routine call at each measurement pose instead of the
+            dwell (:class:`Handshake`), or ``None`` (the dwell).
         skip_unreachable: Leave out (with a note) a pose no certified path from home reaches
             (else a :class:`~calib_oed.exceptions.ProgramError` names it).
         wrap: Measure each pose at the joint values a whole number of turns away that are
@@ -66,13 +103,17 @@ class ProgramSettings:
     velocities: dict = field(default_factory=dict)
     accelerations: dict = field(default_factory=dict)
     move_tolerance: float = 0.001
-    planner_time: float = 2.0
+    planner_iterations: int = DEFAULT_PLANNER_ITERATIONS
     planner_seed: int = 0
+    handshake: Handshake | None = None
     skip_unreachable: bool = True
     wrap: bool = False
 
     def __post_init__(self):
-        for name in ("dwell", "acceleration_time", "move_tolerance", "planner_time"):
+        if (isinstance(self.planner_iterations, bool) or int(self.planner_iterations) != self.planner_iterations
+                or self.planner_iterations < 1):
+            raise ProgramError("planner_iterations", self.planner_iterations, "expected an integer >= 1")
+        for name in ("dwell", "acceleration_time", "move_tolerance"):
             value = getattr(self, name)
             if not np.isfinite(value) or value < 0 or (name == "acceleration_time" and value == 0):
                 raise ProgramError(name, value, "expected a finite number > 0 (dwell, "
@@ -119,6 +160,22 @@ def program_settings_from_scene(scene, **overrides) -> ProgramSettings:
         if table:
             values[key] = {j: reader.number(v, f"program.{key}.{j}", reader.angle, positive=True)
                            for j, v in table.items()}
+    if "planner_iterations" in spec:
+        values["planner_iterations"] = reader.integer(spec["planner_iterations"],
+                                                      "program.planner_iterations", 1)
+    if "handshake" in spec:
+        hs = reader.mapping(spec["handshake"], "program.handshake", (),
+                            ("output", "input", "routine", "output_name", "input_name"))
+        for key in ("output", "input"):
+            if key in hs:
+                hs[key] = reader.integer(hs[key], f"program.handshake.{key}", 0)
+        for key in ("routine", "output_name", "input_name"):
+            if key in hs:
+                hs[key] = reader.string(hs[key], f"program.handshake.{key}")
+        try:
+            values["handshake"] = Handshake(**hs)
+        except ProgramError as exc:
+            raise reader.fail("program.handshake", str(exc)) from None
     if "velocity_scale" in values and values["velocity_scale"] > 1:
         raise reader.fail("program.velocity_scale", f"expected a number in (0, 1], got "
                           f"{values['velocity_scale']!r}")

@@ -1,14 +1,28 @@
 """Universal Robots URScript: ``movej([q1, .., q6], a=.., v=..)`` in radians (URScript's unit).
 
-``a`` and ``v`` are the smallest joint acceleration and velocity limits of the
-program's timing (``movej`` scales its leading axis to them); each measurement
-pose is followed by ``sleep(dwell)`` and a comment naming it.
+``t`` is the move's estimated time [s] (its slowest joint at the timing's limits;
+``movej`` then ignores ``a`` and ``v``), so the cycle time estimate is what runs;
+``a`` and ``v`` are the smallest joint limits, the fallback of a move without a
+time (the first). Each measurement pose is followed by ``sleep(dwell)`` and a
+comment naming it.
 """
 
 from __future__ import annotations
 
 from calib_oed.program.format_common import RAD_DECIMALS, header_lines, require_six_axes, steps
 from calib_oed.program.records import Program
+
+
+def _measure(program: Program, pose: int) -> list[str]:
+    """The lines at a measurement pose: the dwell, or the handshake (docs/program.md)."""
+    hs = program.handshake
+    if hs is None:
+        return [f"  sleep({program.dwell:.2f})  # measure pose {pose}"]
+    if hs.routine is not None:
+        return [f"  {hs.routine}()  # measure pose {pose}"]
+    return [f"  set_standard_digital_out({hs.output}, True)  # measure pose {pose}",
+            f"  while not get_standard_digital_in({hs.input}):", "    sync()", "  end",
+            f"  set_standard_digital_out({hs.output}, False)"]
 
 
 def write_urscript(program: Program, name: str) -> dict[str, str]:
@@ -23,9 +37,10 @@ def write_urscript(program: Program, name: str) -> dict[str, str]:
         values = ", ".join(f"{v:.{RAD_DECIMALS}f}" for v in step.q)
         what = {"home": "home", "via": "via point (no measurement)"}.get(step.kind, f"pose {step.pose}")
         lines.append(f"  # {what}")
-        lines.append(f"  movej([{values}], a={acceleration:.4f}, v={velocity:.4f})")
+        timed = f", t={step.time:.3f}" if step.time and step.time >= 1e-3 else ""
+        lines.append(f"  movej([{values}], a={acceleration:.4f}, v={velocity:.4f}{timed})")
         if step.kind == "pose":
-            lines.append(f"  sleep({program.dwell:.2f})  # measure pose {step.pose}")
+            lines += _measure(program, step.pose)
     lines.append("end")
     lines.append(f"{name}()")
     return {f"{name}.script": "\n".join(lines) + "\n"}

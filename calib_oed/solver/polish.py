@@ -66,6 +66,10 @@ def polish(sub: QPSubproblem, step: QPStep, tol: float = 1e-9) -> QPStep | None:
     C = sub.C.toarray() if sp.issparse(sub.C) else np.asarray(sub.C)
     scale = tol * max(1.0, float(np.max(np.abs(step.lam), initial=0.0)),
                       float(np.max(np.abs(step.nu), initial=0.0)))
+    # violations are judged against the box's size too: with a tiny trust region an absolute
+    # ``tol`` would accept a step several times outside it
+    width = (bu - bl)[np.isfinite(bu - bl)]
+    vtol = min(tol, 1e-3 * float(np.min(width))) if width.size else tol
     act = step.lam > scale
     lo = (step.nu > scale) & np.isfinite(bl)
     up = (step.nu < -scale) & np.isfinite(bu) & ~lo
@@ -88,8 +92,8 @@ def polish(sub: QPSubproblem, step: QPStep, tol: float = 1e-9) -> QPStep | None:
         lam = np.zeros(lower.size)
         lam[act] = sol[nf:]
         nu = np.where(fixed, matvec(H, d) + g - matvec(C.T, lam), 0.0)
-        new_rows = (matvec(C, d) - lower < -tol) & ~act
-        new_lo, new_up = (d < bl - tol) & free, (d > bu + tol) & free
+        new_rows = (matvec(C, d) - lower < -vtol) & ~act
+        new_lo, new_up = (d < bl - vtol) & free, (d > bu + vtol) & free
         if not (new_rows.any() or new_lo.any() or new_up.any()):
             break
         act |= new_rows

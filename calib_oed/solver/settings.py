@@ -67,7 +67,9 @@ class SQPSettings:
             Hessian (the lifted QP of an exact structured Hessian is always sparse).
         qp_eps_abs: ProxQP absolute tolerance (its default 1e-3 is lax).
         qp_max_iterations: ProxQP ``max_iter``; bounds the time lost on an infeasible QP.
-        qp_polish: Refine small QP steps on their active set (:func:`calib_oed.solver.polish.polish`).
+        qp_polish: Refine every QP step (up to ``max_dense_qp_size`` variables) on its active
+            set (:func:`calib_oed.solver.polish.polish`): the exact KKT point, and the same
+            bits in every process, which ProxQP's own answer is not.
         second_order_correction: Try a second-order correction before
             backtracking from a rejected full step (:mod:`calib_oed.solver.sqp`, item 4).
         row_pieces_margin: Rows with :math:`c_i` at most this (units of :math:`c`)

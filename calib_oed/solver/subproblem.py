@@ -47,12 +47,11 @@ from calib_oed.solver.result import StructuredHessian
 from calib_oed.solver.rows import missed_rows, select_rows
 from calib_oed.solver.settings import SQPSettings
 
-_POLISH_BELOW = 1e-4
-r"""Polish QP steps with :math:`\|d\|_\infty` at most this (and any step whose line search
-failed): only there is ProxQP's ~1e-9 error, summed over the active rows of the
-:math:`\ell_1` merit, comparable to the merit decrease. Larger steps do not need it, and
-the dense solve would cost time for nothing (the design problem takes hundreds of
-steps of ~1e-3)."""
+# Every QP step within the dense size bound is polished (:func:`calib_oed.solver.polish.polish`),
+# not only the small ones: besides ProxQP's ~1e-9 error, its last bits depend on where its
+# buffers lie in memory (the same QP twice in one process can differ by 1e-16), and the SQP
+# amplifies that into another design. The polish solves the KKT system of ProxQP's active set
+# with LAPACK, the same bits in every process (issue 31; about 20 % more CPU on fms_kr16 -n 60).
 
 CRASHED = ("error", "too_large", "non_finite")
 """QP statuses of a solver that did not return a usable answer (not ProxQP's own)."""
@@ -257,8 +256,7 @@ class _SubproblemMixin:
         step = self.qp.solve(sub, lam0, nu0)
         self._info.backend = self.qp.last_backend
         if (self.s.qp_polish and step.status not in CRASHED and step.primal_residual <= 1e3 * tol
-                and self.pt.x.size <= self.s.max_dense_qp_size
-                and np.max(np.abs(step.d), initial=0.0) <= _POLISH_BELOW):
+                and self.pt.x.size <= self.s.max_dense_qp_size):
             step = polish(sub, step, tol) or step
         return step
 

@@ -111,6 +111,8 @@ def run_case(case: StudyCase) -> CaseResult:
                 # the study certifies the case itself (_certified_rows), on its own pool
                 d = design(s, plan.n, crit, start=start, seed=plan.seed, collisions=coll,
                            settings=settings, certificate=False, enrich=plan.enrich)
+                if d.interrupted:  # Ctrl-C/SIGTERM in the SQP: a best-so-far design, not this case's
+                    raise KeyboardInterrupt
                 rows.append(_row(case, d, "optimal", crit, coll, plan.seed,
                                  float(colliding_poses(fm, d.q).mean())))
                 label = design_label(crit, coll)

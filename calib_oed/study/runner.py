@@ -10,10 +10,24 @@ checking their configuration hash), then writes ``OUT/results.csv`` (one row
 per case × design) and ``OUT/summary.json`` (the records of
 :mod:`calib_oed.study.results`). :mod:`calib_oed.study.report` turns them into
 the paper's tables and figures.
+
+**One owner per folder**: a run holds an exclusive lock on ``OUT/.study.lock``
+(``fcntl.flock``, released when the process ends, also when it is killed); a
+second process on the same folder stops with :class:`~calib_oed.exceptions.StudyLockError`
+before it writes anything. **Only finished cases are stored**: a case whose design
+was stopped by Ctrl-C or SIGTERM raises ``KeyboardInterrupt`` instead of returning
+(:func:`~calib_oed.study.case.run_case`), a failed case is a
+:class:`~calib_oed.study.results.CaseFailure` in ``summary.json``, never a case file,
+so a resume computes both again. **On a cluster the cases run on its workers**:
+each case is one task submitted with ``Client.submit`` (not joblib's dask backend,
+which can run tasks inside the client without a word); a cluster without workers is
+an error naming the scheduler.
 """
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import json
 import os
 import platform
@@ -21,14 +35,19 @@ import sys
 import time
 import traceback
 from collections.abc import Iterator, Sequence
-from contextlib import ExitStack, closing
+from contextlib import closing
 from pathlib import Path
 
 import joblib
 from threadpoolctl import threadpool_limits
 from tqdm.auto import tqdm
 
-from calib_oed.exceptions import OptionalDependencyError, StudyResumeError
+from calib_oed.exceptions import (
+    OptionalDependencyError,
+    StudyConfigError,
+    StudyLockError,
+    StudyResumeError,
+)
 from calib_oed.io.atomic import atomic_write_text
 from calib_oed.study.case import run_case
 from calib_oed.study.config import StudyCase, StudyConfig
@@ -88,23 +107,61 @@ def machine_info() -> dict:
             platform.machine(), "cpu_count": os.cpu_count(), "python": sys.version.split()[0]}
 
 
+@contextlib.contextmanager
+def folder_lock(out_dir: str | os.PathLike) -> Iterator[None]:
+    """Hold the exclusive lock of a study folder (module docstring) for the block.
+
+    Raises:
+        StudyLockError: another process holds it.
+    """
+    path = Path(out_dir) / ".study.lock"
+    with open(path, "a+", encoding="utf-8") as handle:
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            handle.seek(0)
+            raise StudyLockError(out_dir, handle.read().strip()) from None
+        handle.seek(0)
+        handle.truncate()
+        handle.write(f"pid {os.getpid()}\n")
+        handle.flush()
+        try:
+            yield
+        finally:
+            fcntl.flock(handle, fcntl.LOCK_UN)
+
+
+def _cluster_results(todo: Sequence[StudyCase], scheduler: str) -> Iterator[CaseResult | CaseFailure]:
+    """Case results in completion order, each case a task on the cluster's workers."""
+    try:
+        from distributed import Client, as_completed
+    except ImportError as exc:
+        raise OptionalDependencyError("a study on a Dask cluster (--scheduler)",
+                                      "dask.distributed", "dask") from exc
+    with Client(scheduler) as client:  # closed on exit; the cluster stays
+        if not client.scheduler_info().get("workers"):
+            raise StudyConfigError(f"the Dask scheduler {scheduler} has no workers: start some "
+                                   f"(`dask worker {scheduler}`) or run without --scheduler",
+                                   key="--scheduler")
+        futures = [client.submit(_execute, case, key=f"calib_oed-case-{case.case_id}", pure=False)
+                   for case in todo]
+        try:
+            for future in as_completed(futures):
+                yield future.result()
+        finally:
+            client.cancel(futures)
+
+
 def _results(todo: Sequence[StudyCase], n_jobs: int | None, scheduler: str | None
              ) -> Iterator[CaseResult | CaseFailure]:
     """Case results in completion order, from local joblib workers or a Dask cluster."""
     if not todo:
         return
-    with ExitStack() as stack:
-        if scheduler is not None:
-            try:
-                from distributed import Client
-            except ImportError as exc:
-                raise OptionalDependencyError("a study on a Dask cluster (--scheduler)",
-                                              "dask.distributed", "dask") from exc
-            stack.enter_context(Client(scheduler))  # closed on exit; the cluster stays
-            stack.enter_context(joblib.parallel_config(backend="dask"))
-        parallel = joblib.Parallel(n_jobs=-1 if n_jobs is None else n_jobs,
-                                   return_as="generator_unordered")
-        yield from parallel(joblib.delayed(_execute)(case) for case in todo)
+    if scheduler is not None:
+        yield from _cluster_results(todo, scheduler)
+        return
+    parallel = joblib.Parallel(n_jobs=-1 if n_jobs is None else n_jobs, return_as="generator_unordered")
+    yield from parallel(joblib.delayed(_execute)(case) for case in todo)
 
 
 def run_study(
@@ -125,14 +182,16 @@ def run_study(
         n_jobs: Parallel cases (joblib ``n_jobs``); None: every local core, or
             every worker thread of the Dask cluster.
         scheduler: Address of a Dask scheduler (``tcp://host:8786``): the same
-            cases run on that cluster through joblib's dask backend. Needs the
-            ``calib_oed[dask]`` extra.
+            cases run on that cluster's workers, one task each (``n_jobs`` is then not
+            used). Needs the ``calib_oed[dask]`` extra.
         progress: Show a progress bar over the cases (tqdm, on stderr).
         command: The command line, recorded for the report (default: the
             equivalent ``calib-oed study`` command).
 
     Raises:
         StudyResumeError: a case file in ``out_dir`` was computed with other settings.
+        StudyLockError: another process runs a study into ``out_dir``.
+        StudyConfigError: the cluster at ``scheduler`` has no workers.
         OptionalDependencyError: ``scheduler`` given without dask.distributed installed.
     """
     t0 = time.perf_counter()
@@ -140,6 +199,11 @@ def run_study(
     load_before = os.getloadavg()
     out = Path(out_dir)
     (out / "cases").mkdir(parents=True, exist_ok=True)
+    with folder_lock(out):
+        return _run_locked(config, out, n_jobs, scheduler, progress, command, t0, started, load_before)
+
+
+def _run_locked(config, out, n_jobs, scheduler, progress, command, t0, started, load_before) -> StudyResult:
     cases = config.cases()
     done: dict[str, CaseResult] = {}
     for case in cases:

@@ -191,8 +191,10 @@ def test_quiet_wherever_json():
 
 
 def _child(code: str, argv: list[str], cwd: Path) -> subprocess.Popen:
-    """The command in a child process, ``code`` run first (to make it slow or chatty)."""
-    script = f"import sys\n{code}\nfrom calib_oed.cli import main\nsys.exit(main({argv!r}))\n"
+    """The command in a child process, ``code`` run first (to make it slow or chatty);
+    ``main()`` reads ``sys.argv`` there, as the console script does."""
+    script = (f"import sys\n{code}\nfrom calib_oed.cli import main\n"
+              f"sys.argv = ['calib-oed', *{argv!r}]\nsys.exit(main())\n")
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
     return subprocess.Popen([sys.executable, "-c", script], cwd=cwd, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, env=env)
@@ -263,6 +265,32 @@ def test_a_parallel_command_stops_its_workers_too(tmp_path):
     alive = [w for w in workers if Path(f"/proc/{w}").exists()
              and "Z" not in Path(f"/proc/{w}/stat").read_text().split()[2]]
     assert not alive
+
+
+def _handler_during_the_command(monkeypatch, call) -> object:
+    """The SIGTERM handler in force while the command runs (seen from its output check)."""
+    seen = []
+
+    def record(args):
+        seen.append(signal.getsignal(signal.SIGTERM))
+
+    monkeypatch.setattr(cli, "check_outputs", record)
+    call()
+    return seen[0]
+
+
+def test_signal_handlers_only_when_main_runs_as_the_command(monkeypatch, capsys):
+    """In-process ``main([...])`` (tests) keeps the process's SIGTERM handler, so a time
+    limit that sends SIGTERM to pytest stops pytest; ``main()`` on ``sys.argv`` (the
+    console script, ``python -m calib_oed``) installs the command's and restores the
+    previous one afterwards."""
+    before = signal.getsignal(signal.SIGTERM)
+    assert _handler_during_the_command(monkeypatch, lambda: main(["robots"])) is before
+    monkeypatch.setattr(sys, "argv", ["calib-oed", "robots"])
+    during = _handler_during_the_command(monkeypatch, main)
+    assert during is not before and callable(during)
+    assert signal.getsignal(signal.SIGTERM) is before
+    assert _handler_during_the_command(monkeypatch, lambda: main(["robots"], as_command=True)) is not before
 
 
 def test_progress_is_plain_lines_without_a_terminal(capsys, monkeypatch):

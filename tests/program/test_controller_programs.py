@@ -55,7 +55,7 @@ def _flat(program, fmt) -> str:
 def _poses(fmt, text):
     """Pose number -> joint values as written (deg; URScript and CSV: rad)."""
     if fmt == "krl":
-        found = re.findall(r"DECL E6AXIS XP(\d+)=\{" + ",".join(f"A{i} {NUM}" for i in range(1, 7)), text)
+        found = re.findall(r"DECL E6AXIS XCAL_P(\d+)=\{" + ",".join(f"A{i} {NUM}" for i in range(1, 7)), text)
     elif fmt == "rapid":
         found = re.findall(r"CONST jointtarget jP(\d+):=\[\[" + ",".join([NUM] * 6), text)
     elif fmt == "tp":

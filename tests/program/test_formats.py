@@ -12,9 +12,11 @@ import pytest
 
 from calib_oed.exceptions import ProgramError
 from calib_oed.program.continuous import MoveCheck
-from calib_oed.program.format_common import steps
+from calib_oed.program.fanuc_tp import J2_J3_NOTE
+from calib_oed.program.format_common import header_lines, steps
 from calib_oed.program.formats import FORMATS, program_texts, write_program
 from calib_oed.program.records import Move, Program
+from calib_oed.program.settings import Handshake
 
 NUM = r"(-?\d+\.\d+)"
 JOINTS = tuple(f"joint_a{i}" for i in range(1, 7))
@@ -81,34 +83,53 @@ def test_krl(program):
     files = program_texts(program, "krl", "calib_program")
     dat = _parse(files["calib_program.dat"].splitlines(), [
         ("head", r"&ACCESS RVP|&REL 1|DEFDAT CALIB_PROGRAM|ENDDAT"),
-        ("decl", r"DECL E6AXIS X(\w+)=\{" + ",".join(f"A{i} {NUM}" for i in range(1, 7))
+        ("decl", r"DECL E6AXIS XCAL_(\w+)=\{" + ",".join(f"A{i} {NUM}" for i in range(1, 7))
          + r",E1 0\.0,E2 0\.0,E3 0\.0,E4 0\.0,E5 0\.0,E6 0\.0\}")])
     targets = {g[0]: np.array(g[1:], float) for name, g in dat if name == "decl"}
     src = _parse(files["calib_program.src"].splitlines(), [
-        ("head", r"&ACCESS RVP|&REL 1|DEF CALIB_PROGRAM\( \)|END|  BAS\(#INITMOV, 0\)"
+        ("head", r"&ACCESS RVP|&REL 1|DEF CALIB_PROGRAM\( \)|END|  BAS \(#INITMOV,0 \)"
+         r"|  GLOBAL INTERRUPT DECL 3 WHEN \$STOPMESS==TRUE DO IR_STOPM \( \)|  INTERRUPT ON 3"
          r"|  \$VEL_AXIS\[\d\]=100"),
         ("comment", r"; .*"),
-        ("ptp", r"  PTP X(\w+) ; (.*)"),
+        ("ptp", r"  PTP XCAL_(\w+) ; (.*)"),
         ("wait", r"  WAIT SEC " + NUM + r" ; measure pose (\d+)")])
     got = [(*_kind(g[1]), targets[g[0]]) for name, g in src if name == "ptp"]
     dwells = [(float(g[0]), int(g[1])) for name, g in src if name == "wait"]
     _check([(k, q, p) for k, p, q in got], dwells, program)
     assert "; joint values: URDF joint angles in degrees" in files["calib_program.src"]
+    # no global name of the controller redefined; the stop-message interrupt before the first move
+    assert "XHOME" not in files["calib_program.dat"].replace("XCAL_HOME", "")
+    src_lines = files["calib_program.src"].splitlines()
+    assert src_lines.index("  INTERRUPT ON 3") < src_lines.index("  BAS (#INITMOV,0 )") < min(
+        i for i, line in enumerate(src_lines) if line.startswith("  PTP"))
 
 
 def test_rapid(program):
     text = program_texts(program, "rapid", "CalibProgram")["CalibProgram.mod"]
     rows = _parse(text.splitlines(), [
-        ("head", r"MODULE CalibProgram|ENDMODULE|  PROC main\(\)|  ENDPROC"),
+        ("head", r"MODULE CalibProgram|ENDMODULE|  PROC CalibProgram_run\(\)|  ENDPROC"),
         ("comment", r"  ! .*"),
         ("target", r"  CONST jointtarget j(\w+):=\[\[" + ",".join([NUM] * 6)
          + r"\],\[9E9,9E9,9E9,9E9,9E9,9E9\]\];"),
-        ("move", r"    MoveAbsJ j(\w+)\\NoEOffs, v1000, fine, tool0; ! (.*)"),
+        ("move", r"    MoveAbsJ j(\w+)\\NoEOffs, v1000(?:\\T:=" + NUM + r")?, fine, tool0; ! (.*)"),
         ("wait", r"    WaitTime " + NUM + r"; ! measure pose (\d+)")])
     targets = {g[0]: np.array(g[1:], float) for name, g in rows if name == "target"}
-    got = [(*_kind(g[1]), targets[g[0]]) for name, g in rows if name == "move"]
+    got = [(*_kind(g[2]), targets[g[0]]) for name, g in rows if name == "move"]
     dwells = [(float(g[0]), int(g[1])) for name, g in rows if name == "wait"]
     _check([(k, q, p) for k, p, q in got], dwells, program)
+
+
+@pytest.mark.filterwarnings("ignore::DeprecationWarning")  # rapidchecker's own pyparsing calls
+def test_rapid_passes_an_independent_checker(program):
+    """rapidchecker (PyPI; a pyparsing grammar of RAPID and ABB's formatting rules): 0 findings,
+    and it does find a missing comma (so the check can fail)."""
+    from rapidchecker.cli import check_file
+
+    text = program_texts(program, "rapid", "CalibProgram")["CalibProgram.mod"]
+    assert [str(e) for e in check_file(text)] == []
+    assert check_file(text.replace("\\NoEOffs, v1000", "\\NoEOffs v1000", 1))
+    with pytest.raises(ProgramError, match="28"):
+        program_texts(program, "rapid", "N" * 29)
 
 
 def test_fanuc_tp(program):
@@ -122,6 +143,10 @@ def test_fanuc_tp(program):
         ("measure", r"\s*\d+:  ! measure pose (\d+) ;"),
         ("comment", r"\s*\d+:  ! (.{1,30}) ;")])
     assert any("J2/J3" in g[0] for name, g in rows if name == "comment")
+    # ';' ends a TP statement: each /MN line holds exactly one, its last character (the
+    # header's own sentences have ';' in them, issue 31)
+    assert all(line.count(";") == 1 and line.endswith(" ;") for line in mn.splitlines())
+    assert any(";" in line for line in header_lines(program, "degrees (J1..J6)") + [J2_J3_NOTE])
     blocks = re.findall(r"P\[(\d+)\]\{\n   GP1:\n\tUF : 0, UT : 1,\n"
                         + r"\tJ1= {0} deg,\tJ2= {0} deg,\tJ3= {0} deg,\n\tJ4= {0} deg,\tJ5= {0} deg,"
                         r"\tJ6= {0} deg\n\};".replace("{0}", NUM), pos)
@@ -141,7 +166,8 @@ def test_urscript(program):
         ("head", r"def calib_program\(\):|end|calib_program\(\)"),
         ("what", r"  # (home|via point \(no measurement\)|pose \d+)"),
         ("comment", r"# .*"),
-        ("move", r"  movej\(\[" + ", ".join([NUM] * 6) + r"\], a=" + NUM + ", v=" + NUM + r"\)"),
+        ("move", r"  movej\(\[" + ", ".join([NUM] * 6) + r"\], a=" + NUM + ", v=" + NUM
+         + r"(?:, t=" + NUM + r")?\)"),
         ("wait", r"  sleep\(" + NUM + r"\)  # measure pose (\d+)")])
     whats = [_kind(g[0]) for name, g in rows if name == "what"]
     qs = [np.array(g[:6], float) for name, g in rows if name == "move"]
@@ -190,3 +216,78 @@ def test_csv_reads_back_for_the_viewer(program, tmp_path):
     write_program(program, "krl", tmp_path / "krl")
     with pytest.raises(ProgramError, match="--format csv"):
         read_program_csv(tmp_path / "krl", JOINTS)
+
+
+def test_fanuc_tp_has_the_controller_written_layout(program):
+    """The layout of .ls files a FANUC controller writes itself (`OWNER = MNEDITOR`; e.g.
+    ros-industrial/fanuc, fanuc_driver/TPE/ros.ls): `/PROG  NAME` (two spaces), then `/ATTR`
+    with `KEY<tabs>= value;` lines, `/MN` with numbered statements `<4-wide number>:` each
+    ending in `;`, `/POS` and `/END` last, in that order and each once."""
+    text = program_texts(program, "tp", "calib_program")["calib_program.ls"]
+    lines = text.splitlines()
+    sections = [line.split()[0] for line in lines if line.startswith("/")]
+    assert sections == ["/PROG", "/ATTR", "/MN", "/POS", "/END"] and lines[-1] == "/END"
+    assert re.fullmatch(r"/PROG  [A-Z][A-Z0-9_]*", lines[0])
+    attr = lines[lines.index("/ATTR") + 1:lines.index("/MN")]
+    assert attr and all(re.fullmatch(r"[A-Z_]+\t+= .*;", line) for line in attr)
+    mn = lines[lines.index("/MN") + 1:lines.index("/POS")]
+    numbers = [int(re.match(r"\s*(\d+):", line).group(1)) for line in mn]
+    assert numbers == list(range(1, len(mn) + 1))
+    assert all(re.match(r"[ \d]{4}:  \S", line) and line.endswith(" ;") for line in mn)
+
+
+@pytest.fixture(scope="module")
+def built_program(kr16_scene, kr16_poses) -> Program:
+    """A program of fms_kr16 with the timing's joint limits (6 poses)."""
+    from calib_oed.program.build import build_program
+
+    return build_program(kr16_scene, kr16_poses[:6])
+
+
+@pytest.mark.parametrize("fmt, pattern", [("rapid", r"\\T:=" + NUM), ("urscript", r", t=" + NUM + r"\)")])
+def test_written_move_times_are_the_estimate(built_program, fmt, pattern):
+    """RAPID's \\T and URScript's t hold each move's estimated time, so the cycle the controller
+    runs is the estimated one: written move times + dwells within 0.1 % of the estimate (issue 31's
+    target: 5 %). Every move but the first (from wherever the robot stands) has one."""
+    program = built_program
+    text = next(iter(program_texts(program, fmt, "CalibProgram").values()))
+    times = [float(t) for t in re.findall(pattern, text)]
+    assert len(times) == len(steps(program)) - 1
+    written = sum(times) + program.dwell * len(program.order)
+    assert written == pytest.approx(program.cycle_times["optimised"], rel=1e-3)
+
+
+@pytest.mark.filterwarnings("ignore::DeprecationWarning")  # rapidchecker's own pyparsing calls
+@pytest.mark.parametrize("handshake, expected", [
+    (Handshake(output=3, input=4), {"krl": ["  $OUT[3]=TRUE ; measure pose {p}", "  WAIT FOR $IN[4]", "  $OUT[3]=FALSE"],
+                                    "rapid": ["    SetDO do3, 1; ! measure pose {p}", "    WaitDI di4, 1;",
+                                              "    SetDO do3, 0;"],
+                                    "tp": ["DO[3]=ON ;", "WAIT DI[4]=ON ;", "DO[3]=OFF ;"],
+                                    "urscript": ["  set_standard_digital_out(3, True)  # measure pose {p}",
+                                                 "  while not get_standard_digital_in(4):", "    sync()", "  end",
+                                                 "  set_standard_digital_out(3, False)"]}),
+    (Handshake(routine="TrackerMeasure"), {"krl": ["  TRACKERMEASURE( ) ; measure pose {p}"],
+                                           "rapid": ["    TrackerMeasure; ! measure pose {p}"],
+                                           "tp": ["CALL TRACKERMEASURE ;"],
+                                           "urscript": ["  TrackerMeasure()  # measure pose {p}"]}),
+])
+def test_handshake_replaces_the_dwell(program, handshake, expected):
+    """After every measurement pose (in the tour's order) the handshake's lines, and no dwell."""
+    import dataclasses
+
+    from rapidchecker.cli import check_file
+
+    prog = dataclasses.replace(program, handshake=handshake)
+    poses = [s.pose for s in steps(prog) if s.kind == "pose"]
+    for fmt, block in expected.items():
+        files = program_texts(prog, fmt, "CalibProgram")
+        text = files.get("CalibProgram.src") or next(iter(files.values()))
+        lines = [re.sub(r"^\s*\d+:  ", "", line) if fmt == "tp" else line for line in text.splitlines()]
+        assert not any(w in text for w in ("WAIT SEC", "WaitTime", "(sec)", "sleep("))
+        stripped = [line.strip() for line in lines]
+        for p in poses:
+            want = [line.format(p=p).strip() for line in block]
+            assert any(stripped[i:i + len(want)] == want for i in range(len(lines))), (fmt, p, want)
+        assert "handshake" in text
+        if fmt == "rapid":
+            assert [str(e) for e in check_file(text)] == []

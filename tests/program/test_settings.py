@@ -34,3 +34,29 @@ def test_bad_block_names_the_key(kr16_scene, block, key):
 def test_bad_settings():
     with pytest.raises(ProgramError, match="dwell"):
         ProgramSettings(dwell=-1.0)
+
+
+def test_planner_budget_is_an_iteration_count(kr16_scene):
+    scene = dataclasses.replace(kr16_scene, program={"planner_iterations": 500})
+    assert program_settings_from_scene(scene).planner_iterations == 500
+    assert program_settings_from_scene(scene, planner_iterations=7).planner_iterations == 7
+    for bad in (0, 2.5, "many", True):
+        with pytest.raises(SceneError, match="program.planner_iterations"):
+            program_settings_from_scene(dataclasses.replace(kr16_scene, program={"planner_iterations": bad}))
+    with pytest.raises(ProgramError, match="planner_iterations"):
+        ProgramSettings(planner_iterations=0)
+
+
+def test_handshake_block(kr16_scene):
+    from calib_oed.program.settings import Handshake
+
+    def read(block):
+        return program_settings_from_scene(dataclasses.replace(kr16_scene, program={"handshake": block}))
+
+    assert read({"output": 1, "input": 2}).handshake == Handshake(output=1, input=2)
+    assert read({"routine": "measure"}).handshake == Handshake(routine="measure")
+    assert ProgramSettings().handshake is None
+    for bad in ({"output": 1}, {"output": 1, "input": 2, "routine": "x"}, {"routine": "a b"},
+                {"output": -1, "input": 2}, {"signal": 1}):
+        with pytest.raises(SceneError, match="program.handshake"):
+            read(bad)

@@ -14,7 +14,12 @@ import pytest
 
 import calib_oed.study.runner as study_module
 from calib_oed.calibration.workflow import setup
-from calib_oed.exceptions import OptionalDependencyError, StudyConfigError, StudyResumeError
+from calib_oed.exceptions import (
+    OptionalDependencyError,
+    StudyConfigError,
+    StudyLockError,
+    StudyResumeError,
+)
 from calib_oed.model.kuka import notional_grid
 from calib_oed.scene.reader import load_scene
 from calib_oed.study.case import colliding_poses
@@ -280,6 +285,43 @@ def test_failed_case_is_reported_not_stored(tmp_path, monkeypatch):
     assert len(summary["failures"]) == 2
 
 
+def test_interrupted_case_is_not_stored(tmp_path, monkeypatch):
+    """A design stopped by Ctrl-C/SIGTERM returns its best-so-far design (interrupted); the
+    case then stops the study instead of being saved as finished (issue 31)."""
+    import dataclasses
+
+    import calib_oed.study.case as case_module
+
+    real = case_module.design
+
+    def stopped(*args, **kwargs):
+        d = real(*args, **{**kwargs, "settings": dataclasses.replace(kwargs["settings"], max_iterations=1)})
+        return dataclasses.replace(d, solver={**d.solver, "interrupted": True})
+
+    monkeypatch.setattr(case_module, "design", stopped)
+    with pytest.raises(KeyboardInterrupt):
+        run_study(study_config_from_dict(smoke()), tmp_path, n_jobs=1, progress=False)
+    assert list((tmp_path / "cases").iterdir()) == []
+    assert not (tmp_path / "summary.json").exists()
+
+
+def test_one_process_owns_a_study_folder(tmp_path, monkeypatch):
+    calls = []
+    monkeypatch.setattr(study_module, "run_case", lambda case: calls.append(case))
+    with study_module.folder_lock(tmp_path):
+        with pytest.raises(StudyLockError, match=r"in use by another study process \(pid \d+\).*-o"):
+            run_study(study_config_from_dict(smoke()), tmp_path, n_jobs=1, progress=False)
+    assert calls == [] and not (tmp_path / "summary.json").exists()
+
+
+def test_a_cluster_without_workers_is_an_error(tmp_path):
+    distributed = pytest.importorskip("distributed")
+    with distributed.LocalCluster(n_workers=0, processes=False, dashboard_address=None) as cluster:
+        with pytest.raises(StudyConfigError, match="has no workers"):
+            run_study(study_config_from_dict(smoke()), tmp_path, scheduler=cluster.scheduler_address,
+                      progress=False)
+
+
 def test_dask_cluster_gives_the_same_results(smoke_study, tmp_path):
     distributed = pytest.importorskip("distributed")
     with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=True,
@@ -423,3 +465,41 @@ def test_certificate_bounds_every_feasible_design(tmp_path):
     assert tables["cases"][True][0]["efficiency"] == pytest.approx(kpi_opt.kpi_efficiency)
     report = write_report(again, tmp_path, figures=False)["report"].read_text()
     assert "lower bound [mm²]" in report and "## Optimality certificate" in report
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not Path(sys.executable).with_name("dask").exists(), reason="needs the dask command")
+def test_sigterm_on_a_command_line_cluster_then_resume_equals_jobs_1(smoke_study, tmp_path):
+    """Issue 31's target: scheduler and worker started from the command line on 127.0.0.1, the
+    study SIGTERM'd while it runs, resumed: the same table as the uninterrupted --jobs 1 run."""
+    import signal
+    import subprocess
+    import time
+
+    dask = str(Path(sys.executable).with_name("dask"))
+    info = tmp_path / "scheduler.json"
+    procs = [subprocess.Popen([dask, "scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
+                               "--scheduler-file", str(info)], stderr=subprocess.DEVNULL)]
+    try:
+        t0 = time.monotonic()
+        while not info.exists() and time.monotonic() - t0 < 60:
+            time.sleep(0.2)
+        address = json.loads(info.read_text())["address"]
+        procs.append(subprocess.Popen([dask, "worker", address, "--nthreads", "1", "--nworkers", "1",
+                                       "--no-dashboard"], stderr=subprocess.DEVNULL))
+        out = tmp_path / "out"
+        argv = [sys.executable, "-m", "calib_oed", "study", "smoke", "-o", str(out), "--scheduler", address,
+                "--no-report"]
+        first = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        time.sleep(20)  # inside the first case (smoke: two cases)
+        first.send_signal(signal.SIGTERM)
+        _, err = first.communicate(timeout=120)
+        assert first.returncode in (0, 130), err
+        second = subprocess.run(argv, capture_output=True, text=True, timeout=1800)
+        assert second.returncode == 0, second.stderr
+    finally:
+        for p in reversed(procs):
+            p.terminate()
+            p.wait(timeout=60)
+    assert without_timing(read_csv(out / "results.csv")) == without_timing(
+        read_csv(smoke_study.out_dir / "results.csv"))
