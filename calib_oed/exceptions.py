@@ -469,3 +469,8 @@ class DataSanityError(CalibOedError):
 class CompensationError(CalibOedError, ValueError):
     """A program or calibration cannot be compensated as asked (mismatched robots, an unsupported
     calibration or target); the message names what to fix."""
+
+
+class ParameterTableError(CalibOedError, ValueError):
+    """A parameter table (DH, modified DH, Hayati) cannot be computed, read or written as asked;
+    the message names the problem and the valid choices."""
