@@ -143,6 +143,11 @@ class Compensation:
         """:math:`\\hat q - q^0` (n, nq) [rad or m]."""
         return self.q - self.q_nominal
 
+    @property
+    def flagged(self) -> np.ndarray:
+        """Targets :meth:`issues` names (n,)."""
+        return ~self.converged | ~self.in_range | self.near_singular
+
     def issues(self, names: Sequence[str] | None = None) -> list[str]:
         """One line per flagged target, naming it and why."""
         names = list(names) if names is not None else [f"target {i}" for i in range(self.n)]
