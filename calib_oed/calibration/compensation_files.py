@@ -10,6 +10,12 @@ r"""The calibration ``compensate`` uses: the files ``calib-oed identify -o DIR``
   says so);
 * the sensor YAML: a calibration with joint compliance or joint gains is refused (their
   kinematics are not a URDF's; ``docs/compensate.md``).
+
+**Is it this robot's calibration?** Every joint placement of the calibrated URDF must be
+the nominal one times :math:`\exp_6(\delta_i)` with :math:`\delta_i` below
+:data:`PLAUSIBLE_LENGTH` and :data:`PLAUSIBLE_ANGLE` (another robot's URDF with the same
+joint names fails), and with ``identification.json`` the URDF must be
+``space.perturbed_model(p)`` of its estimate to 1e-9 (the two files belong together).
 """
 
 from __future__ import annotations
@@ -20,12 +26,24 @@ from pathlib import Path
 
 import numpy as np
 
+import pinocchio as pin
+
 from calib_oed.calibration.compensation import CalibrationUncertainty
 from calib_oed.calibration.sensor_file import read_sensor_compliance, read_sensor_gains
 from calib_oed.calibration.validation import find_calibration_files
 from calib_oed.exceptions import CompensationError, UnknownParameterError
 from calib_oed.model.parameters import ParameterSpace
 from calib_oed.model.robot import Robot, load_robot
+
+#: Largest joint placement change [m] and [rad] a calibration of this robot can hold.
+PLAUSIBLE_LENGTH = 0.05
+PLAUSIBLE_ANGLE = 0.05
+
+
+def _placement_deltas(nominal: pin.Model, calibrated: pin.Model) -> np.ndarray:
+    r""":math:`\log_6(M_i^{-1} M'_i)` of every joint, (n, 6)."""
+    return np.array([pin.log6(nominal.jointPlacements[i].actInv(calibrated.jointPlacements[i])).vector
+                     for i in range(1, nominal.njoints)])
 
 
 def load_calibration(space: ParameterSpace, folder: str | os.PathLike) -> tuple[Robot, CalibrationUncertainty | None, dict]:
@@ -50,6 +68,12 @@ def load_calibration(space: ParameterSpace, folder: str | os.PathLike) -> tuple[
     if tuple(calibrated.joint_names) != tuple(robot.joint_names):
         raise CompensationError(f"{files['urdf']}: joints {list(calibrated.joint_names)} are not the scene "
                                 f"robot's {list(robot.joint_names)}")
+    deltas = _placement_deltas(robot.model, calibrated.model)
+    if np.abs(deltas[:, :3]).max() > PLAUSIBLE_LENGTH or np.abs(deltas[:, 3:]).max() > PLAUSIBLE_ANGLE:
+        raise CompensationError(
+            f"{files['urdf']}: its joint placements differ from the scene robot {robot.name!r}'s by up to "
+            f"{1e3 * np.abs(deltas[:, :3]).max():.1f} mm and {1e3 * np.abs(deltas[:, 3:]).max():.1f} mrad: "
+            "not a calibration of this robot (give the scene the calibration was identified in)")
     path = Path(files["urdf"]).parent / "identification.json"
     out = {k: str(v) for k, v in files.items()}
     if not path.is_file():
@@ -70,6 +94,10 @@ def load_calibration(space: ParameterSpace, folder: str | os.PathLike) -> tuple[
                                 "give the folder `calib-oed identify -o DIR` wrote") from exc
     if cov.shape != (len(free), len(free)) or not np.all(np.isfinite(cov)):
         raise CompensationError(f"{path}: the covariance is not a finite {len(free)} x {len(free)} matrix")
+    mismatch = np.abs(_placement_deltas(space.perturbed_model(p), calibrated.model)).max()
+    if mismatch > 1e-9:
+        raise CompensationError(f"{path}: its estimate does not give {files['urdf']} (joint placements differ "
+                                f"by {mismatch:.3g} m or rad): the two files are not from one identification")
     return calibrated, CalibrationUncertainty(space, p, free, cov * factor), out
 
 
