@@ -29,7 +29,7 @@ def add_compensate_parser(sub) -> None:
                    "base [mm, deg] unless the program declares it (default: the robot base)")
     p.add_argument("--singular", type=float, default=None, metavar="SIGMA",
                    help="name targets whose smallest scaled Jacobian singular value is below this "
-                   "(default 0.02)")
+                   "(default 0.01, docs/compensate.md)")
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.set_defaults(func=cmd_compensate, outputs={"output": "dir"})
 
@@ -66,7 +66,7 @@ def cmd_compensate(args) -> int:
                                 "their names, so give another folder")
     threshold = SINGULAR_THRESHOLD if args.singular is None else args.singular
     if not threshold >= 0:
-        raise CompensationError(f"--singular {args.singular}: give a threshold >= 0 (default 0.02)")
+        raise CompensationError(f"--singular {args.singular}: give a threshold >= 0 (default 0.01)")
     problem = CalibrationProblem.from_scene(scene)
     calibrated, uncertainty, cal_files = load_calibration(problem.space, args.calibration)
     parsed, encodings = read_program(args.program, scene.robot.joint_names)

@@ -136,35 +136,80 @@ class TcpKinematics:
         _, jac = self.compute_jacobian(q)
         return float(np.linalg.svd(self.scale[:, None] * jac, compute_uv=False)[-1])
 
-    def _error(self, q: np.ndarray, target: pin.SE3) -> tuple[np.ndarray, float]:
-        err = pin.log6(self.compute_pose(q).actInv(target)).vector
-        return err, float(np.linalg.norm(self.scale * err))
+    def compute_error(self, q: np.ndarray, target: pin.SE3) -> np.ndarray:
+        """:math:`e = \\log_6(T_{W,E}(q)^{-1} T^\\star)` (6,)."""
+        return pin.log6(self.compute_pose(q).actInv(target)).vector
+
+    def compute_error_jacobian(self, q: np.ndarray, target: pin.SE3) -> tuple[np.ndarray, np.ndarray]:
+        """:math:`e` (6,) and :math:`D J` (6, nq) of the module docstring at ``q``."""
+        pose, jac = self.compute_jacobian(q)
+        err = pin.log6(pose.actInv(target)).vector
+        return err, self.scale[:, None] * (pin.Jlog6(target.actInv(pose)) @ jac)
 
     def solve(self, target: pin.SE3, seed: np.ndarray, settings: IkSettings) -> tuple[np.ndarray, float, float, int]:
-        """One target: (q, scaled error, position error [m], iterations)."""
+        """One target: (q, scaled error, position error [m], iterations); the same iteration as
+        :func:`solve_ik`, written for one target (a program's targets solved one after another)."""
         q = np.array(seed, dtype=float)
-        lam = settings.damping
-        err, norm = self._error(q, target)
-        jac_q = None
+        lam, eye, scale = settings.damping, np.eye(6), self.scale
+        err = self.compute_error(q, target)
+        norm = float(np.linalg.norm(scale * err))
+        j = None
         for it in range(settings.max_iterations):
             if norm <= settings.tolerance:
                 return q, norm, float(np.linalg.norm(err[:3])), it
-            if jac_q is None:
-                pose, jac = self.compute_jacobian(q)
-                j = self.scale[:, None] * (pin.Jlog6(target.actInv(pose)) @ jac)
-                jac_q = j @ j.T
-            step = j.T @ np.linalg.solve(jac_q + lam**2 * np.eye(6), self.scale * err)
+            if j is None:
+                j = self.compute_error_jacobian(q, target)[1]
+            step = j.T @ np.linalg.solve(j @ j.T + lam * lam * eye, scale * err)
             size = float(np.linalg.norm(step))
             if size > settings.max_step:
                 step *= settings.max_step / size
-            q_try = pin.integrate(self.model, q, step)
-            err_try, norm_try = self._error(q_try, target)
-            if norm_try < norm:         # accept; back towards Gauss-Newton
-                q, err, norm, jac_q = q_try, err_try, norm_try, None
+            err_try = self.compute_error(q + step, target)
+            norm_try = float(np.linalg.norm(scale * err_try))
+            if norm_try < norm:
+                q, err, norm, j = q + step, err_try, norm_try, None
                 lam = max(lam / 10.0, settings.damping)
-            else:                       # reject; damp more (Levenberg-Marquardt)
-                lam = max(10.0 * lam, 1e-6)
+            else:
+                lam = max(lam * 10.0, 1e-6)
         return q, norm, float(np.linalg.norm(err[:3])), settings.max_iterations
+
+
+def _levenberg_marquardt(kin: TcpKinematics, targets, seeds: np.ndarray, settings: IkSettings):
+    """The iteration of the module docstring for all targets at once: (q, e, iterations).
+
+    The joints are single-coordinate (``nq = nv``, :class:`~calib_oed.model.robot.Robot`), so
+    ``pin.integrate`` is an addition; the 6x6 systems are solved together.
+    """
+    n, nq = seeds.shape
+    q = seeds.copy()
+    err = np.array([kin.compute_error(q[i], targets[i]) for i in range(n)])
+    norm = np.linalg.norm(err * kin.scale, axis=1)
+    lam = np.full(n, settings.damping)
+    jac = np.zeros((n, 6, nq))
+    stale = np.ones(n, bool)
+    iters = np.full(n, settings.max_iterations)
+    for it in range(settings.max_iterations):
+        done = norm <= settings.tolerance
+        iters[done & (iters == settings.max_iterations)] = it
+        active = np.flatnonzero(~done)
+        if active.size == 0:
+            break
+        for i in active[stale[active]]:
+            jac[i] = kin.compute_error_jacobian(q[i], targets[i])[1]
+        j = jac[active]
+        lhs = j @ j.transpose(0, 2, 1) + (lam[active] ** 2)[:, None, None] * np.eye(6)
+        step = (j.transpose(0, 2, 1) @ np.linalg.solve(lhs, (err[active] * kin.scale)[:, :, None]))[:, :, 0]
+        size = np.linalg.norm(step, axis=1)
+        step *= np.minimum(1.0, settings.max_step / np.maximum(size, 1e-300))[:, None]
+        q_try = q[active] + step
+        err_try = np.array([kin.compute_error(q_try[k], targets[i]) for k, i in enumerate(active)])
+        norm_try = np.linalg.norm(err_try * kin.scale, axis=1)
+        better = norm_try < norm[active]
+        good, bad = active[better], active[~better]
+        q[good], err[good], norm[good] = q_try[better], err_try[better], norm_try[better]
+        stale[good], stale[bad] = True, False
+        lam[good] = np.maximum(lam[good] / 10.0, settings.damping)     # back towards Gauss-Newton
+        lam[bad] = np.maximum(lam[bad] * 10.0, 1e-6)                   # damp more (Levenberg-Marquardt)
+    return q, err, iters
 
 
 def solve_ik(kin: TcpKinematics, targets, seeds: np.ndarray, settings: IkSettings | None = None) -> IkSolution:
@@ -181,14 +226,11 @@ def solve_ik(kin: TcpKinematics, targets, seeds: np.ndarray, settings: IkSetting
     targets = list(targets)
     if len(targets) != len(seeds):
         raise ShapeError("targets", f"({len(seeds)},) poses, one per seed", (len(targets),))
-    n = len(seeds)
-    q = np.empty_like(seeds)
-    error, perr, sig = np.empty(n), np.empty(n), np.empty(n)
-    iters = np.empty(n, dtype=int)
-    for i in range(n):
-        q[i], error[i], perr[i], iters[i] = kin.solve(targets[i], seeds[i], settings)
-        sig[i] = kin.compute_sigma_min(q[i])
-    return IkSolution(q, error, perr, error <= settings.tolerance, iters, sig)
+    q, err, iters = _levenberg_marquardt(kin, targets, seeds, settings)
+    error = np.linalg.norm(err * kin.scale, axis=1)
+    jac = np.array([kin.scale[:, None] * kin.compute_jacobian(row)[1] for row in q])
+    sig = np.linalg.svd(jac, compute_uv=False)[:, -1] if len(q) else np.zeros(0)
+    return IkSolution(q, error, np.linalg.norm(err[:, :3], axis=1), error <= settings.tolerance, iters, sig)
 
 
 __all__ = ["IkSettings", "IkSolution", "TcpKinematics", "characteristic_length", "solve_ik"]

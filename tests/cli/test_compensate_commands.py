@@ -32,7 +32,7 @@ def test_compensates_a_krl_program(calibration, tmp_path, capsys):
     assert all(0.001 < p < 0.1 for p in predicted)
     assert "predicted residual" in (out / "weld_demo.dat").read_text()
     named = {line.split(":")[0] for line in data["issues"]}
-    flagged = {t["name"] for t in data["targets"] if t["sigma_min"] < 0.02 or not t["in_range"]}
+    flagged = {t["name"] for t in data["targets"] if t["sigma_min"] < 0.01 or not t["in_range"] or not t["changed"]}
     assert named == flagged
 
 

@@ -115,9 +115,17 @@ def numbers_in(text: str, start: int, end: int) -> list[Number]:
             for m in re.finditer(rf"(?<![\w.]){NUMBER}", text[start:end])]
 
 
+_LINE_STARTS: dict[int, tuple[str, np.ndarray]] = {}
+
+
 def line_of(text: str, pos: int) -> int:
-    """0-based line index of character ``pos``."""
-    return text.count("\n", 0, pos)
+    """0-based line index of character ``pos`` (line starts indexed once per text)."""
+    cached = _LINE_STARTS.get(id(text))
+    if cached is None or cached[0] is not text:
+        starts = np.array([0] + [m.end() for m in re.finditer("\n", text)])
+        _LINE_STARTS.clear()
+        _LINE_STARTS[id(text)] = cached = (text, starts)
+    return int(np.searchsorted(cached[1], pos, side="right") - 1)
 
 
 def indent_of(text: str, pos: int) -> str:
@@ -161,8 +169,11 @@ def rewrite(parsed: ParsedProgram, values: dict[int, np.ndarray], comments: dict
             notes[target.file].append((target.line, target.indent + lang.comment(comments[i])))
     out = {}
     for name, text in parsed.texts.items():
-        for num, new_text in sorted(edits[name], key=lambda e: -e[0].start):
-            text = text[: num.start] + new_text + text[num.end:]
+        pieces, at = [], 0
+        for num, new_text in sorted(edits[name], key=lambda e: e[0].start):
+            pieces += [text[at:num.start], new_text]
+            at = num.end
+        text = "".join(pieces) + text[at:]
         if notes[name]:
             text = (lang.insert_comments or insert_after_lines)(text, notes[name])
         out[name] = text
