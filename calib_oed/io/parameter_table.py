@@ -48,8 +48,9 @@ def table_yaml_text(table: ParameterTable) -> str:
         "format": FORMAT, "robot": table.robot, "convention": table.convention,
         "units": {"length": "m", "angle": "rad"}, "tool_frame": table.tool_frame,
         "base": _pose(table.base), "tool": _pose(table.tool),
-        "joints": [{"name": r.joint, "kind": r.kind, "alpha": r.alpha, "a": r.a, "theta": r.theta,
-                    "d": r.d, "beta": r.beta, "lower": r.lower, "upper": r.upper} for r in table.rows],
+        "joints": [{"name": r.joint, "kind": r.kind,
+                    **{k: float(getattr(r, k)) + 0.0 for k in (*_ROW_KEYS, "lower", "upper")}}
+                   for r in table.rows],
     }
     if table.residual_m is not None:
         data["residual"] = {"position_m": table.residual_m, "rotation_rad": table.residual_rad}

@@ -52,7 +52,7 @@ def _truth_errors(scene_name: str, n_design: int = 60, n_targets: int = 120):
     return out
 
 
-@pytest.mark.parametrize("scene_name", ["fms_kr16", "ur5_table", "fms_kr300"])
+@pytest.mark.parametrize("scene_name", ["fms_kr16", "ur5_table", "fms_kr300", "fms_kr500"])
 def test_true_robot_reaches_the_compensated_targets(scene_name):
     trials = _truth_errors(scene_name)
     after = np.concatenate([t[0] for t in trials])
