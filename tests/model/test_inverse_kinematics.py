@@ -29,6 +29,18 @@ def test_tcp_jacobian_matches_finite_differences(name):
 
 
 @pytest.mark.parametrize("name", ["kr16", "ur5", "panda"])
+def test_error_jacobian_matches_finite_differences(name):
+    """The Newton step solves D J dq = D e: J is minus the derivative of e(q) = log6(T(q)^-1 T*)."""
+    robot = load_robot(name)
+    kin = TcpKinematics(robot, TOOL)
+    q, q_star = robot.random_configurations(2, 4)
+    target = kin.compute_pose(q_star)
+    _, jac = kin.compute_error_jacobian(q, target)
+    num = central_difference(lambda x: kin.compute_error(x, target), q)
+    assert relative_error(-jac / kin.scale[:, None], num) < 1e-7
+
+
+@pytest.mark.parametrize("name", ["kr16", "ur5", "panda"])
 def test_ik_recovers_a_reachable_pose_from_a_nearby_seed(name):
     robot = load_robot(name)
     kin = TcpKinematics(robot, TOOL)

@@ -157,6 +157,30 @@ def test_urscript_with_tcp_variables_and_poses(robots):
     _check_reached("urscript", parsed, result, robot, cal, tool, pin.SE3.Identity(), tol=5e-6)
 
 
+def test_controller_joint_values_fanuc_j2_j3(robots):
+    """A TP program in FANUC joint values (J3 from the horizontal: q3 = J3 + J2, a sign flip on J1):
+    mapped to URDF angles, compensated, mapped back."""
+    from dataclasses import replace
+
+    from calib_oed.model.controller import controller_from_mapping
+
+    robot, cal = robots["kr16"]
+    ctrl = controller_from_mapping({"name": "fanuc", "angle": "deg", "joints": [{"sign": -1}] + [{}] * 5,
+                                    "couplings": [{"joint": 3, "from": 2, "ratio": 1}]}, 6)
+    program = replace(_writer_program(robot), controller=ctrl)
+    texts = program_texts(program, "tp")
+    parsed = fanuc_tp.parse(texts)
+    result = compensate_program(parsed, robot, cal, controller=ctrl)
+    again = fanuc_tp.parse(result.texts)
+    nom, calk = TcpKinematics(robot), TcpKinematics(cal)
+    for old, new in zip(parsed.targets, again.targets, strict=True):
+        q_old = ctrl.to_model(np.radians(old.values))
+        q_new = ctrl.to_model(np.radians(new.values))
+        assert abs(q_old[2] - np.radians(old.values[2] + old.values[1])) < 1e-12      # the coupling is applied
+        goal, reached = nom.compute_pose(q_old), calk.compute_pose(q_new)
+        assert np.linalg.norm(reached.translation - goal.translation) < 2e-5
+
+
 def test_a_target_the_robot_cannot_reach_is_left_as_written_and_named(robots):
     robot, cal = robots["kr16"]
     text = samples.CSV_POSES + "far,5000.0,0.0,0.0,0.0,0.0,0.0\n"
