@@ -23,6 +23,8 @@ from calib_oed._version import __version__
 
 #: Each public name and the module that defines it.
 _EXPORTS = {
+    "compensate_joints": "calib_oed.calibration.compensation",
+    "compensate_pose": "calib_oed.calibration.compensation",
     "identify": "calib_oed.calibration.identification",
     "IdentificationResult": "calib_oed.calibration.identification_result",
     "TcpKpi": "calib_oed.calibration.kpi",
@@ -59,7 +61,7 @@ _EXPORTS = {
 __all__ = [
     "CalibrationProblem", "IdentificationResult", "MeasurementSet", "ParameterSpace",
     "PoseMeasurement", "Robot", "Scene", "SequentialDesigner", "Setup", "TcpKpi",
-    "TrackerPosition", "design", "draw_true_parameters", "evaluate_design",
+    "TrackerPosition", "compensate_joints", "compensate_pose", "design", "draw_true_parameters", "evaluate_design",
     "exchange_baseline", "heuristic_design", "heuristic_designs", "identify", "load_robot",
     "load_scene", "monte_carlo", "read_design_csv", "read_measurements", "scene_from_dict",
     "scene_names", "setup", "simulate_observations", "tcp_errors", "validate_calibration",
@@ -97,6 +99,7 @@ def __dir__() -> list[str]:
 
 
 if TYPE_CHECKING:  # the names for static analysis and IDEs
+    from calib_oed.calibration.compensation import compensate_joints, compensate_pose
     from calib_oed.calibration.identification import identify
     from calib_oed.calibration.identification_result import IdentificationResult
     from calib_oed.calibration.kpi import TcpKpi

@@ -481,3 +481,13 @@ class DataSanityError(CalibOedError):
                   "; no single mistake explains it: check the scene, the units and the joint order")
         super().__init__(f"{source}: the data do not fit the scene: registration RMS {self.rms_mm:.3g} mm "
                          f"above the plausibility limit {self.limit_mm:.3g} mm{hint}{likely}")
+
+
+class CompensationError(CalibOedError, ValueError):
+    """A program or calibration cannot be compensated as asked (mismatched robots, an unsupported
+    calibration or target); the message names what to fix."""
+
+
+class ParameterTableError(CalibOedError, ValueError):
+    """A parameter table (DH, modified DH, Hayati) cannot be computed, read or written as asked;
+    the message names the problem and the valid choices."""

@@ -1,0 +1,90 @@
+"""The ``compensate`` command: a robot program with its targets corrected by a calibration
+(docs/compensate.md)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from calib_oed.cli._common import EXIT_OK, _say
+from calib_oed.exceptions import CompensationError
+
+
+def add_compensate_parser(sub) -> None:
+    """Register ``calib-oed compensate SCENE CALIBRATION PROGRAM [-o OUT]``."""
+    p = sub.add_parser("compensate", help="correct the targets of a robot program (KRL, RAPID, TP, "
+                       "URScript, CSV) with a calibration: the calibrated robot reaches them")
+    p.add_argument("scene", help="shipped scene name or scene file path (the nominal robot)")
+    p.add_argument("calibration", metavar="CALIBRATION", help="the folder `calib-oed identify -o DIR` "
+                   "wrote (calibrated URDF, sensor YAML, identification.json), or its URDF")
+    p.add_argument("program", metavar="PROGRAM", help="program file: .src/.dat (KRL), .mod (RAPID), "
+                   ".ls (FANUC TP), .script (URScript) or .csv (targets)")
+    p.add_argument("-o", "--output", metavar="OUT", help="folder for the compensated files, same names "
+                   "(default: PROGRAM's folder/compensated); never the program's own folder")
+    p.add_argument("--tool", metavar="X,Y,Z,RX,RY,RZ", help="TCP in the scene's tool frame [mm, deg; "
+                   "R = Rz Ry Rx] unless the program declares it (default: the tool frame itself)")
+    p.add_argument("--base", metavar="X,Y,Z,RX,RY,RZ", help="base frame of Cartesian targets in the robot "
+                   "base [mm, deg] unless the program declares it (default: the robot base)")
+    p.add_argument("--singular", type=float, default=None, metavar="SIGMA",
+                   help="name targets whose smallest scaled Jacobian singular value is below this "
+                   "(default 0.01, docs/compensate.md)")
+    p.add_argument("--json", action="store_true", help="machine-readable output")
+    p.set_defaults(func=cmd_compensate, outputs={"output": "dir"})
+
+
+def _frame(text: str | None, option: str):
+    if text is None:
+        return None
+    from calib_oed.program.parse.poses import from_euler_mm_deg
+
+    try:
+        values = [float(s) for s in text.replace(" ", ",").split(",") if s]
+    except ValueError:
+        values = []
+    if len(values) != 6 or not np.all(np.isfinite(values)):
+        raise CompensationError(f"{option} {text!r}: give six numbers X,Y,Z,RX,RY,RZ in mm and degrees "
+                                "(R = Rz(RZ) Ry(RY) Rx(RX))")
+    return from_euler_mm_deg(*values)
+
+
+def cmd_compensate(args) -> int:
+    from calib_oed.calibration.compensation import SINGULAR_THRESHOLD
+    from calib_oed.calibration.compensation_files import load_calibration
+    from calib_oed.io.atomic import atomic_write
+    from calib_oed.program.compensate import compensate_program
+    from calib_oed.program.parse.files import program_files, read_program
+    from calib_oed.scene.reader import load_scene
+    from calib_oed.calibration.problem import CalibrationProblem
+
+    scene = load_scene(args.scene)
+    files = program_files(args.program)
+    out = Path(args.output) if args.output else files[0].parent / "compensated"
+    if out.resolve() == files[0].parent.resolve():
+        raise CompensationError(f"-o {out}: that is the program's own folder; the compensated files keep "
+                                "their names, so give another folder")
+    threshold = SINGULAR_THRESHOLD if args.singular is None else args.singular
+    if not threshold >= 0:
+        raise CompensationError(f"--singular {args.singular}: give a threshold >= 0 (default 0.01)")
+    problem = CalibrationProblem.from_scene(scene)
+    calibrated, uncertainty, cal_files = load_calibration(problem.space, args.calibration)
+    parsed, encodings = read_program(args.program, scene.robot.joint_names)
+    result = compensate_program(parsed, scene.robot, calibrated, uncertainty=uncertainty,
+                                controller=scene.controller, tool=_frame(args.tool, "--tool"),
+                                base=_frame(args.base, "--base"), home=problem.kpi.configurations[0],
+                                singular_threshold=threshold)
+    out.mkdir(parents=True, exist_ok=True)
+    written = []
+    for name, text in result.texts.items():
+        data = text.encode(encodings[name])
+        written.append(str(atomic_write(out / name, lambda fh, data=data: fh.write(data), binary=True)))
+    if args.json:
+        data = result.to_dict()
+        data.update(scene=scene.name, calibration=cal_files, written=written)
+        print(json.dumps(data, indent=2))
+        return EXIT_OK
+    _say(args, f"scene {scene.name!r}, calibration {cal_files['urdf']}")
+    _say(args, result.summary())
+    _say(args, f"wrote {', '.join(written)}")
+    return EXIT_OK

@@ -1,0 +1,100 @@
+r"""FANUC TP (ASCII ``.ls``): positions of the ``/POS`` section, joint or Cartesian.
+
+Grammar used (FANUC *R-30iB Controller Operator's Manual (Basic Operation)*, "Program
+structure", "Position data"; the ASCII ``.ls`` form the controller's ASCII upload accepts):
+``P[k]{ GP1: UF : u, UT : t, J1= v deg, ..., J6= v deg };`` or with ``CONFIG : '...',
+X = v mm, Y = v mm, Z = v mm, W = v deg, P = v deg, R = v deg`` (fixed XYZ angles,
+:math:`R = R_z(R)R_y(P)R_x(W)`; ``P[k:"comment"]`` allowed). Only group ``GP1`` is read;
+``CONFIG``, ``UF``/``UT`` numbers and other groups stay. User and tool frames are
+controller data (numbered), not in the file: give them in the scene or with
+``--tool``/``--base``. Comments: TP comment lines ``! text ;`` at most 32 characters, with
+no ``;`` inside; they are appended at the end of ``/MN`` with the next line numbers, and
+``LINE_COUNT`` in ``/ATTR`` (if present) is raised by their count: the only line besides
+the targets that changes.
+"""
+
+from __future__ import annotations
+
+import re
+import textwrap
+
+import numpy as np
+import pinocchio as pin
+
+from calib_oed.exceptions import ProgramError
+from calib_oed.program.parse.poses import from_euler_mm_deg, to_euler_mm_deg
+from calib_oed.program.parse.targets import NUMBER, Language, Number, ParsedProgram, Target, line_of
+
+_POS = re.compile(r"^[ \t]*P\[(\d+)(?::[^\]]*)?\][ \t]*\{", re.MULTILINE)
+_GP1 = re.compile(r"GP1[ \t]*:")
+_GROUP = re.compile(r"GP\d+[ \t]*:")
+_JOINT = re.compile(rf"\bJ([1-6])[ \t]*=[ \t]*({NUMBER})[ \t]*deg")
+_CART = re.compile(rf"\b([XYZWPR])[ \t]*=[ \t]*({NUMBER})[ \t]*(?:mm|deg)")
+_MN_LINE = re.compile(r"^[ \t]*(\d+):", re.MULTILINE)
+COMMENT_WIDTH = 32
+
+
+def _pose_from(v: np.ndarray) -> pin.SE3:
+    return from_euler_mm_deg(*v)
+
+
+def _pose_to(m: pin.SE3, old: np.ndarray) -> np.ndarray:
+    xyz, wpr = to_euler_mm_deg(m, near=old[3:])
+    return np.r_[xyz, wpr]
+
+
+def _comment(text: str) -> str:
+    return f"! {text.replace(';', ',')} ;"
+
+
+def _insert(text: str, comments: list[tuple[int, str]]) -> str:
+    """The comments as numbered ``/MN`` lines after its last line; ``LINE_COUNT`` raised."""
+    mn = text.find("/MN")
+    pos = text.find("/POS", mn)
+    end = pos if pos >= 0 else text.find("/END", mn)
+    if mn < 0 or end < 0:
+        raise ProgramError("program", "tp", "no /MN section: not a TP program")
+    numbers = [int(m.group(1)) for m in _MN_LINE.finditer(text, mn, end)]
+    last = max(numbers, default=0)
+    wrapped = []
+    for _, line in comments:
+        body = line.strip()[1:-1].strip()          # drop "!" and ";"
+        wrapped += textwrap.wrap(body, COMMENT_WIDTH - 4) or [""]
+    newline = "\r\n" if "\r\n" in text else "\n"
+    added = "".join(f"{last + k:4d}:  ! {c} ;{newline}" for k, c in enumerate(wrapped, start=1))
+    text = text[:end] + added + text[end:]
+    return re.sub(r"(LINE_COUNT[ \t]*=[ \t]*)(\d+)", lambda m: f"{m.group(1)}{int(m.group(2)) + len(wrapped)}",
+                  text, count=1)
+
+
+LANGUAGE = Language("tp", "deg", _pose_from, _pose_to, _comment, (4, 3, 4), _insert)
+
+
+def parse(texts: dict[str, str]) -> ParsedProgram:
+    """Targets of TP programs ``{name.ls: text}``."""
+    targets = []
+    for file, text in texts.items():
+        start = text.find("/POS")
+        if start < 0:
+            continue
+        for m in _POS.finditer(text, start):
+            close = text.find("};", m.end())
+            if close < 0:
+                raise ProgramError("program", file, f"P[{m.group(1)}] at line {line_of(text, m.start()) + 1} does not close")
+            g1 = _GP1.search(text, m.end(), close)
+            if g1 is None:
+                continue
+            nxt = _GROUP.search(text, g1.end(), close)
+            stop = nxt.start() if nxt else close
+            joints = {int(j.group(1)): Number(j.start(2), j.end(2), j.group(2))
+                      for j in _JOINT.finditer(text, g1.end(), stop)}
+            cart = {c.group(1): Number(c.start(2), c.end(2), c.group(2)) for c in _CART.finditer(text, g1.end(), stop)}
+            name = f"P[{m.group(1)}]"
+            if len(joints) == 6:
+                targets.append(Target(name, "joint", file, 0, tuple(joints[k] for k in range(1, 7))))
+            elif all(k in cart for k in "XYZWPR"):
+                targets.append(Target(name, "pose", file, 0, tuple(cart[k] for k in "XYZWPR")))
+            else:
+                raise ProgramError("program", file, f"{name}: GP1 needs J1..J6 (deg) or X, Y, Z (mm), "
+                                   "W, P, R (deg)")
+    return ParsedProgram(LANGUAGE, dict(texts), tuple(targets))

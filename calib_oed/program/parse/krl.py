@@ -1,0 +1,98 @@
+r"""KUKA KRL (``.src`` + ``.dat``): ``E6AXIS``/``AXIS`` joint and ``E6POS``/``POS`` Cartesian targets.
+
+Grammar used (KUKA System Software 8.x, *Operating and Programming Instructions for
+System Integrators*, "Structure data types" and "Motion programming: KRL"): a target is an
+aggregate ``{A1 v, ..., A6 v, E1 v, ...}`` [deg] (``AXIS``/``E6AXIS``) or
+``{X v, Y v, Z v, A v, B v, C v, S s, T t, E1 ..}`` [mm, deg] (``POS``/``E6POS``;
+:math:`R = R_z(A)R_y(B)R_x(C)`), declared in the ``.dat`` (``DECL E6AXIS XP1={...}``) or
+written inline after ``PTP``/``LIN``/``CIRC`` in the ``.src``. Only A1..A6 or X..C are
+rewritten; ``S``, ``T`` and external axes stay as written. ``$TOOL={X .., ..., C ..}`` and
+``$BASE={...}`` literals in the ``.src`` declare the TCP :math:`T_{F,E}` and base
+:math:`T_{W,B}` (``$TOOL=TOOL_DATA[1]`` refers to the controller's ``$config.dat``, which is
+not read: give the tool in the scene or with ``--tool``). ``FRAME`` declarations are not
+targets. Comments are ``;`` lines after the target's line.
+"""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+import pinocchio as pin
+
+from calib_oed.exceptions import ProgramError
+from calib_oed.program.parse.poses import from_euler_mm_deg, to_euler_mm_deg
+from calib_oed.program.parse.targets import NUMBER, Language, Number, ParsedProgram, Target, indent_of, line_of
+
+_AGG = re.compile(r"\{([^{}]*)\}")
+_COMP = re.compile(rf"(?<![\w$])(A[1-6]|[XYZABCST])\s+({NUMBER})")
+_DECL = re.compile(r"^[ \t]*(?:DECL[ \t]+)?(?:GLOBAL[ \t]+)?(E6AXIS|AXIS|E6POS|POS)[ \t]+(\w+)[ \t]*=[ \t]*\{",
+                   re.IGNORECASE | re.MULTILINE)
+_MOVE = re.compile(r"^[ \t]*(?:PTP|LIN|CIRC)[ \t]+\{", re.IGNORECASE | re.MULTILINE)
+_FRAME = re.compile(r"^[ \t]*\$(TOOL|BASE)[ \t]*=[ \t]*\{", re.IGNORECASE | re.MULTILINE)
+_JOINTS = tuple(f"A{i}" for i in range(1, 7))
+_POSE = ("X", "Y", "Z", "A", "B", "C")
+
+
+def _pose_from(v: np.ndarray) -> pin.SE3:
+    x, y, z, a, b, c = v
+    return from_euler_mm_deg(x, y, z, c, b, a)
+
+
+def _pose_to(m: pin.SE3, old: np.ndarray) -> np.ndarray:
+    xyz, rpy = to_euler_mm_deg(m, near=old[[5, 4, 3]])
+    return np.r_[xyz, rpy[2], rpy[1], rpy[0]]
+
+
+LANGUAGE = Language("krl", "deg", _pose_from, _pose_to, lambda text: f"; {text}", (4, 3, 4))
+
+
+def _aggregate(text: str, brace: int, what: str, file: str) -> tuple[str, dict[str, Number]]:
+    """(kind, components) of the aggregate opening at ``brace``."""
+    m = _AGG.match(text, brace)
+    if m is None:
+        raise ProgramError("program", file, f"{what}: the aggregate at line {line_of(text, brace) + 1} does not close")
+    comps = {c.group(1).upper(): Number(c.start(2), c.end(2), c.group(2))
+             for c in _COMP.finditer(text, m.start(1), m.end(1))}
+    if all(k in comps for k in _JOINTS):
+        return "joint", {k: comps[k] for k in _JOINTS}
+    if all(k in comps for k in _POSE):
+        return "pose", {k: comps[k] for k in _POSE}
+    raise ProgramError("program", file, f"{what} (line {line_of(text, brace) + 1}): a target needs all of "
+                       f"A1..A6 or all of X, Y, Z, A, B, C; it has {sorted(comps)}")
+
+
+def parse(texts: dict[str, str]) -> ParsedProgram:
+    """Targets of a KRL module: ``{name.src: text, name.dat: text}`` (either may be missing)."""
+    targets, tool, base, notes = [], None, None, []
+    for file in sorted(texts, key=lambda f: not f.lower().endswith(".dat")):     # .dat first
+        text = texts[file]
+        found = [(m.end() - 1, m.group(2), m.group(1).upper()) for m in _DECL.finditer(text)]
+        found += [(m.end() - 1, None, None) for m in _MOVE.finditer(text)]
+        for brace, name, decl in sorted(found):
+            what = name or f"{file} line {line_of(text, brace) + 1}"
+            kind, comps = _aggregate(text, brace, what, file)
+            if decl is not None and (kind == "joint") != decl.endswith("AXIS"):
+                raise ProgramError("program", file, f"{name}: a {decl} holds {kind} values")
+            end = _AGG.match(text, brace).end()
+            targets.append(Target(what, kind, file, line_of(text, end), tuple(comps.values()),
+                                  indent_of(text, brace)))
+        for m in _FRAME.finditer(text):
+            kind, comps = _aggregate(text, m.end() - 1, f"${m.group(1)}", file)
+            if kind != "pose":
+                raise ProgramError("program", file, f"${m.group(1)} must be a FRAME {{X, Y, Z, A, B, C}}")
+            frame = _pose_from(np.array([n.value for n in comps.values()]))
+            if m.group(1).upper() == "TOOL":
+                if tool is not None and not np.allclose(tool.homogeneous, frame.homogeneous):
+                    raise ProgramError("program", file, "$TOOL is set to two different frames: compensate "
+                                       "one tool per program (split the program)")
+                tool = frame
+            else:
+                if base is not None and not np.allclose(base.homogeneous, frame.homogeneous):
+                    raise ProgramError("program", file, "$BASE is set to two different frames: compensate "
+                                       "one base per program (split the program)")
+                base = frame
+        if re.search(r"\$TOOL[ \t]*=[ \t]*TOOL_DATA", text, re.IGNORECASE):
+            notes.append(f"{file}: $TOOL=TOOL_DATA[..] refers to $config.dat (not read): the tool is the "
+                         "scene's or --tool's")
+    return ParsedProgram(LANGUAGE, dict(texts), tuple(targets), tool, base, tuple(notes))

@@ -1,0 +1,126 @@
+r"""ABB RAPID (``.mod``): ``jointtarget`` and ``robtarget`` targets, ``tooldata`` and ``wobjdata``.
+
+Grammar used (ABB *Technical reference manual - RAPID Instructions, Functions and Data
+types*, data types ``jointtarget``, ``robtarget``, ``orient``, ``tooldata``, ``wobjdata``):
+``jointtarget`` = ``[[rax_1, ..., rax_6], [eax_a, ..., eax_f]]`` [deg];
+``robtarget`` = ``[[x, y, z], [q1, q2, q3, q4], [cf1, cf4, cf6, cfx], [eax..]]``
+[mm; quaternion :math:`q_1 = w`]. Targets are declared (``CONST|PERS|VAR [LOCAL]
+jointtarget|robtarget name := [...];``) or written inline as the first argument of a
+``Move*`` instruction. Only ``rax`` or ``x, y, z, q1..q4`` are rewritten; ``confdata`` and
+external axes stay. A module declaring exactly one ``tooldata`` (``[robhold, [[x, y, z],
+[q1..q4]], load]``) and at most one ``wobjdata`` (``[robhold, ufprog, ufmec, uframe,
+oframe]``, base :math:`T_{W,B} = uframe\,oframe`) gives the tool and base; with several,
+the scene's or ``--tool``/``--base`` apply and a note says so. Comments are ``!`` lines.
+"""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+import pinocchio as pin
+
+from calib_oed.exceptions import ProgramError
+from calib_oed.program.parse.poses import from_quaternion_mm, to_quaternion_mm
+from calib_oed.program.parse.targets import Language, ParsedProgram, Target, indent_of, line_of, numbers_in
+
+_DECL = re.compile(r"^[ \t]*(?:LOCAL[ \t]+|TASK[ \t]+)?(?:CONST|PERS|VAR)[ \t]+(jointtarget|robtarget|tooldata|wobjdata)"
+                   r"[ \t]+(\w+)[ \t]*:=[ \t]*\[", re.IGNORECASE | re.MULTILINE)
+_MOVE = re.compile(r"\bMove\w*[ \t]+\[", re.IGNORECASE)
+
+
+def _pose_from(v: np.ndarray) -> pin.SE3:
+    return from_quaternion_mm(*v)
+
+
+def _pose_to(m: pin.SE3, old: np.ndarray) -> np.ndarray:
+    xyz, q = to_quaternion_mm(m, near=old[3:])
+    return np.r_[xyz, q]
+
+
+LANGUAGE = Language("rapid", "deg", _pose_from, _pose_to, lambda text: f"! {text}", (4, 3, 9))
+
+
+def _bracket_end(text: str, start: int, file: str) -> int:
+    """Index after the ``]`` closing the ``[`` at ``start``."""
+    depth = 0
+    for k in range(start, len(text)):
+        if text[k] == "[":
+            depth += 1
+        elif text[k] == "]":
+            depth -= 1
+            if depth == 0:
+                return k + 1
+    raise ProgramError("program", file, f"the bracket at line {line_of(text, start) + 1} does not close")
+
+
+def _groups(text: str, start: int, file: str) -> list[tuple[int, int]]:
+    """Spans of the top-level ``[...]`` groups inside the literal opening at ``start``."""
+    end = _bracket_end(text, start, file)
+    out, k = [], start + 1
+    while k < end - 1:
+        if text[k] == "[":
+            e = _bracket_end(text, k, file)
+            out.append((k, e))
+            k = e
+        else:
+            k += 1
+    return out
+
+
+def _target(text, start, file, name, kind) -> Target:
+    groups = _groups(text, start, file)
+    if kind == "joint":
+        nums = numbers_in(text, *groups[0]) if groups else []
+        if len(nums) != 6:
+            raise ProgramError("program", file, f"{name}: a jointtarget needs [[rax_1..rax_6], [eax..]]")
+    else:
+        nums = (numbers_in(text, *groups[0]) + numbers_in(text, *groups[1])) if len(groups) >= 2 else []
+        if len(nums) != 7:
+            raise ProgramError("program", file, f"{name}: a robtarget needs [[x, y, z], [q1, q2, q3, q4], ...]")
+    end = text.find(";", _bracket_end(text, start, file))
+    return Target(name, kind, file, line_of(text, end if end >= 0 else start), tuple(nums), indent_of(text, start))
+
+
+def _frame(text, start, file, what) -> pin.SE3:
+    """tooldata's tframe or wobjdata's uframe * oframe."""
+    groups = _groups(text, start, file)
+    poses = []
+    for g0, g1 in groups:
+        inner = _groups(text, g0, file)
+        if len(inner) == 2:
+            nums = numbers_in(text, *inner[0]) + numbers_in(text, *inner[1])
+            if len(nums) == 7:
+                poses.append(from_quaternion_mm(*[n.value for n in nums]))
+    if what == "tooldata" and poses:
+        return poses[0]
+    if what == "wobjdata" and len(poses) >= 2:
+        return poses[0] * poses[1]
+    raise ProgramError("program", file, f"a {what} at line {line_of(text, start) + 1} has no frame "
+                       "[[x, y, z], [q1, q2, q3, q4]]")
+
+
+def parse(texts: dict[str, str]) -> ParsedProgram:
+    """Targets of RAPID modules ``{name.mod: text}``."""
+    targets, frames, notes = [], {"tooldata": [], "wobjdata": []}, []
+    for file, text in texts.items():
+        found = []
+        for m in _DECL.finditer(text):
+            kind = m.group(1).lower()
+            if kind in frames:
+                frames[kind].append(_frame(text, m.end() - 1, file, kind))
+            else:
+                found.append((m.end() - 1, m.group(2), "joint" if kind == "jointtarget" else "pose"))
+        for m in _MOVE.finditer(text):
+            start = m.end() - 1
+            inner = _groups(text, start, file)
+            kind = "pose" if len(inner) >= 3 else "joint"     # robtarget has 4 groups, jointtarget 2
+            found.append((start, f"{file} line {line_of(text, start) + 1}", kind))
+        targets += [_target(text, s, file, name, kind) for s, name, kind in sorted(found)]
+    tool = base = None
+    for kind, values in frames.items():
+        if len(values) == 1:
+            tool, base = (values[0], base) if kind == "tooldata" else (tool, values[0])
+        elif len(values) > 1:
+            notes.append(f"{len(values)} {kind} declared: none is used (give --{'tool' if kind == 'tooldata' else 'base'})")
+    return ParsedProgram(LANGUAGE, dict(texts), tuple(targets), tool, base, tuple(notes))

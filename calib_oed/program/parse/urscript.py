@@ -1,0 +1,75 @@
+r"""Universal Robots URScript: joint lists and poses of ``movej``/``movel``/``movep``/``movec``/``servoj``.
+
+Grammar used (Universal Robots *The URScript Programming Language*, "Module motion" and
+"pose" type): a move's first argument is a joint list ``[q1, ..., q6]`` [rad], a pose
+``p[x, y, z, rx, ry, rz]`` [m; rotation vector] (also inside ``get_inverse_kin(p[...])``),
+or a variable assigned such a literal (``name = p[...]``, ``global name = [...]``), which is
+then rewritten where it is assigned. ``set_tcp(p[...])`` declares the TCP :math:`T_{F,E}`;
+poses are in the robot base (feature frames built with ``pose_trans`` are not followed:
+such moves are named). Comments are ``#`` lines after the target's line.
+"""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+import pinocchio as pin
+
+from calib_oed.exceptions import ProgramError
+from calib_oed.program.parse.poses import from_rotvec_m, to_rotvec_m
+from calib_oed.program.parse.targets import Language, ParsedProgram, Target, indent_of, line_of, numbers_in
+
+_MOVE = re.compile(r"\b(?:movej|movel|movep|movec|servoj)[ \t]*\(")
+_ASSIGN = re.compile(r"^[ \t]*(?:global[ \t]+|local[ \t]+)?(\w+)[ \t]*=[ \t]*(p?)\[", re.MULTILINE)
+_TCP = re.compile(r"\bset_tcp[ \t]*\([ \t]*p\[")
+_LITERAL = re.compile(r"(p?)\[")
+
+
+def _pose_from(v: np.ndarray) -> pin.SE3:
+    return from_rotvec_m(*v)
+
+
+def _pose_to(m: pin.SE3, old: np.ndarray) -> np.ndarray:
+    xyz, r = to_rotvec_m(m, near=old[3:])
+    return np.r_[xyz, r]
+
+
+LANGUAGE = Language("urscript", "rad", _pose_from, _pose_to, lambda text: f"# {text}", (6, 6, 6))
+
+
+def _literal(text: str, bracket: int, file: str, name: str, pose: bool) -> Target:
+    end = text.find("]", bracket)
+    nums = numbers_in(text, bracket + 1, end)
+    if len(nums) != 6:
+        raise ProgramError("program", file, f"{name}: {'p[x, y, z, rx, ry, rz]' if pose else '[q1..q6]'} "
+                           f"needs 6 numbers, has {len(nums)}")
+    return Target(name, "pose" if pose else "joint", file, line_of(text, end), tuple(nums), indent_of(text, bracket))
+
+
+def parse(texts: dict[str, str]) -> ParsedProgram:
+    """Targets of URScript files ``{name.script: text}``."""
+    targets, tool, notes = {}, None, []
+    for file, text in texts.items():
+        assigned = {m.group(1): (m.end() - 1, bool(m.group(2))) for m in _ASSIGN.finditer(text)}
+        for m in _TCP.finditer(text):
+            t = _literal(text, m.end() - 1, file, "set_tcp", True)
+            tool = _pose_from(t.values)
+        for m in _MOVE.finditer(text):
+            arg = text[m.end():].lstrip()
+            at = m.end() + (len(text[m.end():]) - len(arg))
+            line = line_of(text, at) + 1
+            lit = _LITERAL.match(arg) or re.match(r"get_inverse_kin[ \t]*\([ \t]*(p)\[", arg)
+            if lit is not None:
+                bracket = at + lit.end() - 1
+                targets[(file, bracket)] = _literal(text, bracket, file, f"line {line}", bool(lit.group(1)))
+                continue
+            var = re.match(r"(\w+)[ \t]*[,)]", arg)
+            if var and var.group(1) in assigned:
+                bracket, pose = assigned[var.group(1)]
+                targets[(file, bracket)] = _literal(text, bracket, file, var.group(1), pose)
+            else:
+                notes.append(f"{file} line {line}: the move's target is not a literal or a variable "
+                             "assigned one: not compensated")
+    ordered = tuple(targets[k] for k in sorted(targets))
+    return ParsedProgram(LANGUAGE, dict(texts), ordered, tool, None, tuple(notes))

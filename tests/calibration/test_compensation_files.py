@@ -1,0 +1,63 @@
+"""The calibration compensate reads: identify's folder, and what it refuses."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from calib_oed.calibration.compensation_files import load_calibration
+from calib_oed.calibration.export import export_calibration
+from calib_oed.calibration.identification import identify
+from calib_oed.calibration.problem import CalibrationProblem
+from calib_oed.calibration.simulation import draw_true_parameters, simulate_observations
+from calib_oed.exceptions import CompensationError
+from calib_oed.scene.reader import load_scene
+
+
+def write_calibration(folder, scene="fms_kr16", seed=1):
+    """What `identify -o folder` writes (URDF, sensor YAML, identification.json) for a simulated truth."""
+    problem = CalibrationProblem.from_scene(load_scene(scene))
+    space = problem.space
+    rng = np.random.default_rng(seed)
+    p_true = draw_true_parameters(space, problem.identifiability.free_indices, rng)
+    q = space.robot.random_configurations(50, 0)
+    result = identify(space, simulate_observations(space, problem.models, q, p_true, rng), problem.identifiability)
+    export_calibration(space, result.p, folder)
+    (folder / "identification.json").write_text(json.dumps(result.to_dict()))
+    return problem, result, p_true
+
+
+def test_reads_what_identify_writes(tmp_path):
+    problem, result, _ = write_calibration(tmp_path)
+    robot, unc, files = load_calibration(problem.space, tmp_path)
+    assert robot.joint_names == problem.space.robot.joint_names
+    assert np.array_equal(unc.free_indices, result.free_indices)
+    scale = max(1.0, result.noise_factor)
+    assert np.allclose(unc.covariance, result.covariance * scale, rtol=1e-12)
+    assert np.allclose(unc.p, result.p)
+    assert set(files) == {"urdf", "sensor", "identification"}
+
+
+def test_without_identification_json_there_is_no_prediction(tmp_path):
+    problem, _, _ = write_calibration(tmp_path)
+    (tmp_path / "identification.json").unlink()
+    assert load_calibration(problem.space, tmp_path)[1] is None
+
+
+def test_another_scenes_calibration_is_refused(tmp_path):
+    write_calibration(tmp_path)
+    other = CalibrationProblem.from_scene(load_scene("fms_kr300"))
+    with pytest.raises(CompensationError, match="not a calibration of this robot"):
+        load_calibration(other.space, tmp_path)
+    data = json.loads((tmp_path / "identification.json").read_text())
+    own = CalibrationProblem.from_scene(load_scene("fms_kr16")).space
+    data["p"]["joint2.tx"] += 1e-4                       # another identification's estimate
+    (tmp_path / "identification.json").write_text(json.dumps(data))
+    with pytest.raises(CompensationError, match="not from one identification"):
+        load_calibration(own, tmp_path)
+    data["p"]["joint9.tx"] = 0.0
+    (tmp_path / "identification.json").write_text(json.dumps(data))
+    with pytest.raises(CompensationError, match="not a calibration of this scene"):
+        load_calibration(own, tmp_path)

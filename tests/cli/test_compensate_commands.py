@@ -1,0 +1,65 @@
+"""`calib-oed compensate`: the files written, the report, and bad input as one line with exit 2."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from calib_oed.cli import main
+from tests.calibration.test_compensation_files import write_calibration
+from tests.program.parse import samples
+
+
+@pytest.fixture(scope="module")
+def calibration(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("cal")
+    write_calibration(folder)
+    return folder
+
+
+def test_compensates_a_krl_program(calibration, tmp_path, capsys):
+    (tmp_path / "weld_demo.src").write_text(samples.KRL_SRC)
+    (tmp_path / "weld_demo.dat").write_text(samples.KRL_DAT)
+    out = tmp_path / "out"
+    assert main(["compensate", "fms_kr16", str(calibration), str(tmp_path / "weld_demo.src"), "-o", str(out),
+                 "--json"]) == 0
+    data = json.loads(capsys.readouterr().out)
+    assert sorted(p.name for p in out.iterdir()) == ["weld_demo.dat", "weld_demo.src"]
+    assert data["tool"] == "file" and len(data["targets"]) == 5
+    predicted = [t["predicted_residual_mm"] for t in data["targets"]]
+    assert all(0.001 < p < 0.1 for p in predicted)
+    assert "predicted residual" in (out / "weld_demo.dat").read_text()
+    named = {line.split(":")[0] for line in data["issues"]}
+    flagged = {t["name"] for t in data["targets"] if t["sigma_min"] < 0.01 or not t["in_range"] or not t["changed"]}
+    assert named == flagged
+
+
+def test_text_report_and_default_folder(calibration, tmp_path, capsys):
+    (tmp_path / "p.ls").write_text(samples.TP_LS)
+    assert main(["compensate", "fms_kr16", str(calibration), str(tmp_path / "p.ls"),
+                 "--tool=12.5,0,180,0,0,0", "--base=1000,-200,0,0,0,90"]) == 0
+    out = capsys.readouterr().out
+    assert "predicted residual after compensation" in out and "tool from given" in out
+    assert (tmp_path / "compensated" / "p.ls").is_file()
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--tool=1,2,3"], "six numbers"),
+    (["-o", "{prog}"], "program's own folder"),
+])
+def test_bad_input_is_one_line(calibration, tmp_path, capsys, args, message):
+    (tmp_path / "p.ls").write_text(samples.TP_LS)
+    args = [a.replace("{prog}", str(tmp_path)) for a in args]
+    assert main(["compensate", "fms_kr16", str(calibration), str(tmp_path / "p.ls"), *args]) == 2
+    err = capsys.readouterr().err.strip()
+    assert message in err and len(err.splitlines()) == 1
+    assert not (tmp_path / "compensated").exists()
+
+
+def test_missing_calibration_is_one_line(tmp_path, capsys):
+    (tmp_path / "p.ls").write_text(samples.TP_LS)
+    assert main(["compensate", "fms_kr16", str(tmp_path / "nope"), str(tmp_path / "p.ls")]) == 2
+    assert "does not exist" in capsys.readouterr().err
+    np.testing.assert_equal((tmp_path / "compensated").exists(), False)

@@ -1,0 +1,35 @@
+"""KRL: targets of .dat declarations and inline moves; $TOOL/$BASE; the grammar's errors."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from calib_oed.exceptions import ProgramError
+from calib_oed.program.parse import krl
+from tests.program.parse import samples
+
+
+def test_hand_written_module():
+    parsed = krl.parse({"weld_demo.src": samples.KRL_SRC, "weld_demo.dat": samples.KRL_DAT})
+    assert [(t.name, t.kind, t.file) for t in parsed.targets] == [
+        ("XHOME", "joint", "weld_demo.dat"), ("XP2", "pose", "weld_demo.dat"), ("XP4", "pose", "weld_demo.dat"),
+        ("weld_demo.src line 16", "joint", "weld_demo.src"), ("weld_demo.src line 18", "pose", "weld_demo.src")]
+    assert np.allclose(parsed.targets[1].values, [-16.4, -227.4, 889.6, 80.0, 45.0, 180.0])
+    assert np.allclose(parsed.tool.translation, [0.0125, 0.0, 0.18])
+
+
+@pytest.mark.parametrize("text, message", [
+    ("DECL E6AXIS XP1={A1 0,A2 0,A3 0}\n", "needs all of"),
+    ("DECL E6AXIS XP1={X 0,Y 0,Z 0,A 0,B 0,C 0}\n", "holds pose values"),
+    ("$TOOL={A1 0,A2 0,A3 0,A4 0,A5 0,A6 0}\n", "FRAME"),
+    ("$TOOL={X 1,Y 0,Z 0,A 0,B 0,C 0}\n$TOOL={X 2,Y 0,Z 0,A 0,B 0,C 0}\n", "two different"),
+])
+def test_errors_name_the_target(text, message):
+    with pytest.raises(ProgramError, match=message):
+        krl.parse({"p.src": text})
+
+
+def test_tool_data_reference_is_noted():
+    parsed = krl.parse({"p.src": "$TOOL=TOOL_DATA[1]\nPTP {A1 0,A2 -90,A3 90,A4 0,A5 30,A6 0}\n"})
+    assert "config.dat" in parsed.notes[0]

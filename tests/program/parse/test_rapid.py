@@ -1,0 +1,32 @@
+"""RAPID: declared and inline jointtargets and robtargets; tooldata and wobjdata."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from calib_oed.exceptions import ProgramError
+from calib_oed.program.parse import rapid
+from tests.program.parse import samples
+
+
+def test_hand_written_module():
+    parsed = rapid.parse({"WeldDemo.mod": samples.RAPID_MOD})
+    assert [(t.name, t.kind) for t in parsed.targets] == [
+        ("jHome", "joint"), ("pApproach", "pose"), ("pWeld", "pose"),
+        ("WeldDemo.mod line 11", "joint"), ("WeldDemo.mod line 14", "pose")]
+    assert np.allclose(parsed.targets[2].values, [-237.6, -18.8, 620.4, -0.00253, 0.9025, 0.40816, -0.13745])
+    assert np.allclose(parsed.base.translation, [1.0, -0.2, 0.0])
+    assert np.allclose(parsed.base.rotation @ [1, 0, 0], [0, 1, 0], atol=1e-8)
+
+
+def test_two_tools_are_not_guessed():
+    text = samples.RAPID_MOD.replace("    PERS tooldata tWeld", "    PERS tooldata tA:=[TRUE,[[0,0,1],[1,0,0,0]],"
+                                     "[1,[0,0,1],[1,0,0,0],0,0,0]];\n    PERS tooldata tWeld")
+    parsed = rapid.parse({"m.mod": text})
+    assert parsed.tool is None and "2 tooldata" in parsed.notes[0]
+
+
+def test_a_short_robtarget_is_named():
+    with pytest.raises(ProgramError, match="pX: a robtarget"):
+        rapid.parse({"m.mod": "CONST robtarget pX:=[[1,2,3],[1,0,0]];\n"})
