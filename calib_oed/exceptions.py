@@ -464,3 +464,12 @@ class DataSanityError(CalibOedError):
                   "; no single mistake explains it: check the scene, the units and the joint order")
         super().__init__(f"{source}: the data do not fit the scene: registration RMS {self.rms_mm:.3g} mm "
                          f"above the plausibility limit {self.limit_mm:.3g} mm{hint}{likely}")
+
+
+class InputFileError(CalibOedError):
+    """An input file calib_oed refuses to read: not a regular file, too large, YAML with a
+    duplicate key or aliases that expand beyond a bound (the message names the limit)."""
+
+    def __init__(self, source, problem: str):
+        self.source, self.problem = str(source), problem
+        super().__init__(f"{self.source}: {problem}")

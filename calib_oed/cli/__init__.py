@@ -56,6 +56,7 @@ from calib_oed.cli.design_commands import (
     cmd_sequential,
     cmd_view,
 )
+from calib_oed.cli.checks import check_inputs
 from calib_oed.cli.program_commands import add_program_parser
 from calib_oed.exceptions import CalibOedError
 
@@ -346,6 +347,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         with sigterm_as_interrupt(), notes_as_lines():
             check_outputs(args)  # before any work: a bad path costs nothing
+            check_inputs(args)
             _apply_compliance(args)
             return args.func(args)
     except KeyboardInterrupt:  # Ctrl-C or SIGTERM; a command that saves work says so itself

@@ -108,7 +108,17 @@ def _check_magnitudes(scene) -> None:
     distance = float(np.linalg.norm(scene.tracker.placement().translation))
     offsets = [float(np.linalg.norm(r.offset)) for r in scene.reflectors]
     declared = (scene.units or {}).get("length", "m")
-    if distance > _MAX_TRACKER_DISTANCE or max(offsets, default=0.0) > _MAX_REFLECTOR_OFFSET:
+    farthest = max(offsets, default=0.0)
+    if distance > _MAX_TRACKER_DISTANCE or farthest > _MAX_REFLECTOR_OFFSET:
+        in_mm = distance / 1e3 <= _MAX_TRACKER_DISTANCE and farthest / 1e3 <= _MAX_REFLECTOR_OFFSET
+        if declared != "m" or not in_mm:  # no unit makes these numbers plausible
+            raise SceneError(
+                f"the tracker is {distance:.4g} m from the robot base and the farthest reflector "
+                f"{farthest:.4g} m from the tool frame (lengths in {declared!r}): no laser tracker "
+                f"measures beyond {_MAX_TRACKER_DISTANCE:g} m and no reflector sits "
+                f"{_MAX_REFLECTOR_OFFSET:g} m from the flange; check tracker.position and "
+                "reflectors[].offset", key="tracker.position" if distance > _MAX_TRACKER_DISTANCE
+                else "reflectors", source=str(scene.source) if scene.source else None)
         raise SceneError(
             f"the tracker is {distance:.4g} m from the robot base and the farthest reflector "
             f"{max(offsets, default=0.0):.4g} m from the tool frame, with lengths declared in "

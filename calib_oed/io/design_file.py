@@ -31,11 +31,12 @@ from pathlib import Path
 
 import numpy as np
 
-from calib_oed.exceptions import CalibOedNote, MeasurementFileError
+from calib_oed.exceptions import CalibOedNote, InputFileError, MeasurementFileError
 from calib_oed.io.atomic import atomic_write_text
 from calib_oed.io.repeats import describe_repeats, repeated_rows
 from calib_oed.model.controller import ControllerConvention
 from calib_oed.model.robot import Robot
+from calib_oed.scene.yaml_file import read_text_file
 from calib_oed.units import ANGLE_UNITS, LENGTH_UNITS
 
 _UNITS_RE = re.compile(r"#\s*units\s*:(.*)$", re.IGNORECASE)
@@ -117,9 +118,9 @@ def read_design_csv(path: str | os.PathLike, robot: Robot, check_limits: bool = 
     """
     source = str(path)
     try:
-        text = Path(path).read_text(encoding="utf-8-sig")
-    except OSError as exc:
-        raise MeasurementFileError(source, [(None, f"cannot read the design file ({exc})")],
+        text = read_text_file(path, "design file")
+    except InputFileError as exc:
+        raise MeasurementFileError(source, [(None, exc.problem)],
                                    kind="design file") from exc
     problems: list[tuple[int | None, str]] = []
     header, header_line, rows = None, None, []

@@ -20,12 +20,11 @@ import os
 import re
 import warnings
 from collections.abc import Sequence
-from pathlib import Path
 from typing import IO, NoReturn
 
 import numpy as np
 
-from calib_oed.exceptions import CalibOedNote, MeasurementFileError
+from calib_oed.exceptions import CalibOedNote, InputFileError, MeasurementFileError
 from calib_oed.io.measurement_format import (
     _DIRECTIVE_RE,
     _VERSION_RE,
@@ -41,6 +40,7 @@ from calib_oed.io.repeats import describe_repeats, repeated_rows
 from calib_oed.measurement.dataset import MeasurementSet
 from calib_oed.model.controller import ControllerConvention
 from calib_oed.model.robot import Robot
+from calib_oed.scene.yaml_file import read_text_file
 from calib_oed.units import ANGLE_UNITS, LENGTH_UNITS
 
 # The rotation vector of pin.log3 has norm <= pi; allow for rounding in the file.
@@ -59,9 +59,9 @@ def _read_text(source) -> tuple[str, str]:
     else:
         where = os.fspath(source)
         try:
-            text = Path(where).read_text(encoding="utf-8")
-        except (OSError, UnicodeDecodeError) as exc:
-            raise MeasurementFileError(where, [(None, f"cannot read the file: {exc}")]) from exc
+            text = read_text_file(where, "measurement file")
+        except InputFileError as exc:
+            raise MeasurementFileError(where, [(None, exc.problem)]) from exc
     return text.removeprefix("\ufeff"), where
 
 

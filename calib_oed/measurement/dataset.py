@@ -146,11 +146,16 @@ class MeasurementSet:
             sigma: Position noise per tracker axis [m], scalar or (3,).
             sigma_angle: Rotation noise per axis [rad], scalar or (3,) (pose rows only).
             noise: Full error model of position rows (``scene.position_noise()``); when
-                given, the fit whitens with its covariance and per-row sigmas are not used.
+                given, the fit whitens with its covariance, unless the set has per-row
+                :attr:`sigma` (a file's ``sigma`` column): the file's own statement of each
+                measurement's uncertainty wins (covariance sigma_i^2 I_3), and
+                ``noise`` is not used.
 
         Raises:
             ParameterError: ``noise`` with pose rows (it models positions only).
         """
+        if self.sigma is not None:
+            noise = None  # the per-row sigma is each measurement's covariance
         if noise is not None and self.rotations is not None:
             raise ParameterError("noise: the tracker error model applies to position rows only; "
                                  "this file has pose rows (give noise=None)")

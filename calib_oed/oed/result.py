@@ -22,6 +22,7 @@ from calib_oed.feasibility.margins import KindMargin, format_margins
 from calib_oed.io.atomic import atomic_write_text
 from calib_oed.io.design_file import read_design_csv, write_design_csv
 from calib_oed.model.robot import Robot
+from calib_oed.scene.yaml_file import load_yaml_file
 
 
 def _finite(value):
@@ -246,7 +247,7 @@ def read_design_file(path: str | os.PathLike, robot: Robot, check_limits: bool =
         return MeasurementFileError(source, [(None, message)], kind="design file")
 
     try:
-        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+        data = load_yaml_file(path, "design file")
     except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
         raise fail(f"cannot read the design YAML ({exc})") from exc
     if not isinstance(data, dict) or not str(data.get("format", "")).startswith("calib_oed design"):

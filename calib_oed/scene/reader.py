@@ -20,6 +20,7 @@ import yaml
 
 from calib_oed.exceptions import (
     CalibOedError,
+    InputFileError,
     SceneError,
     UnknownSceneError,
 )
@@ -45,6 +46,7 @@ from calib_oed.scene.records import (
     TrackerSpec,
     WorkingConfiguration,
 )
+from calib_oed.scene.yaml_file import MAX_YAML_BYTES, load_yaml_file
 from calib_oed.units import ANGLE_UNITS, LENGTH_UNITS
 
 
@@ -76,7 +78,9 @@ def load_scene(name_or_path: str | os.PathLike, *, check: bool = True) -> Scene:
         if not path.is_file():
             raise SceneError(f"scene file not found: {path}", source=str(path))
     try:
-        data = yaml.safe_load(path.read_text())
+        data = load_yaml_file(path, "scene file", MAX_YAML_BYTES)
+    except InputFileError as exc:
+        raise SceneError(exc.problem, source=str(path)) from exc
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         at = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""

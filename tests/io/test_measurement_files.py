@@ -351,7 +351,7 @@ def test_all_problems_reported_together(kr16):
 
 
 def test_unreadable_path(tmp_path, kr16):
-    with pytest.raises(MeasurementFileError, match="cannot read the file") as info:
+    with pytest.raises(MeasurementFileError, match="cannot read the measurement file") as info:
         read_measurements(tmp_path / "missing.csv", kr16)
     assert info.value.problems[0][0] is None
 
