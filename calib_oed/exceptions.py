@@ -174,6 +174,9 @@ class MeasurementFileError(CalibOedError):
         self.problems = list(problems)
         self.kind = kind
         lines = [f"line {row}: {msg}" if row is not None else msg for row, msg in self.problems[:20]]
+        if len(self.problems) == 1:  # one problem, one line
+            super().__init__(f"{source}: {kind}, nothing was read: {lines[0]}")
+            return
         more = f"\n  ... ({len(self.problems) - 20} more)" if len(self.problems) > 20 else ""
         super().__init__(
             f"{source}: {len(self.problems)} problem(s) in the {kind}, nothing was read:\n  "

@@ -47,6 +47,7 @@ from calib_oed.cli.calibration_commands import (
     cmd_study,
     cmd_validate,
 )
+from calib_oed.cli.checks import check_inputs
 from calib_oed.cli.design_commands import (
     cmd_compare,
     cmd_design,
@@ -56,7 +57,6 @@ from calib_oed.cli.design_commands import (
     cmd_sequential,
     cmd_view,
 )
-from calib_oed.cli.checks import check_inputs
 from calib_oed.cli.program_commands import add_program_parser
 from calib_oed.exceptions import CalibOedError
 

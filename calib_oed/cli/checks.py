@@ -23,12 +23,10 @@ import os
 from pathlib import Path
 
 from calib_oed.exceptions import CalibOedError
+from calib_oed.scene.joint_keys import MAX_PAYLOAD_KG
 
 __all__ = ["MAX_PAYLOAD_KG", "check_inputs", "given_options"]
 
-#: The heaviest payload of any industrial robot is about 2.3 t (FANUC M-2000iA/2300); more
-#: is a unit mistake (grams typed as kilograms).
-MAX_PAYLOAD_KG = 2500.0
 
 #: Input paths of the commands, by argparse ``dest`` (a list for ``compare``'s designs).
 _INPUTS = ("scene", "design", "design_option", "measurements", "measured", "truth",

@@ -153,9 +153,13 @@ def read_design_csv(path: str | os.PathLike, robot: Robot, check_limits: bool = 
     unknown = [h for h in header if h not in names]
     missing = [n for n in names if n not in header]
     dupes = sorted({h for h in header if header.count(h) > 1})
-    if unknown:
+    another = bool(unknown) and not set(names) & set(header)  # the joints of another robot
+    if another:
+        problems.append((header_line, f"unknown column(s) {unknown}, none of the robot {robot.name}'s "
+                         f"joints {names}: a design of another robot?"))
+    elif unknown:
         problems.append((header_line, f"unknown column(s) {unknown}; the robot's joints are {names}"))
-    if missing:
+    if missing and not another:
         problems.append((header_line, f"missing joint column(s) {missing}"))
     if dupes:
         problems.append((header_line, f"duplicate column(s) {dupes}"))

@@ -212,7 +212,9 @@ def write_design(folder: str | os.PathLike, design: Design, robot: Robot) -> dic
     """Write ``design.yaml`` and ``design.csv`` into ``folder`` (created if needed)."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    text = yaml.safe_dump(design.to_dict(), sort_keys=False, width=120)
+    data = design.to_dict()
+    data = {"format": data.pop("format"), "scene": data.pop("scene"), "robot": robot.name, **data}
+    text = yaml.safe_dump(data, sort_keys=False, width=120)
     yaml_path = atomic_write_text(folder / "design.yaml", text)
     csv_path = write_design_csv(
         folder / "design.csv", robot, design.q,
@@ -253,6 +255,8 @@ def read_design_file(path: str | os.PathLike, robot: Robot, check_limits: bool =
     if not isinstance(data, dict) or not str(data.get("format", "")).startswith("calib_oed design"):
         raise fail("not a calib_oed design YAML (expected 'format: calib_oed design v1', "
                    "'joint_names' and 'configurations_rad', as `calib-oed design -o DIR` writes)")
+    if "robot" in data and str(data["robot"]).lower() != robot.name.lower():
+        raise fail(f"a design of robot {data['robot']!r}, not of this scene's robot {robot.name!r}")
     names = data.get("joint_names")
     rows = data.get("configurations_rad")
     if not isinstance(names, list) or sorted(map(str, names)) != sorted(robot.joint_names):

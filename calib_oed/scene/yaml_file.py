@@ -83,9 +83,9 @@ class _StrictLoader(_Base):
                 except TypeError:  # an unhashable key: the base class names it
                     continue
                 if earlier is not key_node:
-                    raise yaml.constructor.ConstructorError(
-                        None, None, f"duplicate key {key!r} (first given at line "
-                        f"{earlier.start_mark.line + 1}); give each key once", key_node.start_mark)
+                    raise InputFileError(self.where, f"line {key_node.start_mark.line + 1}: duplicate "
+                                         f"key {key!r} (first given at line {earlier.start_mark.line + 1}); "
+                                         "give each key once")
         return super().construct_mapping(node, deep=deep)
 
 
@@ -128,11 +128,12 @@ def load_yaml(text: str, where: str = "<string>", max_nodes: int = MAX_YAML_NODE
     """Parse one YAML document with :class:`_StrictLoader` and the alias bound.
 
     Raises:
-        yaml.YAMLError: a syntax error or a duplicate key (with its line).
-        InputFileError: aliases that expand beyond ``max_nodes`` nodes or refer to themselves,
+        yaml.YAMLError: a syntax error.
+        InputFileError: a key given twice in one mapping (with its lines), aliases that expand beyond ``max_nodes`` nodes or refer to themselves,
             or nesting deeper than Python's recursion allows.
     """
     loader = _StrictLoader(text)
+    loader.where = where
     try:
         node = loader.get_single_node()
         if node is None:

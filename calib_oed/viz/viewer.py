@@ -192,7 +192,16 @@ def _check_design(s: Setup, q_design) -> np.ndarray:
     q = robot.check_configurations(q_design, "q_design")
     if q.shape[0] < 1:
         raise ShapeError("q_design", f"(n, {robot.nq}) with n >= 1 (or None: no design)", q.shape)
+    if q.shape[0] > MAX_VIEW_POSES:
+        raise ViewerSettingError("q_design", f"{q.shape[0]} poses", (
+            f"the viewer draws at most {MAX_VIEW_POSES} poses (each adds ~50 kB to a page and a "
+            "row to the pose list; a calibration measures tens to hundreds): view a part of the "
+            "design, e.g. its first rows"))
     return q
+
+
+#: The most design poses the viewer draws (a 10000-pose page would take ~0.5 GB).
+MAX_VIEW_POSES = 1000
 
 
 def _positive(name: str, value, allow_none: bool = False) -> float | None:
