@@ -22,7 +22,7 @@ import yaml
 
 from calib_oed._version import __version__
 from calib_oed.calibration.export_files import _write
-from calib_oed.exceptions import CalibOedError, ExportError
+from calib_oed.exceptions import CalibOedError, ExportError, InputFileError
 from calib_oed.model.compliance import Compliance
 from calib_oed.model.joint_map import JointGains
 from calib_oed.model.parameters import ParameterSpace
@@ -133,7 +133,7 @@ def _load(path: Path) -> dict:
     """The sensor file's YAML mapping ({} if it is not a mapping); ExportError if unreadable."""
     try:
         data = load_yaml_file(path, "sensor file")
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
+    except (OSError, UnicodeDecodeError, yaml.YAMLError, InputFileError) as exc:
         raise ExportError(f"cannot read sensor file {path}: {exc}") from exc
     return data if isinstance(data, dict) else {}
 
