@@ -57,6 +57,7 @@ from calib_oed.cli.design_commands import (
     cmd_sequential,
     cmd_view,
 )
+from calib_oed.cli.import_command import add_import_parser
 from calib_oed.cli.program_commands import add_program_parser
 from calib_oed.exceptions import CalibOedError
 
@@ -317,6 +318,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_sequential, outputs={"output": "dir"})
 
     add_program_parser(sub)
+    add_import_parser(sub)
 
     p = sub.add_parser("scenes", help="list the shipped scenes")
     p.add_argument("--json", action="store_true", help="machine-readable output")

@@ -29,7 +29,7 @@ __all__ = ["MAX_PAYLOAD_KG", "check_inputs", "given_options"]
 
 
 #: Input paths of the commands, by argparse ``dest`` (a list for ``compare``'s designs).
-_INPUTS = ("scene", "design", "design_option", "measurements", "measured", "truth",
+_INPUTS = ("scene", "design", "design_option", "measurements", "measured", "truth", "export",
            "calibrated", "designs", "pool", "start", "program", "config")
 
 
