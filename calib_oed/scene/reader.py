@@ -32,6 +32,7 @@ from calib_oed.model.robot import Robot, load_robot
 from calib_oed.scene.cell import read_cell, read_feasibility, reflector_normal
 from calib_oed.scene.checks import check_scene
 from calib_oed.scene.fields import FieldReader
+from calib_oed.scene.include import resolve_includes
 from calib_oed.scene.joint_keys import read_compliance, read_joint_gains
 from calib_oed.scene.records import (
     DEFAULT_SIGMA_ANGLE,
@@ -88,7 +89,7 @@ def load_scene(name_or_path: str | os.PathLike, *, check: bool = True) -> Scene:
         raise SceneError(f"YAML syntax error{at}: {problem}", source=str(path)) from exc
     except (OSError, UnicodeDecodeError) as exc:
         raise SceneError(f"cannot read scene file ({exc})", source=str(path)) from exc
-    return scene_from_dict(data, source=str(path), check=check)
+    return scene_from_dict(resolve_includes(data, path), source=str(path), check=check)
 
 
 def scene_from_dict(data: Mapping[str, Any], source: str | None = None, *,
