@@ -337,6 +337,9 @@ def build_parser() -> argparse.ArgumentParser:
                        "robot.compliance payload (docs/scenes.md)")
         p.add_argument("--payload-kg", type=float, metavar="KG", help="payload mass of the "
                        "compliance model (implies --compliance; centre of mass from the scene)")
+        p.add_argument("--joint-gains", nargs="?", const="all", metavar="JOINTS", help="model a "
+                       "gain joint<i>.gain of every joint (or of the joints listed, e.g. 2,3), as a "
+                       "scene's robot.joint_gains block does (docs/scenes.md)")
     return parser
 
 

@@ -138,8 +138,33 @@ COMPLIANCE_COMMANDS = ("identifiability", "demo", "design", "evaluate", "compare
                        "identify", "montecarlo", "sequential")
 
 
+def _apply_joint_gains(args) -> None:
+    """``--joint-gains [JOINTS]``: replace ``args.scene`` by the scene with joint gains modelled
+    (the scene's controller couplings, if its block names them, kept)."""
+    text = getattr(args, "joint_gains", None)
+    if text is None:
+        return
+    import dataclasses
+
+    from calib_oed.model.joint_map import JointGains
+
+    scene = _scene(args.scene)
+    n = scene.robot.model.nq
+    try:
+        joints = list(range(1, n + 1)) if text.strip() == "all" else [int(s) for s in text.split(",")]
+    except ValueError:
+        joints = []
+    if not joints or any(not 1 <= j <= n for j in joints) or len(set(joints)) != len(joints):
+        raise CalibOedError(f"--joint-gains {text}: expected 'all' (or no value) or distinct joint "
+                            f"numbers 1..{n} separated by commas, e.g. 2,3")
+    couplings = scene.joint_gains.couplings if scene.joint_gains is not None else ()
+    args.scene = dataclasses.replace(scene, joint_gains=JointGains(tuple(joints), couplings))
+
+
 def _apply_compliance(args) -> None:
-    """``--compliance`` / ``--payload-kg``: replace ``args.scene`` by the scene with compliance on."""
+    """``--compliance`` / ``--payload-kg``: replace ``args.scene`` by the scene with compliance on;
+    then ``--joint-gains`` (:func:`_apply_joint_gains`)."""
+    _apply_joint_gains(args)
     if not (getattr(args, "compliance", False) or getattr(args, "payload_kg", None) is not None):
         return
     import dataclasses

@@ -188,6 +188,9 @@ CASES = [
     ("validate-max-rms-nan", ["validate", S, "{d}", "{d}/m.csv", "--max-rms", "nan"], "--max-rms: expected"),
     ("identify-registration-rms-inf", ["identify", S, "{d}/m.csv", "--max-registration-rms", "inf"],
      "--max-registration-rms: expected"),
+    ("joint-gains-beyond-the-joints", ["identifiability", S, "--joint-gains", "2,9"], "joint numbers 1..6"),
+    ("joint-gains-not-numbers", ["design", S, "--joint-gains", "a2"], "joint numbers 1..6"),
+    ("joint-gains-twice", ["simulate", S, "-n", "5", "-o", "{t}/x.csv", "--joint-gains", "2,2"], "distinct"),
     ("scene-payload-grams", ["identifiability", "{d}/payload.yaml"], "no industrial robot carries more"),
     # -- files of another robot or scene
     ("truth-of-another-scene", ["identify", S, "{d}/m.csv", "--truth", "{d}/ur5_truth.yaml"], "the truth of scene 'ur5_table'"),
