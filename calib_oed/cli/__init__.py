@@ -250,8 +250,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--angle-unit", choices=("rad", "deg"), help="if the file states no units")
     p.add_argument("--truth", metavar="YAML", help="true parameters of a simulation: report TCP errors")
     p.add_argument("--plot", metavar="FILE", help="write the residual plot (.png, .svg or .pdf)")
+    p.add_argument("--adopt-registration", metavar="SCENE_FILE", help="fit the tracker pose and the "
+                   "reflector offsets to the measurements, write the scene with them to SCENE_FILE "
+                   "and identify with it")
     p.add_argument("--json", action="store_true", help="machine-readable output")
-    p.set_defaults(func=cmd_identify, outputs={"output": "dir", "plot": "file"})
+    p.set_defaults(func=cmd_identify, outputs={"output": "dir", "plot": "file", "adopt_registration": "file"})
 
     p = sub.add_parser("montecarlo", help="simulated calibrations against the predicted KPI covariance")
     scene_arg(p)

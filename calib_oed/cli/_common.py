@@ -181,6 +181,16 @@ def _apply_compliance(args) -> None:
     args.scene = dataclasses.replace(scene, compliance=ComplianceSpec(True, payload))
 
 
+def _adopt(s, mset, args):
+    """``identify --adopt-registration FILE``: write the scene with the fitted tracker pose and
+    reflector offsets, say so on stderr, and return its set-up."""
+    from calib_oed.calibration.adopt import adopt_registration
+
+    adopted = adopt_registration(s.scene, s.problem.space, mset, args.adopt_registration)
+    print(f"calib-oed: {adopted.summary()}", file=sys.stderr)
+    return _setup(str(adopted.path))
+
+
 def _setup(scene_ref):
     from calib_oed.calibration.workflow import setup
 

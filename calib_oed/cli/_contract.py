@@ -33,7 +33,8 @@ __all__ = ["EXIT_INTERRUPTED", "OneLineParser", "check_output", "check_outputs",
 FIGURE_SUFFIXES = (".png", ".svg", ".pdf")
 
 #: Option names shown in messages, by argparse ``dest``.
-_FLAGS = {"output": "-o", "plot": "--plot", "html": "--html", "truth": "--truth"}
+_FLAGS = {"output": "-o", "plot": "--plot", "html": "--html", "truth": "--truth",
+          "adopt_registration": "--adopt-registration"}
 
 
 class OneLineParser(argparse.ArgumentParser):
