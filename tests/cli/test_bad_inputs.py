@@ -56,6 +56,7 @@ def files(tmp_path_factory):
     kr16, ur5 = load_robot("kr16"), load_robot("ur5")
     q = read_measurements(d / "m.csv", kr16).q
     write_design_csv(d / "d.csv", kr16, q[:5])
+    write_design_csv(d / "d1001.csv", kr16, kr16.random_configurations(1001, 0))
     write_design_csv(d / "d_ur5.csv", ur5, read_measurements(d / "ur5.csv", ur5).q[:5])
     design = {"format": "calib_oed design v1", "scene": "fms_kr16", "robot": "kr16",
               "joint_names": list(kr16.joint_names), "configurations_rad": q[:5].tolist()}
@@ -249,6 +250,8 @@ CASES = [
     ("pool-pipe", ["design", S, "--pool", "{d}/fifo.yaml", "--no-certificate"], "not a regular file"),
     ("start-pipe", ["design", S, "--start", "{d}/fifo.yaml"], "not a regular file"),
     ("program-pipe", ["view", S, "--program", "{d}/fifo", "--html", "{t}/v.html"], "fifo"),
+    ("view-1001-poses", ["view", S, "{d}/d1001.csv", "--html", "{t}/v.html"], "at most 1000 poses"),
+    ("view-1001-poses-live", ["view", S, "{d}/d1001.csv", "--for", "1"], "at most 1000 poses"),
     ("validate-calibration-missing", ["validate", S, "{d}/nothing", "{d}/m.csv"], "does not exist"),
 ]
 
