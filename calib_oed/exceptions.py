@@ -174,6 +174,9 @@ class MeasurementFileError(CalibOedError):
         self.problems = list(problems)
         self.kind = kind
         lines = [f"line {row}: {msg}" if row is not None else msg for row, msg in self.problems[:20]]
+        if len(self.problems) == 1:  # one problem, one line
+            super().__init__(f"{source}: {kind}, nothing was read: {lines[0]}")
+            return
         more = f"\n  ... ({len(self.problems) - 20} more)" if len(self.problems) > 20 else ""
         super().__init__(
             f"{source}: {len(self.problems)} problem(s) in the {kind}, nothing was read:\n  "
@@ -491,3 +494,12 @@ class CompensationError(CalibOedError, ValueError):
 class ParameterTableError(CalibOedError, ValueError):
     """A parameter table (DH, modified DH, Hayati) cannot be computed, read or written as asked;
     the message names the problem and the valid choices."""
+
+
+class InputFileError(CalibOedError):
+    """An input file calib_oed refuses to read: not a regular file, too large, YAML with a
+    duplicate key or aliases that expand beyond a bound (the message names the limit)."""
+
+    def __init__(self, source, problem: str):
+        self.source, self.problem = str(source), problem
+        super().__init__(f"{self.source}: {problem}")

@@ -122,7 +122,10 @@ def calibrated_urdf_text(space: ParameterSpace, p: np.ndarray | None, *,
 
 
 def _document(root: etree._Element) -> str:
-    """The document without its XML declaration, one top-level node per line."""
+    """The document without its XML declaration, one top-level node per line; a URDF
+    written as one long line (no line breaks between its elements) is indented."""
+    if len(root) and not any("\n" in (n.tail or "") for n in root.iter()):
+        etree.indent(root, space="  ")
     before, node = [], root.getprevious()
     while node is not None:
         before.insert(0, node)

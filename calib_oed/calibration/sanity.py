@@ -273,3 +273,9 @@ def check_measurements(space: ParameterSpace, mset: MeasurementSet, max_rms: flo
         raise DataSanityError(mset.source, reg.rms_mm, limit_mm, pairs,
                               " (--max-registration-rms)")
     return report
+
+
+#: The tracker pose and the reflector offsets fitted together to measured positions, the
+#: robot nominal: ``fit_tracker_and_offsets(kin_rot, kin_pos, measured, reflector, k)``
+#: returns the registration and the offsets (k, 3) [m, tool frame].
+fit_tracker_and_offsets = _tool_offset_fit

@@ -22,10 +22,11 @@ import yaml
 
 from calib_oed._version import __version__
 from calib_oed.calibration.export_files import _write
-from calib_oed.exceptions import CalibOedError, ExportError
+from calib_oed.exceptions import CalibOedError, ExportError, InputFileError
 from calib_oed.model.compliance import Compliance
 from calib_oed.model.joint_map import JointGains
 from calib_oed.model.parameters import ParameterSpace
+from calib_oed.scene.yaml_file import load_yaml_file
 
 #: Version tag of the sensor YAML layout.
 SENSOR_FORMAT = "calib_oed.sensor/1"
@@ -131,8 +132,8 @@ def write_sensor_yaml(space: ParameterSpace, p: np.ndarray | None,
 def _load(path: Path) -> dict:
     """The sensor file's YAML mapping ({} if it is not a mapping); ExportError if unreadable."""
     try:
-        data = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
+        data = load_yaml_file(path, "sensor file")
+    except (OSError, UnicodeDecodeError, yaml.YAMLError, InputFileError) as exc:
         raise ExportError(f"cannot read sensor file {path}: {exc}") from exc
     return data if isinstance(data, dict) else {}
 

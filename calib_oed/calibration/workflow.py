@@ -27,7 +27,7 @@ from calib_oed.calibration.realistic_measure import (
     read_realistic_truth,
 )
 from calib_oed.calibration.simulation import draw_true_parameters, simulate_observations
-from calib_oed.exceptions import DesignError, ExportError, SceneError
+from calib_oed.exceptions import DesignError, ExportError, InputFileError, SceneError
 from calib_oed.feasibility.constraints import FeasibilityModel
 from calib_oed.feasibility.pairs import PairReport, feasibility_from_scene
 from calib_oed.feasibility.sampling import sample_feasible
@@ -37,6 +37,7 @@ from calib_oed.io.measurement_writer import write_measurements
 from calib_oed.measurement.dataset import MeasurementSet
 from calib_oed.model.robot import load_robot
 from calib_oed.scene.records import Scene
+from calib_oed.scene.yaml_file import load_yaml_file
 
 if TYPE_CHECKING:
     from calib_oed.calibration.identification import IdentificationResult
@@ -135,6 +136,7 @@ def write_truth(path: str | os.PathLike, s: Setup, p_true: np.ndarray, truth_see
     """The true parameters of a simulation, by name [SI], as YAML (atomic)."""
     data = {
         "scene": s.scene.name,
+        "robot": s.problem.robot.name,
         "truth_seed": int(truth_seed),
         "units": "SI (m, rad)",
         "parameters": {n: float(v) for n, v in zip(s.problem.space.names, p_true, strict=True)},
@@ -144,22 +146,64 @@ def write_truth(path: str | os.PathLike, s: Setup, p_true: np.ndarray, truth_see
 
 def read_truth(path: str | os.PathLike, s: Setup) -> np.ndarray | RealisticTruth:
     """Read :func:`write_truth` output back into a parameter vector; a realistic truth
-    (``simulate --realistic``) into its :class:`RealisticTruth`."""
-    data = yaml.safe_load(Path(path).read_text())
-    if isinstance(data, dict) and data.get("kind") == "realistic":
-        return read_realistic_truth(data, s, path)
-    params = data.get("parameters", {}) if isinstance(data, dict) else {}
+    (``simulate --realistic``) into its :class:`RealisticTruth`.
+
+    Raises:
+        InputFileError: a missing or unreadable file, not a truth file, the truth of
+            another scene or robot, or parameters that are not the scene's (names listed).
+    """
+    try:
+        data = load_yaml_file(path, "truth file")
+    except yaml.YAMLError as exc:
+        raise InputFileError(path, f"not a truth file: YAML error ({getattr(exc, 'problem', exc)})") from exc
+    if isinstance(data, dict):
+        for key, mine in (("scene", s.scene.name), ("robot", s.problem.robot.name)):
+            if key in data and str(data[key]) != mine:
+                raise InputFileError(path, f"the truth of {key} {data[key]!r}, not of this {key} {mine!r}; "
+                                     "give the truth file simulate wrote for this scene")
+        if data.get("kind") == "realistic":
+            return read_realistic_truth(data, s, path)
+    params = data.get("parameters") if isinstance(data, dict) else None
+    if not isinstance(params, dict):
+        raise InputFileError(path, "not a truth file (expected 'parameters:' by name, as "
+                             "`calib-oed simulate --truth` writes)")
     space = s.problem.space
-    p = np.zeros(space.size)
-    for name, value in params.items():
-        p[space.index(name)] = float(value)
+    unknown = [n for n in params if n not in space.names]
+    missing = [n for n in space.names if n not in params]
+    if unknown or missing:
+        raise InputFileError(path, "the truth's parameters are not the scene's: "
+                             + (f"unknown {', '.join(map(str, unknown[:5]))}; " if unknown else "")
+                             + (f"missing {', '.join(missing[:5])}; " if missing else "")
+                             + f"the scene has {space.size} parameters ({space.names[0]} .. {space.names[-1]})")
+    try:
+        p = np.array([float(params[n]) for n in space.names])
+    except (TypeError, ValueError) as exc:
+        raise InputFileError(path, f"a truth value is not a number ({exc})") from exc
+    if not np.all(np.isfinite(p)):
+        raise InputFileError(path, "a truth value is NaN or infinite")
     return p
 
 
 def read_scene_measurements(s: Setup, path: str | os.PathLike, **units) -> MeasurementSet:
-    """A measurement file of this scene's robot and reflectors."""
-    return read_measurements(path, s.problem.robot, s.reflector_names,
+    """A measurement file of this scene's robot and reflectors, with at least
+    :data:`MIN_MEASUREMENTS` rows (the tracker registration needs three points).
+
+    Raises:
+        MeasurementFileError: the file has problems, or fewer rows than that.
+    """
+    mset = read_measurements(path, s.problem.robot, s.reflector_names,
                              controller=s.scene.controller, **units)
+    if len(mset.q) < MIN_MEASUREMENTS:
+        from calib_oed.exceptions import MeasurementFileError
+
+        raise MeasurementFileError(str(path), [(None, (
+            f"{len(mset.q)} measurement(s): registering the tracker needs at least "
+            f"{MIN_MEASUREMENTS} measured points, a calibration tens of poses"))])
+    return mset
+
+
+#: Fewest rows of a measurement file: three points fix the tracker pose.
+MIN_MEASUREMENTS = 3
 
 
 def identify_measurements(s: Setup, mset: MeasurementSet) -> IdentificationResult:

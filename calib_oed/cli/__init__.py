@@ -49,6 +49,7 @@ from calib_oed.cli.calibration_commands import (
     cmd_study,
     cmd_validate,
 )
+from calib_oed.cli.checks import check_inputs
 from calib_oed.cli.design_commands import (
     cmd_compare,
     cmd_design,
@@ -59,6 +60,7 @@ from calib_oed.cli.design_commands import (
     cmd_view,
 )
 from calib_oed.cli.compensate_commands import add_compensate_parser
+from calib_oed.cli.import_command import add_import_parser
 from calib_oed.cli.program_commands import add_program_parser
 from calib_oed.exceptions import CalibOedError
 
@@ -278,8 +280,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--angle-unit", choices=("rad", "deg"), help="if the file states no units")
     p.add_argument("--truth", metavar="YAML", help="true parameters of a simulation: report TCP errors")
     p.add_argument("--plot", metavar="FILE", help="write the residual plot (.png, .svg or .pdf)")
+    p.add_argument("--adopt-registration", metavar="SCENE_FILE", help="fit the tracker pose and the "
+                   "reflector offsets to the measurements, write the scene with them to SCENE_FILE "
+                   "and identify with it")
     p.add_argument("--json", action="store_true", help="machine-readable output")
-    p.set_defaults(func=cmd_identify, outputs={"output": "dir", "plot": "file"})
+    p.set_defaults(func=cmd_identify, outputs={"output": "dir", "plot": "file", "adopt_registration": "file"})
 
     p = sub.add_parser("montecarlo", help="simulated calibrations against the predicted KPI covariance")
     scene_arg(p)
@@ -347,6 +352,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_program_parser(sub)
     add_compensate_parser(sub)
+    add_import_parser(sub)
 
     p = sub.add_parser("scenes", help="list the shipped scenes")
     p.add_argument("--json", action="store_true", help="machine-readable output")
@@ -365,6 +371,9 @@ def build_parser() -> argparse.ArgumentParser:
                        "robot.compliance payload (docs/scenes.md)")
         p.add_argument("--payload-kg", type=float, metavar="KG", help="payload mass of the "
                        "compliance model (implies --compliance; centre of mass from the scene)")
+        p.add_argument("--joint-gains", nargs="?", const="all", metavar="JOINTS", help="model a "
+                       "gain joint<i>.gain of every joint (or of the joints listed, e.g. 2,3), as a "
+                       "scene's robot.joint_gains block does (docs/scenes.md)")
     return parser
 
 
@@ -390,6 +399,7 @@ def main(argv: list[str] | None = None, *, as_command: bool | None = None) -> in
     try:
         with signals, notes_as_lines():
             check_outputs(args)  # before any work: a bad path costs nothing
+            check_inputs(args)
             _apply_compliance(args)
             return args.func(args)
     except KeyboardInterrupt:  # Ctrl-C or SIGTERM; a command that saves work says so itself

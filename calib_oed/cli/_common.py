@@ -116,8 +116,33 @@ COMPLIANCE_COMMANDS = ("identifiability", "demo", "design", "evaluate", "compare
                        "identify", "montecarlo", "sequential")
 
 
+def _apply_joint_gains(args) -> None:
+    """``--joint-gains [JOINTS]``: replace ``args.scene`` by the scene with joint gains modelled
+    (the scene's controller couplings, if its block names them, kept)."""
+    text = getattr(args, "joint_gains", None)
+    if text is None:
+        return
+    import dataclasses
+
+    from calib_oed.model.joint_map import JointGains
+
+    scene = _scene(args.scene)
+    n = scene.robot.model.nq
+    try:
+        joints = list(range(1, n + 1)) if text.strip() == "all" else [int(s) for s in text.split(",")]
+    except ValueError:
+        joints = []
+    if not joints or any(not 1 <= j <= n for j in joints) or len(set(joints)) != len(joints):
+        raise CalibOedError(f"--joint-gains {text}: expected 'all' (or no value) or distinct joint "
+                            f"numbers 1..{n} separated by commas, e.g. 2,3")
+    couplings = scene.joint_gains.couplings if scene.joint_gains is not None else ()
+    args.scene = dataclasses.replace(scene, joint_gains=JointGains(tuple(joints), couplings))
+
+
 def _apply_compliance(args) -> None:
-    """``--compliance`` / ``--payload-kg``: replace ``args.scene`` by the scene with compliance on."""
+    """``--compliance`` / ``--payload-kg``: replace ``args.scene`` by the scene with compliance on;
+    then ``--joint-gains`` (:func:`_apply_joint_gains`)."""
+    _apply_joint_gains(args)
     if not (getattr(args, "compliance", False) or getattr(args, "payload_kg", None) is not None):
         return
     import dataclasses
@@ -132,6 +157,16 @@ def _apply_compliance(args) -> None:
             raise CalibOedError(f"--payload-kg: expected a mass >= 0 kg, got {args.payload_kg:g}")
         payload = dataclasses.replace(payload, payload_mass=args.payload_kg)  # keeps the scene's link masses
     args.scene = dataclasses.replace(scene, compliance=ComplianceSpec(True, payload))
+
+
+def _adopt(s, mset, args):
+    """``identify --adopt-registration FILE``: write the scene with the fitted tracker pose and
+    reflector offsets, say so on stderr, and return its set-up."""
+    from calib_oed.calibration.adopt import adopt_registration
+
+    adopted = adopt_registration(s.scene, s.problem.space, mset, args.adopt_registration)
+    print(f"calib-oed: {adopted.summary()}", file=sys.stderr)
+    return _setup(str(adopted.path))
 
 
 def _setup(scene_ref):

@@ -33,7 +33,8 @@ __all__ = ["EXIT_INTERRUPTED", "OneLineParser", "check_output", "check_outputs",
 FIGURE_SUFFIXES = (".png", ".svg", ".pdf")
 
 #: Option names shown in messages, by argparse ``dest``.
-_FLAGS = {"output": "-o", "plot": "--plot", "html": "--html", "truth": "--truth"}
+_FLAGS = {"output": "-o", "plot": "--plot", "html": "--html", "truth": "--truth",
+          "adopt_registration": "--adopt-registration"}
 
 
 class OneLineParser(argparse.ArgumentParser):
@@ -78,6 +79,9 @@ def check_output(path, kind: str, option: str, suffixes: tuple[str, ...] = (),
     else:
         if p.is_dir():
             raise OutputPathError(option, text, "is a folder; give a file name")
+        if p.exists() and not p.is_file():
+            raise OutputPathError(option, text, "exists and is not a regular file (a device, a "
+                                  "pipe or a socket); give the name of a new or a regular file")
         if suffixes and p.suffix.lower() not in suffixes:
             raise OutputPathError(option, text, f"unknown file type {p.suffix or '(none)'!r}; "
                                   f"valid suffixes are {', '.join(map(repr, suffixes))}")

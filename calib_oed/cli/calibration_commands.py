@@ -12,6 +12,7 @@ from calib_oed.cli._common import (
     EXIT_INTERNAL,
     EXIT_OK,
     EXIT_VALIDATION_FAILED,
+    _adopt,
     _bars,
     _design,
     _note_infeasible,
@@ -186,6 +187,8 @@ def cmd_identify(args) -> int:
     s = _setup(args.scene)
     units = {k: v for k, v in (("length_unit", args.length_unit), ("angle_unit", args.angle_unit)) if v}
     mset = read_scene_measurements(s, args.measurements, **units)
+    if args.adopt_registration:  # the fitted tracker pose (and offsets) into a new scene, used from here on
+        s = _adopt(s, mset, args)
     sanity, blocks, robust = _identify_fit(s, mset, args)
     result = robust.result
     report = fit_report(s.problem.space, mset, blocks, sanity, robust, s.reflector_names)

@@ -31,6 +31,9 @@ def atomic_write(path: str | os.PathLike, write: Callable[[IO], None], binary: b
     folder = path.parent if str(path.parent) else Path(".")
     if not folder.is_dir():
         raise ExportError(f"cannot write {path}: folder {folder} does not exist")
+    if path.exists() and not path.is_file():  # renaming onto a device would replace it
+        raise ExportError(f"cannot write {path}: it exists and is not a regular file (a folder, "
+                          "a device or a pipe); give the name of a new or a regular file")
     try:
         fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=folder)
     except OSError as exc:

@@ -32,11 +32,12 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from calib_oed.exceptions import CalibOedNote, MeasurementFileError
+from calib_oed.exceptions import CalibOedNote, InputFileError, MeasurementFileError
 from calib_oed.io.atomic import atomic_write_text
 from calib_oed.io.repeats import describe_repeats, repeated_rows
 from calib_oed.model.controller import ControllerConvention
 from calib_oed.model.robot import Robot
+from calib_oed.scene.yaml_file import load_yaml_file, read_text_file
 from calib_oed.units import ANGLE_UNITS, LENGTH_UNITS
 
 _UNITS_RE = re.compile(r"#\s*units\s*:(.*)$", re.IGNORECASE)
@@ -114,9 +115,9 @@ def read_design_csv(path: str | os.PathLike, robot: Robot, check_limits: bool = 
     """
     source = str(path)
     try:
-        text = Path(path).read_text(encoding="utf-8-sig")
-    except OSError as exc:
-        raise MeasurementFileError(source, [(None, f"cannot read the design file ({exc})")],
+        text = read_text_file(path, "design file")
+    except InputFileError as exc:
+        raise MeasurementFileError(source, [(None, exc.problem)],
                                    kind="design file") from exc
     problems: list[tuple[int | None, str]] = []
     header, header_line, rows = None, None, []
@@ -149,9 +150,13 @@ def read_design_csv(path: str | os.PathLike, robot: Robot, check_limits: bool = 
     unknown = [h for h in header if h not in names]
     missing = [n for n in names if n not in header]
     dupes = sorted({h for h in header if header.count(h) > 1})
-    if unknown:
+    another = bool(unknown) and not set(names) & set(header)  # the joints of another robot
+    if another:
+        problems.append((header_line, f"unknown column(s) {unknown}, none of the robot {robot.name}'s "
+                         f"joints {names}: a design of another robot?"))
+    elif unknown:
         problems.append((header_line, f"unknown column(s) {unknown}; the robot's joints are {names}"))
-    if missing:
+    if missing and not another:
         problems.append((header_line, f"missing joint column(s) {missing}"))
     if dupes:
         problems.append((header_line, f"duplicate column(s) {dupes}"))
@@ -218,12 +223,14 @@ def read_design_file(path: str | os.PathLike, robot: Robot, check_limits: bool =
         return MeasurementFileError(source, [(None, message)], kind="design file")
 
     try:
-        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+        data = load_yaml_file(path, "design file")
     except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
         raise fail(f"cannot read the design YAML ({exc})") from exc
     if not isinstance(data, dict) or not str(data.get("format", "")).startswith("calib_oed design"):
         raise fail("not a calib_oed design YAML (expected 'format: calib_oed design v1', "
                    "'joint_names' and 'configurations_rad', as `calib-oed design -o DIR` writes)")
+    if "robot" in data and str(data["robot"]).lower() != robot.name.lower():
+        raise fail(f"a design of robot {data['robot']!r}, not of this scene's robot {robot.name!r}")
     names = data.get("joint_names")
     rows = data.get("configurations_rad")
     if not isinstance(names, list) or sorted(map(str, names)) != sorted(robot.joint_names):

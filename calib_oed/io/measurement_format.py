@@ -33,7 +33,8 @@ File format, version 1 (also in ``docs/data_format.md``)::
     required, separated by spaces or commas. The keyword arguments
     ``length_unit=`` and ``angle_unit=`` of :func:`read_measurements` override
     it or stand in for it; without either the file is rejected.
-  - ``# robot: <name>``: informative only (not checked).
+  - ``# robot: <name>``: the robot measured; when given, it must be the name of the
+    robot the file is read for (case ignored).
   - ``# joints: controller [<name>]``: the joint columns hold **controller**
     values (signs, offsets, scales, couplings of the scene's ``controller:``
     block, :mod:`calib_oed.model.controller`), in the file's angle unit; the
@@ -92,6 +93,11 @@ POSITION_COLUMNS = ("x", "y", "z")
 ROTATION_COLUMNS = ("rx", "ry", "rz")
 REFLECTOR_COLUMN = "reflector"
 SIGMA_COLUMN = "sigma"
+#: Farthest a laser tracker measures [m] (the longest-range trackers reach 160 m): a
+#: coordinate beyond it is a wrong number or unit.
+MAX_TRACKER_RANGE = 160.0
+#: Largest per-row sigma accepted [m]; a tracker's is micrometres.
+MAX_SIGMA = 0.01
 
 _VERSION_RE = re.compile(r"#\s*calib_oed\s+measurements\b\s*(.*)$", re.IGNORECASE)
 _DIRECTIVE_RE = re.compile(r"#\s*(units|robot|joints)\s*:(.*)$", re.IGNORECASE)

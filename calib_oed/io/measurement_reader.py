@@ -20,17 +20,18 @@ import os
 import re
 import warnings
 from collections.abc import Sequence
-from pathlib import Path
 from typing import IO, NoReturn
 
 import numpy as np
 
-from calib_oed.exceptions import CalibOedNote, MeasurementFileError
+from calib_oed.exceptions import CalibOedNote, InputFileError, MeasurementFileError
 from calib_oed.io.measurement_format import (
     _DIRECTIVE_RE,
     _VERSION_RE,
     FORMAT_VERSION,
     LIMIT_TOL,
+    MAX_SIGMA,
+    MAX_TRACKER_RANGE,
     POSITION_COLUMNS,
     REFLECTOR_COLUMN,
     ROTATION_COLUMNS,
@@ -41,6 +42,7 @@ from calib_oed.io.repeats import describe_repeats, repeated_rows
 from calib_oed.measurement.dataset import MeasurementSet
 from calib_oed.model.controller import ControllerConvention
 from calib_oed.model.robot import Robot
+from calib_oed.scene.yaml_file import read_text_file
 from calib_oed.units import ANGLE_UNITS, LENGTH_UNITS
 
 # The rotation vector of pin.log3 has norm <= pi; allow for rounding in the file.
@@ -59,9 +61,9 @@ def _read_text(source) -> tuple[str, str]:
     else:
         where = os.fspath(source)
         try:
-            text = Path(where).read_text(encoding="utf-8")
-        except (OSError, UnicodeDecodeError) as exc:
-            raise MeasurementFileError(where, [(None, f"cannot read the file: {exc}")]) from exc
+            text = read_text_file(where, "measurement file")
+        except InputFileError as exc:
+            raise MeasurementFileError(where, [(None, exc.problem)]) from exc
     return text.removeprefix("\ufeff"), where
 
 
@@ -116,6 +118,8 @@ class _Reader:
                                  f"header (line {header[0]})")
                 elif directive and directive.re is _VERSION_RE:
                     self.version(number, directive.group(1).strip())
+                elif directive and directive.group(1).lower() == "robot":
+                    self.robot_directive(number, directive.group(2).strip())
                 elif directive and directive.group(1).lower() == "joints":
                     self.joints_directive(number, directive.group(2).strip())
                 elif directive and directive.group(1).lower() == "units":
@@ -160,6 +164,14 @@ class _Reader:
         if text.lower() != f"v{FORMAT_VERSION}":
             self.problem(number, f"unsupported format version {text!r}; this calib_oed reads "
                          f"'# calib_oed measurements v{FORMAT_VERSION}'")
+
+    def robot_directive(self, number: int, text: str) -> None:
+        """``# robot: <name>``: the file must be of the robot it is read for."""
+        if text and text.lower() != self.robot.name.lower():  # nothing else is worth reading
+            self.problems = [(number, f"the file is of robot {text!r}, the scene's robot is "
+                              f"{self.robot.name!r}: give this robot's measurements (or correct the "
+                              "'# robot:' line)")]
+            self.fail()
 
     def joints_directive(self, number: int, text: str) -> None:
         """``# joints: urdf`` or ``# joints: controller [<name>]``."""
@@ -246,6 +258,10 @@ class _Reader:
             self.problem(number, "expected the column header, got a row of numbers; the "
                          f"first line that is not a comment names the columns: {', '.join(valid)}")
             return None
+        if not set(joints) & set(header) and len(header) >= len(joints):  # another robot's file
+            self.problem(number, f"none of the robot {self.robot.name}'s joint columns "
+                         f"({', '.join(joints)}) is in the header: a file of another robot?")
+            return None
         columns: dict[str, int] = {}
         for i, name in enumerate(header):
             if not name:
@@ -331,9 +347,16 @@ class _Reader:
                 if not lo - LIMIT_TOL <= q[k] <= hi + LIMIT_TOL:
                     messages.append(f"{name} = {q[k] / s:.6g} {unit}{ctrl} is outside its "
                                     f"limits [{lo / s:.6g}, {hi / s:.6g}] {unit}")
+        far = [c for c in POSITION_COLUMNS if c in values and abs(values[c]) * length > MAX_TRACKER_RANGE]
+        if far:
+            messages.append(f"{far[0]} = {values[far[0]]:.6g} {self.units['length']} is beyond any "
+                            f"laser tracker's range ({MAX_TRACKER_RANGE:g} m): check the value and "
+                            "the length unit")
         if SIGMA_COLUMN in values and values[SIGMA_COLUMN] <= 0:
-            messages.append(f"sigma = {values[SIGMA_COLUMN]:.6g} {self.units['length']} must "
-                            "be > 0")
+            messages.append(f"sigma = {values[SIGMA_COLUMN]:.6g} {self.units['length']} must be > 0")
+        elif SIGMA_COLUMN in values and values[SIGMA_COLUMN] * length > MAX_SIGMA:
+            messages.append(f"sigma = {values[SIGMA_COLUMN]:.6g} {self.units['length']} must be at "
+                            f"most {MAX_SIGMA * 1e3:g} mm (a tracker measures to micrometres)")
         if all(c in values for c in ROTATION_COLUMNS):
             norm = math.hypot(*(values[c] for c in ROTATION_COLUMNS)) * angle
             if norm > _MAX_ROTATION:

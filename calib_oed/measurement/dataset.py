@@ -10,7 +10,7 @@ list the estimator consumes.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -146,8 +146,12 @@ class MeasurementSet:
             sigma: Position noise per tracker axis [m], scalar or (3,).
             sigma_angle: Rotation noise per axis [rad], scalar or (3,) (pose rows only).
             noise: Full error model of position rows (``scene.position_noise()``); when
-                given, the fit whitens with its covariance and per-row sigmas are not used.
-            error_model: The whole contract instead of the three above.
+                given, the fit whitens with its covariance, unless the set has per-row
+                :attr:`sigma` (a file's ``sigma`` column): the file's own statement of each
+                measurement's uncertainty wins (covariance sigma_i^2 I_3), and
+                ``noise`` is not used.
+            error_model: The whole contract instead of the three above (the per-row
+                :attr:`sigma` wins over its tracker model in the same way).
 
         Raises:
             ParameterError: ``noise`` with pose rows (it models positions only).
@@ -157,6 +161,8 @@ class MeasurementSet:
             error_model = ErrorModel("pose" if pose else "position", sigma, sigma_angle, noise)
         else:
             error_model = error_model.for_rows(pose)
+        if self.sigma is not None and error_model.noise is not None:
+            error_model = replace(error_model, noise=None)  # the per-row sigma is each row's covariance
         out = []
         for j, model in zip(self.reflectors, error_model.models(self.reflectors), strict=True):
             rows = self.reflector == j

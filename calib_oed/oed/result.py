@@ -252,6 +252,7 @@ def write_design(folder: str | os.PathLike, design: Design, robot: Robot) -> dic
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     content, timing = split_timing(design.to_dict())
+    content = {"format": content.pop("format"), "scene": content.pop("scene"), "robot": robot.name, **content}
     text = yaml.safe_dump(content, sort_keys=False, width=120)
     yaml_path = atomic_write_text(folder / "design.yaml", text)
     timing_path = atomic_write_text(folder / "timing.yaml", yaml.safe_dump(timing or {}, sort_keys=False, width=120))

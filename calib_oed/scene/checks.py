@@ -77,16 +77,29 @@ _MAX_TRACKER_DISTANCE, _MAX_REFLECTOR_OFFSET = 160.0, 5.0
 
 
 def check_magnitudes(scene) -> None:
-    """Catch a unit mistake: numbers in mm with ``units: {length: m}`` put a tracker km away."""
+    """Catch a unit mistake: numbers in mm with ``units: {length: m}`` put a tracker km away;
+    numbers no unit makes plausible are refused without a unit hint."""
     distance = float(np.linalg.norm(scene.tracker.placement().translation))
     offsets = [float(np.linalg.norm(r.offset)) for r in scene.reflectors]
     declared = (scene.units or {}).get("length", "m")
-    if distance > _MAX_TRACKER_DISTANCE or max(offsets, default=0.0) > _MAX_REFLECTOR_OFFSET:
+    farthest = max(offsets, default=0.0)
+    if distance <= _MAX_TRACKER_DISTANCE and farthest <= _MAX_REFLECTOR_OFFSET:
+        return
+    source = str(scene.source) if scene.source else None
+    in_mm = distance / 1e3 <= _MAX_TRACKER_DISTANCE and farthest / 1e3 <= _MAX_REFLECTOR_OFFSET
+    if declared != "m" or not in_mm:  # no unit makes these numbers plausible
         raise SceneError(
             f"the tracker is {distance:.4g} m from the robot base and the farthest reflector "
-            f"{max(offsets, default=0.0):.4g} m from the tool frame, with lengths declared in "
-            f"{declared!r}: are the numbers in mm? Then write `units: {{length: mm}}` (valid "
-            "length units: m, mm)", key="units.length", source=str(scene.source) if scene.source else None)
+            f"{farthest:.4g} m from the tool frame (lengths in {declared!r}): no laser tracker "
+            f"measures beyond {_MAX_TRACKER_DISTANCE:g} m and no reflector sits "
+            f"{_MAX_REFLECTOR_OFFSET:g} m from the flange; check tracker.position and "
+            "reflectors[].offset", key="tracker.position" if distance > _MAX_TRACKER_DISTANCE
+            else "reflectors", source=source)
+    raise SceneError(
+        f"the tracker is {distance:.4g} m from the robot base and the farthest reflector "
+        f"{farthest:.4g} m from the tool frame, with lengths declared in "
+        f"{declared!r}: are the numbers in mm? Then write `units: {{length: mm}}` (valid "
+        "length units: m, mm)", key="units.length", source=source)
 
 
 def check_scene(scene) -> None:

@@ -21,6 +21,9 @@ from calib_oed.model.joint_map import JointGains
 from calib_oed.scene.fields import FieldReader
 from calib_oed.scene.records import ComplianceSpec
 
+#: The heaviest payload of any industrial robot is about 2.3 t (FANUC M-2000iA/2300).
+MAX_PAYLOAD_KG = 2500.0
+
 
 def read_compliance(reader: FieldReader, value, n: int) -> ComplianceSpec:
     """``robot.compliance: {enabled, payload: {mass, com}, links}`` for a robot with ``n`` joints.
@@ -39,6 +42,9 @@ def read_compliance(reader: FieldReader, value, n: int) -> ComplianceSpec:
         raise reader.fail(f"{key}.enabled", f"expected true or false, got {enabled!r}")
     load = reader.mapping(spec.get("payload", {}), f"{key}.payload", (), ("mass", "com"))
     mass = reader.number(load.get("mass", 0.0), f"{key}.payload.mass", nonnegative=True)
+    if mass > MAX_PAYLOAD_KG:
+        raise reader.fail(f"{key}.payload.mass", f"{mass:g} kg: no industrial robot carries more than "
+                          f"{MAX_PAYLOAD_KG:g} kg (grams typed as kg?); give the payload in kg")
     com = reader.vector(load.get("com", [0, 0, 0]), f"{key}.payload.com", 3, reader.length)
     links = spec.get("links", "urdf")
     masses = coms = None

@@ -20,17 +20,19 @@ import yaml
 
 from calib_oed.exceptions import (
     CalibOedError,
+    InputFileError,
     SceneError,
     UnknownSceneError,
 )
 from calib_oed.feasibility.shapes import AIMS, Cell, FeasibilitySettings
-from calib_oed.measurement.noise import TrackerNoise
+from calib_oed.measurement.noise import TrackerNoise, sigma_from_mpe, sigma_from_repeatability
 from calib_oed.model.controller import controller_from_mapping
 from calib_oed.model.joint_path import sample_joint_path
 from calib_oed.model.robot import Robot, load_robot
 from calib_oed.scene.cell import read_cell, read_feasibility, reflector_normal
 from calib_oed.scene.checks import check_scene
 from calib_oed.scene.fields import FieldReader
+from calib_oed.scene.include import resolve_includes
 from calib_oed.scene.joint_keys import read_compliance, read_joint_gains, read_model_error
 from calib_oed.scene.records import (
     DEFAULT_SIGMA_ANGLE,
@@ -45,6 +47,7 @@ from calib_oed.scene.records import (
     TrackerSpec,
     WorkingConfiguration,
 )
+from calib_oed.scene.yaml_file import MAX_YAML_BYTES, load_yaml_file
 from calib_oed.units import ANGLE_UNITS, LENGTH_UNITS
 
 
@@ -76,7 +79,9 @@ def load_scene(name_or_path: str | os.PathLike, *, check: bool = True) -> Scene:
         if not path.is_file():
             raise SceneError(f"scene file not found: {path}", source=str(path))
     try:
-        data = yaml.safe_load(path.read_text())
+        data = load_yaml_file(path, "scene file", MAX_YAML_BYTES)
+    except InputFileError as exc:
+        raise SceneError(exc.problem, source=str(path)) from exc
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         at = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
@@ -84,7 +89,7 @@ def load_scene(name_or_path: str | os.PathLike, *, check: bool = True) -> Scene:
         raise SceneError(f"YAML syntax error{at}: {problem}", source=str(path)) from exc
     except (OSError, UnicodeDecodeError) as exc:
         raise SceneError(f"cannot read scene file ({exc})", source=str(path)) from exc
-    return scene_from_dict(data, source=str(path), check=check)
+    return scene_from_dict(resolve_includes(data, path), source=str(path), check=check)
 
 
 def scene_from_dict(data: Mapping[str, Any], source: str | None = None, *,
@@ -166,31 +171,45 @@ class SceneReader(FieldReader):
         )
 
     def repeatability(self, top) -> float:
-        """``robot.repeatability``: sigma at the reflector [length unit] -> [m]; 0 if absent."""
-        if "repeatability" not in top["robot"]:
+        """``robot.repeatability``: sigma at the reflector [length unit] -> [m], or ``robot.rp``:
+        the data sheet's ISO 9283 pose repeatability RP, sigma = RP / 3.616; 0 if absent."""
+        given = [k for k in ("repeatability", "rp") if k in top["robot"]]
+        if not given:
             return 0.0
-        value = self.number(top["robot"]["repeatability"], "robot.repeatability", self.length,
-                            nonnegative=True)
+        if len(given) > 1:
+            raise self.fail("robot.rp", "give robot.rp (the ISO 9283 RP of the data sheet) or "
+                            "robot.repeatability (a sigma), not both")
+        value = self.number(top["robot"][given[0]], f"robot.{given[0]}", self.length, nonnegative=True)
+        if given[0] == "rp":
+            value = sigma_from_repeatability(value)
         if value > 0 and top.get("measurement", "position") != "position":
             raise self.fail("robot.repeatability", "applies to measurement: position only "
                             f"(this scene measures {top.get('measurement')!r})")
-        if value > 0 and "noise" not in top["tracker"] and len(set(
+        if value > 0 and not {"noise", "mpe"} & set(top["tracker"]) and len(set(
                 np.atleast_1d(np.asarray(top["tracker"]["sigma"], dtype=float)).tolist())) > 1:
             raise self.fail("robot.repeatability", "needs a scalar tracker.sigma or a "
                             "tracker.noise block (a per-axis sigma has no range/direction model)")
         return value
 
-    def tracker_noise(self, value, measurement) -> TrackerNoise:
-        """``tracker.noise: {radial: [r0, r1], lateral: [t0, t1]}``, sigma(d) = c0 + c1 d, d in m."""
-        spec = self.mapping(value, "tracker.noise", ("radial", "lateral"))
+    def tracker_noise(self, value, measurement, block: str = "noise") -> TrackerNoise:
+        """``tracker.noise: {radial: [r0, r1], lateral: [t0, t1]}``, sigma(d) = c0 + c1 d, d in m;
+        or ``tracker.mpe: {radial: [a, b], lateral: [a, b], k: 2}``, the data sheet's maximum
+        permissible error +-(a + b d) as an expanded uncertainty of coverage factor k (default 2),
+        sigma = (a + b d) / k (:func:`~calib_oed.measurement.noise.sigma_from_mpe`)."""
+        key0 = f"tracker.{block}"
+        spec = self.mapping(value, key0, ("radial", "lateral"), ("k",) if block == "mpe" else ())
         if measurement != "position":
-            raise self.fail("tracker.noise", "applies to measurement: position only "
+            raise self.fail(key0, "applies to measurement: position only "
                             f"(this scene measures {measurement!r})")
+        k = self.number(spec.get("k", 2.0), f"{key0}.k", positive=True)
         pairs = {}
         for key in ("radial", "lateral"):
-            where = f"tracker.noise.{key}"
+            where = f"{key0}.{key}"
             pair = self.vector(spec[key], where, 2, self.length,
-                               what="[sigma at zero range, sigma per metre of range]")
+                               what="[sigma at zero range, sigma per metre of range]" if block == "noise"
+                               else "[MPE a at zero range, MPE b per metre of range]")
+            if block == "mpe" and np.all(pair >= 0):
+                pair = np.array(sigma_from_mpe(*pair, k=k))
             if np.any(pair < 0):
                 raise self.fail(where, f"both coefficients must be >= 0, got {spec[key]!r}")
             if pair[0] == 0:
@@ -202,7 +221,7 @@ class SceneReader(FieldReader):
     def robot(self, value) -> Robot:
         spec = self.mapping(value, "robot", (), ("name", "urdf", "xacro", "args", "tool_frame",
                                                  "joint_limits", "lock_joints", "package_dirs",
-                                                 "compliance", "repeatability", "joint_gains",
+                                                 "compliance", "repeatability", "rp", "joint_gains",
                                                  "model_error"))
         given = [k for k in ("name", "urdf", "xacro") if k in spec]
         if len(given) != 1:
@@ -291,7 +310,10 @@ class SceneReader(FieldReader):
         return out or None
 
     def tracker(self, value, measurement: str = "position") -> TrackerSpec:
-        spec = self.mapping(value, "tracker", ("position", "rpy", "sigma"), ("sigma_angle", "noise"))
+        spec = self.mapping(value, "tracker", ("position", "rpy", "sigma"), ("sigma_angle", "noise", "mpe"))
+        if "noise" in spec and "mpe" in spec:
+            raise self.fail("tracker.mpe", "give tracker.mpe (the data sheet's MPE) or tracker.noise "
+                            "(sigmas), not both")
         sigma_angle = (self.vector3_or_scalar(spec["sigma_angle"], "tracker.sigma_angle",
                                               self.angle)
                        if "sigma_angle" in spec else np.full(3, DEFAULT_SIGMA_ANGLE))
@@ -300,8 +322,8 @@ class SceneReader(FieldReader):
             rpy=self.vector(spec["rpy"], "tracker.rpy", 3, self.angle),
             sigma=self.vector3_or_scalar(spec["sigma"], "tracker.sigma", self.length),
             sigma_angle=sigma_angle,
-            noise=(self.tracker_noise(spec["noise"], measurement)
-                   if "noise" in spec else None),
+            noise=next((self.tracker_noise(spec[b], measurement, b) for b in ("noise", "mpe") if b in spec),
+                       None),
         )
 
     def kpi(self, value, robot: Robot, reflector_names: list[str]) -> KpiSpec:

@@ -60,6 +60,7 @@ from calib_oed.model.robot import load_robot
 from calib_oed.scene.cell import HALFSPACE_SHORTHANDS
 from calib_oed.scene.reader import scene_from_dict, scene_names
 from calib_oed.scene.records import Scene
+from calib_oed.scene.yaml_file import load_yaml_file
 from calib_oed.units import ANGLE_UNITS
 
 __all__ = ["STAND_NAME", "TEMPLATE", "kuka_dimensions", "scale_factor", "scaled_scene",
@@ -105,7 +106,7 @@ def _template_data(template: str | os.PathLike | Mapping[str, Any]) -> tuple[dic
             raise SceneError(f"template scene not found: {text!r} is neither a shipped scene "
                              f"({', '.join(scene_names())}) nor a file")
     try:
-        data = yaml.safe_load(path.read_text())
+        data = load_yaml_file(path, "template scene")
     except (OSError, yaml.YAMLError) as exc:
         raise SceneError(f"cannot read the template scene ({exc})", source=str(path)) from exc
     if not isinstance(data, dict):

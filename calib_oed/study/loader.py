@@ -53,6 +53,7 @@ from calib_oed.oed.design import DESIGN_SQP
 from calib_oed.oed.starts import STARTS
 from calib_oed.scene.reader import load_scene, scene_names
 from calib_oed.scene.scaling import kuka_dimensions
+from calib_oed.scene.yaml_file import load_yaml_file
 from calib_oed.study.config import (
     DEFAULT_COLLISIONS,
     DEFAULT_CRITERIA,
@@ -94,7 +95,7 @@ def load_study_config(name_or_path: str | os.PathLike) -> StudyConfig:
             raise StudyConfigError(f"no such file and no shipped study of that name; shipped "
                                    f"studies are: {', '.join(study_names())}", source=text)
     try:
-        data = yaml.safe_load(path.read_text())
+        data = load_yaml_file(path, "study configuration")
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         at = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""

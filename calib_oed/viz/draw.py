@@ -51,6 +51,10 @@ COLORS: dict[str, tuple[float, float, float, float]] = {
 TRACKER_SIZE = (0.25, 0.10)  # drawn tracker head: height, radius [m]
 
 
+#: Length of a reflector's drawn axis [m].
+AXIS_LENGTH = 0.08
+
+
 def ellipsoid_node_name(level: float, scale: float) -> str:
     """Node name of a drawn ellipsoid from its level and scale: ``ellipsoid_95pct_x500``."""
     return _node(f"ellipsoid_{100 * level:g}pct_x{scale:g}")
@@ -222,11 +226,14 @@ class _Painter:
         self.points += [solid_points(x) for x in s.scene.cell.solids]
 
     def pose(self, path: str, q: np.ndarray, color: str, geom, show_capsules: bool,
-             robot_elsewhere: bool = False) -> str:
+             robot_elsewhere: bool = False, label: str | None = None) -> str:
         """Robot, capsules, reflectors and beams at ``q`` under ``path``; the beams' node.
 
         ``geom`` None draws the robot by its capsules (in ``color``, shown), unless
         ``robot_elsewhere``: its visual geometry is drawn by the caller (mesh reuse).
+        With a ``label``, the reflectors' node also gets each reflector's axis (its
+        ``normal``, :data:`AXIS_LENGTH` long) and the label on a board above the first
+        reflector, so the pose shown says which it is where it is.
         """
         import meshcat.geometry as mg
         from pinocchio.visualize import MeshcatVisualizer
@@ -252,11 +259,26 @@ class _Painter:
         for i, name in zip(beams, self.s.feasibility.reflector_names, strict=True):
             node["reflectors"][_node(name)].set_object(mg.Sphere(radius), _material("reflector"))
             node["reflectors"][_node(name)].set_transform(_placement(np.eye(3), a[i]))
+        if label is not None:
+            self._label_reflectors(node["reflectors"], q, a[beams], label)
         ends = np.stack([a[beams], b[beams]], axis=1).reshape(-1, 3).astype(np.float32)
         node["beams"].set_object(mg.LineSegments(mg.PointsGeometry(ends.T),
                                                  mg.LineBasicMaterial(color=_material("beam").color)))
         self.points.append(a[[role != "obstacle" for role in seg.roles]])
         return f"{path}/beams"
+
+    def _label_reflectors(self, node, q: np.ndarray, centres: np.ndarray, label: str) -> None:
+        """The reflectors' axes (tool-frame normals in the world) and ``label`` above the first."""
+        import meshcat.geometry as mg
+
+        robot = self.s.problem.robot
+        pin.updateFramePlacements(self.model, self.data)
+        rot = self.data.oMf[robot.tool_frame_id].rotation
+        axes = np.array([rot @ r.normal for r in self.s.scene.reflectors])
+        ends = np.stack([centres, centres + AXIS_LENGTH * axes], axis=1).reshape(-1, 3).astype(np.float32)
+        node["axes"].set_object(mg.LineSegments(mg.PointsGeometry(ends.T),
+                                                mg.LineBasicMaterial(color=color_int("reflector"), linewidth=3)))
+        _draw_text(node["label"], label, 0.3, centres[0] + np.array([0.0, 0.0, 0.12]), self.tracker.translation)
 
     def cell(self) -> list[str]:
         """Obstacle capsules and spheres, boxes, cylinders, meshes (their convex hulls, the

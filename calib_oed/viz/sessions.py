@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 import numpy as np
 
 from calib_oed.io.atomic import atomic_write_text
-from calib_oed.viz.viewer import ViewInfo, build_view
+from calib_oed.viz.viewer import ViewInfo, build_view, check_design
 
 if TYPE_CHECKING:
     import meshcat
@@ -95,6 +95,7 @@ def static_html(s: Setup, q_design: np.ndarray | None = None, **kw: Any) -> tupl
     A meshcat server subprocess runs for the duration of the call only (it is
     stopped on errors too). Keywords: those of :func:`~calib_oed.viz.viewer.build_view`.
     """
+    check_design(s, q_design)  # before the server starts
     vis = _start_visualizer()
     try:
         info = build_view(vis, s, q_design, **kw)
@@ -126,6 +127,7 @@ def open_viewer(s: Setup, q_design: np.ndarray | None = None, *, zmq_url: str | 
     Returns a :class:`LiveView`: open its ``url`` in a browser; close it (or use it
     in a ``with`` block) to stop the server. Keywords: those of :func:`~calib_oed.viz.viewer.build_view`.
     """
+    check_design(s, q_design)  # before the server starts
     vis = _start_visualizer(zmq_url)
     try:
         info = build_view(vis, s, q_design, **kw)

@@ -185,14 +185,29 @@ class ViewInfo:
 
 
 # ------------------------------------------------------------ inputs, numbers
-def _check_design(s: Setup, q_design) -> np.ndarray:
+def check_design(s: Setup, q_design) -> np.ndarray:
+    """``q_design`` as (n, nq) with 1 <= n <= :data:`MAX_VIEW_POSES` (or (0, nq) for None).
+
+    Raises:
+        ShapeError, NonFiniteError: not finite (n, nq) with n >= 1.
+        ViewerSettingError: more than :data:`MAX_VIEW_POSES` poses.
+    """
     robot = s.problem.robot
     if q_design is None:
         return np.zeros((0, robot.nq))
     q = robot.check_configurations(q_design, "q_design")
     if q.shape[0] < 1:
         raise ShapeError("q_design", f"(n, {robot.nq}) with n >= 1 (or None: no design)", q.shape)
+    if q.shape[0] > MAX_VIEW_POSES:
+        raise ViewerSettingError("q_design", f"{q.shape[0]} poses", (
+            f"the viewer draws at most {MAX_VIEW_POSES} poses (each adds ~50 kB to a page and a "
+            "row to the pose list; a calibration measures tens to hundreds): view a part of the "
+            "design, e.g. its first rows"))
     return q
+
+
+#: The most design poses the viewer draws (a 10000-pose page would take ~0.5 GB).
+MAX_VIEW_POSES = 1000
 
 
 def _positive(name: str, value, allow_none: bool = False) -> float | None:
@@ -295,7 +310,7 @@ def build_view(
         ViewerSettingError: a scale <= 0, an unknown ``robot_drawing``.
         ConfidenceLevelError: ``level`` not in (0, 1).
     """
-    q = _check_design(s, q_design)
+    q = check_design(s, q_design)
     scale = _positive("ellipsoid_scale", ellipsoid_scale, allow_none=True)
     target = _positive("target_half_axis", target_half_axis)
     chi2_radius2(level, 3)  # raises ConfidenceLevelError
@@ -338,7 +353,8 @@ def build_view(
     for k, (path, qk) in enumerate(zip(pose_paths, q, strict=True)):
         solid = not instanced and k == 0 and colors[k] == "ghost"  # capsules stand for the robot
         beam_paths.append(painter.pose(path, qk, "selected" if solid else colors[k], None,
-                                       show_capsules=False, robot_elsewhere=instanced))
+                                       show_capsules=False, robot_elsewhere=instanced,
+                                       label=f"pose {k}"))
         for part in ("beams", "reflectors"):  # the opening state: pose 0 selected
             vis[path][part].set_property("visible", k == 0)
         if not instanced:

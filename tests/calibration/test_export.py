@@ -287,3 +287,15 @@ def test_text_helper_rejects_empty_robot_name():
     space = make_space(load_robot("kr16"))
     with pytest.raises(ExportError, match="robot_name"):
         calibrated_urdf_text(space, None, robot_name=" ")
+
+
+def test_a_one_line_urdf_is_written_indented():
+    from lxml import etree
+
+    from calib_oed.calibration.export import _document
+
+    root = etree.fromstring('<robot name="r"><link name="a"/><joint name="j" type="revolute">'
+                            '<parent link="a"/><child link="b"/></joint><link name="b"/></robot>')
+    text = _document(root)
+    assert text.count("\n") >= 5 and '\n  <joint name="j" type="revolute">\n    <parent' in text
+    assert etree.tostring(etree.fromstring(text), method="c14n") != b""  # still well-formed

@@ -323,7 +323,9 @@ def test_directives(kr16):
     assert lines_of(problems) == [1, 5]
     assert "unsupported format version 'v2'" in problems[0][1]
     assert "must come before the column header (line 3)" in problems[1][1]
-    assert read_text("# CALIB_OED measurements v1\n# robot: other\n" + kr16_text(GOOD), kr16).n == 1
+    assert read_text("# CALIB_OED measurements v1\n# robot: KR16\n" + kr16_text(GOOD), kr16).n == 1
+    (problem,) = problems_of("# robot: other\n" + kr16_text(GOOD), kr16)  # a file of another robot
+    assert problem[0] == 1 and "the file is of robot 'other', the scene's robot is 'kr16'" in problem[1]
 
 
 def test_rotation_vector_beyond_pi(kr16):
@@ -351,7 +353,7 @@ def test_all_problems_reported_together(kr16):
 
 
 def test_unreadable_path(tmp_path, kr16):
-    with pytest.raises(MeasurementFileError, match="cannot read the file") as info:
+    with pytest.raises(MeasurementFileError, match="cannot read the measurement file") as info:
         read_measurements(tmp_path / "missing.csv", kr16)
     assert info.value.problems[0][0] is None
 

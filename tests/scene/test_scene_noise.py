@@ -66,3 +66,33 @@ def test_bad_keys_are_named(data, key, text):
     assert err.value.key == key
     assert str(err.value).startswith(f"cell.yaml: {key}: ")
     assert text in str(err.value)
+
+
+def test_vendor_specifications_as_the_data_sheet_states_them():
+    """``tracker.mpe`` (MPE +-(a + b L) at k = 2) and ``robot.rp`` (ISO 9283 RP) give the
+    sigmas a user would have converted by hand (issue 34)."""
+    from calib_oed.measurement.noise import ISO9283_RP_PER_SIGMA
+
+    data = mutated(("tracker", "mpe"), {"radial": [0.010, 0.0003], "lateral": [0.015, 0.006]})
+    data["robot"]["rp"] = 0.05
+    scene = scene_from_dict(data)
+    assert scene.tracker.noise.radial == pytest.approx((5e-6, 1.5e-7), rel=1e-12)
+    assert scene.tracker.noise.lateral == pytest.approx((7.5e-6, 3e-6), rel=1e-12)
+    assert scene.repeatability == pytest.approx(5e-5 / ISO9283_RP_PER_SIGMA, rel=1e-12)
+    data["tracker"]["mpe"]["k"] = 3
+    assert scene_from_dict(data).tracker.noise.radial == pytest.approx((1e-5 / 3, 1e-7), rel=1e-12)
+
+
+@pytest.mark.parametrize("edit, fragment", [
+    (lambda d: d["tracker"].update(noise=NOISE), "not both"),
+    (lambda d: d["robot"].update(repeatability=0.01), "not both"),
+    (lambda d: d["tracker"]["mpe"].update(k=0), "tracker.mpe.k"),
+    (lambda d: d["tracker"]["mpe"].update(radial=[-1, 0]), "must be >= 0"),
+    (lambda d: d["tracker"]["mpe"].update(axial=[1, 0]), "axial"),
+])
+def test_vendor_specification_mistakes(edit, fragment):
+    data = mutated(("tracker", "mpe"), {"radial": [0.010, 0.0003], "lateral": [0.015, 0.006]})
+    data["robot"]["rp"] = 0.05
+    edit(data)
+    with pytest.raises(SceneError, match=fragment):
+        scene_from_dict(data)

@@ -724,3 +724,32 @@ def test_xacro_robot_errors(robot, key, message):
     with pytest.raises(SceneError, match=message) as err:
         scene_from_dict(xacro_scene(robot), source=source)
     assert err.value.key == key
+
+
+def test_a_scene_includes_another_and_overrides_keys(tmp_path):
+    """``include:`` (issue 34): the shipped scene with its tracker moved and a second SMR."""
+    (tmp_path / "moved.yaml").write_text(
+        "include: fms_kr16\nname: moved\ntracker: {position: [700, -2600, 1300]}\n"
+        "reflectors:\n  - {name: smr0, offset: [0, 0, 50]}\n  - {name: smr1, offset: [60, 0, 40]}\n")
+    (tmp_path / "again.yaml").write_text("include: moved.yaml\nname: again\nrobot: {repeatability: 0.02}\n")
+    base, scene = load_scene("fms_kr16"), load_scene(tmp_path / "again.yaml")
+    assert scene.name == "again" and [r.name for r in scene.reflectors] == ["smr0", "smr1"]
+    np.testing.assert_allclose(scene.tracker.position, [0.7, -2.6, 1.3])
+    np.testing.assert_allclose(scene.tracker.rpy, base.tracker.rpy)  # merged key by key
+    assert scene.tracker.noise == base.tracker.noise and scene.repeatability == pytest.approx(2e-5)
+    assert scene.robot.name == base.robot.name
+
+
+@pytest.mark.parametrize("files, fragment", [
+    ({"a.yaml": "include: b.yaml\n", "b.yaml": "include: a.yaml\n"}, "include cycle a.yaml -> b.yaml -> a.yaml"),
+    ({"a.yaml": "include: a.yaml\n"}, "include cycle"),
+    ({"a.yaml": "include: missing.yaml\n"}, "not found"),
+    ({"a.yaml": "include: fms_kr16\nunits: {length: m, angle: rad}\n"}, "differ from those of the included"),
+    ({"a.yaml": "include: [fms_kr16]\n"}, "expected a scene file name"),
+    ({"a.yaml": "include: b.yaml\n", "b.yaml": "- 1\n"}, "holds no scene mapping"),
+])
+def test_include_mistakes(tmp_path, files, fragment):
+    for name, text in files.items():
+        (tmp_path / name).write_text(text)
+    with pytest.raises(SceneError, match=fragment):
+        load_scene(tmp_path / "a.yaml")

@@ -526,3 +526,27 @@ def test_pose_selector_reaches_the_live_viewer(chromium, s, design, tmp_path):
     items = re.search(r'<div id="calib-oed-poses".*?<ol[^>]*>(.*?)</ol>', run.stdout, re.S).group(1)
     assert re.findall(r'<li [^>]*title="([^"]*)"', items) == list(labels)
     assert not meshcat_children()
+
+
+def test_each_pose_carries_its_number_and_reflector_axis(s, design, page):
+    """Issue 34: with the selected pose's reflectors, its label (the pose number, placed at
+    its own reflector) and the reflector axis (the tool-frame normal in the world)."""
+    _, info, _, commands = page
+    objects, transforms = by_path(commands, "set_object"), by_path(commands, "set_transform")
+    robot = s.problem.robot
+    data = robot.model.createData()
+    positions = []
+    for k, path in enumerate(info.pose_paths):
+        (text,) = objects[f"/meshcat/{path}/reflectors/label/text"]["object"]["textures"]
+        assert text["text"] == f"pose {k}"
+        positions.append(transform(transforms[f"/meshcat/{path}/reflectors/label/text"])[:3, 3])
+        pin.framesForwardKinematics(robot.model, data, design[k])
+        tool = data.oMf[robot.tool_frame_id]
+        axis = objects[f"/meshcat/{path}/reflectors/axes"]["object"]["geometries"][0]
+        raw = axis["data"]["attributes"]["position"]["array"]  # float32 (3, 2), as the beams
+        ends = np.frombuffer(raw.data, dtype=np.float32).reshape(2, 3)
+        np.testing.assert_allclose(ends[1] - ends[0], 0.08 * tool.rotation @ s.scene.reflectors[0].normal,
+                                   atol=1e-6)
+        np.testing.assert_allclose(ends[0], tool.act(s.scene.reflectors[0].offset), atol=1e-6)
+    gaps = [np.linalg.norm(a - b) for i, a in enumerate(positions) for b in positions[i + 1:]]
+    assert min(gaps) > 0.01  # every label at its own place

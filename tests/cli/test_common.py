@@ -1,0 +1,23 @@
+"""Model flags shared by the commands (cli/_common.py): ``--joint-gains`` like ``--compliance``."""
+
+from __future__ import annotations
+
+import json
+
+from calib_oed.cli import EXIT_OK, main
+
+
+def _extra_parameters(capsys, *flags) -> list[str]:
+    """The gain and compliance parameters ``identifiability --json`` names."""
+    capsys.readouterr()
+    assert main(["identifiability", "fms_kr16", "--json", *flags]) == EXIT_OK
+    text = json.dumps(json.loads(capsys.readouterr().out))
+    return sorted({p for p in text.split('"') if p.endswith((".gain", ".c"))})
+
+
+def test_joint_gains_flag_models_the_gains_of_the_joints_named(capsys):
+    assert _extra_parameters(capsys) == []
+    assert _extra_parameters(capsys, "--joint-gains") == [f"joint{i}.gain" for i in range(1, 7)]
+    assert _extra_parameters(capsys, "--joint-gains", "2,3") == ["joint2.gain", "joint3.gain"]
+    both = _extra_parameters(capsys, "--joint-gains=5", "--compliance")
+    assert "joint5.gain" in both and "joint2.c" in both and "joint1.gain" not in both
