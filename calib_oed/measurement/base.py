@@ -35,6 +35,7 @@ import numpy as np
 import pinocchio as pin
 
 from calib_oed.exceptions import ShapeError
+from calib_oed.measurement.noise_contract import NoiseContract
 from calib_oed.model.joint_map import config_chain_term, effective_configurations, parameter_columns
 from calib_oed.model.kinematics import (
     ToolKinematics,
@@ -363,7 +364,7 @@ def evaluate_setup(
     )
 
 
-class MeasurementModel(abc.ABC):
+class MeasurementModel(NoiseContract, abc.ABC):
     """A measurement of the robot by an external sensor (see module docstring).
 
     Args:
@@ -377,13 +378,6 @@ class MeasurementModel(abc.ABC):
     labels: tuple[str, ...] = ()
     #: SI units of the d components.
     units: tuple[str, ...] = ()
-
-    #: Full error model of one measurement (a
-    #: :class:`~calib_oed.measurement.noise.TrackerNoise`: tracker noise and robot
-    #: repeatability), or None: independent components with standard deviations ``sigma``.
-    #: Consumers call the ``noise_*`` methods below (one contract); only the design
-    #: objective reads it, for the closed-form derivatives of :mod:`calib_oed.oed.whitening`.
-    noise = None
 
     def __init__(self, sigma: float | np.ndarray):
         s = np.broadcast_to(np.asarray(sigma, dtype=float), (self.dim,)).copy()
@@ -428,43 +422,6 @@ class MeasurementModel(abc.ABC):
         it or with compliance modelled (needs :math:`\partial^2\tau_g/\partial q^2`).
         """
         return None
-
-    # ------------------------------------------------------ noise contract
-    def _row_sigma(self, n: int, sigma) -> np.ndarray:
-        return np.broadcast_to(self.sigma if sigma is None else np.asarray(sigma, float), (n, self.dim))
-
-    def _noise_matrix(self, values, sigma, full: str, power: int) -> np.ndarray:
-        """The full error model's ``full`` matrices, or :math:`\\mathrm{diag}(\\sigma^{power})`."""
-        values = np.asarray(values, dtype=float)
-        if self.noise is not None:
-            return getattr(self.noise, full)(values[:, :3])
-        s = self._row_sigma(values.shape[0], sigma)
-        return (s**power)[:, :, None] * np.eye(self.dim)
-
-    def noise_cholesky(self, values: np.ndarray, sigma: np.ndarray | None = None) -> np.ndarray:
-        r"""Lower :math:`L_i` with :math:`\Sigma_i = L_i L_i^\top` per measurement, (n, d, d) [SI].
-
-        ``values`` (n, d): the positions the error model is evaluated at (the tracker
-        model depends on range and direction); ``sigma`` (n, d): per-row standard
-        deviations of a measurement file, used when the model has no full error model.
-        """
-        return self._noise_matrix(values, sigma, "cholesky", 1)
-
-    def noise_covariance(self, values: np.ndarray, sigma: np.ndarray | None = None) -> np.ndarray:
-        r""":math:`\Sigma_i` (n, d, d) [SI²] of each measurement (:meth:`noise_cholesky`)."""
-        return self._noise_matrix(values, sigma, "covariance", 2)
-
-    def noise_whitening(self, values: np.ndarray, sigma: np.ndarray | None = None) -> np.ndarray:
-        r""":math:`W_i = L_i^{-1}` (n, d, d): :math:`W_i e_i \sim N(0, I)` for the noise :math:`e_i`."""
-        return self._noise_matrix(values, sigma, "whitening", -1)
-
-    def sample_noise(self, values: np.ndarray, rng: np.random.Generator,
-                     sigma: np.ndarray | None = None) -> np.ndarray:
-        """One noise draw per measurement at ``values`` (n, d), (n, d) [SI]."""
-        values = np.asarray(values, dtype=float)
-        if self.noise is not None:
-            return self.noise.sample(values[:, :3], rng)
-        return rng.normal(size=values.shape) * self._row_sigma(values.shape[0], sigma)
 
     def check_measured(self, values: np.ndarray, n: int) -> np.ndarray:
         """Validate measured values of this model for n configurations."""
