@@ -85,14 +85,19 @@ def simulate_observations(
     state = evaluate_setup(space, p_true, q, regressor=False, jacobian=False)
     values = []
     for mdl in models:
-        exact = mdl.compute_values(state)  # the noise contract at the true positions
-        values.append(exact + mdl.sample_noise(exact, rng))
+        values.append(add_noise(mdl, mdl.compute_values(state), rng))  # at the true positions
     if model_error is not None:  # one draw per distinct configuration, shared by the reflectors
         distinct, inverse = np.unique(q, axis=0, return_inverse=True)
         offset = model_error.sample(distinct, rng)[inverse.ravel()]
         for v in values:
             v[:, :3] += offset
     return [ObservationBlock(mdl, q, v) for mdl, v in zip(models, values, strict=True)]
+
+
+def add_noise(model: MeasurementModel, exact: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    r"""``exact`` (n, d) plus a draw of ``model``'s measurement noise (its noise contract: the full error model
+    (:math:`\Sigma_i` at the true positions) or independent ``sigma``)."""
+    return exact + model.sample_noise(exact, rng)
 
 
 @dataclass(frozen=True, eq=False)

@@ -18,6 +18,14 @@ import pinocchio as pin
 import yaml
 
 from calib_oed.calibration.problem import CalibrationProblem
+from calib_oed.calibration.realistic import RealisticTruth, sample_truth
+from calib_oed.calibration.realistic_defaults import RealisticSettings
+from calib_oed.calibration.realistic_measure import (
+    RealisticMeasurements,
+    blocks_to_measurement_set,
+    measure,
+    read_realistic_truth,
+)
 from calib_oed.calibration.simulation import draw_true_parameters, simulate_observations
 from calib_oed.exceptions import DesignError, ExportError, SceneError
 from calib_oed.feasibility.constraints import FeasibilityModel
@@ -106,18 +114,21 @@ def simulated_measurements(s: Setup, q: np.ndarray, truth_seed: int) -> tuple[Me
     rng = np.random.default_rng(truth_seed)
     p_true = draw_true_parameters(problem.space, problem.identifiability.free_indices, rng)
     blocks = simulate_observations(problem.space, problem.models, q, p_true, rng)
-    qs, pos, rot, refl = [], [], [], []
-    for b in blocks:
-        qs.append(b.q)
-        pos.append(b.values[:, :3])
-        refl.append(np.full(b.n, b.model.reflector))
-        if b.model.dim == 6:
-            rot.append(b.values[:, 3:])
-    mset = MeasurementSet.from_arrays(
-        problem.robot, np.vstack(qs), np.vstack(pos), reflector=np.concatenate(refl),
-        rotations=np.vstack(rot) if rot else None, source="<simulation>",
-    )
-    return mset, p_true
+    return blocks_to_measurement_set(problem.robot, blocks), p_true
+
+
+def realistic_measurements(s: Setup, q: np.ndarray, truth_seed: int,
+                           settings: RealisticSettings | None = None
+                           ) -> tuple[MeasurementSet, RealisticTruth, RealisticMeasurements]:
+    """Tracker data of a realistic true robot (:mod:`calib_oed.calibration.realistic`) at design ``q``.
+
+    One generator from ``truth_seed`` draws the truth, then the noise and gross errors.
+    Returns the measurements, the truth and the simulation's record (exact readings, gross rows).
+    """
+    rng = np.random.default_rng(truth_seed)
+    truth = sample_truth(s, rng, settings)
+    meas = measure(truth, s.problem.models, q, rng)
+    return meas.measurement_set(s.problem.robot), truth, meas
 
 
 def write_truth(path: str | os.PathLike, s: Setup, p_true: np.ndarray, truth_seed: int) -> Path:
@@ -131,9 +142,12 @@ def write_truth(path: str | os.PathLike, s: Setup, p_true: np.ndarray, truth_see
     return atomic_write_text(path, "# calib_oed simulated truth\n" + yaml.safe_dump(data, sort_keys=False))
 
 
-def read_truth(path: str | os.PathLike, s: Setup) -> np.ndarray:
-    """Read :func:`write_truth` output back into a parameter vector."""
+def read_truth(path: str | os.PathLike, s: Setup) -> np.ndarray | RealisticTruth:
+    """Read :func:`write_truth` output back into a parameter vector; a realistic truth
+    (``simulate --realistic``) into its :class:`RealisticTruth`."""
     data = yaml.safe_load(Path(path).read_text())
+    if isinstance(data, dict) and data.get("kind") == "realistic":
+        return read_realistic_truth(data, s, path)
     params = data.get("parameters", {}) if isinstance(data, dict) else {}
     space = s.problem.space
     p = np.zeros(space.size)
@@ -187,9 +201,12 @@ def round_trip_error(s: Setup, p: np.ndarray, urdf_path: str | os.PathLike, n: i
     return worst
 
 
-def tcp_errors(s: Setup, p_true: np.ndarray, p_est: np.ndarray | None) -> np.ndarray:
-    """KPI error of the model ``p_est`` (None: nominal) against the truth, (t, 3) [m]."""
+def tcp_errors(s: Setup, p_true: np.ndarray | RealisticTruth, p_est: np.ndarray | None) -> np.ndarray:
+    """KPI error of the model ``p_est`` (None: nominal) against the truth (true parameters
+    or a realistic truth), (t, 3) [m]."""
     kpi, space = s.problem.kpi, s.problem.space
+    if isinstance(p_true, RealisticTruth):
+        return kpi.compute_values(space, p_est) - p_true.compute_kpi_values(kpi)
     return kpi.compute_values(space, p_est) - kpi.compute_values(space, p_true)
 
 

@@ -232,6 +232,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", required=True, metavar="CSV", help="measurement file to write")
     p.add_argument("--truth", metavar="YAML", help="where to write the true parameters "
                    "(default: <output>_truth.yaml)")
+    p.add_argument("--realistic", action="store_true",
+                   help="a realistic truth: gravity compliance, transmission errors, J2 balancer, tracker "
+                   "systematics on top of the geometric errors (docs/identification.md)")
+    p.add_argument("--level", type=float, default=None, metavar="L",
+                   help="with --realistic: scale of the unmodelled errors (default 1, or the scene's "
+                   "realistic.level)")
+    p.add_argument("--without", action="append", default=[], metavar="COMPONENT",
+                   choices=("geometric", "compliance", "transmission", "balancer", "tracker", "gains"),
+                   help="with --realistic: switch a component off (repeatable)")
+    p.add_argument("--thermal", action="store_true", help="with --realistic: add thermal drift")
+    p.add_argument("--gross-errors", type=_non_negative_int, default=None, metavar="K",
+                   help="with --realistic: K measurements with a 5 mm gross error")
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.add_argument("--quiet", action="store_true", help="print nothing")
     p.set_defaults(func=cmd_simulate, outputs={"output": "file", "truth": "file"})

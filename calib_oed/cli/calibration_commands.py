@@ -18,8 +18,10 @@ from calib_oed.cli._common import (
     _optimise,
     _round_trip_text,
     _say,
+    _scene,
     _setup,
 )
+from calib_oed.exceptions import CalibOedError
 
 
 def cmd_demo(args) -> int:
@@ -95,20 +97,54 @@ def cmd_simulate(args) -> int:
     )
 
     s = _setup(args.scene)
+    settings = _realistic_settings(args)
     q, what = _design(s, args)
     _note_infeasible(s, q, what)
-    mset, p_true = simulated_measurements(s, q, args.truth_seed)
-    write_measurement_file(s, args.output, mset,
-                           f"simulated by calib_oed: scene {s.scene.name}, {what}, truth seed {args.truth_seed}")
+    kind = "realistic truth" if settings is not None else "truth"
     truth = args.truth or str(Path(args.output).with_suffix("")) + "_truth.yaml"
-    write_truth(truth, s, p_true, args.truth_seed)
+    if settings is None:
+        mset, p_true = simulated_measurements(s, q, args.truth_seed)
+    else:
+        from calib_oed.calibration.realistic_measure import write_realistic_truth
+        from calib_oed.calibration.workflow import realistic_measurements
+
+        mset, real, meas = realistic_measurements(s, q, args.truth_seed, settings)
+    write_measurement_file(s, args.output, mset,
+                           f"simulated by calib_oed: scene {s.scene.name}, {what}, {kind} seed {args.truth_seed}")
+    if settings is None:
+        write_truth(truth, s, p_true, args.truth_seed)
+    else:
+        write_realistic_truth(truth, real, s.scene.name, args.truth_seed, meas)
     if args.json:
         print(json.dumps({"scene": s.scene.name, "design": what, "n": int(len(q)),
                           "measurements": str(args.output), "truth": str(truth),
-                          "truth_seed": args.truth_seed}, indent=2))
+                          "truth_seed": args.truth_seed, "realistic": settings is not None}, indent=2))
         return EXIT_OK
     _say(args, f"wrote {len(q)} simulated measurements per reflector to {args.output}; the truth to {truth}")
     return EXIT_OK
+
+
+def _realistic_settings(args):
+    """The :class:`RealisticSettings` of ``simulate --realistic`` (the scene's ``realistic:`` block
+    with the options on top), or None without ``--realistic``."""
+    extras = args.level is not None or args.without or args.thermal or args.gross_errors is not None
+    if not args.realistic:
+        if extras:
+            raise CalibOedError("--level, --without, --thermal and --gross-errors need --realistic")
+        return None
+    import dataclasses
+
+    from calib_oed.calibration.realistic_defaults import realistic_settings_from_scene
+
+    base = realistic_settings_from_scene(_scene(args.scene))
+    changes = {name: False for name in args.without}
+    if args.level is not None:
+        changes["level"] = args.level
+    if args.thermal:
+        changes["thermal"] = True
+    if args.gross_errors is not None:
+        changes["gross_errors"] = args.gross_errors
+    return dataclasses.replace(base, **changes)
 
 
 def _identify_fit(s, mset, args):

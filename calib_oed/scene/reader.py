@@ -110,7 +110,7 @@ class SceneReader(FieldReader):
         top = self.mapping(data, None, ("version", "name", "units", "robot", "tracker",
                                         "reflectors", "kpi"),
                            ("description", "measurement", "generic_design", "cell",
-                            "feasibility", "program", "controller"))
+                            "feasibility", "program", "controller", "realistic"))
         if top["version"] not in SUPPORTED_VERSIONS or isinstance(top["version"], bool):
             raise self.fail("version", f"unsupported scene file version {top['version']!r}; "
                             f"supported versions: {', '.join(map(str, SUPPORTED_VERSIONS))}")
@@ -156,6 +156,7 @@ class SceneReader(FieldReader):
                          if "feasibility" in top else FeasibilitySettings()),
             compliance=compliance,
             program=self.free_mapping(top.get("program", {}), "program"),
+            realistic=self.free_mapping(top.get("realistic", {}), "realistic"),
             controller=controller,
             joint_gains=joint_gains,
             repeatability=self.repeatability(top),

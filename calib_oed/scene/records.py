@@ -240,6 +240,9 @@ class Scene:
     #: The optional ``controller:`` block: controller joint conventions
     #: (:mod:`calib_oed.model.controller`); None if the file has none.
     controller: ControllerConvention | None = None
+    #: The optional ``realistic:`` block as written (file units): the magnitudes of the
+    #: realistic simulator, read by :mod:`calib_oed.calibration.realistic_defaults`; empty if absent.
+    realistic: dict = field(default_factory=dict)
     #: ``robot.joint_gains``: joint gains and coupling ratios to identify
     #: (:mod:`calib_oed.model.joint_map`); None if the file has none or disables them.
     joint_gains: JointGains | None = None
