@@ -41,7 +41,7 @@ def run(scene_name: str, compliance: bool, level: float, truths: int) -> list[tu
         truth = sample_truth(s, seed, settings)
         q, q_new = robot.random_configurations(60, 10 + seed), robot.random_configurations(30, 50 + seed)
         meas = measure(truth, s.problem.models, q, 100 + seed)
-        fit = identify(space, list(meas.blocks), s.problem.identifiability, loss="linear")
+        fit = identify(space, list(meas.blocks), s.problem.identifiability)
         nominal, held = (float(np.sqrt(np.mean(np.sum(truth.compute_model_errors(p, q_new) ** 2, axis=-1))))
                          for p in (None, fit.p))
         noise = s.problem.models[0].noise.sample(meas.exact[0], np.random.default_rng(seed))

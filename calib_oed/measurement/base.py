@@ -378,13 +378,6 @@ class MeasurementModel(NoiseContract, abc.ABC):
     #: SI units of the d components.
     units: tuple[str, ...] = ()
 
-    #: Full error model of one measurement (a
-    #: :class:`~calib_oed.measurement.noise.TrackerNoise`: tracker noise and robot
-    #: repeatability), or None: independent components with standard deviations ``sigma``.
-    #: Consumers call the ``noise_*`` methods below (one contract); only the design
-    #: objective reads it, for the closed-form derivatives of :mod:`calib_oed.oed.whitening`.
-    noise = None
-
     def __init__(self, sigma: float | np.ndarray):
         s = np.broadcast_to(np.asarray(sigma, dtype=float), (self.dim,)).copy()
         if not np.all(np.isfinite(s)) or np.any(s <= 0):

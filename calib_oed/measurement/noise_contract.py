@@ -1,12 +1,12 @@
-r"""The noise contract of a measurement model: each measurement's covariance.
+"""The noise contract every measurement model carries: one way to get a measurement's covariance.
 
-A measurement model (:class:`~calib_oed.measurement.base.MeasurementModel`) has
-``dim`` components, a standard deviation ``sigma`` per component and optionally a
-full tracker error model ``noise`` (:class:`~calib_oed.measurement.noise.TrackerNoise`,
-position rows). Every consumer (identification, covariance, simulation, Monte
-Carlo, validation, design) asks the model, never ``getattr(model, "noise")``:
-:math:`\Sigma_i`, its Cholesky factor :math:`L_i`, the whitening :math:`W_i = L_i^{-1}`,
-and noise draws, at the measured positions [SI].
+Identification, covariance, simulation, Monte Carlo, cross-validation, validation and
+the design get the noise of a measurement only through these methods
+(:class:`NoiseContract`, a base of :class:`~calib_oed.measurement.base.MeasurementModel`):
+independent components with the model's ``sigma`` (or a measurement file's per-row
+sigmas), or the model's full error model ``noise`` (the tracker's range- and
+direction-dependent covariance with the robot's repeatability,
+:class:`~calib_oed.measurement.noise.TrackerNoise`), evaluated at the given positions.
 """
 
 from __future__ import annotations
@@ -15,9 +15,19 @@ import numpy as np
 
 
 class NoiseContract:
-    """Mixin of :class:`~calib_oed.measurement.base.MeasurementModel`: needs ``dim``,
-    ``sigma`` and ``noise`` attributes."""
+    """The ``noise_*`` methods of a measurement model (module docstring); needs ``dim`` and ``sigma``."""
 
+    dim: int = 0
+    sigma: np.ndarray
+
+    #: Full error model of one measurement (a
+    #: :class:`~calib_oed.measurement.noise.TrackerNoise`: tracker noise and robot
+    #: repeatability), or None: independent components with standard deviations ``sigma``.
+    #: Consumers call the ``noise_*`` methods below (one contract); only the design
+    #: objective reads it, for the closed-form derivatives of :mod:`calib_oed.oed.whitening`.
+    noise = None
+
+    # ------------------------------------------------------ noise contract
     def _row_sigma(self, n: int, sigma) -> np.ndarray:
         return np.broadcast_to(self.sigma if sigma is None else np.asarray(sigma, float), (n, self.dim))
 

@@ -195,7 +195,7 @@ def test_default_level_leaves_several_times_the_noise_after_the_geometric_fit(na
         truth = sample_truth(s, seed)
         q, q_new = robot.random_configurations(60, 10 + seed), robot.random_configurations(30, 50 + seed)
         meas = measure(truth, s.problem.models, q, 100 + seed)
-        result = identify(space, list(meas.blocks), s.problem.identifiability, loss="linear")
+        result = identify(space, list(meas.blocks), s.problem.identifiability)
         error = truth.compute_model_errors(result.p, q_new)[:, 0]
         state = evaluate_setup(space, result.p, q_new, regressor=False, jacobian=False)
         assert np.allclose(error, state.tool_point(state.reflectors[0], "world")
