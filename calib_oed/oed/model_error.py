@@ -78,7 +78,7 @@ MODEL_ERROR = "kpi_model"
 KRIGING = "kpi_kriging"
 #: The predictors of :class:`ModelErrorCriterion`, in the order of the names above.
 PREDICTORS = ("fit", "kriging")
-#: SQP iterations of a kpi_model design by default: on fms_kr16 (60 poses) the value at 60
+#: SQP iterations of a model-error design by default: on fms_kr16 (60 poses, kpi_kriging) the value at 60
 #: iterations is within 5 % of the value at 120-270 (``docs/oed.md``); keeps the design time
 #: within 1.5x of the noise-only design's.
 MODEL_ERROR_ITERATIONS = 60
