@@ -22,7 +22,7 @@ from calib_oed.feasibility.margins import KindMargin, format_margins
 from calib_oed.io.atomic import atomic_write_text
 from calib_oed.io.design_file import read_design_csv, write_design_csv
 from calib_oed.model.robot import Robot
-from calib_oed.scene.yaml_file import load_yaml_file
+from calib_oed.scene.yaml_file import MAX_YAML_BYTES, load_yaml_file
 
 
 def _finite(value):
@@ -249,7 +249,7 @@ def read_design_file(path: str | os.PathLike, robot: Robot, check_limits: bool =
         return MeasurementFileError(source, [(None, message)], kind="design file")
 
     try:
-        data = load_yaml_file(path, "design file")
+        data = load_yaml_file(path, "design file", MAX_YAML_BYTES)
     except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
         raise fail(f"cannot read the design YAML ({exc})") from exc
     if not isinstance(data, dict) or not str(data.get("format", "")).startswith("calib_oed design"):

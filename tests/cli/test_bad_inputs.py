@@ -99,7 +99,7 @@ def files(tmp_path_factory):
     _scene_variant(d, "tracker_far_m.yaml", "position: [600, -2600, 1300]", "position: [600000000.0, -2600, 1300]")
     _scene_variant(d, "payload.yaml", "  tool_frame: tool0", "  tool_frame: tool0\n  compliance: {payload: {mass: 300000}}")
     (d / "latin1.yaml").write_bytes(SHIPPED.read_text().replace("Default scene", "Sc\u00e8ne").encode("latin-1"))
-    (d / "big.yaml").write_text(SHIPPED.read_text() + "#" * (9 * 2**20) + "\n")
+    (d / "big.yaml").write_text(SHIPPED.read_text() + "#" * (2 * 2**20) + "\n")
     (d / "study_dup.yaml").write_text("name: s\nname: t\n")
     os.mkfifo(d / "fifo")
     os.mkfifo(d / "fifo.png")
