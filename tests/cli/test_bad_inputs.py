@@ -182,7 +182,7 @@ CASES = [
     ("view-level-0", ["view", S, "--level", "0", "--html", "{t}/v.html"], "strictly between 0 and 1"),
     ("view-scale-0", ["view", S, "--scale", "0", "--html", "{t}/v.html"], "--scale: expected a drawing scale"),
     ("view-scale-inf", ["view", S, "--scale", "inf", "--html", "{t}/v.html"], "--scale: expected a drawing scale"),
-    ("view-for-0", ["view", S, "--for", "0"], "--for: expected a time"),
+    ("view-for-nan", ["view", S, "--for", "nan"], "--for: expected a time"),
     ("view-for-negative", ["view", S, "--for", "-1"], "--for: expected a time"),
     ("validate-max-rms-0", ["validate", S, "{d}", "{d}/m.csv", "--max-rms", "0"], "--max-rms: expected an RMS"),
     ("validate-max-rms-negative", ["validate", S, "{d}", "{d}/m.csv", "--max-rms", "-1"], "--max-rms: expected"),
