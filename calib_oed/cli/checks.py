@@ -103,20 +103,20 @@ def _dropped(args, given: set[str]) -> None:
                             f"not --criterion {args.criterion}; use --criterion kpi or leave it out")
 
 
-def _positive(args, dest: str, what: str, allow_inf: bool = False) -> None:
+def _positive(args, dest: str, what: str, allow_inf: bool = False, allow_zero: bool = False) -> None:
     value = getattr(args, dest, None)
     if value is None:
         return
-    ok = value > 0 and (math.isfinite(value) or (allow_inf and value == math.inf))
+    ok = (value >= 0 if allow_zero else value > 0) and (math.isfinite(value) or (allow_inf and value == math.inf))
     if not ok:
         also = " (leave it out for no limit)" if allow_inf else ""
-        raise ArgumentError(f"{_flag(dest)}: expected {what} > 0{also}, got {value:g}")
+        raise ArgumentError(f"{_flag(dest)}: expected {what} {'>=' if allow_zero else '>'} 0{also}, got {value:g}")
 
 
 def _ranges(args) -> None:
     """Numbers outside their meaning."""
     _positive(args, "time_limit", "a time in seconds", allow_inf=True)
-    _positive(args, "seconds", "a time in seconds")
+    _positive(args, "seconds", "a time in seconds", allow_zero=True)  # 0: start and stop
     _positive(args, "scale", "a drawing scale")
     _positive(args, "max_rms", "an RMS in mm")
     _positive(args, "max_registration_rms", "an RMS in mm")

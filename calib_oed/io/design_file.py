@@ -37,7 +37,7 @@ from calib_oed.io.atomic import atomic_write_text
 from calib_oed.io.repeats import describe_repeats, repeated_rows
 from calib_oed.model.controller import ControllerConvention
 from calib_oed.model.robot import Robot
-from calib_oed.scene.yaml_file import load_yaml_file, read_text_file
+from calib_oed.scene.yaml_file import MAX_YAML_BYTES, load_yaml_file, read_text_file
 from calib_oed.units import ANGLE_UNITS, LENGTH_UNITS
 
 _UNITS_RE = re.compile(r"#\s*units\s*:(.*)$", re.IGNORECASE)
@@ -223,7 +223,7 @@ def read_design_file(path: str | os.PathLike, robot: Robot, check_limits: bool =
         return MeasurementFileError(source, [(None, message)], kind="design file")
 
     try:
-        data = load_yaml_file(path, "design file")
+        data = load_yaml_file(path, "design file", MAX_YAML_BYTES)
     except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
         raise fail(f"cannot read the design YAML ({exc})") from exc
     if not isinstance(data, dict) or not str(data.get("format", "")).startswith("calib_oed design"):

@@ -347,11 +347,13 @@ class _Reader:
                 if not lo - LIMIT_TOL <= q[k] <= hi + LIMIT_TOL:
                     messages.append(f"{name} = {q[k] / s:.6g} {unit}{ctrl} is outside its "
                                     f"limits [{lo / s:.6g}, {hi / s:.6g}] {unit}")
-        far = [c for c in POSITION_COLUMNS if c in values and abs(values[c]) * length > MAX_TRACKER_RANGE]
+        # beyond the range even if the unit were 1000 times too large (that mistake, mm read
+        # as m, the registration check names with its evidence)
+        far = [c for c in POSITION_COLUMNS if c in values and abs(values[c]) * length > 1e3 * MAX_TRACKER_RANGE]
         if far:
             messages.append(f"{far[0]} = {values[far[0]]:.6g} {self.units['length']} is beyond any "
-                            f"laser tracker's range ({MAX_TRACKER_RANGE:g} m): check the value and "
-                            "the length unit")
+                            f"laser tracker's range ({MAX_TRACKER_RANGE:g} m) in any length unit: "
+                            "check the value")
         if SIGMA_COLUMN in values and values[SIGMA_COLUMN] <= 0:
             messages.append(f"sigma = {values[SIGMA_COLUMN]:.6g} {self.units['length']} must be > 0")
         elif SIGMA_COLUMN in values and values[SIGMA_COLUMN] * length > MAX_SIGMA:

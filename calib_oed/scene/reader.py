@@ -47,7 +47,7 @@ from calib_oed.scene.records import (
     TrackerSpec,
     WorkingConfiguration,
 )
-from calib_oed.scene.yaml_file import MAX_YAML_BYTES, load_yaml_file
+from calib_oed.scene.yaml_file import load_yaml_file
 from calib_oed.units import ANGLE_UNITS, LENGTH_UNITS
 
 
@@ -79,7 +79,7 @@ def load_scene(name_or_path: str | os.PathLike, *, check: bool = True) -> Scene:
         if not path.is_file():
             raise SceneError(f"scene file not found: {path}", source=str(path))
     try:
-        data = load_yaml_file(path, "scene file", MAX_YAML_BYTES)
+        data = load_yaml_file(path, "scene file")
     except InputFileError as exc:
         raise SceneError(exc.problem, source=str(path)) from exc
     except yaml.YAMLError as exc:

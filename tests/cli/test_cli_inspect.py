@@ -72,7 +72,7 @@ def test_compare_puts_designs_side_by_side(capsys, designs):
 
 
 @pytest.mark.parametrize("argv, fragment", [
-    (["evaluate", "fms_kr16", "missing.yaml"], "cannot read the design YAML"),
+    (["evaluate", "fms_kr16", "missing.yaml"], "cannot read the design file: not found"),
     (["compare", "fms_kr16", "missing.csv"], "cannot read the design file"),
 ])
 def test_missing_design_files_are_one_clear_line(capsys, argv, fragment):
@@ -92,7 +92,7 @@ def test_a_design_of_another_robot_is_refused(capsys, tmp_path, designs):
     text = designs["yaml"].read_text().replace("joint_a6", "wrist_3")
     (tmp_path / "design.yaml").write_text(text)
     assert main(["evaluate", "ur5_table", str(tmp_path / "design.yaml")]) == EXIT_BAD_INPUT
-    assert "are not the robot's joints" in capsys.readouterr().err
+    assert "a design of robot 'kr16', not of this scene's robot 'ur5'" in capsys.readouterr().err
 
 
 def test_positional_design_for_simulate_and_montecarlo(capsys, tmp_path, designs):
@@ -206,7 +206,7 @@ def test_view_writes_a_static_page_and_serves_live(capsys, tmp_path, designs):
 
 
 @pytest.mark.parametrize("extra, fragment", [
-    (["--scale", "-1"], "ellipsoid_scale"),
+    (["--scale", "-1"], "--scale: expected a drawing scale > 0"),
     (["--level", "1.5"], "level"),
 ])
 def test_view_errors(capsys, tmp_path, designs, extra, fragment):
