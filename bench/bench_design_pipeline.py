@@ -4,6 +4,7 @@ Run from the repository root:
 
     .venv/bin/python bench/bench_design_pipeline.py [--scenes all] [--poses 60]
         [--growth 30,60,120,250,500] [--no-certificate] [--replicates 1,2,3,5]
+        [--structured-qp lifted,block]
 
 Each case runs in its own process (``python -m calib_oed design SCENE -n N -o DIR
 --json``), as a user would run it: from the scene file to the written design.
@@ -19,6 +20,11 @@ working directory is a temporary folder), for side-by-side comparisons.
 ``--feasibility link_fit=single,joint_window=full`` runs copies of the scenes
 with those ``feasibility`` keys overridden (e.g. the single capsules, the
 default before the convex hulls).
+``--structured-qp lifted,block`` runs every case once per QP path of the
+structured Hessian (``SQPSettings.structured_qp``; the child sets it on
+``DESIGN_SQP`` before the CLI runs) and adds the QP's process CPU time, the
+number of QPs, and the CPU time per SQP iteration, for side-by-side figures
+on a shared machine.
 
 Scenes: the five shipped ones and ``bench/scenes/ur10_cell.yaml``,
 ``bench/scenes/panda_cell.yaml`` (example-robot-data arms in cells of our
@@ -57,11 +63,35 @@ def with_feasibility(scene: str, overrides: dict, folder: Path) -> str:
     return str(out)
 
 
-def run_case(scene: str, n: int, certificate: bool, extra=()) -> dict:
+_WITH_QP = """
+import dataclasses, json, sys, time
+qp, out = sys.argv.pop(1), sys.argv.pop(1)
+import calib_oed.oed.design as design, calib_oed.oed.refine as refine, calib_oed.solver.subproblem as sub
+refine.DESIGN_SQP = design.DESIGN_SQP = dataclasses.replace(refine.DESIGN_SQP, structured_qp=qp)
+solve, used = sub.QPSolver.solve, [0.0, 0]
+def timed(self, *a, **k):
+    t = time.process_time()
+    try:
+        return solve(self, *a, **k)
+    finally:
+        used[0] += time.process_time() - t
+        used[1] += 1
+sub.QPSolver.solve = timed
+from calib_oed.cli import main
+code = main(sys.argv[1:])
+json.dump({"qp_cpu_s": used[0], "qps": used[1]}, open(out, "w"))
+sys.exit(code)
+"""
+"""Child that sets ``DESIGN_SQP.structured_qp`` and times the QPs in process CPU (``--structured-qp``)."""
+
+
+def run_case(scene: str, n: int, certificate: bool, extra=(), structured_qp: str = "") -> dict:
     """One ``calib-oed design`` process: its record, CPU seconds and peak memory (``os.wait4``)."""
     with tempfile.TemporaryDirectory() as tmp:
-        argv = [sys.executable, "-m", "calib_oed", "design", scene, "-n", str(n), "-o", tmp,
-                "--json", *extra]
+        head = [sys.executable, "-m", "calib_oed"]
+        if structured_qp:
+            head = [sys.executable, "-c", _WITH_QP, structured_qp, str(Path(tmp) / "qp.json")]
+        argv = [*head, "design", scene, "-n", str(n), "-o", tmp, "--json", *extra]
         if not certificate:
             argv.append("--no-certificate")
         env = dict(os.environ, OPENBLAS_NUM_THREADS="1")
@@ -76,6 +106,7 @@ def run_case(scene: str, n: int, certificate: bool, extra=()) -> dict:
             return {"scene": Path(scene).stem, "n": n, "process_cpu_s": cpu, "peak_rss_mb": peak,
                     "error": err_path.read_text().strip().splitlines()[-1:]}
         record = json.loads(out_path.read_text())
+        qp = json.loads((Path(tmp) / "qp.json").read_text()) if structured_qp else {}
     solver, cert = record["solver"], record["certificate"]
     approx = solver.get("approximate") or {}
     return {
@@ -84,7 +115,8 @@ def run_case(scene: str, n: int, certificate: bool, extra=()) -> dict:
         "iterations": solver.get("iterations"), "value": record["value"],
         "efficiency": record.get("efficiency"), "design_cpu_s": solver.get("cpu_seconds"),
         "design_wall_s": record["seconds"], "certificate_cpu_s": cert.get("cpu_seconds"),
-        "process_cpu_s": cpu, "peak_rss_mb": peak,
+        "process_cpu_s": cpu, "peak_rss_mb": peak, "structured_qp": structured_qp or None,
+        "qp_cpu_s": qp.get("qp_cpu_s"), "qps": qp.get("qps"),
     }
 
 
@@ -98,7 +130,10 @@ def main(argv=None) -> int:
                     help="comma-separated K of --replicates K, each scene run once per K, e.g. 1,2,3,5")
     ap.add_argument("--feasibility", default="",
                     help="override scene feasibility keys, e.g. link_fit=single,joint_window=full")
+    ap.add_argument("--structured-qp", default="",
+                    help="run every case once per QP path, e.g. lifted,block (SQPSettings.structured_qp)")
     args = ap.parse_args(argv)
+    qps = [q for q in args.structured_qp.split(",") if q] or [""]
     reps = [int(k) for k in args.replicates.split(",") if k]
     overrides = dict(kv.split("=", 1) for kv in args.feasibility.split(",") if kv)
     print(f"# {platform.node()} {platform.processor() or platform.machine()}, "
@@ -110,20 +145,22 @@ def main(argv=None) -> int:
     rows = []
     for scene in scenes:
         for k in reps:
-            row = run_case(scene, args.poses, not args.no_certificate,
-                           () if k == 1 else ("--replicates", str(k)))
-            row["replicates"] = k
+            for qp in qps:
+                row = run_case(scene, args.poses, not args.no_certificate,
+                               () if k == 1 else ("--replicates", str(k)), qp)
+                row["replicates"] = k
+                rows.append(row)
+                print(json.dumps(row), flush=True)
+    for n in [int(k) for k in args.growth.split(",") if k]:
+        for qp in qps:
+            row = run_case("fms_kr16", n, n <= 120 and not args.no_certificate, (), qp)
+            row["growth"] = True
             rows.append(row)
             print(json.dumps(row), flush=True)
-    for n in [int(k) for k in args.growth.split(",") if k]:
-        row = run_case("fms_kr16", n, n <= 120 and not args.no_certificate)
-        row["growth"] = True
-        rows.append(row)
-        print(json.dumps(row), flush=True)
     print()
     print(f"{'scene':18s} {'n':>4s} {'K':>3s} {'distinct':>8s} {'status':>15s} {'it':>4s} {'value':>11s} "
           f"{'eff':>6s} {'design cpu':>10s} {'approx cpu':>10s} {'cert cpu':>8s} {'proc cpu':>8s} "
-          f"{'peak MB':>8s}")
+          f"{'peak MB':>8s} {'qp':>6s} {'qp cpu/it':>9s}")
     for r in rows:
         if "error" in r:
             print(f"{r['scene']:18s} {r['n']:4d} ERROR {r['error']}")
@@ -131,10 +168,11 @@ def main(argv=None) -> int:
         eff = "-" if r["efficiency"] is None else f"{100 * r['efficiency']:.1f}%"
         cert = "-" if r["certificate_cpu_s"] is None else f"{r['certificate_cpu_s']:.1f}"
         approx = "-" if r["approximate_cpu_s"] is None else f"{r['approximate_cpu_s']:.1f}"
+        per_it = "-" if r.get("qp_cpu_s") is None else f"{r['qp_cpu_s'] / max(r['iterations'], 1):.3f}"
         print(f"{r['scene']:18s} {r['n']:4d} {r.get('replicates', 1):3d} {r['distinct_poses']:8d} "
               f"{r['status']:>15s} {r['iterations']:4d} {r['value']:11.4e} {eff:>6s} "
               f"{r['design_cpu_s']:10.1f} {approx:>10s} {cert:>8s} {r['process_cpu_s']:8.1f} "
-              f"{r['peak_rss_mb']:8.0f}")
+              f"{r['peak_rss_mb']:8.0f} {r.get('structured_qp') or '-':>6s} {per_it:>9s}")
     return 0
 
 

@@ -15,6 +15,7 @@ import numpy as np
 from calib_oed.exceptions import SQPSettingsError
 
 QP_BACKENDS = ("dense", "sparse")
+STRUCTURED_QPS = ("lifted", "block")
 
 
 @dataclass(frozen=True)
@@ -65,6 +66,10 @@ class SQPSettings:
         bfgs_damping: Powell's :math:`\delta \in (0, 1)`: :math:`s^\top r \ge \delta\, s^\top B s`.
         qp_backend: ``"dense"`` (default) or ``"sparse"`` for QPs with a dense
             Hessian (the lifted QP of an exact structured Hessian is always sparse).
+        structured_qp: The QP of a structured Hessian: ``"lifted"`` (default,
+            ProxQP sparse on the lifted QP, :mod:`calib_oed.solver.lifted`) or
+            ``"block"`` (interior point with per-pose factors and Woodbury,
+            :mod:`calib_oed.solver.block_qp`, linear in the number of poses).
         qp_eps_abs: ProxQP absolute tolerance (its default 1e-3 is lax).
         qp_max_iterations: ProxQP ``max_iter``; bounds the time lost on an infeasible QP.
         qp_polish: Refine every QP step (up to ``max_dense_qp_size`` variables) on its active
@@ -98,6 +103,7 @@ class SQPSettings:
     initial_hessian_scale: float = 1.0
     bfgs_damping: float = 0.2
     qp_backend: str = "dense"
+    structured_qp: str = "lifted"
     qp_eps_abs: float = 1e-9
     qp_max_iterations: int = 100
     qp_polish: bool = True
@@ -149,6 +155,9 @@ class SQPSettings:
         if self.qp_backend not in QP_BACKENDS:
             raise SQPSettingsError("qp_backend", self.qp_backend,
                                    f"valid values are {', '.join(map(repr, QP_BACKENDS))}", QP_BACKENDS)
+        if self.structured_qp not in STRUCTURED_QPS:
+            raise SQPSettingsError("structured_qp", self.structured_qp,
+                                   f"valid values are {', '.join(map(repr, STRUCTURED_QPS))}", STRUCTURED_QPS)
 
     def qp_row_limit(self, n: int) -> int:
         r"""Most rows in a QP for :math:`n` variables: ``max_qp_rows`` or :math:`\max(200, 4n)`."""

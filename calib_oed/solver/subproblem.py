@@ -4,7 +4,9 @@ r"""The QP subproblem of one SQP iteration: rows, Hessian, backend, and failures
 and never lets it raise:
 
 * a :class:`~calib_oed.solver.result.StructuredHessian` goes to the lifted
-  sparse QP (:mod:`calib_oed.solver.lifted`);
+  sparse QP (:mod:`calib_oed.solver.lifted`), or with ``structured_qp="block"``
+  to the interior point method of :mod:`calib_oed.solver.block_qp` (no warm
+  start, so no cold retry; no dense polish: its steps come accurate);
 * a dense Hessian goes to the dense backend (``qp_backend="dense"``) only
   while :math:`n + K \le` ``max_dense_qp_size`` (:math:`K` its row capacity,
   at most that bound minus :math:`n`); otherwise to the sparse backend;
@@ -32,6 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
+from calib_oed.solver.block_qp import BlockQPWorkspace
 from calib_oed.solver.hessian import check_structured, positive_definite
 from calib_oed.solver.lifted import LiftedQPWorkspace
 from calib_oed.solver.polish import polish
@@ -90,11 +93,13 @@ class QPSolver:
     def _workspace(self, sub: QPSubproblem):
         s, n = self.s, self.n
         if isinstance(sub.H, StructuredHessian):
-            name = "lifted"
+            name = s.structured_qp
         else:
             name = "dense" if self.dense_ok(sub.lower.size) else "sparse"
         if name not in self._ws:
-            if name == "lifted":
+            if name == "block":
+                self._ws[name] = BlockQPWorkspace(n, s.qp_eps_abs, s.qp_max_iterations)
+            elif name == "lifted":
                 self._ws[name] = LiftedQPWorkspace(n, s.qp_eps_abs, s.qp_max_iterations, s.max_qp_nonzeros)
             elif name == "dense":
                 self._ws[name] = DenseQPWorkspace(n, s.qp_eps_abs, s.qp_max_iterations,
@@ -238,7 +243,8 @@ class _SubproblemMixin:
             t = time.perf_counter()
             step = self._solve(sub, np.concatenate([self.lam_rows[rows], np.zeros(pieces.size)]), self.nu, tol_d)
             ok = step.is_solved(tol_p, tol_d)
-            if not ok and step.status not in CRASHED:  # a stale warm start can mislead ProxQP: cold
+            if not ok and step.status not in CRASHED and self._info.backend != "block":
+                # a stale warm start can mislead ProxQP: cold
                 cold = self._solve(sub, None, None, tol_d)
                 step, ok = cold._replace(iterations=cold.iterations + step.iterations), cold.is_solved(tol_p, tol_d)
             self.p.times["qp"] += time.perf_counter() - t
@@ -256,6 +262,7 @@ class _SubproblemMixin:
         step = self.qp.solve(sub, lam0, nu0)
         self._info.backend = self.qp.last_backend
         if (self.s.qp_polish and step.status not in CRASHED and step.primal_residual <= 1e3 * tol
+                and not (self.qp.last_backend == "block" and step.is_solved(tol, tol))
                 and self.pt.x.size <= self.s.max_dense_qp_size):
             step = polish(sub, step, tol) or step
         return step

@@ -1,0 +1,129 @@
+"""The interior-point QP of a structured Hessian (calib_oed.solver.block_qp) against ProxQP on the same QP."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from calib_oed.solver.block_qp import BlockQPWorkspace
+from calib_oed.solver.lifted import LiftedQPWorkspace
+from calib_oed.solver.qp import DenseQPWorkspace, QPSubproblem
+from calib_oed.solver.result import StructuredHessian
+from calib_oed.solver.settings import SQPSettings
+from calib_oed.solver.subproblem import QPSolver
+
+DATA = Path(__file__).parent / "data"
+
+
+def _instance(rng, b=10, s=6, r=4, per_pose=4, cross=0):
+    """Random PD blocks, coupling U (or none), rows on one pose each (and ``cross`` spanning poses), a box."""
+    n = b * s
+    g0 = rng.standard_normal((b, s, s))
+    blocks = np.einsum("jab,jcb->jac", g0, g0) / s + 0.05 * np.eye(s)
+    u = rng.standard_normal((n, r)) * 0.5 if r else None
+    rows = []
+    for j in range(b):
+        for _ in range(per_pose):
+            v = np.zeros(n)
+            v[j * s:(j + 1) * s] = rng.standard_normal(s)
+            rows.append(v)
+    for _ in range(cross):
+        v = np.zeros(n)
+        v[rng.choice(n, 8, replace=False)] = rng.standard_normal(8)
+        rows.append(v)
+    c = np.array(rows)
+    h = StructuredHessian(blocks, u)
+    sub = QPSubproblem(h, 2 * rng.standard_normal(n), sp.csr_matrix(c), -rng.uniform(-0.02, 0.2, len(rows)),
+                       np.full(n, -0.1), np.full(n, 0.1))
+    return sub, sub._replace(H=h.dense(), C=c)
+
+
+def _active(step, tol=1e-7):
+    return np.flatnonzero(step.lam > tol), np.flatnonzero(np.abs(step.nu) > tol)
+
+
+def _same_solution(block, reference, tol=1e-8):
+    assert block.is_solved(tol, tol), block
+    assert reference.is_solved(tol, tol)
+    assert np.max(np.abs(block.d - reference.d)) <= 1e3 * tol
+    assert np.max(np.abs(block.lam - reference.lam)) <= 1e3 * tol
+    rows_b, box_b = _active(block)
+    rows_r, box_r = _active(reference)
+    np.testing.assert_array_equal(rows_b, rows_r)
+    np.testing.assert_array_equal(box_b, box_r)
+    assert rows_b.size + box_b.size >= 3  # rows and box both matter
+
+
+@pytest.mark.parametrize(("b", "r", "cross"), [(3, 0, 0), (10, 4, 0), (30, 20, 0), (10, 4, 3)])
+def test_block_qp_gives_proxqps_solution_and_active_set(b, r, cross):
+    rng = np.random.default_rng(100 * b + r + cross)
+    sub, dense_sub = _instance(rng, b=b, r=r, cross=cross)
+    n = sub.g.size
+    block = BlockQPWorkspace(n, 1e-9, 100).solve(sub)
+    reference = DenseQPWorkspace(n, 1e-11, 1000).solve(dense_sub)
+    _same_solution(block, reference)
+
+
+def _design_qp():
+    z = np.load(DATA / "design_qp_fms_kr16_n60.npz")
+    C = sp.csr_matrix((z["C_data"], z["C_indices"], z["C_indptr"]), shape=tuple(z["C_shape"]))
+    return QPSubproblem(StructuredHessian(z["blocks"], z["low_rank"]), z["g"], C, z["lower"],
+                        z["box_lower"], z["box_upper"])
+
+
+def _value(sub, d):
+    return 0.5 * d @ (sub.H @ d) + sub.g @ d
+
+
+def test_block_qp_on_a_design_qp_same_value_and_active_set():
+    """A QP of the fms_kr16 design SQP at n = 60 (exact Hessian, r = 75, 261 rows), captured from a run:
+    the same QP value (to 1e-10 relative), the same active rows and box sides, feasible."""
+    sub = _design_qp()
+    n = sub.g.size
+    assert sub.H.low_rank.shape[1] > 50 and sub.lower.size > 100
+    block = BlockQPWorkspace(n, 1e-9, 100).solve(sub)
+    reference = LiftedQPWorkspace(n, 1e-11, 1000).solve(sub)
+    assert reference.is_solved(1e-9, 1e-9)
+    assert abs(_value(sub, block.d) - _value(sub, reference.d)) <= 1e-10 * abs(_value(sub, reference.d))
+    for got, want in zip(_active(block), _active(reference), strict=True):
+        np.testing.assert_array_equal(got, want)
+    assert block.primal_residual <= 1e-9 and block.complementarity <= 1e-9
+    assert block.dual_residual <= 1e-7
+
+
+@pytest.mark.xfail(strict=True, reason="known limit: the Hessian's eigenvalue floor (1e-8) leaves directions "
+                   "almost without curvature; the interior point's dual residual stops at ~4e-8, above the "
+                   "SQP's 1e-8 (ProxQP: 1e-15), and the SQP then falls back to BFGS for that iteration")
+def test_block_qp_on_a_design_qp_meets_the_sqp_tolerance():
+    sub = _design_qp()
+    block = BlockQPWorkspace(sub.g.size, 1e-9, 100).solve(sub)
+    assert block.is_solved(1e-8, 1e-8)
+
+
+def test_infeasible_qp_is_not_solved_by_either():
+    """Two rows of one pose that no step in the box satisfies: neither solver reports it solved."""
+    rng = np.random.default_rng(7)
+    sub, dense_sub = _instance(rng, b=4, r=2)
+    n = sub.g.size
+    e = np.zeros(n)
+    e[0] = 1.0
+    C = sp.vstack([sub.C, sp.csr_matrix(e), sp.csr_matrix(-e)], format="csr")
+    lower = np.concatenate([sub.lower, [0.05, 0.0]])  # d_0 >= 0.05 and -d_0 >= 0
+    bad, bad_dense = sub._replace(C=C, lower=lower), dense_sub._replace(C=C.toarray(), lower=lower)
+    block = BlockQPWorkspace(n, 1e-9, 100).solve(bad)
+    reference = DenseQPWorkspace(n, 1e-9, 100).solve(bad_dense)
+    assert not block.is_solved(1e-8, 1e-8) and not reference.is_solved(1e-8, 1e-8)
+    assert block.status != "solved" and reference.status != "solved"
+
+
+def test_structured_qp_setting_selects_the_block_workspace():
+    rng = np.random.default_rng(3)
+    sub, _ = _instance(rng)
+    n = sub.g.size
+    for name in ("lifted", "block"):
+        solver = QPSolver(n, SQPSettings(structured_qp=name))
+        assert solver.solve(sub).is_solved(1e-8, 1e-8)
+        assert solver.last_backend == name
