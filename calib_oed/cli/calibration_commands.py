@@ -329,23 +329,19 @@ def cmd_study(args) -> int:
     return EXIT_INTERNAL if result.failures else EXIT_OK
 
 
+def _print_names(args, names) -> int:
+    """``names`` one per line, or as a JSON list with ``--json``."""
+    print(json.dumps(list(names)) if args.json else "\n".join(names))
+    return EXIT_OK
+
+
 def cmd_scenes(args) -> int:
     from calib_oed.scene.reader import scene_names
 
-    if args.json:
-        print(json.dumps(scene_names()))
-        return EXIT_OK
-    for name in scene_names():
-        print(name)
-    return EXIT_OK
+    return _print_names(args, scene_names())
 
 
 def cmd_robots(args) -> int:
     from calib_oed.model.registry import robot_names
 
-    if args.json:
-        print(json.dumps(robot_names()))
-        return EXIT_OK
-    for name in robot_names():
-        print(name)
-    return EXIT_OK
+    return _print_names(args, robot_names())

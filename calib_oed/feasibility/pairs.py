@@ -59,7 +59,7 @@ class DroppedPair:
     reason: str
     min_clearance: float = float("nan")
     max_clearance: float = float("nan")
-    links: frozenset[str] | None = None
+    links: tuple[str, ...] | None = None
 
 
 @dataclass(frozen=True)
@@ -320,7 +320,8 @@ def build_feasibility_model(
         links = family.pair_links()
         for k, reason in enumerate(why):
             if reason:
-                dropped.append(DroppedPair(family.pair_labels[k], reason, float(lo[k]), float(hi[k]), links[k]))
+                dropped.append(DroppedPair(family.pair_labels[k], reason, float(lo[k]), float(hi[k]),
+                                           None if links[k] is None else tuple(sorted(links[k]))))
         kept.append(family.subset(np.array([r is None for r in why], dtype=bool)))
     if converted:
         from calib_oed.feasibility.capsules import load_collision_model

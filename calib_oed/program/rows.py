@@ -102,7 +102,7 @@ class CollisionRows:
             far = {d.label for d in extra_rows}
             # link pairs of the far self capsule pairs: the model without the pass may check
             # them on convex pieces
-            far_links = {d.links for d in extra_rows if d.links is not None}
+            far_links = {frozenset(d.links) for d in extra_rows if d.links is not None}
             theirs = [r for r in model_rows(extra) if r.kind in COLLISION_KINDS and r.pair not in have
                       and r.pair not in ignore
                       and (r.pair in far or (r.family.deferred and r.links in far_links))]

@@ -213,25 +213,30 @@ def _wait_for(proc: subprocess.Popen, marker: str, timeout: float = 60.0) -> str
     return seen
 
 
-# Slow SQP iterations (the Hessian takes 0.1 s more), a progress line for each.
-_SLOW_SQP = """
+# The SQP holds in its second exact Hessian (after one iterate was accepted) until a signal
+# arrives: the signal lands inside the SQP whatever the machine's speed (no race).
+_HELD_SQP = """
+import sys
 import time
-import calib_oed.cli._common as common
 import calib_oed.oed.problem as problem
-common.PROGRESS_LINE_SECONDS = 0.0
 hessian = problem.DesignProblem.compute_lagrangian_hessian
-def slow(self, *a, **k):
-    time.sleep(0.1)
+calls = []
+def held(self, *a, **k):
+    calls.append(1)
+    if len(calls) == 2:
+        print("held in the SQP", file=sys.stderr, flush=True)
+        while True:
+            time.sleep(0.01)
     return hessian(self, *a, **k)
-problem.DesignProblem.compute_lagrangian_hessian = slow
+problem.DesignProblem.compute_lagrangian_hessian = held
 """
 
 
 def test_interrupted_design_writes_the_best_design_so_far(tmp_path):
     """SIGTERM here (a scheduler stopping the job), SIGINT below: both take the Ctrl-C path."""
-    proc = _child(_SLOW_SQP, ["design", "fms_kr16", "-n", "12", "--pool", "200", "--no-certificate",
+    proc = _child(_HELD_SQP, ["design", "fms_kr16", "-n", "12", "--pool", "200", "--no-certificate",
                               "-o", "out"], tmp_path)
-    _wait_for(proc, "iteration 1,")
+    _wait_for(proc, "held in the SQP", timeout=600.0)  # the start takes a while on a loaded machine
     proc.send_signal(signal.SIGTERM)
     out, err = proc.communicate(timeout=60)
     assert proc.returncode == EXIT_INTERRUPTED, err

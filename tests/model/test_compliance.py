@@ -10,6 +10,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 from conftest import central_difference, relative_error
+from joint_terms import MODELS, REFLECTORS, TOL, compare_scaled, scaled_difference, tracker
 
 from calib_oed.calibration.identification import identify
 from calib_oed.calibration.kpi import TcpKpi
@@ -17,28 +18,18 @@ from calib_oed.calibration.problem import CalibrationProblem
 from calib_oed.calibration.simulation import draw_true_parameters, simulate_observations
 from calib_oed.cli import EXIT_OK, main
 from calib_oed.exceptions import SceneError
-from calib_oed.measurement import PoseMeasurement, TrackerPosition, evaluate_setup
+from calib_oed.measurement import evaluate_setup
 from calib_oed.model.compliance import STIFFNESS_RANGE, Compliance, GravityLoad
 from calib_oed.model.parameters import Group, ParameterSpace
 from calib_oed.scene.reader import load_scene, scene_from_dict
 from calib_oed.scene.records import ComplianceSpec
 
-MODELS = {
-    "position": lambda: TrackerPosition(1, sigma=1e-5),
-    "pose": lambda: PoseMeasurement(0, sigma=1e-5, sigma_angle=2e-5),
-}
 PAYLOAD = Compliance(12.0, [0.02, -0.03, 0.15])
-REFLECTORS = np.array(((0.03, -0.01, 0.05), (0.0, 0.04, 0.02)))
-TOL = 1e-6
-
-
-def _tracker():
-    return pin.SE3(pin.rpy.rpyToMatrix(0.02, -0.03, 2.4), np.array([1.8, 1.6, 0.4]))
 
 
 @pytest.fixture(scope="module")
 def cspace(robot):
-    return ParameterSpace(robot, _tracker(), REFLECTORS, compliance=PAYLOAD)
+    return ParameterSpace(robot, tracker(), REFLECTORS, compliance=PAYLOAD)
 
 
 @pytest.fixture(scope="module")
@@ -56,22 +47,9 @@ def cparams(cspace):
     return p
 
 
-def _scaled_difference(fun, space, p):
-    """Central differences along unit-scaled parameters (1 mm, 1 mrad, 1 mrad/(kN m)), unscaled back."""
-    scale = space.unit_scale
-    return central_difference(lambda x: fun(p + scale * x), np.zeros(space.size), eps=1e-3) / scale
-
-
-def _compare_scaled(analytic, numeric, scale, axis=-1):
-    shape = [1] * analytic.ndim
-    shape[axis] = -1
-    s = scale.reshape(shape)
-    return relative_error(analytic * s, numeric * s)
-
-
 def test_layout_appends_one_compliance_per_joint(robot):
-    rigid = ParameterSpace(robot, _tracker(), REFLECTORS)
-    space = ParameterSpace(robot, _tracker(), REFLECTORS, compliance=PAYLOAD)
+    rigid = ParameterSpace(robot, tracker(), REFLECTORS)
+    space = ParameterSpace(robot, tracker(), REFLECTORS, compliance=PAYLOAD)
     n = robot.nq
     assert space.size == rigid.size + n and rigid.compliance_slice == slice(rigid.size, rigid.size)
     assert space.names[: rigid.size] == rigid.names
@@ -120,9 +98,9 @@ def test_param_jacobian(cspace, cparams, kind):
     model = MODELS[kind]()
     q = cspace.robot.random_configurations(3, 11)
     analytic = model.compute_param_jacobian(evaluate_setup(cspace, cparams, q))
-    numeric = _scaled_difference(lambda p: model.compute_values(evaluate_setup(cspace, p, q)),
+    numeric = scaled_difference(lambda p: model.compute_values(evaluate_setup(cspace, p, q)),
                                  cspace, cparams)
-    assert _compare_scaled(analytic, numeric, cspace.unit_scale) < TOL
+    assert compare_scaled(analytic, numeric, cspace.unit_scale) < TOL
     assert np.abs(analytic[:, :, cspace.compliance_slice]).max() > 0
 
 
@@ -154,9 +132,9 @@ def test_param_config_jacobian(cspace, cparams, kind):
             q[k])
         for k in range(len(q))
     ])
-    assert _compare_scaled(analytic, numeric, cspace.unit_scale, axis=2) < TOL
+    assert compare_scaled(analytic, numeric, cspace.unit_scale, axis=2) < TOL
     comp = cspace.compliance_slice
-    assert _compare_scaled(analytic[:, :, comp], numeric[:, :, comp], cspace.unit_scale[comp],
+    assert compare_scaled(analytic[:, :, comp], numeric[:, :, comp], cspace.unit_scale[comp],
                            axis=2) < TOL
 
 
@@ -165,15 +143,15 @@ def test_kpi_jacobian(cspace, cparams, frame):
     q = cspace.robot.random_configurations(2, 21)
     kpi = TcpKpi(q, point=np.array([0.01, -0.02, 0.1]), frame=frame)
     g = kpi.compute_param_jacobian(cspace, cparams)
-    numeric = _scaled_difference(lambda x: kpi.compute_values(cspace, x).ravel(), cspace, cparams)
-    assert _compare_scaled(g, numeric, cspace.unit_scale) < TOL
+    numeric = scaled_difference(lambda x: kpi.compute_values(cspace, x).ravel(), cspace, cparams)
+    assert compare_scaled(g, numeric, cspace.unit_scale) < TOL
     assert np.abs(g[:, cspace.compliance_slice]).max() > 0
 
 
 @pytest.mark.parametrize("kind", MODELS)
 def test_zero_compliance_gives_the_rigid_values_exactly(robot, kind):
-    rigid = ParameterSpace(robot, _tracker(), REFLECTORS)
-    space = ParameterSpace(robot, _tracker(), REFLECTORS, compliance=PAYLOAD)
+    rigid = ParameterSpace(robot, tracker(), REFLECTORS)
+    space = ParameterSpace(robot, tracker(), REFLECTORS, compliance=PAYLOAD)
     p = rigid.random(2, 5e-3, 5e-3)
     pc = np.concatenate([p, np.zeros(robot.nq)])
     q = robot.random_configurations(3, 4)
@@ -256,7 +234,7 @@ def test_sensor_yaml_carries_the_compliances(tmp_path):
     from calib_oed.calibration.sensor_file import read_sensor_yaml, write_sensor_yaml
     from calib_oed.model.robot import load_robot
 
-    space = ParameterSpace(load_robot("kr16"), _tracker(), REFLECTORS, compliance=PAYLOAD)
+    space = ParameterSpace(load_robot("kr16"), tracker(), REFLECTORS, compliance=PAYLOAD)
     p = space.zeros()
     p[space.index("joint2.c")] = 2e-7
     path = write_sensor_yaml(space, p, tmp_path / "s.yaml")

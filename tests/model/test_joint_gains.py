@@ -3,13 +3,13 @@
 from __future__ import annotations
 
 import numpy as np
-import pinocchio as pin
 import pytest
 from conftest import central_difference, relative_error
+from joint_terms import MODELS, REFLECTORS, TOL, compare_scaled, scaled_difference, tracker
 
 from calib_oed.calibration.kpi import TcpKpi
 from calib_oed.exceptions import ParameterError
-from calib_oed.measurement import PoseMeasurement, TrackerPosition, evaluate_setup
+from calib_oed.measurement import TrackerPosition, evaluate_setup
 from calib_oed.measurement.second_order import tool_point_param_config_hessian
 from calib_oed.measurement.sensitivity import weighted_jacobian
 from calib_oed.model.compliance import Compliance
@@ -17,23 +17,13 @@ from calib_oed.model.identifiability import select_gauge
 from calib_oed.model.joint_map import JointGains, controller_ratio_error
 from calib_oed.model.parameters import Group, ParameterSpace
 
-MODELS = {
-    "position": lambda: TrackerPosition(1, sigma=1e-5),
-    "pose": lambda: PoseMeasurement(0, sigma=1e-5, sigma_angle=2e-5),
-}
-REFLECTORS = np.array(((0.03, -0.01, 0.05), (0.0, 0.04, 0.02)))
 GAINS = JointGains((1, 2, 3, 5), ((3, 2), (1, 4)))
-TOL = 1e-6
-
-
-def _tracker():
-    return pin.SE3(pin.rpy.rpyToMatrix(0.02, -0.03, 2.4), np.array([1.8, 1.6, 0.4]))
 
 
 @pytest.fixture(scope="module", params=["gains", "gains+compliance"])
 def gspace(robot, request):
     comp = Compliance(8.0, [0.0, 0.02, 0.1]) if "compliance" in request.param else None
-    return ParameterSpace(robot, _tracker(), REFLECTORS, compliance=comp, joint_gains=GAINS)
+    return ParameterSpace(robot, tracker(), REFLECTORS, compliance=comp, joint_gains=GAINS)
 
 
 @pytest.fixture(scope="module")
@@ -47,22 +37,10 @@ def gparams(gspace):
     return p
 
 
-def _scaled_difference(fun, space, p):
-    scale = space.unit_scale
-    return central_difference(lambda x: fun(p + scale * x), np.zeros(space.size), eps=1e-3) / scale
-
-
-def _compare_scaled(analytic, numeric, scale, axis=-1):
-    shape = [1] * analytic.ndim
-    shape[axis] = -1
-    s = scale.reshape(shape)
-    return relative_error(analytic * s, numeric * s)
-
-
 def test_layout_appends_gains_then_couplings(robot):
-    rigid = ParameterSpace(robot, _tracker(), REFLECTORS)
-    comp = ParameterSpace(robot, _tracker(), REFLECTORS, compliance=Compliance())
-    both = ParameterSpace(robot, _tracker(), REFLECTORS, compliance=Compliance(), joint_gains=GAINS)
+    rigid = ParameterSpace(robot, tracker(), REFLECTORS)
+    comp = ParameterSpace(robot, tracker(), REFLECTORS, compliance=Compliance())
+    both = ParameterSpace(robot, tracker(), REFLECTORS, compliance=Compliance(), joint_gains=GAINS)
     assert both.names[: comp.size] == comp.names and both.size == comp.size + 6
     assert both.names[comp.size:] == ("joint1.gain", "joint2.gain", "joint3.gain", "joint5.gain",
                                       "joint3.coupling2", "joint1.coupling4")
@@ -73,22 +51,22 @@ def test_layout_appends_gains_then_couplings(robot):
     assert gain.report_scale == 1e-3
     assert both.parameters[both.index("joint3.coupling2")].group == Group.COUPLING
     # without gains the random draw is the one of the plain space (existing results unchanged)
-    np.testing.assert_array_equal(ParameterSpace(robot, _tracker(), REFLECTORS).random(3), rigid.random(3))
+    np.testing.assert_array_equal(ParameterSpace(robot, tracker(), REFLECTORS).random(3), rigid.random(3))
 
 
 def test_joint_gains_errors(robot):
     with pytest.raises(ParameterError, match=f"out of range.*joints 1..{robot.nq}"):
-        ParameterSpace(robot, _tracker(), REFLECTORS, joint_gains=JointGains((1, robot.nq + 1)))
+        ParameterSpace(robot, tracker(), REFLECTORS, joint_gains=JointGains((1, robot.nq + 1)))
     with pytest.raises(ParameterError, match="two different joints"):
         JointGains((), ((2, 2),))
     with pytest.raises(ParameterError, match="at least one"):
         JointGains()
     with pytest.raises(TypeError, match="JointGains"):
-        ParameterSpace(robot, _tracker(), REFLECTORS, joint_gains=(1, 2))
+        ParameterSpace(robot, tracker(), REFLECTORS, joint_gains=(1, 2))
 
 
 def test_effective_configuration_is_the_gain_law(robot):
-    space = ParameterSpace(robot, _tracker(), REFLECTORS, joint_gains=GAINS)
+    space = ParameterSpace(robot, tracker(), REFLECTORS, joint_gains=GAINS)
     p = space.zeros()
     p[space.index("joint2.gain")] = 1e-3
     p[space.index("joint3.coupling2")] = 0.5
@@ -106,11 +84,11 @@ def test_param_jacobian(gspace, gparams, kind):
     model = MODELS[kind]()
     q = gspace.robot.random_configurations(3, 11)
     analytic = model.compute_param_jacobian(evaluate_setup(gspace, gparams, q))
-    numeric = _scaled_difference(lambda p: model.compute_values(evaluate_setup(gspace, p, q)),
+    numeric = scaled_difference(lambda p: model.compute_values(evaluate_setup(gspace, p, q)),
                                  gspace, gparams)
-    assert _compare_scaled(analytic, numeric, gspace.unit_scale) < TOL
+    assert compare_scaled(analytic, numeric, gspace.unit_scale) < TOL
     g = gspace.gain_slice
-    assert _compare_scaled(analytic[:, :, g], numeric[:, :, g], gspace.unit_scale[g]) < TOL
+    assert compare_scaled(analytic[:, :, g], numeric[:, :, g], gspace.unit_scale[g]) < TOL
     assert np.abs(analytic[:, :, g]).min(axis=(0, 1)).max() > 0
 
 
@@ -139,9 +117,9 @@ def test_param_config_jacobian(gspace, gparams, kind):
             q[k])
         for k in range(len(q))
     ])
-    assert _compare_scaled(analytic, numeric, gspace.unit_scale, axis=2) < TOL
+    assert compare_scaled(analytic, numeric, gspace.unit_scale, axis=2) < TOL
     g = gspace.gain_slice
-    assert _compare_scaled(analytic[:, :, g], numeric[:, :, g], gspace.unit_scale[g], axis=2) < TOL
+    assert compare_scaled(analytic[:, :, g], numeric[:, :, g], gspace.unit_scale[g], axis=2) < TOL
 
 
 @pytest.mark.parametrize("frame", ["world", "tracker"])
@@ -149,15 +127,15 @@ def test_kpi_jacobian(gspace, gparams, frame):
     q = gspace.robot.random_configurations(2, 21)
     kpi = TcpKpi(q, point=np.array([0.01, -0.02, 0.1]), frame=frame)
     g = kpi.compute_param_jacobian(gspace, gparams)
-    numeric = _scaled_difference(lambda x: kpi.compute_values(gspace, x).ravel(), gspace, gparams)
-    assert _compare_scaled(g, numeric, gspace.unit_scale) < TOL
+    numeric = scaled_difference(lambda x: kpi.compute_values(gspace, x).ravel(), gspace, gparams)
+    assert compare_scaled(g, numeric, gspace.unit_scale) < TOL
     assert np.abs(g[:, gspace.gain_slice]).max() > 0
 
 
 @pytest.mark.parametrize("kind", MODELS)
 def test_zero_gains_give_the_plain_values_exactly(robot, kind):
-    plain = ParameterSpace(robot, _tracker(), REFLECTORS)
-    space = ParameterSpace(robot, _tracker(), REFLECTORS, joint_gains=GAINS)
+    plain = ParameterSpace(robot, tracker(), REFLECTORS)
+    space = ParameterSpace(robot, tracker(), REFLECTORS, joint_gains=GAINS)
     p = plain.random(2, 5e-3, 5e-3)
     pg = np.concatenate([p, np.zeros(GAINS.size)])
     q = robot.random_configurations(3, 4)
@@ -187,15 +165,15 @@ def test_param_config_hessian(gspace, gparams, kind):
             q[k])
         for k in range(len(q))
     ])
-    assert _compare_scaled(analytic, numeric, gspace.unit_scale, axis=2) < TOL
+    assert compare_scaled(analytic, numeric, gspace.unit_scale, axis=2) < TOL
     g = gspace.gain_slice
-    assert _compare_scaled(analytic[:, :, g], numeric[:, :, g], gspace.unit_scale[g], axis=2) < TOL
+    assert compare_scaled(analytic[:, :, g], numeric[:, :, g], gspace.unit_scale[g], axis=2) < TOL
     assert np.abs(analytic[:, :, g]).max() > 0
     np.testing.assert_allclose(analytic, np.swapaxes(analytic, 3, 4), rtol=0, atol=1e-9 * np.abs(analytic).max())
 
 
 def test_rigid_second_order_refuses_a_state_with_gains(robot):
-    space = ParameterSpace(robot, _tracker(), REFLECTORS, joint_gains=GAINS)
+    space = ParameterSpace(robot, tracker(), REFLECTORS, joint_gains=GAINS)
     state = evaluate_setup(space, None, robot.random_configurations(2, 1))
     assert not state.rigid
     with pytest.raises(ValueError, match="joint gains"):
@@ -204,7 +182,7 @@ def test_rigid_second_order_refuses_a_state_with_gains(robot):
 
 def test_gauge_fixes_a_gain_the_data_cannot_separate_from_the_offset(robot):
     """A gain is a moment arm q_i on the joint's own motion: with q_i constant it is an offset."""
-    space = ParameterSpace(robot, _tracker(), REFLECTORS[:1], joint_gains=JointGains.all_joints(robot.nq))
+    space = ParameterSpace(robot, tracker(), REFLECTORS[:1], joint_gains=JointGains.all_joints(robot.nq))
     models = [TrackerPosition(0)]
     q = robot.random_configurations(60, 3)
     spread = select_gauge(weighted_jacobian(space, models, q) * space.unit_scale, space.names)

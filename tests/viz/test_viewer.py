@@ -385,7 +385,9 @@ def chromium():
     exe = find_chromium()
     if exe is None:
         reason = ("!!! CHROMIUM NOT FOUND: the meshcat page was NOT rendered; install Debian's "
-                  "chromium (apt-get install chromium; .ci/run tries) to run this check !!!")
+                  "chromium (apt-get install chromium; .ci/run installs it and fails without it) !!!")
+        if os.environ.get("CALIB_OED_REQUIRE_CHROMIUM"):
+            pytest.fail(reason)
         warnings.warn(reason, stacklevel=1)
         pytest.skip(reason)
     return exe
@@ -397,7 +399,7 @@ def screenshot(exe: str, html: Path, png: Path) -> np.ndarray:
 
     profile = png.parent / f"{png.stem}-profile"
     cmd = [exe, *CHROMIUM_FLAGS, f"--user-data-dir={profile}", f"--screenshot={png}", html.as_uri()]
-    run = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    run = subprocess.run(cmd, capture_output=True, text=True, timeout=600)  # SwiftShader on a loaded machine
     assert png.is_file(), f"chromium wrote no screenshot (exit {run.returncode}):\n{run.stderr[-2000:]}"
     with Image.open(png) as im:
         return np.asarray(im.convert("RGB"))
@@ -436,23 +438,24 @@ def test_page_renders_in_headless_chromium(chromium, page, tmp_path):
           f"({changed.mean():.1%}), {colours} distinct colours")
     assert changed.mean() > 0.10  # the scene covers much of the view
     assert colours > 2000
-    # each element in its own colour, absent from the empty page (its only colours
-    # are the sky, the grid and the 3 axis lines)
-    in_scene, in_empty = colour_counts(scene), colour_counts(empty)
-    print(f"pixels by colour, scene: {in_scene}, empty page: {in_empty}")
+    # each element in its own colour, counted only where the scene differs from the empty
+    # page rendered by the same Chromium (whose sky, grid and axis lines vary by version)
+    in_scene = colour_counts(scene, changed)
+    print(f"pixels by colour where the scene differs from the empty page: {in_scene}")
     for name, least in (("ellipsoid", 20), ("kpi_robot", 500), ("beams", 100)):
-        assert in_scene[name] >= least and in_scene[name] > 10 * in_empty[name], (name, in_scene, in_empty)
+        assert in_scene[name] >= least, (name, in_scene)
 
 
-def colour_counts(image: np.ndarray) -> dict[str, int]:
-    """Pixels of the colours of the ellipsoid (magenta), KPI robot (green) and beams (red)."""
+def colour_counts(image: np.ndarray, where: np.ndarray) -> dict[str, int]:
+    """Pixels among ``where`` of the colours of the ellipsoid (magenta), KPI robot (green)
+    and beams (red)."""
     r, g, b = (image[..., i].astype(int) for i in range(3))
     masks = {
         "ellipsoid": (r > 170) & (g < 90) & (b > 150),
         "kpi_robot": (g > r + 60) & (g > b + 30),
         "beams": (r > 170) & (g < 70) & (b < 70),
     }
-    return {name: int(mask.sum()) for name, mask in masks.items()}
+    return {name: int((mask & where).sum()) for name, mask in masks.items()}
 
 
 #: Run in the page after it loaded: press keys and click the pose list like a user, and
@@ -497,7 +500,7 @@ def test_pose_selector_works_in_headless_chromium(chromium, page, tmp_path):
     probed = tmp_path / "probed.html"
     probed.write_text(html.replace("</body>", PROBE + "</body>"), encoding="utf-8")
     cmd = [chromium, *CHROMIUM_FLAGS, f"--user-data-dir={tmp_path / 'profile'}", "--dump-dom", probed.as_uri()]
-    run = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    run = subprocess.run(cmd, capture_output=True, text=True, timeout=600)  # SwiftShader on a loaded machine
     found = re.search(r'<pre id="probe">(.*?)</pre>', run.stdout, re.S)
     assert found, f"the probe did not run (exit {run.returncode}):\n{run.stderr[-2000:]}"
     states = json.loads(found.group(1).replace("&quot;", '"').replace("&amp;", "&"))
@@ -518,7 +521,7 @@ def test_pose_selector_reaches_the_live_viewer(chromium, s, design, tmp_path):
     """The live page (meshcat's server) gets the selector too: it replays the control."""
     with sessions.open_viewer(s, design) as live:
         cmd = [chromium, *CHROMIUM_FLAGS, f"--user-data-dir={tmp_path / 'profile'}", "--dump-dom", live.url]
-        run = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+        run = subprocess.run(cmd, capture_output=True, text=True, timeout=600)  # SwiftShader on a loaded machine
         labels = live.info.labels
     head = re.search(r'<div id="calib-oed-pose-current"[^>]*>(.*?)</div>', run.stdout)
     assert head, f"no pose selector in the live page (exit {run.returncode}):\n{run.stderr[-2000:]}"
