@@ -124,7 +124,8 @@ class ProgramSettings:
         tool, base: The tool frame and base/user frame the program declares
             (:class:`FrameSpec`), or ``None`` (the controller's current ones).
         payload: The load the program declares (:class:`PayloadSpec`); default the scene's
-            ``robot.compliance.payload`` (the nest) when it has one, else ``None``.
+            ``robot.compliance.payload`` when compliance is modelled (``enabled``), else ``None``
+            (a disabled block's payload is a rated load kept for ``--compliance``, not the nest).
         solver: Tour solver: ``"lkh"`` (LKH-3 through elkai) or ``"ortools"``.
         skip_unreachable: Leave out (with a note) a pose no certified path from home reaches
             (else a :class:`~calib_oed.exceptions.ProgramError` names it).
@@ -235,8 +236,8 @@ def program_settings_from_scene(scene, **overrides) -> ProgramSettings:
             reader.number(pl["mass"], "program.payload.mass", nonnegative=True),
             reader.vector(pl.get("com", [0, 0, 0]), "program.payload.com", 3, reader.length),
             reader.integer(pl.get("number", 1), "program.payload.number", 1))
-    elif getattr(scene, "compliance", None) is not None:  # the nest of the compliance model
-        load = scene.compliance.payload
+    elif getattr(scene, "compliance", None) is not None and scene.compliance.enabled:
+        load = scene.compliance.payload  # the load of the compliance model, on during the measurements
         values["payload"] = PayloadSpec(float(load.payload_mass), np.asarray(load.payload_com, float))
     if "velocity_scale" in values and values["velocity_scale"] > 1:
         raise reader.fail("program.velocity_scale", f"expected a number in (0, 1], got "

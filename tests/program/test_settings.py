@@ -65,8 +65,8 @@ def test_handshake_block(kr16_scene):
 
 
 def test_tool_base_payload_blocks(kr16_scene):
-    """In the scene's units (mm, deg in the shipped scenes); the payload defaults to the nest of
-    robot.compliance."""
+    """In the scene's units (mm, deg in the shipped scenes); the payload defaults to
+    robot.compliance's when compliance is modelled (not the rated load of a disabled block)."""
     block = {"tool": {"number": 2, "xyz": [0, 0, 50], "rpy": [0, 90, 0]}, "base": {"xyz": [1000, 0, 0]},
              "payload": {"mass": 1.2, "com": [0, 0, 30]}}
     s = program_settings_from_scene(dataclasses.replace(kr16_scene, program=block))
@@ -78,6 +78,7 @@ def test_tool_base_payload_blocks(kr16_scene):
     from calib_oed import load_scene
 
     heavy = load_scene("fms_kr300")
-    assert heavy.compliance is not None
-    default = program_settings_from_scene(heavy).payload
-    assert default.mass == heavy.compliance.payload.payload_mass > 0
+    assert heavy.compliance is not None and not heavy.compliance.enabled
+    assert program_settings_from_scene(heavy).payload is None
+    on = dataclasses.replace(heavy, compliance=dataclasses.replace(heavy.compliance, enabled=True))
+    assert program_settings_from_scene(on).payload.mass == heavy.compliance.payload.payload_mass > 0
