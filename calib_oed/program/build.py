@@ -264,7 +264,7 @@ def build_program(scene, q: np.ndarray, settings: ProgramSettings | None = None,
     return Program(scene.name, tuple(robot.joint_names), home, q, order - 1, program_moves,
                    settings.dwell, cycle, winner[0], stats, note, dyn.velocity, dyn.acceleration,
                    scene.controller, tuple(sorted((k - 1, why) for k, why in skipped.items())),
-                   settings.handshake)
+                   settings.handshake, settings.tool, settings.base, settings.payload)
 
 
 def _resolve_unreachable(moves: _Moves, dead, keep, skipped: dict[int, str], settings, nodes) -> np.ndarray:

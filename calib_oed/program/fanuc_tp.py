@@ -47,6 +47,14 @@ def write_tp(program: Program, name: str) -> dict[str, str]:
     for line in [*header_lines(program, "degrees (J1..J6)"), *note]:
         comments += textwrap.wrap(line.replace(";", ","), 30)  # ';' would end the statement
     body = [f"! {c} ;" for c in comments]
+    uf = 0 if program.base is None else program.base.number
+    ut = 1 if program.tool is None else program.tool.number
+    if program.base is not None:  # the frames' values are in the header: enter them on the controller
+        body.append(f"UFRAME_NUM={uf} ;")
+    if program.tool is not None:
+        body.append(f"UTOOL_NUM={ut} ;")
+    if program.payload is not None:
+        body.append(f"PAYLOAD[{program.payload.number}] ;")
     positions = {}
     for step in all_steps:
         if step.name not in positions:
@@ -63,7 +71,7 @@ def write_tp(program: Program, name: str) -> dict[str, str]:
     lines.append("/POS")
     for k, step in positions.values():
         j = degrees(step.q)
-        lines += [f"P[{k}]{{", "   GP1:", "\tUF : 0, UT : 1,",
+        lines += [f"P[{k}]{{", "   GP1:", f"\tUF : {uf}, UT : {ut},",
                   f"\tJ1= {j[0]} deg,\tJ2= {j[1]} deg,\tJ3= {j[2]} deg,",
                   f"\tJ4= {j[3]} deg,\tJ5= {j[4]} deg,\tJ6= {j[5]} deg", "};"]
     lines.append("/END")

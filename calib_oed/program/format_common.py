@@ -110,4 +110,28 @@ def header_lines(program: Program, units: str) -> list[str]:
         "every move checked collision-free against the scene's capsule model",
     ] + [f"pose {k + 1} NOT MEASURED: {why}" for k, why in program.skipped] + (
         [f"poses {program.stats['wrapped_poses']}: joint values whole turns from the design's "
-         "(--wrap: the same robot geometry, nearer home)"] if program.stats.get("wrapped_poses") else [])
+         "(--wrap: the same robot geometry, nearer home)"] if program.stats.get("wrapped_poses") else []
+    ) + declared_lines(program)
+
+
+def frame_values(frame) -> tuple[float, ...]:
+    """``(x, y, z, a, b, c)`` of a :class:`~calib_oed.program.settings.FrameSpec`: origin [mm] and
+    KUKA's ZYX angles [deg] (A about z = yaw, B about y = pitch, C about x = roll)."""
+    x, y, z = (1e3 * np.asarray(frame.xyz, float)).tolist()
+    roll, pitch, yaw = np.rad2deg(np.asarray(frame.rpy, float)).tolist()
+    return x, y, z, yaw, pitch, roll
+
+
+def declared_lines(program: Program) -> list[str]:
+    """Header lines naming the tool, base and payload the program declares (mm, deg, kg)."""
+    out = []
+    for what, frame in (("tool", program.tool), ("base/user frame", program.base)):
+        if frame is not None:
+            v = frame_values(frame)
+            out.append(f"{what} {frame.number}: X {v[0]:.3f} Y {v[1]:.3f} Z {v[2]:.3f} mm, "
+                       f"A {v[3]:.4f} B {v[4]:.4f} C {v[5]:.4f} deg (ZYX)")
+    if program.payload is not None:
+        c = 1e3 * np.asarray(program.payload.com, float)
+        out.append(f"payload {program.payload.number}: {program.payload.mass:.3f} kg at "
+                   f"X {c[0]:.3f} Y {c[1]:.3f} Z {c[2]:.3f} mm (flange frame)")
+    return out

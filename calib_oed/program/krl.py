@@ -11,11 +11,38 @@ each measurement pose is followed by ``WAIT SEC dwell`` and a comment naming it.
 
 from __future__ import annotations
 
-from calib_oed.program.format_common import degrees, header_lines, require_six_axes, steps
+import numpy as np
+
+from calib_oed.program.format_common import (
+    degrees,
+    frame_values,
+    header_lines,
+    require_six_axes,
+    steps,
+)
 from calib_oed.program.records import Program
 
 #: Prefix of the targets' names in the ``.dat`` (not ``X``: ``XHOME`` is the controller's).
 TARGET_PREFIX = "XCAL_"
+
+
+def _frame(frame) -> str:
+    x, y, z, a, b, c = frame_values(frame)
+    return f"{{X {x:.3f},Y {y:.3f},Z {z:.3f},A {a:.4f},B {b:.4f},C {c:.4f}}}"
+
+
+def _declarations(program: Program) -> list[str]:
+    """``$TOOL``, ``$BASE``, ``$LOAD`` from the scene's program block (after ``BAS``, which resets them)."""
+    out = []
+    if program.tool is not None:
+        out.append(f"  $TOOL={_frame(program.tool)} ; tool {program.tool.number}")
+    if program.base is not None:
+        out.append(f"  $BASE={_frame(program.base)} ; base {program.base.number}")
+    if program.payload is not None:
+        x, y, z = (1e3 * np.asarray(program.payload.com, float)).tolist()
+        out += [f"  $LOAD.M={program.payload.mass:.3f}",
+                f"  $LOAD.CM={{X {x:.3f},Y {y:.3f},Z {z:.3f},A 0.0,B 0.0,C 0.0}}"]
+    return out
 
 
 def _measure(program: Program, pose: int) -> list[str]:
@@ -37,7 +64,7 @@ def write_krl(program: Program, name: str) -> dict[str, str]:
     src = ["&ACCESS RVP", "&REL 1", f"DEF {module}( )"]
     src += [f"; {line}" for line in header_lines(program, "degrees (A1..A6)")]
     src += ["  GLOBAL INTERRUPT DECL 3 WHEN $STOPMESS==TRUE DO IR_STOPM ( )", "  INTERRUPT ON 3",
-            "  BAS (#INITMOV,0 )", "  $VEL_AXIS[1]=100", "  $VEL_AXIS[2]=100", "  $VEL_AXIS[3]=100",
+            "  BAS (#INITMOV,0 )", *_declarations(program), "  $VEL_AXIS[1]=100", "  $VEL_AXIS[2]=100", "  $VEL_AXIS[3]=100",
             "  $VEL_AXIS[4]=100", "  $VEL_AXIS[5]=100", "  $VEL_AXIS[6]=100"]
     for step in all_steps:
         what = {"home": "home", "via": "via point (no measurement)"}.get(step.kind, f"pose {step.pose}")

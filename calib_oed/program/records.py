@@ -9,7 +9,7 @@ import numpy as np
 from calib_oed.model.controller import ControllerConvention
 from calib_oed.program.continuous import MoveCheck
 from calib_oed.program.planner import PlannedPath
-from calib_oed.program.settings import Handshake
+from calib_oed.program.settings import FrameSpec, Handshake, PayloadSpec
 
 
 @dataclass(frozen=True, eq=False)
@@ -66,6 +66,8 @@ class Program:
         skipped: Poses left out (design index, 0-based; why): no certified path from home.
         handshake: What the writers put at each measurement pose instead of the dwell, or
             ``None`` (the dwell).
+        tool, base, payload: What the program declares (``program.tool``, ``.base``,
+            ``.payload``), or ``None``.
     """
 
     scene: str
@@ -84,6 +86,9 @@ class Program:
     controller: ControllerConvention | None = None
     skipped: tuple[tuple[int, str], ...] = ()
     handshake: Handshake | None = None
+    tool: FrameSpec | None = None
+    base: FrameSpec | None = None
+    payload: PayloadSpec | None = None
 
     @property
     def cycle_time(self) -> float:

@@ -29,7 +29,39 @@ from calib_oed.units import ANGLE_UNITS, LENGTH_UNITS
 
 #: Keys of the scene's ``program:`` block.
 PROGRAM_KEYS = ("home", "dwell", "velocity_scale", "acceleration_time", "velocities",
-                "accelerations", "move_tolerance", "planner_iterations", "handshake")
+                "accelerations", "move_tolerance", "planner_iterations", "handshake", "tool", "base",
+                "payload")
+
+
+@dataclass(frozen=True, eq=False)
+class FrameSpec:
+    """A tool frame (in the flange frame) or base/user frame (in the robot base frame) the
+    program declares, with its number on the controller.
+
+    Attributes:
+        number: The controller's tool/base (user frame) number, >= 1.
+        xyz: Origin [m], (3,).
+        rpy: Roll, pitch, yaw [rad], :math:`R = R_z(y) R_y(p) R_x(r)` (KUKA's A = y, B = p, C = r).
+    """
+
+    number: int = 1
+    xyz: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    rpy: np.ndarray = field(default_factory=lambda: np.zeros(3))
+
+
+@dataclass(frozen=True, eq=False)
+class PayloadSpec:
+    """The load on the flange during the program (the reflector nest): mass and centre of mass.
+
+    Attributes:
+        mass: [kg], >= 0.
+        com: Centre of mass in the flange frame [m], (3,).
+        number: The controller's payload schedule number (FANUC ``PAYLOAD[n]``), >= 1.
+    """
+
+    mass: float = 0.0
+    com: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    number: int = 1
 
 
 @dataclass(frozen=True)
@@ -89,6 +121,11 @@ class ProgramSettings:
         planner_seed: Seed of the planner's random samples.
         handshake: A signal exchange or routine call at each measurement pose instead of the
             dwell (:class:`Handshake`), or ``None`` (the dwell).
+        tool, base: The tool frame and base/user frame the program declares
+            (:class:`FrameSpec`), or ``None`` (the controller's current ones).
+        payload: The load the program declares (:class:`PayloadSpec`); default the scene's
+            ``robot.compliance.payload`` when compliance is modelled (``enabled``), else ``None``
+            (a disabled block's payload is a rated load kept for ``--compliance``, not the nest).
         skip_unreachable: Leave out (with a note) a pose no certified path from home reaches
             (else a :class:`~calib_oed.exceptions.ProgramError` names it).
         wrap: Measure each pose at the joint values a whole number of turns away that are
@@ -106,6 +143,9 @@ class ProgramSettings:
     planner_iterations: int = DEFAULT_PLANNER_ITERATIONS
     planner_seed: int = 0
     handshake: Handshake | None = None
+    tool: FrameSpec | None = None
+    base: FrameSpec | None = None
+    payload: PayloadSpec | None = None
     skip_unreachable: bool = True
     wrap: bool = False
 
@@ -176,6 +216,22 @@ def program_settings_from_scene(scene, **overrides) -> ProgramSettings:
             values["handshake"] = Handshake(**hs)
         except ProgramError as exc:
             raise reader.fail("program.handshake", str(exc)) from None
+    for key in ("tool", "base"):
+        if key in spec:
+            fr = reader.mapping(spec[key], f"program.{key}", (), ("number", "xyz", "rpy"))
+            values[key] = FrameSpec(
+                reader.integer(fr.get("number", 1), f"program.{key}.number", 1),
+                reader.vector(fr.get("xyz", [0, 0, 0]), f"program.{key}.xyz", 3, reader.length),
+                reader.vector(fr.get("rpy", [0, 0, 0]), f"program.{key}.rpy", 3, reader.angle))
+    if "payload" in spec:
+        pl = reader.mapping(spec["payload"], "program.payload", ("mass",), ("com", "number"))
+        values["payload"] = PayloadSpec(
+            reader.number(pl["mass"], "program.payload.mass", nonnegative=True),
+            reader.vector(pl.get("com", [0, 0, 0]), "program.payload.com", 3, reader.length),
+            reader.integer(pl.get("number", 1), "program.payload.number", 1))
+    elif getattr(scene, "compliance", None) is not None and scene.compliance.enabled:
+        load = scene.compliance.payload  # the load of the compliance model, on during the measurements
+        values["payload"] = PayloadSpec(float(load.payload_mass), np.asarray(load.payload_com, float))
     if "velocity_scale" in values and values["velocity_scale"] > 1:
         raise reader.fail("program.velocity_scale", f"expected a number in (0, 1], got "
                           f"{values['velocity_scale']!r}")

@@ -9,8 +9,25 @@ comment naming it.
 
 from __future__ import annotations
 
+import numpy as np
+import pinocchio as pin
+
 from calib_oed.program.format_common import RAD_DECIMALS, header_lines, require_six_axes, steps
 from calib_oed.program.records import Program
+
+
+def _declarations(program: Program) -> list[str]:
+    """``set_tcp`` and ``set_payload`` from the scene's program block [m, rad (rotation vector), kg].
+    A base frame does not change ``movej`` (joint targets): the header names it only."""
+    out = []
+    if program.tool is not None:
+        rv = pin.log3(pin.rpy.rpyToMatrix(*np.asarray(program.tool.rpy, float)))
+        values = ", ".join(f"{v:.6f}" for v in [*np.asarray(program.tool.xyz, float), *rv])
+        out.append(f"  set_tcp(p[{values}])")
+    if program.payload is not None:
+        c = ", ".join(f"{v:.6f}" for v in np.asarray(program.payload.com, float))
+        out.append(f"  set_payload({program.payload.mass:.3f}, [{c}])")
+    return out
 
 
 def _measure(program: Program, pose: int) -> list[str]:
@@ -33,6 +50,7 @@ def write_urscript(program: Program, name: str) -> dict[str, str]:
     acceleration = 1.4 if program.acceleration is None else float(min(program.acceleration))
     lines = [f"# {line}" for line in header_lines(program, "radians (URScript's unit)")]
     lines.append(f"def {name}():")
+    lines += _declarations(program)
     for step in steps(program):
         values = ", ".join(f"{v:.{RAD_DECIMALS}f}" for v in step.q)
         what = {"home": "home", "via": "via point (no measurement)"}.get(step.kind, f"pose {step.pose}")

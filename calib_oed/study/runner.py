@@ -2,8 +2,8 @@ r"""Running a study: every case, in parallel, resumable, into a tidy table.
 
 A study (:class:`~calib_oed.study.config.StudyConfig`) is a list of cases (one
 robot in one scene), each run by :func:`calib_oed.study.case.run_case`.
-:func:`run_study` runs the cases with joblib (local processes, or a Dask
-cluster through joblib's dask backend when given a scheduler address), writes
+:func:`run_study` runs the cases with joblib (local processes) or on a Dask
+cluster's workers when given a scheduler address, writes
 each case's result to ``OUT/cases/<case_id>.json`` as soon as it arrives
 (atomically), loads instead of recomputing the cases already there (after
 checking their configuration hash), then writes ``OUT/results.csv`` (one row

@@ -291,3 +291,42 @@ def test_handshake_replaces_the_dwell(program, handshake, expected):
         assert "handshake" in text
         if fmt == "rapid":
             assert [str(e) for e in check_file(text)] == []
+
+
+@pytest.mark.filterwarnings("ignore::DeprecationWarning")  # rapidchecker's own pyparsing calls
+def test_tool_base_and_payload_are_declared(program):
+    """program.tool/.base/.payload reach every format, and their values read back (mm, deg, kg)."""
+    import dataclasses
+
+    import pinocchio as pin
+    from rapidchecker.cli import check_file
+
+    from calib_oed.program.settings import FrameSpec, PayloadSpec
+
+    tool = FrameSpec(2, np.array([0.01, -0.02, 0.05]), np.array([0.3, -0.2, 0.1]))
+    base = FrameSpec(3, np.array([1.0, 0.5, 0.0]), np.array([0.0, 0.0, 0.5]))
+    prog = dataclasses.replace(program, tool=tool, base=base,
+                               payload=PayloadSpec(1.5, np.array([0.0, 0.0, 0.03]), 4))
+    rot = pin.rpy.rpyToMatrix(*tool.rpy)
+    krl = program_texts(prog, "krl", "cp")["cp.src"]
+    m = re.search(r"\$TOOL=\{X {0},Y {0},Z {0},A {0},B {0},C {0}\}".replace("{0}", NUM), krl)
+    x, y, z, a, b, c = (float(v) for v in m.groups())
+    assert np.allclose([x, y, z], 1e3 * tool.xyz) and np.allclose(
+        pin.rpy.rpyToMatrix(*np.deg2rad([c, b, a])), rot, atol=1e-6)
+    assert "$LOAD.M=1.500" in krl and "$BASE={X 1000.000,Y 500.000" in krl
+    assert krl.index("BAS (#INITMOV,0 )") < krl.index("$TOOL=") < krl.index("PTP")
+    rapid = program_texts(prog, "rapid", "cp")["cp.mod"]
+    assert [str(e) for e in check_file(rapid)] == []
+    q = [float(v) for v in re.search(r"PERS tooldata tcp:=\[TRUE,\[\[[^]]*\],\[" + ",".join([NUM] * 4), rapid).groups()]
+    assert np.allclose(pin.Quaternion(q[0], q[1], q[2], q[3]).toRotationMatrix(), rot, atol=1e-5)
+    assert all(line.endswith("tcp\\WObj:=wcp; ! " + line.split("! ")[-1]) for line in rapid.splitlines()
+               if "MoveAbsJ" in line)
+    tp = program_texts(prog, "tp", "cp")["cp.ls"]
+    assert "UFRAME_NUM=3 ;" in tp and "UTOOL_NUM=2 ;" in tp and "PAYLOAD[4] ;" in tp
+    assert tp.count("UF : 3, UT : 2,") == tp.count("GP1:")
+    ur = program_texts(prog, "urscript", "cp")["cp.script"]
+    tcp = [float(v) for v in re.search(r"set_tcp\(p\[" + ", ".join([NUM] * 6) + r"\]\)", ur).groups()]
+    assert np.allclose(tcp[:3], tool.xyz) and np.allclose(pin.exp3(np.array(tcp[3:])), rot, atol=1e-5)
+    assert "set_payload(1.500, [0.000000, 0.000000, 0.030000])" in ur
+    with pytest.raises(ProgramError, match="mass > 0"):
+        program_texts(dataclasses.replace(prog, payload=None), "rapid", "cp")

@@ -60,3 +60,23 @@ def test_handshake_block(kr16_scene):
                 {"output": -1, "input": 2}, {"signal": 1}):
         with pytest.raises(SceneError, match="program.handshake"):
             read(bad)
+
+
+def test_tool_base_payload_blocks(kr16_scene):
+    """In the scene's units (mm, deg in the shipped scenes); the payload defaults to
+    robot.compliance's when compliance is modelled (not the rated load of a disabled block)."""
+    block = {"tool": {"number": 2, "xyz": [0, 0, 50], "rpy": [0, 90, 0]}, "base": {"xyz": [1000, 0, 0]},
+             "payload": {"mass": 1.2, "com": [0, 0, 30]}}
+    s = program_settings_from_scene(dataclasses.replace(kr16_scene, program=block))
+    assert s.tool.number == 2 and np.allclose(s.tool.xyz, [0, 0, 0.05]) and np.allclose(s.tool.rpy, [0, np.pi / 2, 0])
+    assert s.base.number == 1 and np.allclose(s.base.xyz, [1, 0, 0])
+    assert s.payload.mass == 1.2 and np.allclose(s.payload.com, [0, 0, 0.03])
+    with pytest.raises(SceneError, match="program.payload"):
+        program_settings_from_scene(dataclasses.replace(kr16_scene, program={"payload": {"com": [0, 0, 0]}}))
+    from calib_oed import load_scene
+
+    heavy = load_scene("fms_kr300")
+    assert heavy.compliance is not None and not heavy.compliance.enabled
+    assert program_settings_from_scene(heavy).payload is None
+    on = dataclasses.replace(heavy, compliance=dataclasses.replace(heavy.compliance, enabled=True))
+    assert program_settings_from_scene(on).payload.mass == heavy.compliance.payload.payload_mass > 0
