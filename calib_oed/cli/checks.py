@@ -121,7 +121,7 @@ def _ranges(args) -> None:
     _positive(args, "max_rms", "an RMS in mm")
     _positive(args, "max_registration_rms", "an RMS in mm")
     level = getattr(args, "level", None)
-    if level is not None and not 0 < level < 1:
+    if getattr(args, "command", None) == "view" and level is not None and not 0 < level < 1:
         raise ArgumentError(f"--level: expected a confidence level strictly between 0 and 1 "
                             f"(e.g. 0.95), got {level:g}")
     payload = getattr(args, "payload_kg", None)
