@@ -98,8 +98,8 @@ def _dropped(args, given: set[str]) -> None:
         if not getattr(args, "html", None) and "json" in given:
             raise ArgumentError("view: --json describes the page --html writes; add --html FILE or "
                                 "leave out --json")
-    if command == "design" and getattr(args, "aggregate", None) and args.criterion != "kpi":
-        raise ArgumentError(f"design: --aggregate {args.aggregate} acts on the KPI criterion only, "
+    if command == "design" and getattr(args, "aggregate", None) and args.criterion not in (None, "kpi"):
+        raise ArgumentError(f"design: --aggregate {args.aggregate} acts on the criterion 'kpi' only, "
                             f"not --criterion {args.criterion}; use --criterion kpi or leave it out")
 
 

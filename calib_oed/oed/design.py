@@ -73,7 +73,7 @@ KPI_MAX = "kpi_max"
 def _check_aggregate(aggregate: str, criterion) -> None:
     if aggregate not in AGGREGATES:
         raise AggregateError(aggregate, AGGREGATES)
-    if aggregate == "max" and criterion != "kpi":
+    if aggregate == "max" and criterion not in (None, "kpi"):  # None: the default, kpi with max
         name = criterion if isinstance(criterion, str) else criterion.name
         raise AggregateError(aggregate, AGGREGATES, "the worst-case KPI aggregate 'max' applies to "
                              f"the criterion 'kpi' only, got criterion {name!r}; use aggregate "
@@ -297,7 +297,7 @@ def design(
         raise DesignError("replicates", replicates, "an integer >= 1 (1: every pose distinct)")
     _check_aggregate(aggregate, criterion)
     check_position_tol(position_tol)
-    criterion = model_error.scene_criterion(s, criterion)
+    criterion = model_error.scene_criterion(s, "kpi" if criterion is None and aggregate == "max" else criterion)
     exact = (hessian == "exact" and aggregate == "mean"
              and (criterion in EXACT_CRITERIA if isinstance(criterion, str)
                   else has_exact_hessian(criterion)))
