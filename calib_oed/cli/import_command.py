@@ -85,7 +85,7 @@ def cmd_import(args) -> int:
     robot, names = s.problem.robot, s.reflector_names
     design_q = None
     if args.design:
-        from calib_oed.oed.result import read_design_file
+        from calib_oed.io.design_file import read_design_file
 
         design_q = read_design_file(args.design, robot, controller=s.scene.controller)
     layout = detect_layout(args.export) if args.layout == "auto" else args.layout
