@@ -92,7 +92,11 @@ def solve_simplex_qp(h, g, a, lower, upper, start, max_iterations: int | None = 
     lower, upper = np.array(lower, dtype=float), np.array(upper, dtype=float)
     s = np.clip(np.array(start, dtype=float), lower, upper)
     m = s.size
-    at_lower, at_upper = np.zeros(m, bool), np.zeros(m, bool)
+    # warm start: the bounds the start already meets form the working set (the approximate
+    # design's step starts at s = 0, where every candidate of weight 0 is at its bound), so the
+    # iterations scale with the support, not with the number of candidates
+    at_lower = s <= lower
+    at_upper = (s >= upper) & ~at_lower
     cap = 10 * m + 20 if max_iterations is None else int(max_iterations)
     for _ in range(cap):
         r = h @ s + g
