@@ -166,7 +166,7 @@ CASES = [
      "--no-report skips"),
     ("view-html-and-for", ["view", S, "--html", "{t}/v.html", "--for", "3"], "leave out one of them"),
     ("view-json-without-html", ["view", S, "--json"], "add --html FILE"),
-    ("design-aggregate-not-kpi", ["design", S, "--criterion", "D", "--aggregate", "max"], "KPI criterion only"),
+    ("design-aggregate-not-kpi", ["design", S, "--criterion", "D", "--aggregate", "max"], "'kpi' only"),
     # -- numbers outside their meaning
     ("time-limit-0", ["design", S, "-n", "5", "--time-limit", "0"], "--time-limit: expected a time"),
     ("time-limit-negative", ["design", S, "-n", "5", "--time-limit", "-5"], "--time-limit: expected a time"),
