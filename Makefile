@@ -21,8 +21,10 @@ DEMO_OUT ?= demo_out
 demo: $(STAMP)
 	$(VENV)/bin/calib-oed demo -o $(DEMO_OUT)
 
+# one pytest worker per core (pytest-xdist), each single-threaded BLAS so the workers do not
+# oversubscribe the cores; `pytest` alone runs the suite serially
 test: $(STAMP)
-	$(PY) -m pytest -q
+	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 $(PY) -m pytest -q -n auto --dist worksteal
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check calib_oed tests bench examples
