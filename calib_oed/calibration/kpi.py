@@ -107,3 +107,20 @@ class TcpKpi:
         state = evaluate_setup(space, p, self.configurations, regressor=True, jacobian=False)
         g = state.tool_point_param_jacobian(self._point(state), self.frame, self.reflector)
         return g.reshape(3 * state.n, space.size)
+
+    def rows_in_tracker_frame(self, space: ParameterSpace, rows: np.ndarray,
+                              p: np.ndarray | None = None) -> np.ndarray:
+        r"""KPI rows (3t, k) turned into the tracker frame: :math:`R_T^\top` per point when the
+        KPI is in the world frame (``p`` gives the tracker placement, None the nominal one),
+        unchanged when it already is in the tracker frame.
+
+        The model error is a Gaussian process of the measured positions in the tracker frame
+        (:mod:`calib_oed.measurement.discrepancy`); a KPI error correlates with it component by
+        component only in that frame.
+        """
+        rows = np.asarray(rows, dtype=float)
+        if self.frame != "world":
+            return rows
+        rot = space.tracker_placement(p).rotation
+        return np.einsum("ba,tbf->taf", rot, rows.reshape(-1, 3, rows.shape[1])).reshape(rows.shape)
+

@@ -167,7 +167,10 @@ def predict_accuracy(problem, lin: Linearisation, prior: DiscrepancyPrior | None
         tr.append(np.trace(error_covariances(lin, prior, jac, q_new, noise, compensate), axis1=1, axis2=2))
         tr_noise.append(np.trace(error_covariances(lin, None, jac, q_new, noise), axis1=1, axis2=2))
     kpi = problem.kpi
-    g = kpi.compute_param_jacobian(space, p)[:, free].reshape(-1, 3, free.size)
+    # the model error is a process of tracker-frame positions: its cross-covariance with the
+    # TCP's holds component by component in that frame (the trace is the same in any frame)
+    g = kpi.rows_in_tracker_frame(space, kpi.compute_param_jacobian(space, p)[:, free], p)
+    g = g.reshape(-1, 3, free.size)
     rho = _repeatability(problem.models)
     v = error_covariances(lin, prior, g, kpi.configurations,
                           np.broadcast_to(rho**2 * np.eye(3), (g.shape[0], 3, 3)), compensate)

@@ -301,10 +301,7 @@ def make_model_error_criterion(problem, kpi_jacobian: np.ndarray, prior: Discrep
     if not all(isinstance(m, TrackerPosition) for m in problem.models):
         raise DesignError("criterion", name, "needs 3-D reflector positions (measurement: position); "
                           "the model error of a 6-D pose's angles is not modelled")
-    g = np.asarray(kpi_jacobian, dtype=float)
-    if problem.kpi.frame == "world":  # turn each point's rows into the tracker frame
-        rot = problem.space.tracker_placement(None).rotation
-        g = np.einsum("ba,tbf->taf", rot, g.reshape(-1, 3, g.shape[1])).reshape(g.shape)
+    g = problem.kpi.rows_in_tracker_frame(problem.space, kpi_jacobian)
     working = np.asarray(problem.kpi.configurations, dtype=float)
     predictor = PREDICTORS[(MODEL_ERROR, KRIGING).index(name)]
     return ModelErrorCriterion(design_prior(problem, prior), g, working, weights, predictor, name)
