@@ -152,7 +152,7 @@ def test_design_command_writes_both_files(capsys, tmp_path):
     import yaml
 
     argv = ["design", "fms_kr16", "-n", "12", "--seed", "4", "--iterations", "10", "--quiet",
-            "--time-limit", "60", "-o", str(tmp_path)]
+            "--time-limit", "60", "--no-certificate", "-o", str(tmp_path)]
     assert main(argv) == EXIT_OK
     out = capsys.readouterr().out
     assert "sqp design of 12 poses" in out and "feasible: True" in out
@@ -165,7 +165,7 @@ def test_design_command_writes_both_files(capsys, tmp_path):
 
 def test_design_command_json_and_errors(capsys, tmp_path):
     assert main(["design", "fms_kr16", "-n", "12", "--criterion", "D", "--iterations", "3",
-                 "--json"]) == EXIT_OK
+                 "--no-certificate", "--json"]) == EXIT_OK
     data = json.loads(capsys.readouterr().out)
     assert data["criterion"] == "D" and data["files"] == {}
     with pytest.raises(SystemExit):
@@ -177,7 +177,8 @@ def test_design_command_json_and_errors(capsys, tmp_path):
 
 
 def test_design_command_from_the_exchange_start(capsys):
-    argv = ["design", "fms_kr16", "-n", "12", "--start", "exchange", "--iterations", "2", "--json"]
+    argv = ["design", "fms_kr16", "-n", "12", "--start", "exchange", "--iterations", "2",
+            "--no-certificate", "--json"]
     assert main(argv) == EXIT_OK
     data = json.loads(capsys.readouterr().out)
     assert data["feasible"] and data["value"] <= data["start_value"]
