@@ -28,7 +28,6 @@ import os
 from pathlib import Path
 
 import numpy as np
-
 import pinocchio as pin
 
 from calib_oed.calibration.compensation import CalibrationUncertainty, marginal_model_error

@@ -51,7 +51,7 @@ def realistic_errors(scene_name: str, truths=TRUTHS, n_design: int = 60, n_targe
         goal = np.array([nominal.compute_pose(q).translation for q in targets])
         point = np.zeros(3)
 
-        def predicted(unc, q=comp.q[ok]):
+        def predicted(unc, q=comp.q[ok], point=point):
             return 1e3 * np.sqrt(np.trace(unc.compute_covariance(q, point), axis1=1, axis2=2))
 
         marginal = CalibrationUncertainty(space, res.p, exact.free_indices, exact.covariance,
