@@ -13,6 +13,13 @@ convention (angles the representation nearest the original, status/turn/confdata
 written). A target whose inverse kinematics did not converge is left as written and
 named; one near a singularity or outside the calibrated joint range is compensated and
 named. Each target gets a comment with its predicted residual.
+
+**Controller configuration.** A KRL, RAPID or TP Cartesian target carries the
+configuration the controller solves it in (KUKA's ``S``/``T``, ABB's ``confdata``, FANUC's
+configuration string), written as it was. If the compensated joints :math:`\hat q` have
+another configuration than :math:`q^0` (:mod:`calib_oed.model.arm_configuration`: a joint
+near a turn boundary, or the arm near a singularity), the controller would not reach
+:math:`\hat q` from :math:`P'` and those bits: the target is named with what changes.
 """
 
 from __future__ import annotations
@@ -27,6 +34,11 @@ from calib_oed.calibration.compensation import (
     CalibrationUncertainty,
     Compensation,
     compensate_joints,
+)
+from calib_oed.model.arm_configuration import (
+    VENDORS,
+    compute_arm_configuration,
+    configuration_changes,
 )
 from calib_oed.model.controller import ControllerConvention
 from calib_oed.model.inverse_kinematics import IkSettings, TcpKinematics
@@ -46,6 +58,8 @@ class CompensatedProgram:
         shift_mm: :math:`\\lVert \\hat t(q^0) - t^0(q^0)\\rVert` [mm]: how far the calibrated model
             puts the TCP from the target without compensation (n,).
         sources: Where the tool and base came from (``file``, ``given``, ``none``).
+        configuration: Per target, what of the controller configuration :math:`\\hat q` changes
+            against :math:`q^0` (Cartesian KRL, RAPID and TP targets; empty: nothing).
     """
 
     parsed: ParsedProgram
@@ -54,16 +68,30 @@ class CompensatedProgram:
     changed: np.ndarray
     shift_mm: np.ndarray
     sources: dict[str, str]
+    configuration: tuple[tuple[str, ...], ...] = ()
 
     @property
     def names(self) -> list[str]:
         return [t.name for t in self.parsed.targets]
 
+    def _configuration(self, i: int) -> tuple[str, ...]:
+        return self.configuration[i] if self.configuration else ()
+
     def issues(self) -> list[str]:
         flagged = np.flatnonzero(self.compensation.flagged)
-        lines = self.compensation.issues(self.names)
-        return [line + ("" if self.changed[i] else "; NOT compensated (left as written)")
-                for i, line in zip(flagged, lines, strict=True)]
+        lines = dict(zip(flagged, self.compensation.issues(self.names), strict=True))
+        out = []
+        for i, name in enumerate(self.names):
+            line = lines.get(i)
+            if line is not None and not self.changed[i]:
+                line += "; NOT compensated (left as written)"
+            if self._configuration(i):
+                line = (line + "; " if line else f"{name}: ") + (
+                    "the controller configuration changes (" + "; ".join(self._configuration(i))
+                    + "): the status, turn or confdata as written would not select the compensated joints")
+            if line:
+                out.append(line)
+        return out
 
     def to_dict(self) -> dict:
         c = self.compensation
@@ -74,7 +102,8 @@ class CompensatedProgram:
                          "shift_mm": float(self.shift_mm[i]),
                          "predicted_residual_mm": None if c.predicted_mm is None else float(c.predicted_mm[i]),
                          "joint_correction_deg": float(np.degrees(np.abs(c.correction[i]).max())),
-                         "sigma_min": float(c.sigma_min[i]), "in_range": bool(c.in_range[i])}
+                         "sigma_min": float(c.sigma_min[i]), "in_range": bool(c.in_range[i]),
+                         "configuration_changes": list(self._configuration(i))}
                         for i, t in enumerate(self.parsed.targets)],
         }
 
@@ -159,10 +188,13 @@ def compensate_program(parsed: ParsedProgram, nominal: Robot, calibrated: Robot,
     cal = TcpKinematics(calibrated, tool, length=nom.length)
     shift = np.array([1e3 * np.linalg.norm(cal.compute_pose(q).translation - nom.compute_pose(q).translation)
                       for q in q0])
+    configuration = _configuration_changes(parsed, nominal, q0, comp, controller)
     values, comments = {}, {}
     short = lang.name == "tp"
     for i, target in enumerate(parsed.targets):
         flags = [] if comp.converged[i] else ["NOT compensated: inverse kinematics failed"]
+        if configuration[i]:
+            flags.append("CONF" if short else "controller configuration changes: " + ", ".join(configuration[i]))
         if comp.near_singular[i]:
             flags.append("near singularity" if not short else "SING")
         if not comp.in_range[i]:
@@ -175,7 +207,23 @@ def compensate_program(parsed: ParsedProgram, nominal: Robot, calibrated: Robot,
         pred = None if comp.predicted_mm is None else float(comp.predicted_mm[i])
         comments[i] = _comment(target.name, pred, flags, short)
     texts = rewrite(parsed, values, comments)
-    return CompensatedProgram(parsed, texts, comp, comp.converged.copy(), shift, sources)
+    return CompensatedProgram(parsed, texts, comp, comp.converged.copy(), shift, sources, configuration)
+
+
+def _configuration_changes(parsed: ParsedProgram, nominal: Robot, q0: np.ndarray, comp: Compensation,
+                           controller) -> tuple[tuple[str, ...], ...]:
+    r"""Per target, the configuration bits of its language that :math:`\hat q` changes (Cartesian
+    targets of KRL, RAPID, TP on a 6-axis arm; module docstring)."""
+    vendor = VENDORS.get(parsed.language.name)
+    poses = [i for i, t in enumerate(parsed.targets) if t.kind == "pose" and comp.converged[i]]
+    out: list[tuple[str, ...]] = [()] * len(parsed.targets)
+    if vendor is None or not poses or nominal.nq != 6:
+        return tuple(out)
+    before = compute_arm_configuration(nominal, q0[poses], controller)
+    after = compute_arm_configuration(nominal, comp.q[poses], controller)
+    for i, found in zip(poses, configuration_changes(before, after, vendor, nominal.joint_names), strict=True):
+        out[i] = tuple(found)
+    return tuple(out)
 
 
 __all__ = ["CompensatedProgram", "compensate_program"]

@@ -32,8 +32,15 @@ def test_compensates_a_krl_program(calibration, tmp_path, capsys):
     assert all(0.001 < p < 0.1 for p in predicted)
     assert "predicted residual" in (out / "weld_demo.dat").read_text()
     named = {line.split(":")[0] for line in data["issues"]}
-    flagged = {t["name"] for t in data["targets"] if t["sigma_min"] < 0.01 or not t["in_range"] or not t["changed"]}
+    flagged = {t["name"] for t in data["targets"] if t["sigma_min"] < 0.01 or not t["in_range"] or not t["changed"]
+               or t["configuration_changes"]}
     assert named == flagged
+    # XP2 is taught at A4 = A6 = 0 (to the pendant's rounding): compensated, both cross 0, so KUKA's T bits
+    # as written ask for A4 and A6 a turn away (or beyond their limits): named, in the report and the file
+    xp2 = next(t for t in data["targets"] if t["name"] == "XP2")
+    assert [c.split(" ")[:3] for c in xp2["configuration_changes"]] == [["turn", "of", "joint_a4"],
+                                                                        ["turn", "of", "joint_a6"]]
+    assert "controller configuration changes: turn of joint_a4" in (out / "weld_demo.dat").read_text()
 
 
 def test_text_report_and_default_folder(calibration, tmp_path, capsys):

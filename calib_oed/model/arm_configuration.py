@@ -1,0 +1,164 @@
+r"""The configuration a controller reads from a Cartesian target: KUKA's status and turn, ABB's
+``confdata``, FANUC's configuration string, as functions of the joints.
+
+A 6R arm with a spherical wrist reaches most poses with up to eight joint solutions, and a
+turn of a joint changes nothing of the pose; a controller picks one by the bits its
+Cartesian targets carry. All three vendors encode the same three choices, plus joint turns:
+
+=====================  ===================================  ====================================
+choice                 boundary (computed here)             KUKA S / ABB cfx / FANUC string
+=====================  ===================================  ====================================
+**shoulder**           the wrist centre :math:`w` crosses   S bit 0 (overhead area) / wrist
+                       the plane through the A1 axis         centre behind axis 1 / Top-Bottom
+                       normal to the shoulder direction
+**elbow**              :math:`w` crosses the line of the     S bit 1 (A3 vs. the stretched arm
+                       A2 and A3 axes (arm stretched or      angle) / wrist centre behind the
+                       folded)                               lower arm / Up-Down
+**wrist**              joint 5 crosses 0                     S bit 2 / axis 5 negative / Flip
+**turns**              KUKA: each joint's sign (T bit i:     T / cf1, cf4, cf6 / the turn
+                       :math:`A_i < 0`); ABB: the quadrant   numbers of J1, J4, J6
+                       :math:`\lfloor\theta/90°\rfloor` of
+                       axes 1, 4, 6; FANUC: the turn
+                       :math:`\lfloor(\theta + 180°)/360°\rfloor`
+                       of J1, J4, J6
+=====================  ===================================  ====================================
+
+(KUKA System Software 8.x, *Operating and Programming Instructions for System Integrators*,
+"Status and Turn"; ABB *Technical reference manual - RAPID Instructions, Functions and Data
+types*, ``confdata``; FANUC *R-30iB Operator's Manual*, "Configuration".) The joint values
+are the controller's (:class:`~calib_oed.model.controller.ControllerConvention` when the
+scene has one, else the URDF joints). The wrist centre :math:`w` is the point nearest the
+axes of joints 4, 5 and 6 (their intersection on a spherical wrist); the shoulder direction
+is the common normal from the A1 axis to the A2 axis, turning with joint 1 (the joint-1
+frame's x axis where the two axes meet). Each choice is returned with a signed margin, so a
+target near a boundary is visible before it flips.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pinocchio as pin
+
+from calib_oed.exceptions import ParameterError
+from calib_oed.model.controller import ControllerConvention
+from calib_oed.model.robot import Robot
+
+#: Controller vendors whose Cartesian targets carry configuration bits, by program language.
+VENDORS = {"krl": "kuka", "rapid": "abb", "tp": "fanuc"}
+
+_NAMES = {"kuka": ("S bit 0 (overhead)", "S bit 1 (A3 vs. stretched arm)", "S bit 2 (A5 sign)"),
+          "abb": ("cfx: wrist centre vs. axis 1", "cfx: wrist centre vs. lower arm", "cfx: axis 5 sign"),
+          "fanuc": ("Top/Bottom", "Up/Down", "Flip/NoFlip")}
+
+
+@dataclass(frozen=True)
+class ArmConfiguration:
+    """The configuration choices of n joint vectors (module docstring).
+
+    Attributes:
+        shoulder: Signed distance [m] of the wrist centre from the A1 plane, + in front (n,).
+        elbow: Signed distance [m] of the wrist centre from the A2-A3 line (n,).
+        wrist: Joint 5 [rad], the controller's value (n,).
+        joints: The controller's joint values [rad] (n, nq).
+    """
+
+    shoulder: np.ndarray
+    elbow: np.ndarray
+    wrist: np.ndarray
+    joints: np.ndarray
+
+    def turns(self, vendor: str) -> tuple[tuple[int, ...], np.ndarray]:
+        """(the 0-based joints whose turn the vendor encodes, their turn values (n, k))."""
+        c = self.joints
+        if vendor == "kuka":
+            return tuple(range(c.shape[1])), (c < 0).astype(int)
+        picks = tuple(j for j in (0, 3, 5) if j < c.shape[1])
+        if vendor == "abb":
+            return picks, np.floor(c[:, picks] / (np.pi / 2) + 1e-12).astype(int)
+        if vendor == "fanuc":
+            return picks, np.floor((c[:, picks] + np.pi) / (2 * np.pi) + 1e-12).astype(int)
+        raise ParameterError(f"unknown controller vendor {vendor!r}; valid: {', '.join(sorted(set(VENDORS.values())))}")
+
+
+def _nearest_point(points: np.ndarray, directions: np.ndarray) -> np.ndarray:
+    """The point nearest (least squares) to the lines ``points + t directions`` (k, 3)."""
+    a, b = np.zeros((3, 3)), np.zeros(3)
+    for p, d in zip(points, directions, strict=True):
+        m = np.eye(3) - np.outer(d, d)
+        a += m
+        b += m @ p
+    return np.linalg.lstsq(a, b, rcond=None)[0]
+
+
+def _axes(robot: Robot, data: pin.Data, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Points and unit directions of the joint axes at ``q``, world frame, (nq, 3) each."""
+    model = robot.model
+    pin.forwardKinematics(model, data, q)
+    pts, dirs = [], []
+    for i in range(1, model.njoints):
+        s = np.asarray(data.joints[i].S).reshape(6)[3:]
+        m = data.oMi[i]
+        pts.append(m.translation.copy())
+        dirs.append(m.rotation @ (s / np.linalg.norm(s)))
+    return np.array(pts), np.array(dirs)
+
+
+def compute_arm_configuration(robot: Robot, q: np.ndarray,
+                              controller: ControllerConvention | None = None) -> ArmConfiguration:
+    """:class:`ArmConfiguration` of the URDF joints ``q`` (n, nq) or (nq,) [rad] of a 6R arm.
+
+    Raises:
+        ParameterError: fewer than 6 joints.
+    """
+    q = robot.check_configurations(q)
+    if robot.nq < 6:
+        raise ParameterError(f"{robot.name}: configuration bits need a 6-axis arm, it has {robot.nq} joints")
+    data = robot.model.createData()
+    p0, d0 = _axes(robot, data, pin.neutral(robot.model))
+    # shoulder direction at q = 0 in joint 1's own frame: the common normal from A1 to A2
+    gap = (p0[1] - p0[0]) - d0[0] * float(np.dot(p0[1] - p0[0], d0[0]))
+    r1 = data.oMi[1].rotation
+    u_local = r1.T @ (gap / np.linalg.norm(gap) if np.linalg.norm(gap) > 1e-6 else r1[:, 0])
+    shoulder, elbow = np.empty(len(q)), np.empty(len(q))
+    for k, row in enumerate(q):
+        p, d = _axes(robot, data, row)
+        w = _nearest_point(p[3:6], d[3:6])
+        u = data.oMi[1].rotation @ u_local
+        shoulder[k] = float(np.dot(w - p[0], u))
+        arm = p[2] - p[1]
+        arm = arm - d[2] * float(np.dot(arm, d[2]))          # in the plane normal to A3
+        elbow[k] = float(np.dot(np.cross(arm, w - p[2]), d[2])) / np.linalg.norm(arm)
+    c = np.array([controller.to_controller(row) for row in q]) if controller is not None else q.copy()
+    return ArmConfiguration(shoulder, elbow, c[:, 4].copy(), c)
+
+
+def configuration_changes(before: ArmConfiguration, after: ArmConfiguration, vendor: str,
+                          joint_names: tuple[str, ...] | None = None) -> list[list[str]]:
+    """Per row, what of ``vendor``'s configuration (``kuka``, ``abb``, ``fanuc``) differs between
+    ``before`` and ``after``: one phrase per changed bit or turn, with the values."""
+    names = _NAMES.get(vendor)
+    if names is None:
+        raise ParameterError(f"unknown controller vendor {vendor!r}; valid: {', '.join(sorted(_NAMES))}")
+    picks, t0 = before.turns(vendor)
+    _, t1 = after.turns(vendor)
+    label = joint_names or tuple(f"J{j + 1}" for j in range(before.joints.shape[1]))
+    out = []
+    for k in range(len(before.wrist)):
+        found = []
+        for name, a, b, unit in ((names[0], before.shoulder[k], after.shoulder[k], "mm"),
+                                 (names[1], before.elbow[k], after.elbow[k], "mm"),
+                                 (names[2], before.wrist[k], after.wrist[k], "deg")):
+            if (a > 0) != (b > 0):
+                f = 1e3 if unit == "mm" else 180 / np.pi
+                found.append(f"{name} {f * a:+.3f} -> {f * b:+.3f} {unit}")
+        for col, j in enumerate(picks):
+            if t0[k, col] != t1[k, col]:
+                found.append(f"turn of {label[j]} {np.degrees(before.joints[k, j]):+.3f} -> "
+                             f"{np.degrees(after.joints[k, j]):+.3f} deg")
+        out.append(found)
+    return out
+
+
+__all__ = ["VENDORS", "ArmConfiguration", "compute_arm_configuration", "configuration_changes"]
