@@ -82,27 +82,29 @@ class ArmConfiguration:
         raise ParameterError(f"unknown controller vendor {vendor!r}; valid: {', '.join(sorted(set(VENDORS.values())))}")
 
 
-def _nearest_point(points: np.ndarray, directions: np.ndarray) -> np.ndarray:
-    """The point nearest (least squares) to the lines ``points + t directions`` (k, 3)."""
-    a, b = np.zeros((3, 3)), np.zeros(3)
-    for p, d in zip(points, directions, strict=True):
-        m = np.eye(3) - np.outer(d, d)
-        a += m
-        b += m @ p
-    return np.linalg.lstsq(a, b, rcond=None)[0]
+def _nearest_points(points: np.ndarray, directions: np.ndarray) -> np.ndarray:
+    """Per row, the point nearest (least squares) to the lines ``points + t directions``,
+    (n, k, 3) each -> (n, 3)."""
+    m = np.eye(3) - directions[..., :, None] * directions[..., None, :]        # (n, k, 3, 3)
+    return np.linalg.solve(m.sum(axis=1), np.einsum("nkij,nkj->ni", m, points)[..., None])[..., 0]
 
 
-def _axes(robot: Robot, data: pin.Data, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Points and unit directions of the joint axes at ``q``, world frame, (nq, 3) each."""
+def _axes(robot: Robot, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Points and unit directions of the joint axes at every row of ``q``, world frame, (n, nq, 3)
+    each, and joint 1's rotation (n, 3, 3)."""
     model = robot.model
-    pin.forwardKinematics(model, data, q)
-    pts, dirs = [], []
-    for i in range(1, model.njoints):
-        s = np.asarray(data.joints[i].S).reshape(6)[3:]
-        m = data.oMi[i]
-        pts.append(m.translation.copy())
-        dirs.append(m.rotation @ (s / np.linalg.norm(s)))
-    return np.array(pts), np.array(dirs)
+    data = model.createData()
+    pin.forwardKinematics(model, data, pin.neutral(model))
+    local = np.array([np.asarray(data.joints[i].S).reshape(6)[3:] for i in range(1, model.njoints)])
+    local /= np.linalg.norm(local, axis=1, keepdims=True)       # revolute: a constant axis in its frame
+    n, nj = len(q), model.njoints - 1
+    rot, pts = np.empty((n, nj, 3, 3)), np.empty((n, nj, 3))
+    for k, row in enumerate(q):
+        pin.forwardKinematics(model, data, row)
+        for i in range(nj):
+            m = data.oMi[i + 1]
+            rot[k, i], pts[k, i] = m.rotation, m.translation
+    return pts, np.einsum("nijk,ik->nij", rot, local), rot[:, 0]
 
 
 def compute_arm_configuration(robot: Robot, q: np.ndarray,
@@ -115,21 +117,16 @@ def compute_arm_configuration(robot: Robot, q: np.ndarray,
     q = robot.check_configurations(q)
     if robot.nq < 6:
         raise ParameterError(f"{robot.name}: configuration bits need a 6-axis arm, it has {robot.nq} joints")
-    data = robot.model.createData()
-    p0, d0 = _axes(robot, data, pin.neutral(robot.model))
+    p0, d0, r0 = (a[0] for a in _axes(robot, pin.neutral(robot.model)[None]))
     # shoulder direction at q = 0 in joint 1's own frame: the common normal from A1 to A2
     gap = (p0[1] - p0[0]) - d0[0] * float(np.dot(p0[1] - p0[0], d0[0]))
-    r1 = data.oMi[1].rotation
-    u_local = r1.T @ (gap / np.linalg.norm(gap) if np.linalg.norm(gap) > 1e-6 else r1[:, 0])
-    shoulder, elbow = np.empty(len(q)), np.empty(len(q))
-    for k, row in enumerate(q):
-        p, d = _axes(robot, data, row)
-        w = _nearest_point(p[3:6], d[3:6])
-        u = data.oMi[1].rotation @ u_local
-        shoulder[k] = float(np.dot(w - p[0], u))
-        arm = p[2] - p[1]
-        arm = arm - d[2] * float(np.dot(arm, d[2]))          # in the plane normal to A3
-        elbow[k] = float(np.dot(np.cross(arm, w - p[2]), d[2])) / np.linalg.norm(arm)
+    u_local = r0.T @ (gap / np.linalg.norm(gap) if np.linalg.norm(gap) > 1e-6 else r0[:, 0])
+    p, d, r1 = _axes(robot, q)
+    w = _nearest_points(p[:, 3:6], d[:, 3:6])
+    shoulder = np.einsum("ni,ni->n", w - p[:, 0], r1 @ u_local)
+    arm = p[:, 2] - p[:, 1]
+    arm = arm - d[:, 2] * np.einsum("ni,ni->n", arm, d[:, 2])[:, None]      # in the plane normal to A3
+    elbow = np.einsum("ni,ni->n", np.cross(arm, w - p[:, 2]), d[:, 2]) / np.linalg.norm(arm, axis=1)
     c = np.array([controller.to_controller(row) for row in q]) if controller is not None else q.copy()
     return ArmConfiguration(shoulder, elbow, c[:, 4].copy(), c)
 
