@@ -19,12 +19,7 @@ from calib_oed.calibration.realistic_measure import measure
 from calib_oed.calibration.robust import identify_robust
 from calib_oed.calibration.workflow import setup
 from calib_oed.model.inverse_kinematics import TcpKinematics
-
-TRUTHS = (1, 2, 3)
-
-
-def _rms(a) -> float:
-    return float(np.sqrt(np.mean(np.square(a))))
+from tests.calibration.test_compensation import TRUTHS, _rms
 
 
 def realistic_errors(scene_name: str, truths=TRUTHS, n_design: int = 60, n_targets: int = 120) -> list[dict]:
