@@ -82,6 +82,15 @@ class ArmConfiguration:
         raise ParameterError(f"unknown controller vendor {vendor!r}; valid: {', '.join(sorted(set(VENDORS.values())))}")
 
 
+def kuka_status(cfg: ArmConfiguration) -> tuple[np.ndarray, np.ndarray]:
+    """KUKA's status ``S`` and turn ``T`` of every row (n,) each: S bit 0 the wrist centre in the
+    overhead area (not in front of A1), bit 1 A3 at or past the stretched arm (elbow margin >= 0
+    on arms whose joint directions are KUKA's: ROS-Industrial's and ours), bit 2 A5 <= 0; T bit i
+    axis i + 1 below 0."""
+    s = (cfg.shoulder <= 0).astype(int) + 2 * (cfg.elbow >= 0) + 4 * (cfg.wrist <= 0)
+    return s, (cfg.joints < 0).astype(int) @ (1 << np.arange(cfg.joints.shape[1]))
+
+
 def _nearest_points(points: np.ndarray, directions: np.ndarray) -> np.ndarray:
     """Per row, the point nearest (least squares) to the lines ``points + t directions``,
     (n, k, 3) each -> (n, 3)."""
@@ -89,46 +98,64 @@ def _nearest_points(points: np.ndarray, directions: np.ndarray) -> np.ndarray:
     return np.linalg.solve(m.sum(axis=1), np.einsum("nkij,nkj->ni", m, points)[..., None])[..., 0]
 
 
-def _axes(robot: Robot, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Points and unit directions of the joint axes at every row of ``q``, world frame, (n, nq, 3)
-    each, and joint 1's rotation (n, 3, 3)."""
-    model = robot.model
-    data = model.createData()
-    pin.forwardKinematics(model, data, pin.neutral(model))
-    local = np.array([np.asarray(data.joints[i].S).reshape(6)[3:] for i in range(1, model.njoints)])
-    local /= np.linalg.norm(local, axis=1, keepdims=True)       # revolute: a constant axis in its frame
-    n, nj = len(q), model.njoints - 1
-    rot, pts = np.empty((n, nj, 3, 3)), np.empty((n, nj, 3))
-    for k, row in enumerate(q):
-        pin.forwardKinematics(model, data, row)
-        for i in range(nj):
-            m = data.oMi[i + 1]
-            rot[k, i], pts[k, i] = m.rotation, m.translation
-    return pts, np.einsum("nijk,ik->nij", rot, local), rot[:, 0]
-
-
-def compute_arm_configuration(robot: Robot, q: np.ndarray,
-                              controller: ControllerConvention | None = None) -> ArmConfiguration:
-    """:class:`ArmConfiguration` of the URDF joints ``q`` (n, nq) or (nq,) [rad] of a 6R arm.
+class ConfigurationKinematics:
+    """What :func:`compute_arm_configuration` needs of a robot, computed once: the joint axes in
+    their own frames, the shoulder direction in joint 1's frame, a Pinocchio data.
 
     Raises:
         ParameterError: fewer than 6 joints.
     """
-    q = robot.check_configurations(q)
-    if robot.nq < 6:
-        raise ParameterError(f"{robot.name}: configuration bits need a 6-axis arm, it has {robot.nq} joints")
-    p0, d0, r0 = (a[0] for a in _axes(robot, pin.neutral(robot.model)[None]))
-    # shoulder direction at q = 0 in joint 1's own frame: the common normal from A1 to A2
-    gap = (p0[1] - p0[0]) - d0[0] * float(np.dot(p0[1] - p0[0], d0[0]))
-    u_local = r0.T @ (gap / np.linalg.norm(gap) if np.linalg.norm(gap) > 1e-6 else r0[:, 0])
-    p, d, r1 = _axes(robot, q)
-    w = _nearest_points(p[:, 3:6], d[:, 3:6])
-    shoulder = np.einsum("ni,ni->n", w - p[:, 0], r1 @ u_local)
-    arm = p[:, 2] - p[:, 1]
-    arm = arm - d[:, 2] * np.einsum("ni,ni->n", arm, d[:, 2])[:, None]      # in the plane normal to A3
-    elbow = np.einsum("ni,ni->n", np.cross(arm, w - p[:, 2]), d[:, 2]) / np.linalg.norm(arm, axis=1)
-    c = np.array([controller.to_controller(row) for row in q]) if controller is not None else q.copy()
-    return ArmConfiguration(shoulder, elbow, c[:, 4].copy(), c)
+
+    def __init__(self, robot: Robot, controller: ControllerConvention | None = None):
+        if robot.nq < 6:
+            raise ParameterError(f"{robot.name}: configuration bits need a 6-axis arm, it has {robot.nq} joints")
+        self.robot, self.controller = robot, controller
+        model = robot.model
+        self._data = model.createData()
+        pin.forwardKinematics(model, self._data, pin.neutral(model))
+        local = np.array([np.asarray(self._data.joints[i].S).reshape(6)[3:] for i in range(1, model.njoints)])
+        self._local = local / np.linalg.norm(local, axis=1, keepdims=True)   # revolute: constant in its frame
+        p0, d0, r0 = (a[0] for a in self._axes(pin.neutral(model)[None]))
+        # the shoulder direction at q = 0 in joint 1's own frame: the common normal from A1 to A2
+        gap = (p0[1] - p0[0]) - d0[0] * float(np.dot(p0[1] - p0[0], d0[0]))
+        self._u_local = r0.T @ (gap / np.linalg.norm(gap) if np.linalg.norm(gap) > 1e-6 else r0[:, 0])
+
+    def _axes(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Points and unit directions of the joint axes at every row of ``q``, world frame, (n, nq, 3)
+        each, and joint 1's rotation (n, 3, 3)."""
+        model, data = self.robot.model, self._data
+        n, nj = len(q), model.njoints - 1
+        rot, pts = np.empty((n, nj, 3, 3)), np.empty((n, nj, 3))
+        for k, row in enumerate(q):
+            pin.forwardKinematics(model, data, row)
+            for i in range(nj):
+                m = data.oMi[i + 1]
+                rot[k, i], pts[k, i] = m.rotation, m.translation
+        return pts, np.einsum("nijk,ik->nij", rot, self._local), rot[:, 0]
+
+    def compute(self, q: np.ndarray) -> ArmConfiguration:
+        """:class:`ArmConfiguration` of the URDF joints ``q`` (n, nq) or (nq,) [rad]."""
+        q = self.robot.check_configurations(q)
+        p, d, r1 = self._axes(q)
+        w = _nearest_points(p[:, 3:6], d[:, 3:6])
+        shoulder = np.einsum("ni,ni->n", w - p[:, 0], r1 @ self._u_local)
+        arm = p[:, 2] - p[:, 1]
+        arm = arm - d[:, 2] * np.einsum("ni,ni->n", arm, d[:, 2])[:, None]      # in the plane normal to A3
+        elbow = np.einsum("ni,ni->n", np.cross(arm, w - p[:, 2]), d[:, 2]) / np.linalg.norm(arm, axis=1)
+        ctl = self.controller
+        c = np.array([ctl.to_controller(row) for row in q]) if ctl is not None else q.copy()
+        return ArmConfiguration(shoulder, elbow, c[:, 4].copy(), c)
+
+
+def compute_arm_configuration(robot: Robot, q: np.ndarray,
+                              controller: ControllerConvention | None = None) -> ArmConfiguration:
+    """:class:`ArmConfiguration` of the URDF joints ``q`` (n, nq) or (nq,) [rad] of a 6R arm
+    (:class:`ConfigurationKinematics`; build that once for many calls).
+
+    Raises:
+        ParameterError: fewer than 6 joints.
+    """
+    return ConfigurationKinematics(robot, controller).compute(q)
 
 
 def configuration_changes(before: ArmConfiguration, after: ArmConfiguration, vendor: str,
@@ -158,4 +185,5 @@ def configuration_changes(before: ArmConfiguration, after: ArmConfiguration, ven
     return out
 
 
-__all__ = ["VENDORS", "ArmConfiguration", "compute_arm_configuration", "configuration_changes"]
+__all__ = ["VENDORS", "ArmConfiguration", "ConfigurationKinematics", "compute_arm_configuration",
+           "configuration_changes", "kuka_status"]

@@ -37,8 +37,9 @@ from calib_oed.calibration.compensation import (
 )
 from calib_oed.model.arm_configuration import (
     VENDORS,
-    compute_arm_configuration,
+    ConfigurationKinematics,
     configuration_changes,
+    kuka_status,
 )
 from calib_oed.model.controller import ControllerConvention
 from calib_oed.model.inverse_kinematics import IkSettings, TcpKinematics
@@ -60,6 +61,8 @@ class CompensatedProgram:
         sources: Where the tool and base came from (``file``, ``given``, ``none``).
         configuration: Per target, what of the controller configuration :math:`\\hat q` changes
             against :math:`q^0` (Cartesian KRL, RAPID and TP targets; empty: nothing).
+        branch: Per target, how the configuration the file declares differs from that of the
+            nominal solution :math:`q^0` (KRL ``S``/``T``; empty: the same, or none declared).
     """
 
     parsed: ParsedProgram
@@ -69,6 +72,7 @@ class CompensatedProgram:
     shift_mm: np.ndarray
     sources: dict[str, str]
     configuration: tuple[tuple[str, ...], ...] = ()
+    branch: tuple[str, ...] = ()
 
     @property
     def names(self) -> list[str]:
@@ -85,6 +89,8 @@ class CompensatedProgram:
             line = lines.get(i)
             if line is not None and not self.changed[i]:
                 line += "; NOT compensated (left as written)"
+            if self.branch and self.branch[i]:
+                line = (line + "; " if line else f"{name}: ") + self.branch[i]
             if self._configuration(i):
                 line = (line + "; " if line else f"{name}: ") + (
                     "the controller configuration changes (" + "; ".join(self._configuration(i))
@@ -103,7 +109,8 @@ class CompensatedProgram:
                          "predicted_residual_mm": None if c.predicted_mm is None else float(c.predicted_mm[i]),
                          "joint_correction_deg": float(np.degrees(np.abs(c.correction[i]).max())),
                          "sigma_min": float(c.sigma_min[i]), "in_range": bool(c.in_range[i]),
-                         "configuration_changes": list(self._configuration(i))}
+                         "configuration_changes": list(self._configuration(i)),
+                         "declared_configuration": (self.branch[i] or None) if self.branch else None}
                         for i, t in enumerate(self.parsed.targets)],
         }
 
@@ -175,11 +182,16 @@ def compensate_program(parsed: ParsedProgram, nominal: Robot, calibrated: Robot,
     seed = (nominal.lower + nominal.upper) / 2 if home is None else np.asarray(home, float)
     n = len(parsed.targets)
     q0, ok = np.empty((n, nq)), np.ones(n, bool)
+    arm = None
     for i, target in enumerate(parsed.targets):
         if target.kind == "joint":
             q0[i] = _joints_from(target, parsed, controller, nq)
         else:
-            q0[i], err, _, _ = nom.solve(base * lang.pose_from(target.values), seed, settings)
+            pose = base * lang.pose_from(target.values)
+            q0[i], err, _, _ = nom.solve(pose, seed, settings)
+            if lang.name == "krl" and target.declared and err <= settings.tolerance and nq == 6:
+                arm = arm or ConfigurationKinematics(nominal, controller)
+                q0[i] = _declared_branch(nom, arm, pose, q0[i], dict(target.declared), settings)
             ok[i] = err <= settings.tolerance
         seed = q0[i]
     comp = compensate_joints(nominal, calibrated, q0, tool=tool, base=base, uncertainty=uncertainty,
@@ -188,13 +200,15 @@ def compensate_program(parsed: ParsedProgram, nominal: Robot, calibrated: Robot,
     cal = TcpKinematics(calibrated, tool, length=nom.length)
     shift = np.array([1e3 * np.linalg.norm(cal.compute_pose(q).translation - nom.compute_pose(q).translation)
                       for q in q0])
-    configuration = _configuration_changes(parsed, nominal, q0, comp, controller)
+    configuration, branch = _configuration_checks(parsed, nominal, q0, comp, controller)
     values, comments = {}, {}
     short = lang.name == "tp"
     for i, target in enumerate(parsed.targets):
         flags = [] if comp.converged[i] else ["NOT compensated: inverse kinematics failed"]
         if configuration[i]:
             flags.append("CONF" if short else "controller configuration changes: " + ", ".join(configuration[i]))
+        if branch[i]:
+            flags.append(branch[i].split(":")[0])
         if comp.near_singular[i]:
             flags.append("near singularity" if not short else "SING")
         if not comp.in_range[i]:
@@ -207,23 +221,79 @@ def compensate_program(parsed: ParsedProgram, nominal: Robot, calibrated: Robot,
         pred = None if comp.predicted_mm is None else float(comp.predicted_mm[i])
         comments[i] = _comment(target.name, pred, flags, short)
     texts = rewrite(parsed, values, comments)
-    return CompensatedProgram(parsed, texts, comp, comp.converged.copy(), shift, sources, configuration)
+    return CompensatedProgram(parsed, texts, comp, comp.converged.copy(), shift, sources, configuration, branch)
 
 
-def _configuration_changes(parsed: ParsedProgram, nominal: Robot, q0: np.ndarray, comp: Compensation,
-                           controller) -> tuple[tuple[str, ...], ...]:
+def _declared_branch(nom: TcpKinematics, arm: ConfigurationKinematics, pose: pin.SE3, q: np.ndarray,
+                     declared: dict, settings: IkSettings) -> np.ndarray:
+    """The nominal solution of ``pose`` nearest the branch a KRL target's ``S``/``T`` declare, if
+    ``q`` (the one next to the previous target) is not in it: the wrist flipped (A4 + 180 deg,
+    -A5, A6 + 180 deg: the same pose for a spherical wrist) as ``S`` bit 2 says, and each joint
+    turned by 360 deg to the sign ``T`` gives where that stays inside its limits; solved again
+    from there and kept if it is inside the limits and differs from the declared bits in fewer
+    bits than ``q``. Shoulder and elbow (``S`` bits 0, 1) are not changed: a target declared in
+    another of those, or whose declared turn is beyond a limit, is named."""
+    masks = {"S": 0b111, "T": 0b111111}
+    want = {k: v & masks[k] for k, v in declared.items() if k in masks}
+    nominal, controller = arm.robot, arm.controller
+
+    def wrong(row) -> int:
+        s, t = kuka_status(arm.compute(row))
+        ours = {"S": int(s[0]), "T": int(t[0])}
+        return sum(bin(ours[k] ^ v).count("1") for k, v in want.items())
+
+    def sign_ok(row, j) -> bool:
+        c = controller.to_controller(row) if controller is not None else row
+        return (c[j] < 0) == bool(want["T"] >> j & 1)
+
+    before = wrong(q)
+    if before == 0:
+        return q
+    cand = q.copy()
+    if "S" in want and (want["S"] >> 2 & 1) != (arm.compute(q).wrist[0] <= 0):
+        cand[3], cand[4], cand[5] = cand[3] + np.pi, -cand[4], cand[5] + np.pi
+    for j in range(6):
+        options = [cand[j] + 2 * np.pi * k for k in (-1, 0, 1)]
+        options = [v for v in options if nominal.lower[j] <= v <= nominal.upper[j]] or [cand[j]]
+        trial = [np.r_[cand[:j], v, cand[j + 1:]] for v in options]
+        good = [t for t in trial if "T" in want and sign_ok(t, j)]
+        cand = min(good or trial, key=lambda t: abs(t[j] - cand[j]))
+    q_new, err, _, _ = nom.solve(pose, cand, settings)
+    inside = bool(np.all((q_new >= nominal.lower) & (q_new <= nominal.upper)))
+    return q_new if inside and err <= settings.tolerance and wrong(q_new) < before else q
+
+
+def _configuration_checks(parsed: ParsedProgram, nominal: Robot, q0: np.ndarray, comp: Compensation,
+                          controller) -> tuple[tuple[tuple[str, ...], ...], tuple[str, ...]]:
     r"""Per target, the configuration bits of its language that :math:`\hat q` changes (Cartesian
-    targets of KRL, RAPID, TP on a 6-axis arm; module docstring)."""
+    targets of KRL, RAPID, TP on a 6-axis arm), and how a KRL target's declared ``S``/``T``
+    differ from those of :math:`q^0` (module docstring)."""
     vendor = VENDORS.get(parsed.language.name)
+    n = len(parsed.targets)
     poses = [i for i, t in enumerate(parsed.targets) if t.kind == "pose" and comp.converged[i]]
-    out: list[tuple[str, ...]] = [()] * len(parsed.targets)
+    changes: list[tuple[str, ...]] = [()] * n
+    branch = [""] * n
     if vendor is None or not poses or nominal.nq != 6:
-        return tuple(out)
-    before = compute_arm_configuration(nominal, q0[poses], controller)
-    after = compute_arm_configuration(nominal, comp.q[poses], controller)
+        return tuple(changes), tuple(branch)
+    arm = ConfigurationKinematics(nominal, controller)
+    before, after = arm.compute(q0[poses]), arm.compute(comp.q[poses])
     for i, found in zip(poses, configuration_changes(before, after, vendor, nominal.joint_names), strict=True):
-        out[i] = tuple(found)
-    return tuple(out)
+        changes[i] = tuple(found)
+    if vendor == "kuka":
+        status, turn = kuka_status(before)
+        for k, i in enumerate(poses):
+            declared = dict(parsed.targets[i].declared)
+            ours = {"S": int(status[k]), "T": int(turn[k])}
+            masks = {"S": 0b111, "T": 0b111111}
+            if any(key in declared and (declared[key] & masks[key]) != ours[key] for key in ours):
+                said = ", ".join(f"{key} {declared[key]}" for key in ("S", "T") if key in declared)
+                got = ", ".join(f"{key} {ours[key]}" for key in ("S", "T") if key in declared)
+                joints = ", ".join(f"{v:.1f}" for v in np.degrees(before.joints[k]))
+                branch[i] = (f"declared {said}, the nominal solution compensated has {got}: the controller "
+                             "reaches this pose on another branch (another shoulder or elbow, or beyond the joint "
+                             f"limits) than the joints compensated ({joints} deg); give a joint target or the S "
+                             "and T of that branch")
+    return tuple(changes), tuple(branch)
 
 
 __all__ = ["CompensatedProgram", "compensate_program"]

@@ -14,6 +14,7 @@ from calib_oed.model.arm_configuration import (
     ArmConfiguration,
     compute_arm_configuration,
     configuration_changes,
+    kuka_status,
 )
 
 
@@ -92,3 +93,16 @@ def test_fewer_than_six_axes_is_refused(tmp_path):
     (tmp_path / "arm3.urdf").write_text(table_urdf_text(arm3))
     with pytest.raises(ParameterError, match="6-axis"):
         compute_arm_configuration(load_robot(tmp_path / "arm3.urdf", tool_frame=arm3.tool_frame), np.zeros(3))
+
+
+def test_kuka_status_and_turn():
+    """KSS 8.x: S bit 0 overhead, bit 1 A3 >= phi, bit 2 A5 <= 0; T bit i A(i+1) < 0."""
+    robot = load_robot("kr16")
+    q = np.radians([[10, -80, 95, 0, 30, 0], [-15, -100, 110, -20, 40, 60], [10, -80, 95, 180, -30, -180],
+                    [0, -80, -20, 0, 30, 0], [0, -150, 30, 0, 30, 0]])
+    cfg = compute_arm_configuration(robot, q)
+    status, turn = kuka_status(cfg)
+    assert turn.tolist() == [2, 11, 2 + 16 + 32, 2 + 4, 2]
+    assert status[:3].tolist() == [2, 2, 6]                # elbow above the stretched arm; flipped wrist
+    assert status[3] & 2 == 0                             # A3 = -20 deg < phi = -3 deg: bit 1 clear
+    assert cfg.shoulder[4] < 0 and status[4] & 1 == 1     # A2 = -150 deg: the wrist centre behind A1
