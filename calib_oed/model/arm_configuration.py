@@ -119,6 +119,9 @@ class ConfigurationKinematics:
         # the shoulder direction at q = 0 in joint 1's own frame: the common normal from A1 to A2
         gap = (p0[1] - p0[0]) - d0[0] * float(np.dot(p0[1] - p0[0], d0[0]))
         self._u_local = r0.T @ (gap / np.linalg.norm(gap) if np.linalg.norm(gap) > 1e-6 else r0[:, 0])
+        # the elbow margin is L sin(q3 + c) (the wrist centre turns about A3 with joint 3)
+        e = self.compute(np.array([np.r_[0.0, 0.0, a3, np.zeros(model.nq - 3)] for a3 in (0.0, np.pi / 2)]))
+        self._elbow_phase = float(np.arctan2(e.elbow[0], e.elbow[1]))
 
     def _axes(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Points and unit directions of the joint axes at every row of ``q``, world frame, (n, nq, 3)
@@ -132,6 +135,24 @@ class ConfigurationKinematics:
                 m = data.oMi[i + 1]
                 rot[k, i], pts[k, i] = m.rotation, m.translation
         return pts, np.einsum("nijk,ik->nij", rot, self._local), rot[:, 0]
+
+    def compute_elbow_flip(self, q: np.ndarray) -> np.ndarray:
+        r"""The mirrored elbow of the URDF joints ``q`` (nq,) [rad] with the same wrist centre:
+        :math:`q_3' = -2c - q_3` (the elbow margin :math:`L\sin(q_3 + c)` negated), :math:`q_2` turned
+        so the wrist centre is back where it was; joints 1, 4-6 unchanged (a seed for the inverse
+        kinematics of the pose on the other elbow). Joint 3 is taken a turn round where that
+        brings it inside its limits."""
+        robot = self.robot
+        q = np.array(q, dtype=float)
+        out = q.copy()
+        q3 = -2 * self._elbow_phase - q[2]
+        turns = [q3 + 2 * np.pi * k for k in (-1, 0, 1)]
+        out[2] = min(turns, key=lambda v: (not robot.lower[2] <= v <= robot.upper[2], abs(v - q[2])))
+        p, d, _ = self._axes(np.stack([q, out]))
+        w = _nearest_points(p[:, 3:6], d[:, 3:6])
+        axis, a, b = d[0, 1], w[1] - p[0, 1], w[0] - p[0, 1]
+        out[1] += float(np.arctan2(np.dot(axis, np.cross(a, b)), np.dot(a, b)))
+        return out
 
     def compute(self, q: np.ndarray) -> ArmConfiguration:
         """:class:`ArmConfiguration` of the URDF joints ``q`` (n, nq) or (nq,) [rad]."""

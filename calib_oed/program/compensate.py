@@ -227,12 +227,14 @@ def compensate_program(parsed: ParsedProgram, nominal: Robot, calibrated: Robot,
 def _declared_branch(nom: TcpKinematics, arm: ConfigurationKinematics, pose: pin.SE3, q: np.ndarray,
                      declared: dict, settings: IkSettings) -> np.ndarray:
     """The nominal solution of ``pose`` nearest the branch a KRL target's ``S``/``T`` declare, if
-    ``q`` (the one next to the previous target) is not in it: the wrist flipped (A4 + 180 deg,
-    -A5, A6 + 180 deg: the same pose for a spherical wrist) as ``S`` bit 2 says, and each joint
-    turned by 360 deg to the sign ``T`` gives where that stays inside its limits; solved again
-    from there and kept if it is inside the limits and differs from the declared bits in fewer
-    bits than ``q``. Shoulder and elbow (``S`` bits 0, 1) are not changed: a target declared in
-    another of those, or whose declared turn is beyond a limit, is named."""
+    ``q`` (the one next to the previous target) is not in it: the other elbow as ``S`` bit 1
+    says (:meth:`~calib_oed.model.arm_configuration.ConfigurationKinematics.compute_elbow_flip`,
+    solved), the wrist flipped (A4 + 180 deg, -A5, A6 + 180 deg: the same pose for a spherical
+    wrist) as ``S`` bit 2 says, and each joint turned by 360 deg to the sign ``T`` gives where
+    that stays inside its limits; solved again from there and kept if it is inside the limits
+    and differs from the declared bits in fewer bits than ``q``. The shoulder (``S`` bit 0) is
+    not changed: a target declared in another, or whose declared branch is beyond a limit, is
+    named."""
     masks = {"S": 0b111, "T": 0b111111}
     want = {k: v & masks[k] for k, v in declared.items() if k in masks}
     nominal, controller = arm.robot, arm.controller
@@ -250,7 +252,10 @@ def _declared_branch(nom: TcpKinematics, arm: ConfigurationKinematics, pose: pin
     if before == 0:
         return q
     cand = q.copy()
-    if "S" in want and (want["S"] >> 2 & 1) != (arm.compute(q).wrist[0] <= 0):
+    if "S" in want and (want["S"] >> 1 & 1) != (arm.compute(q).elbow[0] >= 0):
+        flipped, err, _, _ = nom.solve(pose, arm.compute_elbow_flip(q), settings)
+        cand = flipped if err <= settings.tolerance else cand
+    if "S" in want and (want["S"] >> 2 & 1) != (arm.compute(cand).wrist[0] <= 0):
         cand[3], cand[4], cand[5] = cand[3] + np.pi, -cand[4], cand[5] + np.pi
     for j in range(6):
         options = [cand[j] + 2 * np.pi * k for k in (-1, 0, 1)]

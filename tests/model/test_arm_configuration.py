@@ -106,3 +106,21 @@ def test_kuka_status_and_turn():
     assert status[:3].tolist() == [2, 2, 6]                # elbow above the stretched arm; flipped wrist
     assert status[3] & 2 == 0                             # A3 = -20 deg < phi = -3 deg: bit 1 clear
     assert cfg.shoulder[4] < 0 and status[4] & 1 == 1     # A2 = -150 deg: the wrist centre behind A1
+
+
+def test_elbow_flip_keeps_the_wrist_centre_and_mirrors_the_elbow():
+    from calib_oed.model.arm_configuration import ConfigurationKinematics
+
+    robot = load_robot("kr16")
+    arm = ConfigurationKinematics(robot)
+    q = np.radians([20, -70, 100, 15, 50, -30])
+    flipped = arm.compute_elbow_flip(q)
+    a, b = arm.compute(q), arm.compute(flipped)
+    assert np.isclose(b.elbow[0], -a.elbow[0], atol=1e-12) and np.isclose(b.shoulder[0], a.shoulder[0], atol=1e-12)
+    assert np.allclose(flipped[[0, 3, 4, 5]], q[[0, 3, 4, 5]]) and not np.isclose(flipped[2], q[2])
+    data = robot.model.createData()
+    centres = []
+    for row in (q, flipped):
+        pin.forwardKinematics(robot.model, data, row)
+        centres.append(data.oMi[5].translation.copy())        # the kr16's wrist centre: the A5 origin
+    assert np.allclose(centres[0], centres[1], atol=1e-12)
