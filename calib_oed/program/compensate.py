@@ -20,6 +20,8 @@ configuration string), written as it was. If the compensated joints :math:`\hat 
 another configuration than :math:`q^0` (:mod:`calib_oed.model.arm_configuration`: a joint
 near a turn boundary, or the arm near a singularity), the controller would not reach
 :math:`\hat q` from :math:`P'` and those bits: the target is named with what changes.
+KRL's ``S``/``T`` are also read: the nominal solution is moved to the declared elbow, wrist
+and turns (:func:`_declared_branch`), and a target still on another branch is named.
 """
 
 from __future__ import annotations
