@@ -2,8 +2,10 @@
 
 For fms_kr16 a simulated calibration (truth seed 1, 60 random poses) is written as
 ``identify -o`` writes it; then programs of N targets are compensated and timed: a KRL
-module of N ``E6AXIS`` joint targets (the project's writer) and a CSV of N Cartesian
-targets (the nominal TCP there); the configurations are a path, a random walk of 3 deg
+module of N ``E6AXIS`` joint targets (the project's writer), a CSV of N Cartesian
+targets (the nominal TCP there) and a KRL module of the same N poses as ``E6POS`` targets
+with the status and turn of the configurations they were taught at (and the checks of
+KUKA's status and turn); the configurations are a path, a random walk of 3 deg
 steps per joint (reflected 5 deg inside the limits) from the scene's first working configuration, as consecutive targets of a
 program are near each other (each Cartesian target is solved from the one before). Each is timed for the whole
 ``compensate`` work (read, parse, inverse kinematics, predicted residual, rewrite; not
@@ -30,6 +32,7 @@ from calib_oed.calibration.export import export_calibration
 from calib_oed.calibration.identification import identify
 from calib_oed.calibration.problem import CalibrationProblem
 from calib_oed.calibration.simulation import draw_true_parameters, simulate_observations
+from calib_oed.model.arm_configuration import compute_arm_configuration, kuka_status
 from calib_oed.model.inverse_kinematics import TcpKinematics
 from calib_oed.program.compensate import compensate_program
 from calib_oed.program.parse.files import read_program
@@ -43,6 +46,17 @@ def _krl(q_deg: np.ndarray) -> tuple[str, str]:
         f"DECL E6AXIS XP{i}={{{','.join(f'A{k + 1} {v:.4f}' for k, v in enumerate(row))},E1 0.0,E2 0.0,"
         "E3 0.0,E4 0.0,E5 0.0,E6 0.0}" for i, row in enumerate(q_deg)] + ["ENDDAT"]
     return "\n".join(src) + "\n", "\n".join(dat) + "\n"
+
+
+def _krl_poses(poses, status, turn) -> tuple[str, str]:
+    """A KRL module of Cartesian E6POS targets (A, B, C = rz, ry, rx of R = Rz Ry Rx), S/T as taught."""
+    src = ["DEF BENCHP( )"] + [f"  LIN XC{i}" for i in range(len(poses))] + ["END"]
+    dat = ["DEFDAT BENCHP"]
+    for i, m in enumerate(poses):
+        xyz, (rx, ry, rz) = to_euler_mm_deg(m)
+        dat.append(f"DECL E6POS XC{i}={{X {xyz[0]:.4f},Y {xyz[1]:.4f},Z {xyz[2]:.4f},A {rz:.4f},B {ry:.4f},"
+                   f"C {rx:.4f},S {status[i]},T {turn[i]},E1 0.0,E2 0.0,E3 0.0,E4 0.0,E5 0.0,E6 0.0}}")
+    return "\n".join(src) + "\n", "\n".join(dat + ["ENDDAT"]) + "\n"
 
 
 def _csv(poses) -> str:
@@ -81,10 +95,15 @@ def main() -> None:
         (folder / "bench.src").write_text(src)
         (folder / "bench.dat").write_text(dat)
         nominal = TcpKinematics(robot)
-        (folder / "bench.csv").write_text(_csv([nominal.compute_pose(row) for row in q]))
+        poses = [nominal.compute_pose(row) for row in q]
+        (folder / "bench.csv").write_text(_csv(poses))
+        src, dat = _krl_poses(poses, *kuka_status(compute_arm_configuration(robot, q)))
+        (folder / "benchp.src").write_text(src)
+        (folder / "benchp.dat").write_text(dat)
         truth = TcpKinematics(type(robot)(**{**robot.__dict__, "model": space.perturbed_model(p_true)}))
         print(f"fms_kr16, {args.n} targets; calibration loaded in {load_s:.2f} s (shared 2-core machine)")
-        for label, path in (("KRL joint targets", "bench.src"), ("CSV Cartesian targets", "bench.csv")):
+        for label, path in (("KRL joint targets", "bench.src"), ("CSV Cartesian targets", "bench.csv"),
+                            ("KRL Cartesian targets (configuration checked)", "benchp.src")):
             times, cpu = [], []
             for _ in range(args.repeat):
                 t0, c0 = time.perf_counter(), time.process_time()
@@ -104,7 +123,9 @@ def main() -> None:
             print(f"    named {int(c.flagged.sum())} of {c.n} (not converged {int((~c.converged).sum())}, near a "
                   f"singularity {int(c.near_singular.sum())}, outside the range {int((~c.in_range).sum())}); "
                   f"the others: true TCP error RMS {1e3 * rms(err[ok]):.4f} mm, predicted "
-                  f"{rms(c.predicted_mm[ok]):.4f} mm, uncompensated {1e3 * rms(before[ok]):.3f} mm")
+                  f"{rms(c.predicted_mm[ok]):.4f} mm, uncompensated {1e3 * rms(before[ok]):.3f} mm; "
+                  f"controller configuration changed: {sum(bool(x) for x in out.configuration)}, "
+                  f"declared S/T not the nominal solution's: {sum(bool(x) for x in out.branch)}")
 
 
 if __name__ == "__main__":

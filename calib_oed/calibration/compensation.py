@@ -20,8 +20,12 @@ target is compensated by
 :math:`\hat t(\hat q) - t^\star(\hat q) \approx G(\hat q)(\hat p - p^\star)`, the
 calibrated model's error at :math:`\hat q`, with :math:`G = \partial t_{W,E}/\partial p`
 on the free parameters (:class:`~calib_oed.calibration.kpi.TcpKpi`). Its
-covariance is :math:`C_t = G C_p G^\top` [m²] (plus a model-error term where one
-is given, :attr:`CalibrationUncertainty.model_error`); the report gives
+covariance is :math:`C_t = G C_p G^\top` [m²] plus a model-error term where one
+is given (:attr:`CalibrationUncertainty.model_error`): from an identification with a
+fitted model error, :func:`exact_model_error` makes :math:`C_t` the predicted accuracy
+of :mod:`calib_oed.calibration.prediction` at :math:`\hat q`
+(:meth:`CalibrationUncertainty.from_robust`); from ``identify``'s files,
+:func:`marginal_model_error`, the fitted model error's variance. The report gives
 :math:`\sqrt{\mathrm{tr}\,C_t}` [mm], the RMS position error expected at the target
 (:math:`C_p` in the gauge of the calibration: the base and tool as in the
 nominal model, ``docs/conventions.md``).
@@ -87,6 +91,18 @@ class CalibrationUncertainty:
         """From an :class:`~calib_oed.calibration.identification_result.IdentificationResult`."""
         return cls(space, np.asarray(result.p, float), np.asarray(result.free_indices, int),
                    np.asarray(result.covariance, float), model_error)
+
+    @classmethod
+    def from_robust(cls, space: ParameterSpace, robust) -> CalibrationUncertainty:
+        r"""From an identification with a fitted model error
+        (:func:`~calib_oed.calibration.robust.identify_robust` with ``model_error=``): :math:`C_p`
+        the a-priori covariance and the model-error term of :mod:`calib_oed.calibration.prediction`,
+        :math:`V_\ast(K) - V_\ast(0)` at the target (:func:`exact_model_error`), so that
+        :math:`C_t = V_\ast`, the predicted accuracy at a new pose without noise or repeatability."""
+        res = robust.result
+        free = np.asarray(res.free_indices, int)
+        return cls(space, np.asarray(res.p, float), free, np.asarray(res.covariance, float),
+                   exact_model_error(space, robust.linearisation, robust.model_error.prior, res.p, free))
 
     def compute_covariance(self, q: np.ndarray, point: np.ndarray) -> np.ndarray:
         r""":math:`C_t = G C_p G^\top` (+ model error) at every configuration, (n, 3, 3) [m²]."""
@@ -166,6 +182,26 @@ class Compensation:
             if why:
                 out.append(f"{names[i]}: " + "; ".join(why))
         return out
+
+
+def exact_model_error(space: ParameterSpace, lin, prior, p: np.ndarray, free: np.ndarray) -> ModelErrorTerm:
+    r"""The model-error part of the predicted error at a new pose (:mod:`calib_oed.calibration.prediction`):
+    :math:`V_\ast(K) - V_\ast(0) = kI_3 + BKB^\top - BC_\ast - C_\ast^\top B^\top` [m²], the
+    Gaussian-process model error at the target plus how the fit's parameter error correlates with
+    it (``lin`` the identification linearised, ``prior`` the fitted model error)."""
+    from calib_oed.calibration.prediction import error_covariances
+
+    def term(q: np.ndarray, point: np.ndarray) -> np.ndarray:
+        g = TcpKpi(q, point).compute_param_jacobian(space, p)[:, free].reshape(len(q), 3, -1)
+        return error_covariances(lin, prior, g, q) - error_covariances(lin, None, g, q)
+
+    return term
+
+
+def marginal_model_error(prior) -> ModelErrorTerm:
+    r""":math:`k(q, q)\,I_3` [m²]: the fitted model error's variance at any pose (what ``identify``'s
+    ``identification.json`` keeps, without the linearisation that :func:`exact_model_error` needs)."""
+    return lambda q, point: np.broadcast_to(prior.variance * np.eye(3), (len(q), 3, 3)).copy()
 
 
 def calibrated_robot(space: ParameterSpace, p: np.ndarray) -> Robot:
@@ -286,4 +322,4 @@ def compensate_pose(nominal: Robot, calibrated: Robot, poses, seeds: np.ndarray,
 
 
 __all__ = ["SINGULAR_THRESHOLD", "CalibrationUncertainty", "Compensation", "calibrated_robot", "compensate_joints",
-           "compensate_pose"]
+           "compensate_pose", "exact_model_error", "marginal_model_error"]

@@ -3,11 +3,14 @@ r"""The calibration ``compensate`` uses: the files ``calib-oed identify -o DIR``
 * the calibrated URDF (the calibrated robot, loaded with the scene robot's tool frame,
   locked joints and package folders);
 * ``identification.json`` beside it: the estimate ``p`` (by name), the free parameters
-  and their covariance :math:`C_p` (``covariance``, a priori), and ``noise_factor``
-  :math:`\hat\sigma_0^2`. The predicted residual uses :math:`C_p\max(1, \hat\sigma_0^2)`:
-  a fit whose residuals are larger than the noise model says (model error) scales the
-  uncertainty up, never down. Without the file there is no prediction (and the report
-  says so);
+  and their covariance :math:`C_p` (``covariance``, a priori), the fitted model error
+  (``model_error.fitted``, a Gaussian process over the joints) and ``noise_factor``
+  :math:`\hat\sigma_0^2`. The predicted residual uses :math:`C_p` plus the model error's
+  variance :math:`k(q,q)I_3` at the target
+  (:func:`~calib_oed.calibration.compensation.marginal_model_error`); a file without a
+  fitted model error (older ``identify``) uses :math:`C_p\max(1, \hat\sigma_0^2)`: a fit
+  whose residuals are larger than the noise model says scales the uncertainty up, never
+  down. Without the file there is no prediction (and the report says so);
 * the sensor YAML: a calibration with joint compliance or joint gains is refused (their
   kinematics are not a URDF's; ``docs/compensate.md``).
 
@@ -25,13 +28,13 @@ import os
 from pathlib import Path
 
 import numpy as np
-
 import pinocchio as pin
 
-from calib_oed.calibration.compensation import CalibrationUncertainty
+from calib_oed.calibration.compensation import CalibrationUncertainty, marginal_model_error
 from calib_oed.calibration.sensor_file import read_sensor_compliance, read_sensor_gains
 from calib_oed.calibration.validation import find_calibration_files
 from calib_oed.exceptions import CompensationError, UnknownParameterError
+from calib_oed.measurement.discrepancy import DiscrepancyPrior
 from calib_oed.model.parameters import ParameterSpace
 from calib_oed.model.robot import Robot, load_robot
 
@@ -86,10 +89,12 @@ def load_calibration(space: ParameterSpace, folder: str | os.PathLike) -> tuple[
             p[space.index(name)] = float(value)
         free = np.array([space.index(e["name"]) for e in data["free"]], dtype=int)
         cov = np.array(data["covariance"], dtype=float)
-        factor = max(1.0, float(data.get("noise_factor") or 1.0))
+        fitted = (data.get("model_error") or {}).get("fitted")
+        prior = None if fitted is None else DiscrepancyPrior.from_dict(fitted, space.robot.nq, str(path))
+        factor = 1.0 if prior is not None else max(1.0, float(data.get("noise_factor") or 1.0))
     except UnknownParameterError as exc:
         raise CompensationError(f"{path}: not a calibration of this scene ({exc})") from exc
-    except (OSError, ValueError, KeyError, TypeError) as exc:
+    except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
         raise CompensationError(f"{path}: cannot read the identification ({exc}); "
                                 "give the folder `calib-oed identify -o DIR` wrote") from exc
     if cov.shape != (len(free), len(free)) or not np.all(np.isfinite(cov)):
@@ -98,7 +103,8 @@ def load_calibration(space: ParameterSpace, folder: str | os.PathLike) -> tuple[
     if mismatch > 1e-9:
         raise CompensationError(f"{path}: its estimate does not give {files['urdf']} (joint placements differ "
                                 f"by {mismatch:.3g} m or rad): the two files are not from one identification")
-    return calibrated, CalibrationUncertainty(space, p, free, cov * factor), out
+    extra = None if prior is None else marginal_model_error(prior)
+    return calibrated, CalibrationUncertainty(space, p, free, cov * factor, extra), out
 
 
 __all__ = ["load_calibration"]

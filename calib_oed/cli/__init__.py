@@ -62,6 +62,7 @@ from calib_oed.cli.design_commands import (
 from calib_oed.cli.compensate_commands import add_compensate_parser
 from calib_oed.cli.import_command import add_import_parser
 from calib_oed.cli.program_commands import add_program_parser
+from calib_oed.cli.table_command import add_table_parser
 from calib_oed.exceptions import CalibOedError
 
 __all__ = ["EXIT_BAD_INPUT", "EXIT_INTERNAL", "EXIT_INTERRUPTED", "EXIT_OK", "EXIT_VALIDATION_FAILED",
@@ -353,6 +354,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_program_parser(sub)
     add_compensate_parser(sub)
     add_import_parser(sub)
+    add_table_parser(sub)
 
     p = sub.add_parser("scenes", help="list the shipped scenes")
     p.add_argument("--json", action="store_true", help="machine-readable output")

@@ -13,6 +13,15 @@ convention (angles the representation nearest the original, status/turn/confdata
 written). A target whose inverse kinematics did not converge is left as written and
 named; one near a singularity or outside the calibrated joint range is compensated and
 named. Each target gets a comment with its predicted residual.
+
+**Controller configuration.** A KRL, RAPID or TP Cartesian target carries the
+configuration the controller solves it in (KUKA's ``S``/``T``, ABB's ``confdata``, FANUC's
+configuration string), written as it was. If the compensated joints :math:`\hat q` have
+another configuration than :math:`q^0` (:mod:`calib_oed.model.arm_configuration`: a joint
+near a turn boundary, or the arm near a singularity), the controller would not reach
+:math:`\hat q` from :math:`P'` and those bits: the target is named with what changes.
+KRL's ``S``/``T`` are also read: the nominal solution is moved to the declared elbow, wrist
+and turns (:func:`_declared_branch`), and a target still on another branch is named.
 """
 
 from __future__ import annotations
@@ -27,6 +36,12 @@ from calib_oed.calibration.compensation import (
     CalibrationUncertainty,
     Compensation,
     compensate_joints,
+)
+from calib_oed.model.arm_configuration import (
+    VENDORS,
+    ConfigurationKinematics,
+    configuration_changes,
+    kuka_status,
 )
 from calib_oed.model.controller import ControllerConvention
 from calib_oed.model.inverse_kinematics import IkSettings, TcpKinematics
@@ -46,6 +61,10 @@ class CompensatedProgram:
         shift_mm: :math:`\\lVert \\hat t(q^0) - t^0(q^0)\\rVert` [mm]: how far the calibrated model
             puts the TCP from the target without compensation (n,).
         sources: Where the tool and base came from (``file``, ``given``, ``none``).
+        configuration: Per target, what of the controller configuration :math:`\\hat q` changes
+            against :math:`q^0` (Cartesian KRL, RAPID and TP targets; empty: nothing).
+        branch: Per target, how the configuration the file declares differs from that of the
+            nominal solution :math:`q^0` (KRL ``S``/``T``; empty: the same, or none declared).
     """
 
     parsed: ParsedProgram
@@ -54,16 +73,33 @@ class CompensatedProgram:
     changed: np.ndarray
     shift_mm: np.ndarray
     sources: dict[str, str]
+    configuration: tuple[tuple[str, ...], ...] = ()
+    branch: tuple[str, ...] = ()
 
     @property
     def names(self) -> list[str]:
         return [t.name for t in self.parsed.targets]
 
+    def _configuration(self, i: int) -> tuple[str, ...]:
+        return self.configuration[i] if self.configuration else ()
+
     def issues(self) -> list[str]:
         flagged = np.flatnonzero(self.compensation.flagged)
-        lines = self.compensation.issues(self.names)
-        return [line + ("" if self.changed[i] else "; NOT compensated (left as written)")
-                for i, line in zip(flagged, lines, strict=True)]
+        lines = dict(zip(flagged, self.compensation.issues(self.names), strict=True))
+        out = []
+        for i, name in enumerate(self.names):
+            line = lines.get(i)
+            if line is not None and not self.changed[i]:
+                line += "; NOT compensated (left as written)"
+            if self.branch and self.branch[i]:
+                line = (line + "; " if line else f"{name}: ") + self.branch[i]
+            if self._configuration(i):
+                line = (line + "; " if line else f"{name}: ") + (
+                    "the controller configuration changes (" + "; ".join(self._configuration(i))
+                    + "): the status, turn or confdata as written would not select the compensated joints")
+            if line:
+                out.append(line)
+        return out
 
     def to_dict(self) -> dict:
         c = self.compensation
@@ -74,7 +110,9 @@ class CompensatedProgram:
                          "shift_mm": float(self.shift_mm[i]),
                          "predicted_residual_mm": None if c.predicted_mm is None else float(c.predicted_mm[i]),
                          "joint_correction_deg": float(np.degrees(np.abs(c.correction[i]).max())),
-                         "sigma_min": float(c.sigma_min[i]), "in_range": bool(c.in_range[i])}
+                         "sigma_min": float(c.sigma_min[i]), "in_range": bool(c.in_range[i]),
+                         "configuration_changes": list(self._configuration(i)),
+                         "declared_configuration": (self.branch[i] or None) if self.branch else None}
                         for i, t in enumerate(self.parsed.targets)],
         }
 
@@ -146,11 +184,16 @@ def compensate_program(parsed: ParsedProgram, nominal: Robot, calibrated: Robot,
     seed = (nominal.lower + nominal.upper) / 2 if home is None else np.asarray(home, float)
     n = len(parsed.targets)
     q0, ok = np.empty((n, nq)), np.ones(n, bool)
+    arm = None
     for i, target in enumerate(parsed.targets):
         if target.kind == "joint":
             q0[i] = _joints_from(target, parsed, controller, nq)
         else:
-            q0[i], err, _, _ = nom.solve(base * lang.pose_from(target.values), seed, settings)
+            pose = base * lang.pose_from(target.values)
+            q0[i], err, _, _ = nom.solve(pose, seed, settings)
+            if lang.name == "krl" and target.declared and err <= settings.tolerance and nq == 6:
+                arm = arm or ConfigurationKinematics(nominal, controller)
+                q0[i] = _declared_branch(nom, arm, pose, q0[i], dict(target.declared), settings)
             ok[i] = err <= settings.tolerance
         seed = q0[i]
     comp = compensate_joints(nominal, calibrated, q0, tool=tool, base=base, uncertainty=uncertainty,
@@ -159,10 +202,15 @@ def compensate_program(parsed: ParsedProgram, nominal: Robot, calibrated: Robot,
     cal = TcpKinematics(calibrated, tool, length=nom.length)
     shift = np.array([1e3 * np.linalg.norm(cal.compute_pose(q).translation - nom.compute_pose(q).translation)
                       for q in q0])
+    configuration, branch = _configuration_checks(parsed, nominal, q0, comp, controller)
     values, comments = {}, {}
     short = lang.name == "tp"
     for i, target in enumerate(parsed.targets):
         flags = [] if comp.converged[i] else ["NOT compensated: inverse kinematics failed"]
+        if configuration[i]:
+            flags.append("CONF" if short else "controller configuration changes: " + ", ".join(configuration[i]))
+        if branch[i]:
+            flags.append(branch[i].split(":")[0])
         if comp.near_singular[i]:
             flags.append("near singularity" if not short else "SING")
         if not comp.in_range[i]:
@@ -175,7 +223,84 @@ def compensate_program(parsed: ParsedProgram, nominal: Robot, calibrated: Robot,
         pred = None if comp.predicted_mm is None else float(comp.predicted_mm[i])
         comments[i] = _comment(target.name, pred, flags, short)
     texts = rewrite(parsed, values, comments)
-    return CompensatedProgram(parsed, texts, comp, comp.converged.copy(), shift, sources)
+    return CompensatedProgram(parsed, texts, comp, comp.converged.copy(), shift, sources, configuration, branch)
+
+
+def _declared_branch(nom: TcpKinematics, arm: ConfigurationKinematics, pose: pin.SE3, q: np.ndarray,
+                     declared: dict, settings: IkSettings) -> np.ndarray:
+    """The nominal solution of ``pose`` nearest the branch a KRL target's ``S``/``T`` declare, if
+    ``q`` (the one next to the previous target) is not in it: the other elbow as ``S`` bit 1
+    says (:meth:`~calib_oed.model.arm_configuration.ConfigurationKinematics.compute_elbow_flip`,
+    solved), the wrist flipped (A4 + 180 deg, -A5, A6 + 180 deg: the same pose for a spherical
+    wrist) as ``S`` bit 2 says, and each joint turned by 360 deg to the sign ``T`` gives where
+    that stays inside its limits; solved again from there and kept if it is inside the limits
+    and differs from the declared bits in fewer bits than ``q``. The shoulder (``S`` bit 0) is
+    not changed: a target declared in another, or whose declared branch is beyond a limit, is
+    named."""
+    masks = {"S": 0b111, "T": 0b111111}
+    want = {k: v & masks[k] for k, v in declared.items() if k in masks}
+    nominal, controller = arm.robot, arm.controller
+
+    def wrong(row) -> int:
+        s, t = kuka_status(arm.compute(row))
+        ours = {"S": int(s[0]), "T": int(t[0])}
+        return sum(bin(ours[k] ^ v).count("1") for k, v in want.items())
+
+    def sign_ok(row, j) -> bool:
+        c = controller.to_controller(row) if controller is not None else row
+        return (c[j] < 0) == bool(want["T"] >> j & 1)
+
+    before = wrong(q)
+    if before == 0:
+        return q
+    cand = q.copy()
+    if "S" in want and (want["S"] >> 1 & 1) != (arm.compute(q).elbow[0] >= 0):
+        flipped, err, _, _ = nom.solve(pose, arm.compute_elbow_flip(q), settings)
+        cand = flipped if err <= settings.tolerance else cand
+    if "S" in want and (want["S"] >> 2 & 1) != (arm.compute(cand).wrist[0] <= 0):
+        cand[3], cand[4], cand[5] = cand[3] + np.pi, -cand[4], cand[5] + np.pi
+    for j in range(6):
+        options = [cand[j] + 2 * np.pi * k for k in (-1, 0, 1)]
+        options = [v for v in options if nominal.lower[j] <= v <= nominal.upper[j]] or [cand[j]]
+        trial = [np.r_[cand[:j], v, cand[j + 1:]] for v in options]
+        good = [t for t in trial if "T" in want and sign_ok(t, j)]
+        cand = min(good or trial, key=lambda t: abs(t[j] - cand[j]))
+    q_new, err, _, _ = nom.solve(pose, cand, settings)
+    inside = bool(np.all((q_new >= nominal.lower) & (q_new <= nominal.upper)))
+    return q_new if inside and err <= settings.tolerance and wrong(q_new) < before else q
+
+
+def _configuration_checks(parsed: ParsedProgram, nominal: Robot, q0: np.ndarray, comp: Compensation,
+                          controller) -> tuple[tuple[tuple[str, ...], ...], tuple[str, ...]]:
+    r"""Per target, the configuration bits of its language that :math:`\hat q` changes (Cartesian
+    targets of KRL, RAPID, TP on a 6-axis arm), and how a KRL target's declared ``S``/``T``
+    differ from those of :math:`q^0` (module docstring)."""
+    vendor = VENDORS.get(parsed.language.name)
+    n = len(parsed.targets)
+    poses = [i for i, t in enumerate(parsed.targets) if t.kind == "pose" and comp.converged[i]]
+    changes: list[tuple[str, ...]] = [()] * n
+    branch = [""] * n
+    if vendor is None or not poses or nominal.nq != 6:
+        return tuple(changes), tuple(branch)
+    arm = ConfigurationKinematics(nominal, controller)
+    before, after = arm.compute(q0[poses]), arm.compute(comp.q[poses])
+    for i, found in zip(poses, configuration_changes(before, after, vendor, nominal.joint_names), strict=True):
+        changes[i] = tuple(found)
+    if vendor == "kuka":
+        status, turn = kuka_status(before)
+        for k, i in enumerate(poses):
+            declared = dict(parsed.targets[i].declared)
+            ours = {"S": int(status[k]), "T": int(turn[k])}
+            masks = {"S": 0b111, "T": 0b111111}
+            if any(key in declared and (declared[key] & masks[key]) != ours[key] for key in ours):
+                said = ", ".join(f"{key} {declared[key]}" for key in ("S", "T") if key in declared)
+                got = ", ".join(f"{key} {ours[key]}" for key in ("S", "T") if key in declared)
+                joints = ", ".join(f"{v:.1f}" for v in np.degrees(before.joints[k]))
+                branch[i] = (f"declared {said}, the nominal solution compensated has {got}: the controller "
+                             "reaches this pose on another branch (another shoulder or elbow, or beyond the joint "
+                             f"limits) than the joints compensated ({joints} deg); give a joint target or the S "
+                             "and T of that branch")
+    return tuple(changes), tuple(branch)
 
 
 __all__ = ["CompensatedProgram", "compensate_program"]

@@ -54,9 +54,23 @@ def _truth_errors(scene_name: str, n_design: int = 60, n_targets: int = 120):
 
 @pytest.mark.parametrize("scene_name", ["fms_kr16", "ur5_table", "fms_kr300", "fms_kr500"])
 def test_true_robot_reaches_the_compensated_targets(scene_name):
-    trials = _truth_errors(scene_name)
+    _check_truths(_truth_errors(scene_name))
+
+
+def test_a_large_arm_from_a_ros_industrial_xacro(tmp_path):
+    """KUKA KR 120 R2500 pro from ROS-Industrial's kr120r2500pro.xacro (rtb-data), in the fms_kr300 cell."""
+    from tests.model.ros_industrial import kr120_scene_file
+
+    scene = kr120_scene_file(tmp_path)
+    robot, kr300 = load_scene(scene).robot, load_robot("kr300")
+    assert robot.name == "kr120r2500pro" and robot.joint_names == kr300.joint_names
+    for i in range(1, robot.model.njoints):     # the KR 300 R2500's link lengths: the cell fits
+        assert robot.model.jointPlacements[i].isApprox(kr300.model.jointPlacements[i], 1e-12)
+    _check_truths(_truth_errors(str(scene)))
+
+
+def _check_truths(trials):
     after = np.concatenate([t[0] for t in trials])
-    before = np.concatenate([t[1] for t in trials])
     predicted = np.concatenate([t[2] for t in trials])
     assert all(len(t[0]) >= 60 for t in trials)               # most random targets are regular
     # the RMS error over 3 truths is the calibration's predicted accuracy (within 20 %) ...

@@ -61,3 +61,25 @@ def test_another_scenes_calibration_is_refused(tmp_path):
     (tmp_path / "identification.json").write_text(json.dumps(data))
     with pytest.raises(CompensationError, match="not a calibration of this scene"):
         load_calibration(own, tmp_path)
+
+
+def test_the_fitted_model_error_enters_the_prediction(tmp_path):
+    """identify writes model_error.fitted: C_t = G C_p G^T + sigma^2 I, and C_p is not scaled by sigma0^2."""
+    problem, result, _ = write_calibration(tmp_path)
+    data = json.loads((tmp_path / "identification.json").read_text())
+    data["noise_factor"] = 9.0
+    q, point = problem.space.robot.random_configurations(4, 3), np.array([0.0, 0.0, 0.1])
+    data.pop("model_error", None)
+    (tmp_path / "identification.json").write_text(json.dumps(data))
+    _, scaled, _ = load_calibration(problem.space, tmp_path)
+    data["model_error"] = {"fitted": {"sigma_mm": 0.1, "sigma_white_mm": 0.02,
+                                      "length_scales_deg": [60.0] * 6}}
+    (tmp_path / "identification.json").write_text(json.dumps(data))
+    _, unc, _ = load_calibration(problem.space, tmp_path)
+    assert np.allclose(unc.covariance, result.covariance, rtol=1e-12)
+    expected = scaled.compute_covariance(q, point) / 9.0 + (1e-4**2 + 2e-5**2) * np.eye(3)
+    assert np.allclose(unc.compute_covariance(q, point), expected, rtol=1e-9, atol=0)
+    data["model_error"] = {"fitted": {"sigma_mm": -1.0, "length_scales_deg": [60.0] * 6}}
+    (tmp_path / "identification.json").write_text(json.dumps(data))
+    with pytest.raises(CompensationError, match="cannot read the identification"):
+        load_calibration(problem.space, tmp_path)

@@ -32,8 +32,33 @@ def test_compensates_a_krl_program(calibration, tmp_path, capsys):
     assert all(0.001 < p < 0.1 for p in predicted)
     assert "predicted residual" in (out / "weld_demo.dat").read_text()
     named = {line.split(":")[0] for line in data["issues"]}
-    flagged = {t["name"] for t in data["targets"] if t["sigma_min"] < 0.01 or not t["in_range"] or not t["changed"]}
+    flagged = {t["name"] for t in data["targets"] if t["sigma_min"] < 0.01 or not t["in_range"] or not t["changed"]
+               or t["configuration_changes"] or t["declared_configuration"]}
     assert named == flagged
+    # XP4's T 10 says A1 >= 0, but the pose's joints (-15, -100, 110, -20, 40, 60) deg have A1 < 0 (T 11),
+    # and A1 = 345 deg is beyond the limit: named
+    xp4 = next(t for t in data["targets"] if t["name"] == "XP4")
+    assert xp4["declared_configuration"].startswith("declared S 2, T 10, the nominal solution compensated has S 2, T 11")
+    # XP2's S 6 (A5 <= 0) is the flipped wrist of the pose taught at (10, -80, 95, 0, 30, 0): compensated there
+    xp2 = next(t for t in data["targets"] if t["name"] == "XP2")
+    assert xp2["declared_configuration"] is None and not xp2["configuration_changes"]
+    assert next(t for t in data["targets"] if t["name"] == "XHOME")["declared_configuration"] is None
+
+
+def test_a_configuration_change_is_named(calibration, tmp_path, capsys):
+    """pApproach is taught at A4 = A6 = 0 (to the pendant's rounding: A4 +0.002 deg): compensated, both
+    cross 0 and ABB's cf4 and cf6 change quadrant; as written they ask for A4 and A6 a turn away."""
+    (tmp_path / "p.mod").write_text(samples.RAPID_MOD)
+    out = tmp_path / "out"
+    assert main(["compensate", "fms_kr16", str(calibration), str(tmp_path / "p.mod"), "-o", str(out), "--json"]) == 0
+    data = json.loads(capsys.readouterr().out)
+    target = next(t for t in data["targets"] if t["name"] == "pApproach")
+    assert [c.split(" ")[:3] for c in target["configuration_changes"]] == [["turn", "of", "joint_a4"],
+                                                                          ["turn", "of", "joint_a6"]]
+    assert any(line.startswith("pApproach: the controller configuration changes (turn of joint_a4")
+               for line in data["issues"])
+    assert "controller configuration changes: turn of joint_a4" in (out / "p.mod").read_text()
+    assert target["declared_configuration"] is None          # RAPID's confdata is not read
 
 
 def test_text_report_and_default_folder(calibration, tmp_path, capsys):

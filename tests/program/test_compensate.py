@@ -191,3 +191,38 @@ def test_a_target_the_robot_cannot_reach_is_left_as_written_and_named(robots):
     assert result.texts["p.csv"].splitlines()[-2] == "far,5000.0,0.0,0.0,0.0,0.0,0.0"
     assert "NOT compensated" in result.texts["p.csv"].splitlines()[-1]
     assert any(line.startswith("far:") and "left as written" in line for line in result.issues())
+
+
+def test_a_krl_target_is_solved_on_its_declared_elbow_and_wrist():
+    """Two KRL targets of one pose: the first taught on one elbow, the second declared (S, T) on the
+    other elbow and wrist; the nominal solution next to the first is the first's, so without S/T the second
+    would be compensated on the wrong branch. With them it is solved on its own and nothing is named."""
+    from calib_oed.calibration.compensation import calibrated_robot
+    from calib_oed.calibration.problem import CalibrationProblem
+    from calib_oed.model.arm_configuration import ConfigurationKinematics, kuka_status
+    from calib_oed.model.inverse_kinematics import IkSettings, TcpKinematics
+    from calib_oed.program.compensate import compensate_program
+    from calib_oed.program.parse import krl
+    from calib_oed.program.parse.poses import to_euler_mm_deg
+    from calib_oed.scene.reader import load_scene
+
+    scene = load_scene("fms_kr16")
+    space = CalibrationProblem.from_scene(scene).space
+    robot, nom = scene.robot, TcpKinematics(scene.robot)
+    arm = ConfigurationKinematics(robot)
+    q_up = np.radians([20, -70, 10, 15, 50, -30])       # A3 13 deg past the stretched arm
+    pose = nom.compute_pose(q_up)
+    q_other, err, _, _ = nom.solve(pose, arm.compute_elbow_flip(q_up), IkSettings())
+    q_other[3], q_other[4], q_other[5] = q_other[3] + np.pi, -q_other[4], q_other[5] - np.pi    # and the wrist
+    assert err < 1e-11 and np.allclose(nom.compute_pose(q_other).homogeneous, pose.homogeneous, atol=1e-9)
+    assert np.all((q_other > robot.lower) & (q_other < robot.upper))
+    (s1, s2), (t1, t2) = kuka_status(arm.compute(np.stack([q_up, q_other])))
+    assert s1 != s2
+    xyz, (rx, ry, rz) = to_euler_mm_deg(pose)
+    values = f"X {xyz[0]:.6f},Y {xyz[1]:.6f},Z {xyz[2]:.6f},A {rz:.6f},B {ry:.6f},C {rx:.6f}"
+    dat = (f"DEFDAT P\nDECL E6POS XA={{{values},S {s1},T {t1}}}\nDECL E6POS XB={{{values},S {s2},T {t2}}}\n"
+           "ENDDAT\n")
+    parsed = krl.parse({"p.dat": dat})
+    out = compensate_program(parsed, robot, calibrated_robot(space, space.zeros()), home=q_up)
+    assert np.allclose(out.compensation.q_nominal, np.stack([q_up, q_other]), atol=1e-6)
+    assert not any(out.branch) and out.issues() == []

@@ -6,7 +6,9 @@ aggregate ``{A1 v, ..., A6 v, E1 v, ...}`` [deg] (``AXIS``/``E6AXIS``) or
 ``{X v, Y v, Z v, A v, B v, C v, S s, T t, E1 ..}`` [mm, deg] (``POS``/``E6POS``;
 :math:`R = R_z(A)R_y(B)R_x(C)`), declared in the ``.dat`` (``DECL E6AXIS XP1={...}``) or
 written inline after ``PTP``/``LIN``/``CIRC`` in the ``.src``. Only A1..A6 or X..C are
-rewritten; ``S``, ``T`` and external axes stay as written. ``$TOOL={X .., ..., C ..}`` and
+rewritten; ``S``, ``T`` (decimal or ``'B...'``, read into :attr:`Target.declared` and
+checked against the joints, :mod:`calib_oed.program.compensate`) and external axes stay as
+written. ``$TOOL={X .., ..., C ..}`` and
 ``$BASE={...}`` literals in the ``.src`` declare the TCP :math:`T_{F,E}` and base
 :math:`T_{W,B}` (``$TOOL=TOOL_DATA[1]`` refers to the controller's ``$config.dat``, which is
 not read: give the tool in the scene or with ``--tool``). ``FRAME`` declarations are not
@@ -22,7 +24,15 @@ import pinocchio as pin
 
 from calib_oed.exceptions import ProgramError
 from calib_oed.program.parse.poses import from_euler_mm_deg, to_euler_mm_deg
-from calib_oed.program.parse.targets import NUMBER, Language, Number, ParsedProgram, Target, indent_of, line_of
+from calib_oed.program.parse.targets import (
+    NUMBER,
+    Language,
+    Number,
+    ParsedProgram,
+    Target,
+    indent_of,
+    line_of,
+)
 
 _AGG = re.compile(r"\{([^{}]*)\}")
 _COMP = re.compile(rf"(?<![\w$])(A[1-6]|[XYZABCST])\s+({NUMBER})")
@@ -32,6 +42,7 @@ _MOVE = re.compile(r"^[ \t]*(?:PTP|LIN|CIRC)[ \t]+\{", re.IGNORECASE | re.MULTIL
 _FRAME = re.compile(r"^[ \t]*\$(TOOL|BASE)[ \t]*=[ \t]*\{", re.IGNORECASE | re.MULTILINE)
 _JOINTS = tuple(f"A{i}" for i in range(1, 7))
 _POSE = ("X", "Y", "Z", "A", "B", "C")
+_STATUS = re.compile(r"(?<![\w$])([ST])\s+(?:'B([01]+)'|(\d+))(?![\w.])", re.IGNORECASE)
 
 
 def _pose_from(v: np.ndarray) -> pin.SE3:
@@ -62,6 +73,14 @@ def _aggregate(text: str, brace: int, what: str, file: str) -> tuple[str, dict[s
                        f"A1..A6 or all of X, Y, Z, A, B, C; it has {sorted(comps)}")
 
 
+def _status(text: str, brace: int) -> tuple[tuple[str, int], ...]:
+    """``S`` and ``T`` of the aggregate at ``brace`` (decimal or ``'B0110'``), as declared."""
+    m = _AGG.match(text, brace)
+    found = {c.group(1).upper(): int(c.group(2), 2) if c.group(2) else int(c.group(3))
+             for c in _STATUS.finditer(text, m.start(1), m.end(1))}
+    return tuple((k, found[k]) for k in ("S", "T") if k in found)
+
+
 def parse(texts: dict[str, str]) -> ParsedProgram:
     """Targets of a KRL module: ``{name.src: text, name.dat: text}`` (either may be missing)."""
     targets, tool, base, notes = [], None, None, []
@@ -76,7 +95,8 @@ def parse(texts: dict[str, str]) -> ParsedProgram:
                 raise ProgramError("program", file, f"{name}: a {decl} holds {kind} values")
             end = _AGG.match(text, brace).end()
             targets.append(Target(what, kind, file, line_of(text, end), tuple(comps.values()),
-                                  indent_of(text, brace)))
+                                  indent_of(text, brace),
+                                  declared=_status(text, brace) if kind == "pose" else ()))
         for m in _FRAME.finditer(text):
             kind, comps = _aggregate(text, m.end() - 1, f"${m.group(1)}", file)
             if kind != "pose":

@@ -50,6 +50,8 @@ class Target:
         unit: Joint unit of this target if not the language's (``"deg"``, ``"rad"``, or
             ``"rad+deg"``: the joints in radians, then the same in degrees), else "".
         commented: Whether the target gets a comment (a CSV row's degree copy does not).
+        declared: The configuration the file gives a Cartesian target, as ``(name, value)`` pairs
+            (KRL: ``("S", s), ("T", t)``); read, never rewritten.
     """
 
     name: str
@@ -60,6 +62,7 @@ class Target:
     indent: str = ""
     unit: str = ""
     commented: bool = True
+    declared: tuple[tuple[str, int], ...] = ()
 
     @property
     def values(self) -> np.ndarray:

@@ -17,6 +17,14 @@ def test_hand_written_module():
         ("weld_demo.src line 16", "joint", "weld_demo.src"), ("weld_demo.src line 18", "pose", "weld_demo.src")]
     assert np.allclose(parsed.targets[1].values, [-16.4, -227.4, 889.6, 80.0, 45.0, 180.0])
     assert np.allclose(parsed.tool.translation, [0.0125, 0.0, 0.18])
+    assert [t.declared for t in parsed.targets] == [(), (("S", 6), ("T", 50)), (("S", 2), ("T", 10)), (),
+                                                    (("S", 2), ("T", 35))]
+
+
+def test_status_and_turn_in_binary_are_read():
+    parsed = krl.parse({"p.dat": "DECL E6POS XP1={X 1,Y 2,Z 3,A 0,B 0,C 0,S 'B110',T 'B100011'}\n"
+                                 "DECL POS XP2={X 1,Y 2,Z 3,A 0,B 0,C 0,T 5}\n"})
+    assert [t.declared for t in parsed.targets] == [(("S", 6), ("T", 35)), (("T", 5),)]
 
 
 @pytest.mark.parametrize("text, message", [
