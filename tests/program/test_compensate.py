@@ -191,3 +191,24 @@ def test_a_target_the_robot_cannot_reach_is_left_as_written_and_named(robots):
     assert result.texts["p.csv"].splitlines()[-2] == "far,5000.0,0.0,0.0,0.0,0.0,0.0"
     assert "NOT compensated" in result.texts["p.csv"].splitlines()[-1]
     assert any(line.startswith("far:") and "left as written" in line for line in result.issues())
+
+
+def test_a_failed_target_does_not_seed_the_next(robots, monkeypatch):
+    """The inverse kinematics of the target after an unreachable one starts from the last
+    target that was found, not from where the failed solve stopped."""
+    robot, cal = robots["kr16"]
+    text = samples.CSV_POSES + "far,5000.0,0.0,0.0,0.0,0.0,0.0\nc,-237.6,-18.8,620.4,-173.08,14.24,49.54\n"
+    parsed = csv_targets.parse({"p.csv": text}, robot.joint_names)
+    seeds, solve = [], TcpKinematics.solve
+
+    def spy(self, goal, seed, settings):
+        seeds.append(np.array(seed, float))
+        return solve(self, goal, seed, settings)
+
+    monkeypatch.setattr(TcpKinematics, "solve", spy)
+    result = compensate_program(parsed, robot, cal, tool=TOOL, base=BASE,
+                                home=np.radians([10.0, -80.0, 95.0, 0.0, 30.0, 0.0]))
+    assert result.changed.tolist() == [True, True, False, True]
+    q0 = result.compensation.q_nominal
+    assert np.abs(q0[2] - q0[1]).max() > 1e-3                  # the failed solve moved away from b
+    np.testing.assert_array_equal(seeds[3], q0[1])
