@@ -337,3 +337,19 @@ def test_compliance_is_what_the_models_compliance_parameters_capture():
     a2 = joints.index(1)
     assert 4 * std[a2] < 0.1 * truth.compliance[1]  # a real test: A2's compliance well determined
     assert fit.sigma0 < 1.3
+
+
+def test_null_gain_errors_are_none_and_malformed_ones_are_named(kr16):
+    """``gain_errors: null`` (written for a truth without them) reads as no gain error, not NaN;
+    a list of the wrong length or with NaN is refused naming the key."""
+    from calib_oed.calibration.realistic_measure import read_realistic_truth, truth_record
+
+    truth = sample_truth(kr16, 5, only("transmission"))
+    rec = truth_record(truth, "fms_kr16", 5)
+    q = kr16.problem.robot.random_configurations(4, 1)
+    back = read_realistic_truth({**rec, "gain_errors": None}, kr16)
+    assert back.gain_errors is None
+    assert np.array_equal(back.compute_joint_errors(q), truth.compute_joint_errors(q))
+    for bad in ([0.0] * 5, [float("nan")] * 6):
+        with pytest.raises(ParameterError, match="gain_errors"):
+            read_realistic_truth({**rec, "gain_errors": bad}, kr16)
