@@ -63,3 +63,14 @@ def test_missing_calibration_is_one_line(tmp_path, capsys):
     assert main(["compensate", "fms_kr16", str(tmp_path / "nope"), str(tmp_path / "p.ls")]) == 2
     assert "does not exist" in capsys.readouterr().err
     np.testing.assert_equal((tmp_path / "compensated").exists(), False)
+
+
+def test_krl_src_and_dat_are_written_as_a_pair(calibration, tmp_path, capsys):
+    """A .src that cannot be written: the .dat is not written either (no mismatched pair)."""
+    (tmp_path / "weld_demo.src").write_text(samples.KRL_SRC)
+    (tmp_path / "weld_demo.dat").write_text(samples.KRL_DAT)
+    out = tmp_path / "out"
+    (out / "weld_demo.src").mkdir(parents=True)
+    assert main(["compensate", "fms_kr16", str(calibration), str(tmp_path / "weld_demo.src"), "-o", str(out)]) == 2
+    assert "not a regular file" in capsys.readouterr().err
+    assert sorted(p.name for p in out.iterdir()) == ["weld_demo.src"]
