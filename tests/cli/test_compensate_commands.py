@@ -74,3 +74,12 @@ def test_krl_src_and_dat_are_written_as_a_pair(calibration, tmp_path, capsys):
     assert main(["compensate", "fms_kr16", str(calibration), str(tmp_path / "weld_demo.src"), "-o", str(out)]) == 2
     assert "not a regular file" in capsys.readouterr().err
     assert sorted(p.name for p in out.iterdir()) == ["weld_demo.src"]
+
+
+def test_a_tp_program_mixing_tool_frames_is_one_line_exit_2(calibration, tmp_path, capsys):
+    text = samples.TP_LS.replace('P[2]{\n   GP1:\n\tUF : 1, UT : 1,', 'P[2]{\n   GP1:\n\tUF : 1, UT : 2,')
+    (tmp_path / "p.ls").write_text(text)
+    assert main(["compensate", "fms_kr16", str(calibration), str(tmp_path / "p.ls")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "P[1] in UT 1, P[2] in UT 2" in err and len(err.splitlines()) == 1, err
+    assert not (tmp_path / "compensated").exists()
