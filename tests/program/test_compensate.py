@@ -212,3 +212,17 @@ def test_a_failed_target_does_not_seed_the_next(robots, monkeypatch):
     q0 = result.compensation.q_nominal
     assert np.abs(q0[2] - q0[1]).max() > 1e-3                  # the failed solve moved away from b
     np.testing.assert_array_equal(seeds[3], q0[1])
+
+
+def test_both_points_of_a_circular_move_are_compensated(robots):
+    """KRL CIRC {via},{end}: the via and the end point are each rewritten so the calibrated robot
+    reaches them (the end point is not left as written)."""
+    robot, cal = robots["kr16"]
+    parsed_robot[0] = robot
+    src = samples.KRL_SRC.replace("LIN {X -237.6", "CIRC {X -16.4,Y -227.4,Z 889.6,A 80.0,B 45.0,C 180.0,"
+                                  "S 6,T 50},{X -237.6")
+    parsed = krl.parse({"weld_demo.src": src, "weld_demo.dat": samples.KRL_DAT})
+    assert [t.name for t in parsed.targets][-2:] == ["weld_demo.src line 18 (via)", "weld_demo.src line 18 (end)"]
+    result = compensate_program(parsed, robot, cal, home=np.radians([10.0, -80.0, 95.0, 0.0, 30.0, 0.0]))
+    _check_bytes("krl", parsed, result)
+    _check_reached("krl", parsed, result, robot, cal, TOOL, BASE)
