@@ -11,8 +11,8 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from calib_oed.calibration.identification import identify
 from calib_oed.calibration import realistic_defaults
+from calib_oed.calibration.identification import identify
 from calib_oed.calibration.realistic import sample_truth
 from calib_oed.calibration.realistic_defaults import ARCSEC, RealisticSettings
 from calib_oed.calibration.realistic_measure import measure, write_realistic_truth
