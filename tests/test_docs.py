@@ -431,6 +431,14 @@ def test_links_between_the_docs_resolve():
     assert not broken, "links to missing pages or headings: " + "; ".join(broken)
 
 
+def test_test_files_named_in_module_docstrings_exist():
+    """A module that says where it is checked (``tests/.../test_x.py``) names a file that is there."""
+    missing = sorted({f"{module.relative_to(ROOT)}: {name}" for module in (ROOT / "calib_oed").rglob("*.py")
+                      for name in re.findall(r"tests/[\w/]+\.py", module.read_text(encoding="utf-8"))
+                      if not (ROOT / name).is_file()})
+    assert not missing, "test files named but missing: " + "; ".join(missing)
+
+
 # --------------------------------------------------------------------------- design figures quoted from benchmarks.md
 
 

@@ -25,8 +25,9 @@ what the model misses are reported as likely model error and kept in the fit
   (compliance, a gain, a transmission error), or too few poses there.
 
 Of the others, a flag whose leave-one-out residual is beyond :data:`GROSS_Z`
-standard deviations of noise + model error (:math:`\sqrt{t_i} \ge 10`; probability
-below 1e-20 under the model) is a gross error (a misread reflector, a bumped
+standard deviations of noise + model error (:math:`\sqrt{t_i} \ge 10`; under the model
+:math:`P(\chi^2_{d_i} \ge 100)` = 1.6e-21 for a position, :math:`d_i = 3`, and 2.5e-19
+for a pose, :math:`d_i = 6`) is a gross error (a misread reflector, a bumped
 nest) and is left out; the rest are reported as suspect and kept: a real arm's
 model error has heavier tails than a Gaussian process (on the realistic
 simulator's UR5, flags at :math:`\sqrt{t_i}` 5-6.5 with no gross error at all),

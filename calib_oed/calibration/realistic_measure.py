@@ -156,6 +156,18 @@ def write_realistic_truth(path: str | os.PathLike, truth: RealisticTruth, scene_
     return atomic_write_text(path, "# calib_oed realistic simulated truth\n" + yaml.safe_dump(rec, sort_keys=False))
 
 
+def _gain_errors(value, nv: int, source) -> np.ndarray | None:
+    """``gain_errors`` of a truth record: None (``null``, as written for a truth without
+    them, or the key left out) is no gain error; else ``nv`` finite numbers [rad/rad]."""
+    if value is None:
+        return None
+    gains = np.array(value, dtype=float)
+    if gains.shape != (nv,) or not np.all(np.isfinite(gains)):
+        raise ParameterError(f"{source}: gain_errors {value!r}: give {nv} finite numbers [rad/rad], "
+                             "or null for none")
+    return gains
+
+
 def read_realistic_truth(data: dict, setup, source: str | os.PathLike = "<truth>") -> RealisticTruth:
     """The :class:`RealisticTruth` of a :func:`write_realistic_truth` record (its parsed YAML).
 
@@ -179,7 +191,9 @@ def read_realistic_truth(data: dict, setup, source: str | os.PathLike = "<truth>
                                               float(bal["rho"]), float(bal["kappa"])),
             float(data["thermal_expansion"]), TrackerSystematics(**{k: float(v) for k, v in tk.items()}),
             gravity_load(setup.scene, space.robot, mass, com),
-            np.array(data.get("gain_errors", [0.0] * space.robot.model.nv), dtype=float))
+            _gain_errors(data.get("gain_errors"), space.robot.model.nv, source))
+    except ParameterError:
+        raise
     except (KeyError, TypeError, ValueError, AttributeError) as exc:
         raise ParameterError(f"{source}: not a realistic truth file of scene {setup.scene.name} "
                              f"({type(exc).__name__}: {exc})") from exc

@@ -27,7 +27,8 @@ from pathlib import Path
 import numpy as np
 
 from calib_oed.calibration.crossval import pose_index
-from calib_oed.exceptions import ParameterError
+from calib_oed.exceptions import InputFileError, ParameterError
+from calib_oed.scene.yaml_file import read_text_file
 
 #: Achieved over predicted RMS above which a validation is "worse than predicted".
 WORSE_THAN_PREDICTED = 1.25
@@ -36,13 +37,25 @@ RANGE_SLACK = 0.02
 
 
 def read_identification(files: dict) -> dict | None:
-    """``identification.json`` beside the calibrated URDF, or None when absent or unreadable."""
+    """``identification.json`` beside the calibrated URDF, or None when there is none.
+
+    Raises:
+        InputFileError: the file is there but unreadable or not an identification record
+            (a corrupt file is named, never taken for "none recorded").
+    """
     path = Path(files["urdf"]).parent / "identification.json"
-    try:
-        data = json.loads(path.read_text())
-    except (OSError, ValueError):
+    if not path.exists():
         return None
-    return data if isinstance(data, dict) else None
+    text = read_text_file(path, "identification")
+    try:
+        data = json.loads(text)
+    except ValueError as exc:
+        raise InputFileError(path, f"the identification is unreadable, not JSON ({exc}); give the folder "
+                             "`calib-oed identify -o DIR` wrote, or remove the file") from exc
+    if not isinstance(data, dict):
+        raise InputFileError(path, "the identification is unreadable, not a JSON object; give the folder "
+                             "`calib-oed identify -o DIR` wrote, or remove the file")
+    return data
 
 
 def predicted_rms_mm(identification: dict | None, compensated: bool) -> float | None:

@@ -52,7 +52,7 @@ def _frame(text: str | None, option: str):
 def cmd_compensate(args) -> int:
     from calib_oed.calibration.compensation import SINGULAR_THRESHOLD
     from calib_oed.calibration.compensation_files import load_calibration
-    from calib_oed.io.atomic import atomic_write
+    from calib_oed.io.atomic import atomic_write_files
     from calib_oed.program.compensate import compensate_program
     from calib_oed.program.parse.files import program_files, read_program
     from calib_oed.scene.reader import load_scene
@@ -75,10 +75,8 @@ def cmd_compensate(args) -> int:
                                 base=_frame(args.base, "--base"), home=problem.kpi.configurations[0],
                                 singular_threshold=threshold)
     out.mkdir(parents=True, exist_ok=True)
-    written = []
-    for name, text in result.texts.items():
-        data = text.encode(encodings[name])
-        written.append(str(atomic_write(out / name, lambda fh, data=data: fh.write(data), binary=True)))
+    written = [str(p) for p in atomic_write_files({out / name: text.encode(encodings[name])  # .src/.dat as a pair
+                                                   for name, text in result.texts.items()})]
     if args.json:
         data = result.to_dict()
         data.update(scene=scene.name, calibration=cal_files, written=written)

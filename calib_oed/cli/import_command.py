@@ -34,6 +34,9 @@ def add_import_parser(sub) -> None:
     p.add_argument("--length-unit", choices=("mm", "m"), default="mm", help="the file's length unit (default mm)")
     p.add_argument("--angle-unit", choices=("deg", "rad"), default="deg", help="poses: the joint "
                    "angles' unit (default deg)")
+    p.add_argument("--joints", choices=("controller", "urdf"), help="poses: the joint values are the "
+                   "controller's (mapped by the scene's controller: block) or URDF joint values (default: "
+                   "controller when the scene has the block, else urdf)")
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.add_argument("--quiet", action="store_true", help="print nothing")
     p.set_defaults(func=cmd_import, outputs={"output": "file"})
@@ -49,18 +52,25 @@ def _pairs(text: str, option: str) -> dict[str, str]:
     return out
 
 
-def _options(args, names: list[str], layout: str) -> dict:
+def _options(args, names: list[str], layout: str, controller=None) -> dict:
     opts: dict = {"length_unit": args.length_unit}
     if layout == "poses":
         if args.target_pattern or args.design:
             raise ArgumentError("import: --target-pattern and --design belong to the points layout; "
                                 "a pose array carries its joint values")
+        if args.joints == "controller" and controller is None:
+            raise ArgumentError("--joints controller: the scene has no controller: block; add one "
+                                "(docs/scenes.md) or give --joints urdf")
         opts["angle_unit"] = args.angle_unit
+        opts["controller"] = controller if args.joints != "urdf" else None
         if args.smrs:
             opts["smrs"] = [s.strip() for s in args.smrs.split(",") if s.strip()]
         if args.columns:
             opts["columns"] = [s.strip() for s in args.columns.split(",")]
         return opts
+    if args.joints:
+        raise ArgumentError("import: --joints belongs to the poses layout; a design file states its "
+                            "own convention (# joints: controller)")
     if args.smrs:
         if "=" in args.smrs:
             opts["smrs"] = _pairs(args.smrs, "--smrs")
@@ -89,15 +99,17 @@ def cmd_import(args) -> int:
 
         design_q = read_design_file(args.design, robot, controller=s.scene.controller)
     layout = detect_layout(args.export) if args.layout == "auto" else args.layout
-    result = read_tracker_export(args.export, robot, names, layout=layout, design_q=design_q,
-                                 **_options(args, names, layout))
+    options = _options(args, names, layout, s.scene.controller)
+    result = read_tracker_export(args.export, robot, names, layout=layout, design_q=design_q, **options)
+    joints = f"controller {options['controller'].name}" if options.get("controller") else "urdf"
     write_measurement_file(s, args.output, result.mset,
                            f"imported by calib_oed from {args.export} ({result.layout} layout): "
                            f"{result.summary()}")
     if args.json:
         print(json.dumps({"measurements": str(args.output), "rows": int(len(result.mset.q)),
                           "poses": result.poses, "skipped": result.skipped, "layout": result.layout,
-                          "sigma_column": result.mset.sigma is not None}, indent=2))
+                          "sigma_column": result.mset.sigma is not None,
+                          "joints": joints if layout == "poses" else "design"}, indent=2))
         return EXIT_OK
-    _say(args, f"{result.summary()}\nwrote {args.output}")
+    _say(args, f"{result.summary()}{f'; joint values: {joints}' if layout == 'poses' else ''}\nwrote {args.output}")
     return EXIT_OK

@@ -28,9 +28,10 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from calib_oed.exceptions import ParameterTableError
+from calib_oed.exceptions import InputFileError, ParameterTableError
 from calib_oed.io.atomic import atomic_write_text
 from calib_oed.model.dh import CONVENTIONS, ParameterTable, Row
+from calib_oed.scene.yaml_file import MAX_SMALL_YAML_BYTES, load_yaml, read_text_file
 
 FORMAT = "calib_oed parameter table 1"
 _LENGTH = {"m": 1.0, "mm": 1e-3}
@@ -85,9 +86,11 @@ def _read_pose(where: str, data, length: float, angle: float) -> tuple[float, ..
 def parse_parameter_table(text: str, where: str = "<table>") -> ParameterTable:
     """A table from YAML text (module docstring). Raises :class:`ParameterTableError` naming the field."""
     try:
-        data = yaml.safe_load(text)
+        data = load_yaml(text, where)
     except yaml.YAMLError as exc:
         raise ParameterTableError(f"{where}: not valid YAML ({exc})") from exc
+    except InputFileError as exc:        # a duplicate key, an alias bomb
+        raise ParameterTableError(str(exc)) from exc
     if not isinstance(data, dict):
         raise ParameterTableError(f"{where}: expected a mapping with convention, base, tool and joints")
     convention = data.get("convention")
@@ -131,12 +134,12 @@ def parse_parameter_table(text: str, where: str = "<table>") -> ParameterTable:
 
 
 def read_parameter_table(path: str | os.PathLike) -> ParameterTable:
-    """Read a table file (YAML)."""
+    """Read a table file (YAML), within the bounds of :func:`calib_oed.scene.yaml_file.read_text_file`."""
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ParameterTableError(f"cannot read the parameter table {path}: {exc}") from exc
+        text = read_text_file(path, "parameter table", MAX_SMALL_YAML_BYTES)
+    except InputFileError as exc:
+        raise ParameterTableError(f"cannot read the parameter table {exc}") from exc
     return parse_parameter_table(text, str(path))
 
 

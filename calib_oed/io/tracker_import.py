@@ -9,7 +9,9 @@ Two layouts, as tracker software and measurement scripts write them:
   ``.y``, ``.z``, or ``skip``); by default the joints in the robot's order, then the
   triplets of ``smrs`` (default: the scene's reflectors in order). An SMR whose three
   fields are empty or ``NaN`` was not seen at that pose (a broken beam): that
-  measurement is left out and counted, the pose's other SMRs are kept.
+  measurement is left out and counted, the pose's other SMRs are kept. With
+  ``controller`` (the scene's block unless ``--joints urdf``) the joint values
+  are the controller's, mapped to URDF joints :math:`q = A c + b`.
 - ``points`` (:func:`read_point_export`): one measured point per row under a header,
   the point export of tracker software: a target id, ``X``, ``Y``, ``Z`` and
   optionally ``U95``, temperature, pressure, a time stamp and, for a 6-DoF probe, its
@@ -44,6 +46,7 @@ import pinocchio as pin
 from calib_oed.exceptions import InputFileError, MeasurementFileError
 from calib_oed.io.measurement_format import MAX_SIGMA, MAX_TRACKER_RANGE
 from calib_oed.measurement.dataset import MeasurementSet
+from calib_oed.model.controller import ControllerConvention
 from calib_oed.model.robot import Robot
 from calib_oed.scene.yaml_file import read_text_file
 from calib_oed.units import ANGLE_UNITS, LENGTH_UNITS
@@ -173,7 +176,8 @@ def _check_point(p: np.ndarray, length_unit: str, line: int, problems: _Problems
 
 def read_pose_array(source, robot: Robot, reflector_names: Sequence[str], *,
                     smrs: Sequence[str] | None = None, columns: Sequence[str] | None = None,
-                    length_unit: str = "mm", angle_unit: str = "deg") -> TrackerImport:
+                    length_unit: str = "mm", angle_unit: str = "deg",
+                    controller: ControllerConvention | None = None) -> TrackerImport:
     """A headerless table, one row per pose: joint values, then each SMR's x, y, z.
 
     Args:
@@ -185,6 +189,8 @@ def read_pose_array(source, robot: Robot, reflector_names: Sequence[str], *,
         columns: A name for every column (joint names, ``<smr>.x|y|z``, ``skip``); default
             the joints, then the triplets of ``smrs``.
         length_unit, angle_unit: The file's units (prismatic joints in ``length_unit``).
+        controller: The joint values are this controller's (mapped to URDF joints);
+            None: they are URDF joint values.
 
     Raises:
         MeasurementFileError: every problem with its line.
@@ -233,7 +239,9 @@ def read_pose_array(source, robot: Robot, reflector_names: Sequence[str], *,
             problems.add(number, "; ".join(errors))
             continue
         q = np.array([values[j] for j in joints]) * scale
-        outside = [f"{j} = {q[k] / scale[k]:.6g} outside its limits" for k, j in enumerate(joints)
+        q = q if controller is None else controller.to_model(q)
+        outside = [f"{j} = {q[k] / scale[k]:.6g}{' (URDF, from the controller values)' if controller else ''} "
+                   "outside its limits" for k, j in enumerate(joints)
                    if not robot.lower[k] - 1e-9 <= q[k] <= robot.upper[k] + 1e-9]
         if outside:
             problems.add(number, "; ".join(outside))

@@ -51,7 +51,7 @@ matrix above is block diagonal in the Cartesian component.
 
 and :math:`dS`, :math:`dk_w` follow the kernel's gradient, :math:`d\tilde F` the
 rows' configuration derivatives (``docs/oed.md``; checked against central
-differences in ``tests/oed/test_model_error.py``).
+differences in ``tests/oed/test_model_error_design.py``).
 
 **Joints that move no point.** A joint whose axis passes through every
 reflector and the KPI point (the A6 axis with the shipped one-SMR scenes) moves

@@ -4,8 +4,8 @@ For a parsed program (:mod:`calib_oed.program.parse`) every target becomes nomin
 joints :math:`q^0` (URDF, rad): joint targets through the language's unit and the scene's
 controller convention (:math:`q = Ac + b`, :mod:`calib_oed.model.controller`), Cartesian
 targets :math:`P` (in the base frame) by the nominal inverse kinematics seeded at the
-previous target's :math:`q^0` (the first at ``home``), so the branch is the one the
-program moves along. Then :func:`calib_oed.calibration.compensation.compensate_joints`
+previous target's :math:`q^0` (the first at ``home``; a target whose inverse kinematics
+failed is skipped as a seed), so the branch is the one the program moves along. Then :func:`calib_oed.calibration.compensation.compensate_joints`
 gives :math:`\hat q` and, for Cartesian targets, the pose :math:`P'` the nominal
 controller must be given. Joint targets are rewritten with :math:`\hat q` (back in the
 controller's convention and unit), Cartesian targets with :math:`P'` in the language's
@@ -195,7 +195,8 @@ def compensate_program(parsed: ParsedProgram, nominal: Robot, calibrated: Robot,
                 arm = arm or ConfigurationKinematics(nominal, controller)
                 q0[i] = _declared_branch(nom, arm, pose, q0[i], dict(target.declared), settings)
             ok[i] = err <= settings.tolerance
-        seed = q0[i]
+        if ok[i]:       # a failed solve's end point is no branch to follow
+            seed = q0[i]
     comp = compensate_joints(nominal, calibrated, q0, tool=tool, base=base, uncertainty=uncertainty,
                              settings=settings, singular_threshold=singular_threshold)
     comp = Compensation(**{**comp.__dict__, "converged": comp.converged & ok})

@@ -89,3 +89,13 @@ def test_whole_poses_and_joint_ends_are_called_model_error():
     assert not classify_flags(flagged, pose, q, names, t).gross.any()
     t[50] = 2500.0  # 5 mm against 0.1 mm
     assert np.flatnonzero(classify_flags(flagged, pose, q, names, t).gross).tolist() == [50]
+
+
+def test_the_gross_error_probability_quoted_is_that_of_chi2_per_dimension():
+    from scipy.stats import chi2
+
+    from calib_oed.calibration import flags
+
+    for d in (3, 6):              # a position, a pose
+        assert f"{chi2.sf(flags.GROSS_Z ** 2, d):.2g} for a {'position' if d == 3 else 'pose'}" \
+            in " ".join(flags.__doc__.split()), d

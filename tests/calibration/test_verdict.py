@@ -59,3 +59,17 @@ def test_poses_outside_the_training_ranges_are_warned_about():
     assert [len(r["outside_training_ranges"]) for r in table] == [0, 1, 1]
     text = "\n".join(pose_lines(table))
     assert "pose 2 (line 6) has a1 = 50.0 deg, outside the training range -40.0..40.0" in text
+
+
+@pytest.mark.parametrize("text", ['{"predicted_accuracy": {"uncompensated": ', "[1, 2]"], ids=["truncated", "a-list"])
+def test_a_corrupt_identification_is_named_not_taken_for_none_recorded(tmp_path, text):
+    from calib_oed.calibration.verdict import read_identification
+    from calib_oed.exceptions import InputFileError
+
+    files = {"urdf": str(tmp_path / "kr16_calibrated.urdf")}
+    assert read_identification(files) is None                   # no file: nothing recorded
+    (tmp_path / "identification.json").write_text('{"predicted_accuracy": {}}')
+    assert read_identification(files) == {"predicted_accuracy": {}}
+    (tmp_path / "identification.json").write_text(text)
+    with pytest.raises(InputFileError, match="identification.json: the identification is unreadable"):
+        read_identification(files)

@@ -1,5 +1,7 @@
 """Bad inputs across every command (issue 34): each is exit 2 with one line naming the
-problem, no traceback, nothing written, and fast (no hang).
+problem, no traceback, nothing written, and before any heavy step (no hang: no solver,
+identification, Monte Carlo run or viewer server starts; a work bound, not a clock, so the
+check holds under any load).
 
 One table, by kind: outputs that are not regular files or clash, options the command
 would silently drop, numbers outside their meaning, files of another robot or scene,
@@ -8,8 +10,8 @@ scene YAML beyond its bounds, plain mistakes that used to be internal errors.
 
 from __future__ import annotations
 
+import importlib
 import os
-import time
 from pathlib import Path
 
 import pytest
@@ -256,28 +258,60 @@ CASES = [
 ]
 
 
+#: The heavy steps of the commands (module, name looked up at call time): a bad input is
+#: refused before any of them starts.
+HEAVY = (("scipy.optimize", "least_squares"), ("calib_oed.oed.refine", "solve_sqp"),
+         ("calib_oed.oed.sensitivity_maxima", "solve_sqp"), ("calib_oed.calibration.montecarlo", "_run_chunk"),
+         ("meshcat", "Visualizer"))
+
+
+class HeavyWorkStarted(BaseException):
+    """Raised by a heavy step in the bad-input table (a BaseException: no command catches it)."""
+
+
+@pytest.fixture
+def no_heavy_work(monkeypatch):
+    """Every heavy step stopped; returns ``allow(module, name)``, which lets one run."""
+    originals = {}
+    for module, name in HEAVY:
+        def stop(*args, _what=f"{module}.{name}", **kwargs):
+            raise HeavyWorkStarted(f"{_what} started before the bad input was refused")
+
+        originals[module, name] = getattr(importlib.import_module(module), name)
+        monkeypatch.setattr(importlib.import_module(module), name, stop)
+    return lambda module, name: monkeypatch.setattr(importlib.import_module(module), name,
+                                                    originals[module, name])
+
+
 def _snapshot(*folders: Path) -> dict:
     return {p: (p.stat().st_mtime_ns, p.stat().st_size) for f in folders for p in f.rglob("*")
             if not p.is_fifo()}
 
 
 @pytest.mark.parametrize("argv, fragment", [c[1:] for c in CASES], ids=[c[0] for c in CASES])
-def test_bad_input_is_one_line_exit_2_and_writes_nothing(argv, fragment, files, tmp_path, capsys, monkeypatch):
+def test_bad_input_is_one_line_exit_2_and_writes_nothing(argv, fragment, files, tmp_path, capsys, monkeypatch,
+                                                         no_heavy_work):
     monkeypatch.chdir(tmp_path)
+    if argv[0] == "identify" and "--truth" in argv:  # identify reads --truth after the fit
+        no_heavy_work("scipy.optimize", "least_squares")
     argv = [a.format(d=files, t=tmp_path) for a in argv]
     before = _snapshot(files, tmp_path)
     capsys.readouterr()
-    t0 = time.perf_counter()
     code = main(argv)
-    seconds = time.perf_counter() - t0
     err = capsys.readouterr().err
     assert code == EXIT_BAD_INPUT, err
     assert err.startswith("calib-oed: error: ") and err.count("\n") == 1 and "Traceback" not in err, err
     assert fragment.format(d=files) in err, err
     assert _snapshot(files, tmp_path) == before, "a file was written or changed"
-    assert seconds < 20, f"{seconds:.1f} s before the error"
 
 
 def test_the_table_covers_every_kind_with_100_cases():
     assert len(CASES) >= 100
     assert len({c[0] for c in CASES}) == len(CASES)
+
+
+def test_the_work_bound_stops_a_good_input(files, tmp_path, monkeypatch, no_heavy_work):
+    """The bound is live: a valid command reaches a heavy step and is stopped there."""
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(HeavyWorkStarted, match="least_squares started before"):
+        main(["identify", S, str(files / "m.csv")])

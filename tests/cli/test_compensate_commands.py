@@ -88,3 +88,23 @@ def test_missing_calibration_is_one_line(tmp_path, capsys):
     assert main(["compensate", "fms_kr16", str(tmp_path / "nope"), str(tmp_path / "p.ls")]) == 2
     assert "does not exist" in capsys.readouterr().err
     np.testing.assert_equal((tmp_path / "compensated").exists(), False)
+
+
+def test_krl_src_and_dat_are_written_as_a_pair(calibration, tmp_path, capsys):
+    """A .src that cannot be written: the .dat is not written either (no mismatched pair)."""
+    (tmp_path / "weld_demo.src").write_text(samples.KRL_SRC)
+    (tmp_path / "weld_demo.dat").write_text(samples.KRL_DAT)
+    out = tmp_path / "out"
+    (out / "weld_demo.src").mkdir(parents=True)
+    assert main(["compensate", "fms_kr16", str(calibration), str(tmp_path / "weld_demo.src"), "-o", str(out)]) == 2
+    assert "not a regular file" in capsys.readouterr().err
+    assert sorted(p.name for p in out.iterdir()) == ["weld_demo.src"]
+
+
+def test_a_tp_program_mixing_tool_frames_is_one_line_exit_2(calibration, tmp_path, capsys):
+    text = samples.TP_LS.replace('P[2]{\n   GP1:\n\tUF : 1, UT : 1,', 'P[2]{\n   GP1:\n\tUF : 1, UT : 2,')
+    (tmp_path / "p.ls").write_text(text)
+    assert main(["compensate", "fms_kr16", str(calibration), str(tmp_path / "p.ls")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "P[1] in UT 1, P[2] in UT 2" in err and len(err.splitlines()) == 1, err
+    assert not (tmp_path / "compensated").exists()

@@ -39,3 +39,19 @@ def test_a_failed_write_leaves_the_old_file_and_no_temporary(tmp_path):
 def test_a_missing_folder_is_named(tmp_path):
     with pytest.raises(ExportError, match="does not exist"):
         atomic_write_text(tmp_path / "nope" / "a.txt", "x")
+
+
+def test_a_set_of_files_is_renamed_only_when_every_one_is_written(tmp_path):
+    from calib_oed.io.atomic import atomic_write_files
+
+    src, dat = tmp_path / "p.src", tmp_path / "p.dat"
+    atomic_write_files({src: b"old src", dat: b"old dat"})
+
+    with pytest.raises(TypeError):              # the second file's write fails (text, not bytes)
+        atomic_write_files({src: b"new src", dat: "new dat"})
+    assert (src.read_bytes(), dat.read_bytes()) == (b"old src", b"old dat")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["p.dat", "p.src"]
+    (tmp_path / "q.dat").mkdir()                 # a target that cannot be replaced: nothing is written
+    with pytest.raises(ExportError, match="not a regular file"):
+        atomic_write_files({tmp_path / "q.src": b"src", tmp_path / "q.dat": b"dat"})
+    assert not (tmp_path / "q.src").exists()

@@ -77,3 +77,24 @@ joints:
 def test_bad_tables_name_the_field(bad, message):
     with pytest.raises(ParameterTableError, match=message):
         parse_parameter_table(bad)
+
+
+_BOMB = ("x0: &a0 [1, 1, 1, 1, 1, 1, 1, 1, 1, 1]\n"
+         + "".join(f"x{i}: &a{i} [{', '.join([f'*a{i - 1}'] * 10)}]\n" for i in range(1, 8)))
+
+
+@pytest.mark.parametrize("text, message", [
+    ("convention: classic_dh\nconvention: hayati\njoints: [{name: a}]", "duplicate key 'convention'"),
+    (_BOMB + "convention: classic_dh\njoints: [{name: a}]", "expand to more than"),
+], ids=["duplicate-key", "alias-bomb"])
+def test_tables_are_read_with_the_bounded_yaml_reader(text, message):
+    """A key given twice is refused (not the last one kept), as are aliases that expand to millions."""
+    with pytest.raises(ParameterTableError, match=message):
+        parse_parameter_table(text)
+
+
+def test_a_table_file_beyond_the_size_bound_is_refused(tmp_path):
+    path = tmp_path / "t.yaml"
+    path.write_text("convention: classic_dh\njoints: [{name: a}]\n" + "#" * (2 * 2**20) + "\n")
+    with pytest.raises(ParameterTableError, match="cannot read the parameter table .*MiB"):
+        read_parameter_table(path)

@@ -144,3 +144,37 @@ def test_bad_import_arguments_are_one_line(two_smrs, tmp_path, capsys, argv, fra
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and fragment in err, err
     assert not (tmp_path / "m.csv").exists()
+
+
+_FANUC = ("\ncontroller:\n  name: fanuc\n  angle: deg\n  joints: [{sign: -1}, {}, {}, {}, {}, {}]\n"
+          "  couplings: [{joint: 3, from: 2, ratio: 1.0}]\n")
+
+
+def _pose_log(values_deg: np.ndarray, xyz: np.ndarray) -> str:
+    return "\n".join(" ".join(f"{v:.9f}" for v in values_deg[k]) + "   "
+                     + " ".join(f"{v:.6f}" for v in xyz[k, 0] * 1e3) for k in range(len(values_deg))) + "\n"
+
+
+@pytest.mark.parametrize("convention", ["controller", "urdf"])
+def test_a_pose_array_in_controller_values_maps_like_a_design(two_smrs, tmp_path, capsys, convention):
+    """A scene with a controller block: the log's joints are the controller's by default (mapped
+    q = A c + b, as a design file in controller values is); --joints urdf reads them as URDF."""
+    d, s, q, xyz, _ = two_smrs
+    (tmp_path / "scene.yaml").write_text((d / "scene.yaml").read_text() + _FANUC)
+    conv = setup(str(tmp_path / "scene.yaml")).scene.controller
+    values = np.degrees(conv.to_controller(q) if convention == "controller" else q)
+    (tmp_path / "log.txt").write_text(_pose_log(values, xyz))
+    out = tmp_path / "m.csv"
+    extra = [] if convention == "controller" else ["--joints", "urdf"]
+    assert main(["import", str(tmp_path / "scene.yaml"), str(tmp_path / "log.txt"), "-o", str(out), "--smrs",
+                 "smr0", "--quiet", *extra]) == EXIT_OK
+    np.testing.assert_allclose(read_scene_measurements(s, out).q, q, atol=1e-9)
+
+
+def test_controller_joints_without_a_controller_block_is_one_line(two_smrs, tmp_path, capsys):
+    d, s, q, xyz, _ = two_smrs
+    (tmp_path / "log.txt").write_text(_pose_log(np.degrees(q), xyz))
+    assert main(["import", str(d / "scene.yaml"), str(tmp_path / "log.txt"), "-o", str(tmp_path / "m.csv"),
+                 "--smrs", "smr0", "--joints", "controller"]) == EXIT_BAD_INPUT
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "the scene has no controller: block" in err, err

@@ -226,3 +226,38 @@ def test_a_krl_target_is_solved_on_its_declared_elbow_and_wrist():
     out = compensate_program(parsed, robot, calibrated_robot(space, space.zeros()), home=q_up)
     assert np.allclose(out.compensation.q_nominal, np.stack([q_up, q_other]), atol=1e-6)
     assert not any(out.branch) and out.issues() == []
+
+
+def test_a_failed_target_does_not_seed_the_next(robots, monkeypatch):
+    """The inverse kinematics of the target after an unreachable one starts from the last
+    target that was found, not from where the failed solve stopped."""
+    robot, cal = robots["kr16"]
+    text = samples.CSV_POSES + "far,5000.0,0.0,0.0,0.0,0.0,0.0\nc,-237.6,-18.8,620.4,-173.08,14.24,49.54\n"
+    parsed = csv_targets.parse({"p.csv": text}, robot.joint_names)
+    seeds, solve = [], TcpKinematics.solve
+
+    def spy(self, goal, seed, settings):
+        seeds.append(np.array(seed, float))
+        return solve(self, goal, seed, settings)
+
+    monkeypatch.setattr(TcpKinematics, "solve", spy)
+    result = compensate_program(parsed, robot, cal, tool=TOOL, base=BASE,
+                                home=np.radians([10.0, -80.0, 95.0, 0.0, 30.0, 0.0]))
+    assert result.changed.tolist() == [True, True, False, True]
+    q0 = result.compensation.q_nominal
+    assert np.abs(q0[2] - q0[1]).max() > 1e-3                  # the failed solve moved away from b
+    np.testing.assert_array_equal(seeds[3], q0[1])
+
+
+def test_both_points_of_a_circular_move_are_compensated(robots):
+    """KRL CIRC {via},{end}: the via and the end point are each rewritten so the calibrated robot
+    reaches them (the end point is not left as written)."""
+    robot, cal = robots["kr16"]
+    parsed_robot[0] = robot
+    src = samples.KRL_SRC.replace("LIN {X -237.6", "CIRC {X -16.4,Y -227.4,Z 889.6,A 80.0,B 45.0,C 180.0,"
+                                  "S 6,T 50},{X -237.6")
+    parsed = krl.parse({"weld_demo.src": src, "weld_demo.dat": samples.KRL_DAT})
+    assert [t.name for t in parsed.targets][-2:] == ["weld_demo.src line 18 (via)", "weld_demo.src line 18 (end)"]
+    result = compensate_program(parsed, robot, cal, home=np.radians([10.0, -80.0, 95.0, 0.0, 30.0, 0.0]))
+    _check_bytes("krl", parsed, result)
+    _check_reached("krl", parsed, result, robot, cal, TOOL, BASE)

@@ -7,7 +7,10 @@ X = v mm, Y = v mm, Z = v mm, W = v deg, P = v deg, R = v deg`` (fixed XYZ angle
 :math:`R = R_z(R)R_y(P)R_x(W)`; ``P[k:"comment"]`` allowed). Only group ``GP1`` is read;
 ``CONFIG``, ``UF``/``UT`` numbers and other groups stay. User and tool frames are
 controller data (numbered), not in the file: give them in the scene or with
-``--tool``/``--base``. Comments: TP comment lines ``! text ;`` at most 32 characters, with
+``--tool``/``--base``, so every target must be in one tool frame ``UT`` and every
+Cartesian target in one user frame ``UF`` (a joint position does not depend on
+the user frame); a program that mixes them is refused, naming the frames, and a
+note says which frames the targets are in. Comments: TP comment lines ``! text ;`` at most 32 characters, with
 no ``;`` inside; they are appended at the end of ``/MN`` with the next line numbers, and
 ``LINE_COUNT`` in ``/ATTR`` (if present) is raised by their count: the only line besides
 the targets that changes.
@@ -30,6 +33,7 @@ _GP1 = re.compile(r"GP1[ \t]*:")
 _GROUP = re.compile(r"GP\d+[ \t]*:")
 _JOINT = re.compile(rf"\bJ([1-6])[ \t]*=[ \t]*({NUMBER})[ \t]*deg")
 _CART = re.compile(rf"\b([XYZWPR])[ \t]*=[ \t]*({NUMBER})[ \t]*(?:mm|deg)")
+_FRAMES = re.compile(r"\bUF[ \t]*:[ \t]*(\w+)[ \t]*,[ \t]*UT[ \t]*:[ \t]*(\w+)")
 _MN_LINE = re.compile(r"^[ \t]*(\d+):", re.MULTILINE)
 COMMENT_WIDTH = 32
 
@@ -72,7 +76,7 @@ LANGUAGE = Language("tp", "deg", _pose_from, _pose_to, _comment, (4, 3, 4), _ins
 
 def parse(texts: dict[str, str]) -> ParsedProgram:
     """Targets of TP programs ``{name.ls: text}``."""
-    targets = []
+    targets, frames = [], {}
     for file, text in texts.items():
         start = text.find("/POS")
         if start < 0:
@@ -90,6 +94,8 @@ def parse(texts: dict[str, str]) -> ParsedProgram:
                       for j in _JOINT.finditer(text, g1.end(), stop)}
             cart = {c.group(1): Number(c.start(2), c.end(2), c.group(2)) for c in _CART.finditer(text, g1.end(), stop)}
             name = f"P[{m.group(1)}]"
+            uf_ut = _FRAMES.search(text, g1.end(), stop)
+            frames[name] = uf_ut.groups() if uf_ut else ("?", "?")
             if len(joints) == 6:
                 targets.append(Target(name, "joint", file, 0, tuple(joints[k] for k in range(1, 7))))
             elif all(k in cart for k in "XYZWPR"):
@@ -97,4 +103,22 @@ def parse(texts: dict[str, str]) -> ParsedProgram:
             else:
                 raise ProgramError("program", file, f"{name}: GP1 needs J1..J6 (deg) or X, Y, Z (mm), "
                                    "W, P, R (deg)")
-    return ParsedProgram(LANGUAGE, dict(texts), tuple(targets))
+    return ParsedProgram(LANGUAGE, dict(texts), tuple(targets), notes=_one_frame_pair(targets, frames))
+
+
+def _one_frame_pair(targets: list[Target], frames: dict[str, tuple[str, str]]) -> tuple[str, ...]:
+    """The note naming the targets' UF/UT; ProgramError when they mix tool frames, or
+    Cartesian targets mix user frames (one --tool and one --base per program)."""
+    for k, what, option in ((1, "UT", "--tool"), (0, "UF", "--base")):
+        first: dict[str, str] = {}
+        for t in targets:
+            if what == "UT" or t.kind == "pose":
+                first.setdefault(frames[t.name][k], t.name)
+        if len(first) > 1:
+            named = ", ".join(f"{name} in {what} {frame}" for frame, name in first.items())
+            raise ProgramError("program", targets[0].file, f"targets in different {what}s ({named}): one "
+                               f"{option} compensates one program; split the program by {what}")
+    ufs = sorted({frames[t.name][0] for t in targets if t.kind == "pose"})
+    uts = sorted({frames[t.name][1] for t in targets})
+    uf = f"Cartesian targets in UF {ufs[0]} (--base), " if ufs else ""
+    return (f"{uf}targets in UT {uts[0]} (--tool): the frames are controller data, not in the file",)

@@ -5,7 +5,10 @@ System Integrators*, "Structure data types" and "Motion programming: KRL"): a ta
 aggregate ``{A1 v, ..., A6 v, E1 v, ...}`` [deg] (``AXIS``/``E6AXIS``) or
 ``{X v, Y v, Z v, A v, B v, C v, S s, T t, E1 ..}`` [mm, deg] (``POS``/``E6POS``;
 :math:`R = R_z(A)R_y(B)R_x(C)`), declared in the ``.dat`` (``DECL E6AXIS XP1={...}``) or
-written inline after ``PTP``/``LIN``/``CIRC`` in the ``.src``. Only A1..A6 or X..C are
+written inline after ``PTP``/``LIN``/``CIRC`` (and the spline moves ``SPTP``/``SLIN``/
+``SCIRC``/``SPL``) in the ``.src``; a circular move takes two points, the auxiliary (via)
+point and the end point, and each written inline is a target (named ``... (via)`` and
+``... (end)``). Relative moves (``PTP_REL`` ...) are not targets. Only A1..A6 or X..C are
 rewritten; ``S``, ``T`` (decimal or ``'B...'``, read into :attr:`Target.declared` and
 checked against the joints, :mod:`calib_oed.program.compensate`) and external axes stay as
 written. ``$TOOL={X .., ..., C ..}`` and
@@ -38,7 +41,8 @@ _AGG = re.compile(r"\{([^{}]*)\}")
 _COMP = re.compile(rf"(?<![\w$])(A[1-6]|[XYZABCST])\s+({NUMBER})")
 _DECL = re.compile(r"^[ \t]*(?:DECL[ \t]+)?(?:GLOBAL[ \t]+)?(E6AXIS|AXIS|E6POS|POS)[ \t]+(\w+)[ \t]*=[ \t]*\{",
                    re.IGNORECASE | re.MULTILINE)
-_MOVE = re.compile(r"^[ \t]*(?:PTP|LIN|CIRC)[ \t]+\{", re.IGNORECASE | re.MULTILINE)
+_MOVE = re.compile(r"^[ \t]*(PTP|LIN|CIRC|SPTP|SLIN|SCIRC|SPL)[ \t]+", re.IGNORECASE | re.MULTILINE)
+_CIRCULAR = ("CIRC", "SCIRC")
 _FRAME = re.compile(r"^[ \t]*\$(TOOL|BASE)[ \t]*=[ \t]*\{", re.IGNORECASE | re.MULTILINE)
 _JOINTS = tuple(f"A{i}" for i in range(1, 7))
 _POSE = ("X", "Y", "Z", "A", "B", "C")
@@ -81,15 +85,34 @@ def _status(text: str, brace: int) -> tuple[tuple[str, int], ...]:
     return tuple((k, found[k]) for k in ("S", "T") if k in found)
 
 
+def _move_points(text: str, move: re.Match, file: str) -> list[tuple[int, str]]:
+    """(brace, name) of the inline aggregates among a move's points: the first argument, the
+    first two of a circular move (via, end); arguments end at the line's end or a ``;``."""
+    args, depth, start = [], 0, move.end()
+    for k in range(move.end(), len(text) + 1):
+        c = text[k] if k < len(text) else "\n"
+        depth += (c == "{") - (c == "}")
+        if depth <= 0 and c in ",;\r\n":
+            args.append(start + len(text[start:k]) - len(text[start:k].lstrip()))
+            start = k + 1
+            if c != ",":
+                break
+    line = f"{file} line {line_of(text, move.start()) + 1}"
+    if move.group(1).upper() not in _CIRCULAR:
+        return [(args[0], line)] if text.startswith("{", args[0]) else []
+    return [(a, f"{line} ({which})") for a, which in zip(args[:2], ("via", "end"), strict=False)
+            if text.startswith("{", a)]
+
+
 def parse(texts: dict[str, str]) -> ParsedProgram:
     """Targets of a KRL module: ``{name.src: text, name.dat: text}`` (either may be missing)."""
     targets, tool, base, notes = [], None, None, []
     for file in sorted(texts, key=lambda f: not f.lower().endswith(".dat")):     # .dat first
         text = texts[file]
         found = [(m.end() - 1, m.group(2), m.group(1).upper()) for m in _DECL.finditer(text)]
-        found += [(m.end() - 1, None, None) for m in _MOVE.finditer(text)]
+        found += [(brace, name, None) for m in _MOVE.finditer(text) for brace, name in _move_points(text, m, file)]
         for brace, name, decl in sorted(found):
-            what = name or f"{file} line {line_of(text, brace) + 1}"
+            what = name
             kind, comps = _aggregate(text, brace, what, file)
             if decl is not None and (kind == "joint") != decl.endswith("AXIS"):
                 raise ProgramError("program", file, f"{name}: a {decl} holds {kind} values")

@@ -6,7 +6,8 @@ types*, data types ``jointtarget``, ``robtarget``, ``orient``, ``tooldata``, ``w
 ``robtarget`` = ``[[x, y, z], [q1, q2, q3, q4], [cf1, cf4, cf6, cfx], [eax..]]``
 [mm; quaternion :math:`q_1 = w`]. Targets are declared (``CONST|PERS|VAR [LOCAL]
 jointtarget|robtarget name := [...];``) or written inline as the first argument of a
-``Move*`` instruction. Only ``rax`` or ``x, y, z, q1..q4`` are rewritten; ``confdata`` and
+``Move*`` instruction (``MoveC*``: its first two, ``CirPoint`` and ``ToPoint``, named
+``... (via)`` and ``... (end)``; switches such as ``\Conc`` before them skipped). Only ``rax`` or ``x, y, z, q1..q4`` are rewritten; ``confdata`` and
 external axes stay. A module declaring exactly one ``tooldata`` (``[robhold, [[x, y, z],
 [q1..q4]], load]``) and at most one ``wobjdata`` (``[robhold, ufprog, ufmec, uframe,
 oframe]``, base :math:`T_{W,B} = uframe\,oframe`) gives the tool and base; with several,
@@ -26,7 +27,7 @@ from calib_oed.program.parse.targets import Language, ParsedProgram, Target, ind
 
 _DECL = re.compile(r"^[ \t]*(?:LOCAL[ \t]+|TASK[ \t]+)?(?:CONST|PERS|VAR)[ \t]+(jointtarget|robtarget|tooldata|wobjdata)"
                    r"[ \t]+(\w+)[ \t]*:=[ \t]*\[", re.IGNORECASE | re.MULTILINE)
-_MOVE = re.compile(r"\bMove\w*[ \t]+\[", re.IGNORECASE)
+_MOVE = re.compile(r"^[^!\n]*?\b(Move\w*)[ \t]+", re.IGNORECASE | re.MULTILINE)
 
 
 def _pose_from(v: np.ndarray) -> pin.SE3:
@@ -66,6 +67,23 @@ def _groups(text: str, start: int, file: str) -> list[tuple[int, int]]:
         else:
             k += 1
     return out
+
+
+def _arguments(text: str, start: int) -> list[int]:
+    """Where each top-level positional argument of the instruction from ``start`` to its ``;``
+    begins (optional arguments and switches ``\\Name`` that open an argument left out)."""
+    args, depth, begin = [], 0, start
+    for k in range(start, len(text)):
+        c = text[k]
+        if depth == 0 and c in ",;":
+            at = begin + len(text[begin:k]) - len(text[begin:k].lstrip())
+            if not text.startswith("\\", at):
+                args.append(at)
+            begin = k + 1
+            if c == ";":
+                break
+        depth += (c in "([") - (c in ")]")
+    return args
 
 
 def _target(text, start, file, name, kind) -> Target:
@@ -112,10 +130,15 @@ def parse(texts: dict[str, str]) -> ParsedProgram:
             else:
                 found.append((m.end() - 1, m.group(2), "joint" if kind == "jointtarget" else "pose"))
         for m in _MOVE.finditer(text):
-            start = m.end() - 1
-            inner = _groups(text, start, file)
-            kind = "pose" if len(inner) >= 3 else "joint"     # robtarget has 4 groups, jointtarget 2
-            found.append((start, f"{file} line {line_of(text, start) + 1}", kind))
+            if m.group(1).upper() == "MOVEEXTJ":            # external axes only: no robot target
+                continue
+            name = f"{file} line {line_of(text, m.start(1)) + 1}"
+            points = _arguments(text, m.end())[:2 if m.group(1).upper().startswith("MOVEC") else 1]
+            for start, which in zip(points, ("via", "end") if len(points) == 2 else ("",), strict=True):
+                if text.startswith("[", start):
+                    inner = _groups(text, start, file)
+                    kind = "pose" if len(inner) >= 3 else "joint"     # robtarget has 4 groups, jointtarget 2
+                    found.append((start, f"{name} ({which})" if which else name, kind))
         targets += [_target(text, s, file, name, kind) for s, name, kind in sorted(found)]
     tool = base = None
     for kind, values in frames.items():

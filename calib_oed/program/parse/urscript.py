@@ -1,7 +1,8 @@
 r"""Universal Robots URScript: joint lists and poses of ``movej``/``movel``/``movep``/``movec``/``servoj``.
 
 Grammar used (Universal Robots *The URScript Programming Language*, "Module motion" and
-"pose" type): a move's first argument is a joint list ``[q1, ..., q6]`` [rad], a pose
+"pose" type): a move's first argument (``movec``: its first two, the via point and the
+end point, named ``line N (via)``, ``line N (end)``) is a joint list ``[q1, ..., q6]`` [rad], a pose
 ``p[x, y, z, rx, ry, rz]`` [m; rotation vector] (also inside ``get_inverse_kin(p[...])``),
 or a variable assigned such a literal (``name = p[...]``, ``global name = [...]``), which is
 then rewritten where it is assigned. ``set_tcp(p[...])`` declares the TCP :math:`T_{F,E}`;
@@ -20,7 +21,7 @@ from calib_oed.exceptions import ProgramError
 from calib_oed.program.parse.poses import from_rotvec_m, to_rotvec_m
 from calib_oed.program.parse.targets import Language, ParsedProgram, Target, indent_of, line_of, numbers_in
 
-_MOVE = re.compile(r"\b(?:movej|movel|movep|movec|servoj)[ \t]*\(")
+_MOVE = re.compile(r"\b(movej|movel|movep|movec|servoj)[ \t]*\(")
 _ASSIGN = re.compile(r"^[ \t]*(?:global[ \t]+|local[ \t]+)?(\w+)[ \t]*=[ \t]*(p?)\[", re.MULTILINE)
 _TCP = re.compile(r"\bset_tcp[ \t]*\([ \t]*p\[")
 _LITERAL = re.compile(r"(p?)\[")
@@ -47,6 +48,20 @@ def _literal(text: str, bracket: int, file: str, name: str, pose: bool) -> Targe
     return Target(name, "pose" if pose else "joint", file, line_of(text, end), tuple(nums), indent_of(text, bracket))
 
 
+def _arguments(text: str, start: int) -> list[int]:
+    """Where each top-level argument of the call whose ``(`` ends at ``start`` begins."""
+    args, depth, begin = [], 0, start
+    for k in range(start, len(text)):
+        c = text[k]
+        if depth == 0 and c in ",)":
+            args.append(begin + len(text[begin:k]) - len(text[begin:k].lstrip()))
+            begin = k + 1
+            if c == ")":
+                break
+        depth += (c in "([") - (c in ")]")
+    return args
+
+
 def parse(texts: dict[str, str]) -> ParsedProgram:
     """Targets of URScript files ``{name.script: text}``."""
     targets, tool, notes = {}, None, []
@@ -56,20 +71,22 @@ def parse(texts: dict[str, str]) -> ParsedProgram:
             t = _literal(text, m.end() - 1, file, "set_tcp", True)
             tool = _pose_from(t.values)
         for m in _MOVE.finditer(text):
-            arg = text[m.end():].lstrip()
-            at = m.end() + (len(text[m.end():]) - len(arg))
-            line = line_of(text, at) + 1
-            lit = _LITERAL.match(arg) or re.match(r"get_inverse_kin[ \t]*\([ \t]*(p)\[", arg)
-            if lit is not None:
-                bracket = at + lit.end() - 1
-                targets[(file, bracket)] = _literal(text, bracket, file, f"line {line}", bool(lit.group(1)))
-                continue
-            var = re.match(r"(\w+)[ \t]*[,)]", arg)
-            if var and var.group(1) in assigned:
-                bracket, pose = assigned[var.group(1)]
-                targets[(file, bracket)] = _literal(text, bracket, file, var.group(1), pose)
-            else:
-                notes.append(f"{file} line {line}: the move's target is not a literal or a variable "
-                             "assigned one: not compensated")
+            line, args = line_of(text, m.start()) + 1, _arguments(text, m.end()) or [m.end()]
+            points = [(args[0], f"line {line}", "target")] if m.group(1) != "movec" else \
+                [(a, f"line {line} ({w})", f"{w} point") for a, w in zip(args[:2], ("via", "end"), strict=False)]
+            for at, name, what in points:
+                arg = text[at:]
+                lit = _LITERAL.match(arg) or re.match(r"get_inverse_kin[ \t]*\([ \t]*(p)\[", arg)
+                if lit is not None:
+                    bracket = at + lit.end() - 1
+                    targets[(file, bracket)] = _literal(text, bracket, file, name, bool(lit.group(1)))
+                    continue
+                var = re.match(r"(\w+)[ \t]*[,)]", arg)
+                if var and var.group(1) in assigned:
+                    bracket, pose = assigned[var.group(1)]
+                    targets[(file, bracket)] = _literal(text, bracket, file, var.group(1), pose)
+                else:
+                    notes.append(f"{file} line {line}: the move's {what} is not a literal or a variable "
+                                 "assigned one: not compensated")
     ordered = tuple(targets[k] for k in sorted(targets))
     return ParsedProgram(LANGUAGE, dict(texts), ordered, tool, None, tuple(notes))

@@ -28,3 +28,31 @@ def test_incomplete_position_is_named():
     text = samples.TP_LS.replace("\tJ4=      .000 deg,\tJ5=    30.000 deg,\tJ6=      .000 deg\n", "")
     with pytest.raises(ProgramError, match=r"P\[1\]: GP1 needs"):
         fanuc_tp.parse({"p.ls": text})
+
+
+def test_the_targets_frames_are_noted():
+    parsed = fanuc_tp.parse({"WELD_DEMO.ls": samples.TP_LS})
+    assert parsed.notes == ("Cartesian targets in UF 1 (--base), targets in UT 1 (--tool): the frames are "
+                            "controller data, not in the file",)
+
+
+def _in_frames(p3_uf: int, p3_ut: int, p1_uf: int = 1) -> str:
+    text = samples.TP_LS.replace('P[3:"weld"]{\n   GP1:\n\tUF : 1, UT : 1,',
+                                 f'P[3:"weld"]{{\n   GP1:\n\tUF : {p3_uf}, UT : {p3_ut},')
+    return text.replace('P[1:"HOME"]{\n   GP1:\n\tUF : 1,', f'P[1:"HOME"]{{\n   GP1:\n\tUF : {p1_uf},')
+
+
+@pytest.mark.parametrize("text, message", [
+    (_in_frames(1, 2), r"targets in different UTs \(P\[1\] in UT 1, P\[3\] in UT 2\)"),
+    (_in_frames(3, 1), r"targets in different UFs \(P\[2\] in UF 1, P\[3\] in UF 3\)"),
+], ids=["tool-frames", "user-frames"])
+def test_a_program_mixing_user_or_tool_frames_is_refused(text, message):
+    """One --tool and one --base compensate a program: targets in other frames would be wrong."""
+    with pytest.raises(ProgramError, match=message):
+        fanuc_tp.parse({"p.ls": text})
+
+
+def test_a_joint_target_in_another_user_frame_is_accepted():
+    """A joint position does not depend on the user frame (a home taught in UF 0)."""
+    parsed = fanuc_tp.parse({"p.ls": _in_frames(1, 1, p1_uf=0)})
+    assert [t.kind for t in parsed.targets] == ["joint", "pose", "pose"]

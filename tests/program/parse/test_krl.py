@@ -41,3 +41,20 @@ def test_errors_name_the_target(text, message):
 def test_tool_data_reference_is_noted():
     parsed = krl.parse({"p.src": "$TOOL=TOOL_DATA[1]\nPTP {A1 0,A2 -90,A3 90,A4 0,A5 30,A6 0}\n"})
     assert "config.dat" in parsed.notes[0]
+
+
+def test_a_circular_move_has_two_targets_via_and_end():
+    """CIRC {via},{end}: both points are targets (the end point is not left uncompensated); a named
+    via point comes from the .dat, an inline end point is still read; spline moves too."""
+    src = ("DEF c( )\n"
+           "CIRC {X 10,Y 20,Z 30,A 0,B 90,C 0},{X 40,Y 50,Z 60,A 0,B 90,C 0} C_DIS ; arc\n"
+           "CIRC XAUX, {X 70,Y 80,Z 90,A 0,B 90,C 0}, CA 90\n"
+           "SCIRC {X 1,Y 2,Z 3,A 0,B 90,C 0}, {X 4,Y 5,Z 6,A 0,B 90,C 0}\n"
+           "SLIN {X 7,Y 8,Z 9,A 0,B 90,C 0}\n"
+           "LIN_REL {X 100}\n"
+           "END\n")
+    parsed = krl.parse({"c.src": src})
+    assert [t.name for t in parsed.targets] == [
+        "c.src line 2 (via)", "c.src line 2 (end)", "c.src line 3 (end)", "c.src line 4 (via)",
+        "c.src line 4 (end)", "c.src line 5"]
+    assert [t.values[0] for t in parsed.targets] == [10, 40, 70, 1, 4, 7]

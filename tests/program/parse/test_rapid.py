@@ -30,3 +30,18 @@ def test_two_tools_are_not_guessed():
 def test_a_short_robtarget_is_named():
     with pytest.raises(ProgramError, match="pX: a robtarget"):
         rapid.parse({"m.mod": "CONST robtarget pX:=[[1,2,3],[1,0,0]];\n"})
+
+
+def test_movec_has_two_targets_cirpoint_and_topoint():
+    """MoveC CirPoint, ToPoint: both inline robtargets are targets; a declared one is read from its
+    declaration; a \\Conc switch before them and a commented-out move are skipped."""
+    rob = "[[{x},0,500],[0,0,1,0],[0,0,0,0],[9E9,9E9,9E9,9E9,9E9,9E9]]"
+    text = ("MODULE M\n    CONST robtarget pCir:=" + rob.format(x=1) + ";\n    PROC main()\n"
+            "        MoveC " + rob.format(x=2) + ", " + rob.format(x=3) + ", v100, z10, tool0;\n"
+            "        MoveC \\Conc, pCir, " + rob.format(x=4) + ", v100, fine, tool0\\WObj:=wobj0;\n"
+            "        ! MoveL " + rob.format(x=5) + ", v100, fine, tool0;\n"
+            "        MoveL " + rob.format(x=6) + ", v100, fine, tool0;\n    ENDPROC\nENDMODULE\n")
+    parsed = rapid.parse({"M.mod": text})
+    assert [t.name for t in parsed.targets] == ["pCir", "M.mod line 4 (via)", "M.mod line 4 (end)",
+                                                "M.mod line 5 (end)", "M.mod line 7"]
+    assert [t.values[0] for t in parsed.targets] == [1, 2, 3, 4, 6]
