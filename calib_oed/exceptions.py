@@ -269,13 +269,7 @@ class UnknownCriterionError(_UnknownName):
 
 
 class SQPSettingsError(_ValueNotMet):
-    """An :class:`SQPSettings` value is invalid.
-
-    Attributes:
-        name: The setting.
-        value: The value given.
-        valid: The valid choices, for settings that take one of a few names.
-    """
+    """An :class:`SQPSettings` value is invalid (``name`` the setting, ``valid`` its choices where there are few)."""
 
     template = "SQPSettings.{what} = {value!r}: {requirement}"
     list_choices = False
@@ -294,13 +288,7 @@ class SQPProblemError(CalibOedError, ValueError):
 
 
 class ViewerSettingError(_ValueNotMet):
-    """A setting of the meshcat view (:mod:`calib_oed.viz.viewer`) is invalid.
-
-    Attributes:
-        name: The setting.
-        value: The value given.
-        valid: The valid choices, for settings that take one of a few names.
-    """
+    """A setting of the meshcat view (:mod:`calib_oed.viz.viewer`) is invalid (``name`` the setting, ``valid`` its choices where there are few)."""
 
     template = "viewer setting {what} = {value!r}: {requirement}"
     list_choices = False
