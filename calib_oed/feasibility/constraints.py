@@ -14,7 +14,7 @@ owning its values, exact gradients, curvature, labels and speed bound:
 Gradients use witness points and ``LOCAL_WORLD_ALIGNED`` joint Jacobians
 (:mod:`calib_oed.feasibility.bodies`). Each pose's constraints depend on that
 pose only, so the Jacobian of a design is block diagonal
-(:meth:`FeasibilityModel.sparse_jacobian`).
+(:meth:`calib_oed.oed.problem.DesignProblem.compute_constraint_rows` stacks it sparse).
 """
 
 from __future__ import annotations
@@ -23,11 +23,10 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.sparse
 
 from calib_oed.exceptions import ShapeError
 from calib_oed.feasibility.bodies import BodyStates, compute_body_states
-from calib_oed.feasibility.capsule_rows import CapsulePairRows, HalfspaceRows
+from calib_oed.feasibility.capsule_rows import CapsulePairRows
 from calib_oed.feasibility.curvature import lagrangian_hessian
 from calib_oed.feasibility.hull_rows import HullRows
 from calib_oed.feasibility.hulls import HullPairs
@@ -232,12 +231,6 @@ class FeasibilityModel:
         return f.pairs if f is not None else np.zeros((0, 2), dtype=int)
 
     @property
-    def halfspace_pairs(self) -> np.ndarray:
-        """``(segment, half-space)`` pairs (H, 2)."""
-        f = self.family(HalfspaceRows)
-        return f.pairs if f is not None else np.zeros((0, 2), dtype=int)
-
-    @property
     def solid_pairs(self) -> SolidPairs:
         """The ``(segment, solid)`` rows."""
         f = self.family(SolidRows)
@@ -321,12 +314,3 @@ class FeasibilityModel:
     def compute_values(self, q: np.ndarray) -> np.ndarray:
         """Constraint values :math:`g(q)`, (n, m)."""
         return self.compute(q, jacobian=False).values
-
-    def sparse_jacobian(self, q: np.ndarray) -> tuple[np.ndarray, scipy.sparse.csr_matrix]:
-        """Values (n·m,) and the block-diagonal Jacobian (n·m, n·nq) of the stacked design."""
-        res = self.compute(q, jacobian=True)
-        n, m, nq = res.jacobian.shape
-        bsr = scipy.sparse.bsr_matrix(
-            (res.jacobian, np.arange(n), np.arange(n + 1)), shape=(n * m, n * nq)
-        )
-        return res.values.ravel(), bsr.tocsr()

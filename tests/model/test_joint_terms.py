@@ -33,12 +33,25 @@ def _per_pose(fun, q):
                      for k in range(len(q))])
 
 
+def _model_at(term, kind: str, n: int, seed: int):
+    """A measurement model of ``kind``, ``n`` random configurations and the state at them."""
+    q = term.space.robot.random_configurations(n, seed)
+    return MODELS[kind](), q, evaluate_setup(term.space, term.p, q)
+
+
+def _matches_differences(term, analytic, fun, q):
+    """``analytic`` (n, d, n_p, ...) against per-pose differences of ``fun``, over every column and
+    over the joint terms' columns alone."""
+    numeric, scale, added = _per_pose(fun, q), term.space.unit_scale, term.added
+    assert compare_scaled(analytic, numeric, scale, axis=2) < TOL
+    assert compare_scaled(analytic[:, :, added], numeric[:, :, added], scale[added], axis=2) < TOL
+
+
 @pytest.mark.parametrize("kind", MODELS)
 def test_param_jacobian(term, kind):
     space, p, added = term.space, term.p, term.added
-    model = MODELS[kind]()
-    q = space.robot.random_configurations(3, 11)
-    analytic = model.compute_param_jacobian(evaluate_setup(space, p, q))
+    model, q, state = _model_at(term, kind, 3, 11)
+    analytic = model.compute_param_jacobian(state)
     numeric = scaled_difference(lambda x: model.compute_values(evaluate_setup(space, x, q)), space, p)
     assert compare_scaled(analytic, numeric, space.unit_scale) < TOL
     g = space.gain_slice  # the gain columns on their own (the compliance columns' differences are too noisy)
@@ -50,40 +63,34 @@ def test_param_jacobian(term, kind):
 @pytest.mark.parametrize("kind", MODELS)
 def test_config_jacobian(term, kind):
     space, p = term.space, term.p
-    model = MODELS[kind]()
-    q = space.robot.random_configurations(3, 12)
-    analytic = model.compute_config_jacobian(evaluate_setup(space, p, q))
+    model, q, state = _model_at(term, kind, 3, 12)
+    analytic = model.compute_config_jacobian(state)
     assert relative_error(analytic, _per_pose(lambda x: model.compute_values(evaluate_setup(space, p, x)), q)) < TOL
     # the chain dq_eff/dq is far from I here: the rigid formula at q_eff would fail
-    chain = evaluate_setup(space, p, q).config_chain
+    chain = state.config_chain
     assert np.abs(chain - np.eye(space.robot.nq)).max() > 1e-3
 
 
 @pytest.mark.parametrize("kind", MODELS)
 def test_param_config_jacobian(term, kind):
     """d2h/dp dq over every column (the design gradient's input) against differences of dh/dp."""
-    space, p, added = term.space, term.p, term.added
-    model = MODELS[kind]()
-    q = space.robot.random_configurations(2, 13)
-    analytic = model.compute_param_config_jacobian(evaluate_setup(space, p, q))
-    numeric = _per_pose(lambda x: model.compute_param_jacobian(evaluate_setup(space, p, x)), q)
-    assert compare_scaled(analytic, numeric, space.unit_scale, axis=2) < TOL
-    assert compare_scaled(analytic[:, :, added], numeric[:, :, added], space.unit_scale[added], axis=2) < TOL
+    space, p = term.space, term.p
+    model, q, state = _model_at(term, kind, 2, 13)
+    analytic = model.compute_param_config_jacobian(state)
+    _matches_differences(term, analytic, lambda x: model.compute_param_jacobian(evaluate_setup(space, p, x)), q)
 
 
 @pytest.mark.parametrize("kind", MODELS)
 def test_param_config_hessian(term, kind):
     """d3h/dp dq dq (the design's exact Hessian) against differences of d2h/dp dq; None with compliance."""
     space, p, added = term.space, term.p, term.added
-    model = MODELS[kind]()
-    q = space.robot.random_configurations(2, 14)
-    analytic = model.compute_param_config_hessian(evaluate_setup(space, p, q))
+    model, q, state = _model_at(term, kind, 2, 14)
+    analytic = model.compute_param_config_hessian(state)
     if space.compliance is not None:
         assert analytic is None
         return
-    numeric = _per_pose(lambda x: model.compute_param_config_jacobian(evaluate_setup(space, p, x)), q)
-    assert compare_scaled(analytic, numeric, space.unit_scale, axis=2) < TOL
-    assert compare_scaled(analytic[:, :, added], numeric[:, :, added], space.unit_scale[added], axis=2) < TOL
+    _matches_differences(term, analytic,
+                         lambda x: model.compute_param_config_jacobian(evaluate_setup(space, p, x)), q)
     assert np.abs(analytic[:, :, added]).max() > 0
     np.testing.assert_allclose(analytic, np.swapaxes(analytic, 3, 4), rtol=0, atol=1e-9 * np.abs(analytic).max())
 
