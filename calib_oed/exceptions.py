@@ -22,11 +22,67 @@ class CalibOedError(Exception):
     """Base class of all calib_oed errors."""
 
 
+class _UnknownName(CalibOedError):
+    """A name that is not among ``valid``; the subclass's ``template`` says what the name is
+    (``{name}`` and ``{choices}`` filled in).
+
+    Attributes:
+        name: The name that was asked for.
+        valid: The valid names.
+    """
+
+    template = "unknown name {name!r}; valid names are: {choices}"
+
+    def __init__(self, name: str, valid: Sequence[str]):
+        self.name = name
+        self.valid = list(valid)
+        super().__init__(self.template.format(name=name, choices=_choices(self.valid)))
+
+
+class _ValueNotMet(CalibOedError, ValueError):
+    """An argument or setting ``what`` whose ``value`` does not meet ``requirement``; the
+    subclass's ``template`` says whose (``{what}``, ``{value!r}``, ``{requirement}``).
+
+    Attributes:
+        what: The offending argument or setting (also as ``name``).
+        value: The value given.
+        valid: The valid choices, where there are few (listed in the message when
+            ``list_choices``).
+    """
+
+    template = "{what} = {value!r}: {requirement}"
+    list_choices = True
+
+    def __init__(self, what: str, value, requirement: str, valid: Sequence[str] | None = None):
+        self.what = self.name = what
+        self.value = value
+        self.valid = list(valid) if valid is not None else None
+        choices = f"; valid choices are: {_choices(self.valid)}" if self.valid and self.list_choices else ""
+        super().__init__(self.template.format(what=what, value=value, requirement=requirement) + choices)
+
+
+class _FileKeyError(CalibOedError):
+    """A file's key that is missing, malformed or inconsistent.
+
+    Attributes:
+        key: Dotted path of the offending key, or ``None`` for problems with the file
+            as a whole.
+        source: The file, if any.
+    """
+
+    def __init__(self, message: str, key: str | None = None, source: str | None = None):
+        self.key = key
+        self.source = source
+        where = f"{source}: " if source else ""
+        at = f"{key}: " if key else ""
+        super().__init__(f"{where}{at}{message}")
+
+
 class RobotLoadError(CalibOedError):
     """A robot description could not be loaded (missing file, malformed URDF)."""
 
 
-class UnknownRobotError(RobotLoadError):
+class UnknownRobotError(_UnknownName, RobotLoadError):
     """A robot name matches no shipped or example-robot-data robot.
 
     Attributes:
@@ -34,16 +90,11 @@ class UnknownRobotError(RobotLoadError):
         valid: The names that can be loaded.
     """
 
-    def __init__(self, name: str, valid: Sequence[str]):
-        self.name = name
-        self.valid = list(valid)
-        super().__init__(
-            f"unknown robot {name!r}; valid robot names are: {_choices(self.valid)} "
-            "(or pass the path of a URDF file)"
-        )
+    template = ("unknown robot {name!r}; valid robot names are: {choices} "
+                "(or pass the path of a URDF file)")
 
 
-class UnknownFrameError(CalibOedError):
+class UnknownFrameError(_UnknownName):
     """A frame name is not in the robot model.
 
     Attributes:
@@ -51,19 +102,13 @@ class UnknownFrameError(CalibOedError):
         valid: The frames of the model.
     """
 
-    def __init__(self, name: str, valid: Sequence[str]):
-        self.name = name
-        self.valid = list(valid)
-        super().__init__(f"unknown frame {name!r}; the model has the frames: {_choices(self.valid)}")
+    template = "unknown frame {name!r}; the model has the frames: {choices}"
 
 
-class UnknownJointError(CalibOedError):
+class UnknownJointError(_UnknownName):
     """A joint name is not among the robot's actuated joints."""
 
-    def __init__(self, name: str, valid: Sequence[str]):
-        self.name = name
-        self.valid = list(valid)
-        super().__init__(f"unknown joint {name!r}; the robot's joints are: {_choices(self.valid)}")
+    template = "unknown joint {name!r}; the robot's joints are: {choices}"
 
 
 class UnsupportedModelError(RobotLoadError):
@@ -105,7 +150,7 @@ class JointLimitError(CalibOedError, ValueError):
     """Joint limits are inconsistent (lower above upper, non-finite)."""
 
 
-class SceneError(CalibOedError):
+class SceneError(_FileKeyError):
     """A scene file is missing, malformed or inconsistent.
 
     Attributes:
@@ -114,37 +159,22 @@ class SceneError(CalibOedError):
         source: The file the scene came from, if any.
     """
 
-    def __init__(self, message: str, key: str | None = None, source: str | None = None):
-        self.key = key
-        self.source = source
-        where = f"{source}: " if source else ""
-        at = f"{key}: " if key else ""
-        super().__init__(f"{where}{at}{message}")
 
-
-class UnknownSceneError(SceneError):
+class UnknownSceneError(_UnknownName, SceneError):
     """A scene name matches no shipped scene and no file."""
 
-    def __init__(self, name: str, valid: Sequence[str]):
-        self.name = name
-        self.valid = list(valid)
-        super().__init__(
-            f"unknown scene {name!r}: no such file and no shipped scene of that name; "
-            f"shipped scenes are: {_choices(self.valid)}"
-        )
+    template = ("unknown scene {name!r}: no such file and no shipped scene of that name; "
+                "shipped scenes are: {choices}")
 
 
 class ParameterError(CalibOedError, ValueError):
     """A parameter vector or parameter name is invalid."""
 
 
-class UnknownParameterError(ParameterError):
+class UnknownParameterError(_UnknownName, ParameterError):
     """A parameter name is not in the parameter space."""
 
-    def __init__(self, name: str, valid: Sequence[str]):
-        self.name = name
-        self.valid = list(valid)
-        super().__init__(f"unknown parameter {name!r}; parameters are: {_choices(self.valid)}")
+    template = "unknown parameter {name!r}; parameters are: {choices}"
 
 
 class NotIdentifiableError(CalibOedError):
@@ -189,13 +219,10 @@ class ExportError(CalibOedError):
     """A result could not be written (bad output path, unsupported URDF content)."""
 
 
-class UnknownLinkError(CalibOedError):
+class UnknownLinkError(_UnknownName):
     """A link name is not in the robot model (capsule tables, excluded pairs)."""
 
-    def __init__(self, name: str, valid: Sequence[str]):
-        self.name = name
-        self.valid = list(valid)
-        super().__init__(f"unknown link {name!r}; the robot's links are: {_choices(self.valid)}")
+    template = "unknown link {name!r}; the robot's links are: {choices}"
 
 
 class SamplingError(CalibOedError):
@@ -230,7 +257,7 @@ class ConfidenceLevelError(CalibOedError, ValueError):
         )
 
 
-class UnknownCriterionError(CalibOedError):
+class UnknownCriterionError(_UnknownName):
     """A design criterion name is not one calib_oed knows.
 
     Attributes:
@@ -238,26 +265,14 @@ class UnknownCriterionError(CalibOedError):
         valid: The criterion names that can be made.
     """
 
-    def __init__(self, name: str, valid: Sequence[str]):
-        self.name = name
-        self.valid = list(valid)
-        super().__init__(f"unknown criterion {name!r}; valid criterion names are: {_choices(self.valid)}")
+    template = "unknown criterion {name!r}; valid criterion names are: {choices}"
 
 
-class SQPSettingsError(CalibOedError, ValueError):
-    """An :class:`SQPSettings` value is invalid.
+class SQPSettingsError(_ValueNotMet):
+    """An :class:`SQPSettings` value is invalid (``name`` the setting, ``valid`` its choices where there are few)."""
 
-    Attributes:
-        name: The setting.
-        value: The value given.
-        valid: The valid choices, for settings that take one of a few names.
-    """
-
-    def __init__(self, name: str, value, requirement: str, valid=None):
-        self.name = name
-        self.value = value
-        self.valid = list(valid) if valid is not None else None
-        super().__init__(f"SQPSettings.{name} = {value!r}: {requirement}")
+    template = "SQPSettings.{what} = {value!r}: {requirement}"
+    list_choices = False
 
 
 class SQPProblemError(CalibOedError, ValueError):
@@ -272,23 +287,14 @@ class SQPProblemError(CalibOedError, ValueError):
         super().__init__(message)
 
 
-class ViewerSettingError(CalibOedError, ValueError):
-    """A setting of the meshcat view (:mod:`calib_oed.viz.viewer`) is invalid.
+class ViewerSettingError(_ValueNotMet):
+    """A setting of the meshcat view (:mod:`calib_oed.viz.viewer`) is invalid (``name`` the setting, ``valid`` its choices where there are few)."""
 
-    Attributes:
-        name: The setting.
-        value: The value given.
-        valid: The valid choices, for settings that take one of a few names.
-    """
-
-    def __init__(self, name: str, value, requirement: str, valid=None):
-        self.name = name
-        self.value = value
-        self.valid = list(valid) if valid is not None else None
-        super().__init__(f"viewer setting {name} = {value!r}: {requirement}")
+    template = "viewer setting {what} = {value!r}: {requirement}"
+    list_choices = False
 
 
-class StudyConfigError(CalibOedError):
+class StudyConfigError(_FileKeyError):
     """A study configuration (:mod:`calib_oed.study.config`) is missing, malformed or inconsistent.
 
     Attributes:
@@ -296,13 +302,6 @@ class StudyConfigError(CalibOedError):
             ``None`` for problems with the file as a whole.
         source: The file the configuration came from, if any.
     """
-
-    def __init__(self, message: str, key: str | None = None, source: str | None = None):
-        self.key = key
-        self.source = source
-        where = f"{source}: " if source else ""
-        at = f"{key}: " if key else ""
-        super().__init__(f"{where}{at}{message}")
 
 
 class StudyLockError(CalibOedError):
@@ -354,7 +353,7 @@ class OptionalDependencyError(CalibOedError, ImportError):
                          f"pip install 'calib_oed[{extra}]'")
 
 
-class CertificateError(CalibOedError, ValueError):
+class CertificateError(_ValueNotMet):
     """An optimality certificate (:mod:`calib_oed.oed.certificate`) cannot be computed as asked.
 
     Attributes:
@@ -363,15 +362,10 @@ class CertificateError(CalibOedError, ValueError):
         valid: The valid choices, where there are few.
     """
 
-    def __init__(self, what: str, value, requirement: str, valid: Sequence[str] | None = None):
-        self.what = what
-        self.value = value
-        self.valid = list(valid) if valid is not None else None
-        choices = f"; valid choices are: {_choices(self.valid)}" if self.valid else ""
-        super().__init__(f"certificate: {what} = {value!r}: {requirement}{choices}")
+    template = "certificate: {what} = {value!r}: {requirement}"
 
 
-class SequentialError(CalibOedError, ValueError):
+class SequentialError(_ValueNotMet):
     """A sequential calibration (:mod:`calib_oed.oed.sequential`) cannot run as asked.
 
     Attributes:
@@ -379,10 +373,7 @@ class SequentialError(CalibOedError, ValueError):
         value: The value given.
     """
 
-    def __init__(self, what: str, value, requirement: str):
-        self.what = what
-        self.value = value
-        super().__init__(f"sequential design: {what} = {value!r}: {requirement}")
+    template = "sequential design: {what} = {value!r}: {requirement}"
 
 
 class AggregateError(CalibOedError, ValueError):
@@ -400,7 +391,7 @@ class AggregateError(CalibOedError, ValueError):
                          f"{_choices(self.valid)}")
 
 
-class DesignError(CalibOedError, ValueError):
+class DesignError(_ValueNotMet):
     """A design (:func:`calib_oed.oed.design.design`) cannot be computed as asked.
 
     Attributes:
@@ -409,12 +400,7 @@ class DesignError(CalibOedError, ValueError):
         valid: The valid choices, where there are few.
     """
 
-    def __init__(self, what: str, value, requirement: str, valid: Sequence[str] | None = None):
-        self.what = what
-        self.value = value
-        self.valid = list(valid) if valid is not None else None
-        choices = f"; valid choices are: {_choices(self.valid)}" if self.valid else ""
-        super().__init__(f"design: {what} = {value!r}: {requirement}{choices}")
+    template = "design: {what} = {value!r}: {requirement}"
 
 
 class DesignMemoryError(DesignError, MemoryError):
@@ -449,22 +435,17 @@ class CalibOedNote(UserWarning):
     """Not an error, worth knowing (repeated rows, poses that collide); the CLI prints one line."""
 
 
-class LinkFitSettingsError(CalibOedError, ValueError):
+class LinkFitSettingsError(_ValueNotMet):
     """A setting of the link-geometry fit is out of range (the message says the valid range)."""
 
-    def __init__(self, name: str, value, requirement: str):
-        self.name, self.value = name, value
-        super().__init__(f"link fit: {name} = {value!r}: {requirement}")
+    template = "link fit: {what} = {value!r}: {requirement}"
 
 
-class ProgramError(CalibOedError, ValueError):
+class ProgramError(_ValueNotMet):
     """A measurement program (:mod:`calib_oed.program`) cannot be built as asked (a bad
     setting or format, a pose in collision, a move no plan connects); names the valid choices."""
 
-    def __init__(self, what: str, value, requirement: str, valid: Sequence[str] | None = None):
-        self.what, self.value, self.valid = what, value, list(valid) if valid is not None else None
-        choices = f"; valid choices are: {_choices(self.valid)}" if self.valid else ""
-        super().__init__(f"program: {what} = {value!r}: {requirement}{choices}")
+    template = "program: {what} = {value!r}: {requirement}"
 
 
 class DataSanityError(CalibOedError):

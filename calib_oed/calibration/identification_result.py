@@ -20,7 +20,7 @@ from typing import NamedTuple
 import numpy as np
 
 from calib_oed.exceptions import UnknownParameterError
-from calib_oed.model.parameters import report_scale_of, report_unit_of
+from calib_oed.model.parameters import InReportUnits, report_scale_of
 from calib_oed.values import plain
 
 
@@ -41,7 +41,7 @@ class Outlier(NamedTuple):
 
 
 @dataclass(frozen=True)
-class ParameterEstimate:
+class ParameterEstimate(InReportUnits):
     """One parameter of an identification result, SI (``value``, ``std``) with report units.
 
     ``std`` and ``std_posterior`` are 0 for a fixed parameter.
@@ -53,14 +53,6 @@ class ParameterEstimate:
     free: bool
     std: float
     std_posterior: float
-
-    @property
-    def report_unit(self) -> str:
-        return report_unit_of(self.unit)
-
-    @property
-    def report_scale(self) -> float:
-        return report_scale_of(self.unit)
 
 
 @dataclass(frozen=True, eq=False)

@@ -198,12 +198,10 @@ def read_sensor_compliance(path: str | os.PathLike, joint_names) -> tuple[Compli
         ExportError: a malformed section or joints that are not the robot's.
     """
     path = Path(path)
-    section = _load(path).get("compliance")
-    if section is None:
+    found = _section_lists(path, "compliance", ("joints",))
+    if found is None:
         return None
-    joints = section.get("joints") if isinstance(section, dict) else None
-    if not isinstance(joints, list) or not all(isinstance(j, dict) for j in joints):
-        raise ExportError(f"{path}: compliance.joints must be a list of mappings")
+    section, (joints,) = found
     names = [j.get("joint") for j in joints]
     if names != list(joint_names):
         raise ExportError(f"{path}: compliance.joints are {names}, the robot's joints are {list(joint_names)}")
@@ -234,12 +232,10 @@ def read_sensor_gains(path: str | os.PathLike, joint_names) -> tuple[JointGains,
         ExportError: a malformed section or joints that are not the robot's.
     """
     path = Path(path)
-    section = _load(path).get("joint_gains")
-    if section is None:
+    found = _section_lists(path, "joint_gains", ("joints", "couplings"))
+    if found is None:
         return None
-    rows = [section.get(k) if isinstance(section, dict) else None for k in ("joints", "couplings")]
-    if not all(isinstance(r, list) and all(isinstance(e, dict) for e in r) for r in rows):
-        raise ExportError(f"{path}: joint_gains.joints and joint_gains.couplings must be lists of mappings")
+    rows = found[1]
     names = list(joint_names)
     for i, e in enumerate(rows[0]):
         if e.get("number") not in range(1, len(names) + 1) or e.get("joint") != names[e["number"] - 1]:
@@ -254,6 +250,19 @@ def read_sensor_gains(path: str | os.PathLike, joint_names) -> tuple[JointGains,
     except (CalibOedError, TypeError, ValueError) as exc:
         raise ExportError(f"{path}: joint_gains: {exc}") from exc
     return layout, np.array(values, dtype=float)
+
+
+def _section_lists(path: Path, name: str, keys: tuple[str, ...]) -> tuple[dict, list[list[dict]]] | None:
+    """A sensor file's section ``name`` and its lists of mappings ``name.<key>``, or None if the
+    file has no such section; ExportError if they are not lists of mappings."""
+    section = _load(path).get(name)
+    if section is None:
+        return None
+    rows = [section.get(k) if isinstance(section, dict) else None for k in keys]
+    if not all(isinstance(r, list) and all(isinstance(e, dict) for e in r) for r in rows):
+        lists = " and ".join(f"{name}.{k}" for k in keys)
+        raise ExportError(f"{path}: {lists} must be {'a list' if len(keys) == 1 else 'lists'} of mappings")
+    return section, rows
 
 
 def _array(path: Path, data: dict, key: str, shape: tuple[int, ...], prefix: str) -> np.ndarray:

@@ -42,18 +42,19 @@ def _integer(text: str, what: str) -> int:
         raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}") from None
 
 
-def _non_negative_int(text: str) -> int:
-    value = _integer(text, "an integer >= 0")
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text}")
+def _integer_at_least(text: str, minimum: int, what: str) -> int:
+    value = _integer(text, what)
+    if value < minimum:
+        raise argparse.ArgumentTypeError(f"expected {what}, got {text}")
     return value
+
+
+def _non_negative_int(text: str) -> int:
+    return _integer_at_least(text, 0, "an integer >= 0")
 
 
 def _positive_int(text: str) -> int:
-    value = _integer(text, "an integer >= 1")
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text}")
-    return value
+    return _integer_at_least(text, 1, "an integer >= 1")
 
 
 def _position_tol_mm(text: str) -> float:
@@ -79,10 +80,7 @@ def _pose_count(text: str) -> int:
 
 def _seed(text: str) -> int:
     """A random seed: an integer >= 0 (numpy's ``default_rng`` takes no negative seed)."""
-    value = _integer(text, "a seed, an integer >= 0")
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"expected a seed, an integer >= 0, got {text}")
-    return value
+    return _integer_at_least(text, 0, "a seed, an integer >= 0")
 
 
 def _scene(scene_ref):

@@ -163,6 +163,20 @@ def _identify_fit(s, mset, args):
                                            model_error=s.scene.discrepancy(), drop=drop)
 
 
+def _scene_and_measurements(args):
+    """The set-up of ``args.scene`` and ``args.measurements`` read in its units (``identify``,
+    ``validate``), after checking ``--max-registration-rms``."""
+    from calib_oed.calibration.workflow import read_scene_measurements
+    from calib_oed.exceptions import ParameterError
+
+    if not args.max_registration_rms > 0:
+        raise ParameterError(f"--max-registration-rms must be a positive length in mm, got "
+                             f"{args.max_registration_rms:g}")
+    s = _setup(args.scene)
+    units = {k: v for k, v in (("length_unit", args.length_unit), ("angle_unit", args.angle_unit)) if v}
+    return s, read_scene_measurements(s, args.measurements, **units)
+
+
 def cmd_identify(args) -> int:
     from calib_oed.calibration.crossval import cross_validate
     from calib_oed.calibration.fit_report import (
@@ -174,19 +188,12 @@ def cmd_identify(args) -> int:
     from calib_oed.calibration.trust import assess
     from calib_oed.calibration.workflow import (
         export_result,
-        read_scene_measurements,
         read_truth,
         round_trip_error,
         tcp_errors,
     )
-    from calib_oed.exceptions import ParameterError
 
-    if not args.max_registration_rms > 0:
-        raise ParameterError(f"--max-registration-rms must be a positive length in mm, got "
-                             f"{args.max_registration_rms:g}")
-    s = _setup(args.scene)
-    units = {k: v for k, v in (("length_unit", args.length_unit), ("angle_unit", args.angle_unit)) if v}
-    mset = read_scene_measurements(s, args.measurements, **units)
+    s, mset = _scene_and_measurements(args)
     if args.adopt_registration:  # the fitted tracker pose (and offsets) into a new scene, used from here on
         s = _adopt(s, mset, args)
     sanity, blocks, robust = _identify_fit(s, mset, args)
@@ -257,15 +264,7 @@ def cmd_validate(args) -> int:
         predicted_rms_mm,
         read_identification,
     )
-    from calib_oed.calibration.workflow import read_scene_measurements
-    from calib_oed.exceptions import ParameterError
-
-    if not args.max_registration_rms > 0:
-        raise ParameterError(f"--max-registration-rms must be a positive length in mm, got "
-                             f"{args.max_registration_rms:g}")
-    s = _setup(args.scene)
-    units = {k: v for k, v in (("length_unit", args.length_unit), ("angle_unit", args.angle_unit)) if v}
-    mset = read_scene_measurements(s, args.measurements, **units)
+    s, mset = _scene_and_measurements(args)
     check_measurements(s.problem.space, mset, args.max_registration_rms * 1e-3, s.reflector_names)
     result = validate_calibration(s.scene, args.calibrated, mset, compensated=args.compensate)
     ident = read_identification(result.files)

@@ -133,10 +133,6 @@ class HalfspaceRows(RowFamily):
         names, hs = self.segments.names, self.cell.halfspaces
         return tuple(f"{k}:{names[i]}|{hs[h].name}" for (i, h), k in zip(self.pairs, self.pair_kind, strict=True))
 
-    @property
-    def pair_kinds(self):
-        return self.pair_kind
-
     def compute(self, q, states: BodyStates, jacobian):
         n = q.shape[0]
         if len(self.pairs) == 0:

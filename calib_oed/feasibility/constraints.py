@@ -14,7 +14,7 @@ owning its values, exact gradients, curvature, labels and speed bound:
 Gradients use witness points and ``LOCAL_WORLD_ALIGNED`` joint Jacobians
 (:mod:`calib_oed.feasibility.bodies`). Each pose's constraints depend on that
 pose only, so the Jacobian of a design is block diagonal
-(:meth:`FeasibilityModel.sparse_jacobian`).
+(:meth:`calib_oed.oed.problem.DesignProblem.compute_constraint_rows` stacks it sparse).
 """
 
 from __future__ import annotations
@@ -23,11 +23,10 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.sparse
 
 from calib_oed.exceptions import ShapeError
 from calib_oed.feasibility.bodies import BodyStates, compute_body_states
-from calib_oed.feasibility.capsule_rows import CapsulePairRows, HalfspaceRows
+from calib_oed.feasibility.capsule_rows import CapsulePairRows
 from calib_oed.feasibility.curvature import lagrangian_hessian
 from calib_oed.feasibility.hull_rows import HullRows
 from calib_oed.feasibility.hulls import HullPairs
@@ -53,6 +52,8 @@ class SegmentTable:
         names: Labels (``"link_2#0"``, ``"reflector(smr0)"``, ``"laser(smr0)"``, ``"car_lower"``).
         links: Link name each robot segment belongs to (``""`` for world-fixed and beams).
         roles: ``"robot"``, ``"reflector"``, ``"beam"`` or ``"obstacle"``.
+        beam_of: The reflector whose laser line each beam segment is, -1 for other
+            segments, (s,).
     """
 
     body_a: np.ndarray
@@ -63,6 +64,7 @@ class SegmentTable:
     names: tuple[str, ...]
     links: tuple[str, ...]
     roles: tuple[str, ...]
+    beam_of: np.ndarray
 
     def __len__(self) -> int:
         return len(self.names)
@@ -113,20 +115,20 @@ def build_segments(
         frame = model.frames[fid]
         a = frame.placement.act(cap.a)
         b = frame.placement.act(cap.b)
-        rows.append((frame.parentJoint, a, frame.parentJoint, b, cap.radius, cap.name or cap.frame, cap.frame, "robot"))
+        rows.append((frame.parentJoint, a, frame.parentJoint, b, cap.radius, cap.name or cap.frame, cap.frame, "robot", -1))
     tool = model.frames[robot.tool_frame_id]
     tool_link = tool.name
     for name, offset in zip(reflector_names, reflector_offsets, strict=True):
         a = tool.placement.translation.copy()
         b = tool.placement.act(np.asarray(offset, dtype=float))
         rows.append((tool.parentJoint, a, tool.parentJoint, b, settings.reflector_radius,
-                     f"reflector({name})", tool_link, "reflector"))
+                     f"reflector({name})", tool_link, "reflector", -1))
     for cap in cell.capsules:
-        rows.append((0, cap.a, 0, cap.b, cap.radius, cap.name, "", "obstacle"))
+        rows.append((0, cap.a, 0, cap.b, cap.radius, cap.name, "", "obstacle", -1))
     t_world = np.asarray(tracker_position, dtype=float)
-    for name, offset in zip(reflector_names, reflector_offsets, strict=True):
+    for j, (name, offset) in enumerate(zip(reflector_names, reflector_offsets, strict=True)):
         c = tool.placement.act(np.asarray(offset, dtype=float))
-        rows.append((tool.parentJoint, c, 0, t_world, settings.beam_radius, f"laser({name})", "", "beam"))
+        rows.append((tool.parentJoint, c, 0, t_world, settings.beam_radius, f"laser({name})", "", "beam", j))
     cols = list(zip(*rows, strict=True))
     return SegmentTable(
         body_a=np.array(cols[0], dtype=int),
@@ -137,6 +139,7 @@ def build_segments(
         names=tuple(cols[5]),
         links=tuple(cols[6]),
         roles=tuple(cols[7]),
+        beam_of=np.array(cols[8], dtype=int),
     )
 
 
@@ -194,7 +197,7 @@ class FeasibilityModel:
         fixed = self.incidence_reflectors
         incidence = all_rows if fixed.size == k else IncidenceRows(
             robot, self.tracker_position, self.reflector_offsets[fixed],
-            [self.reflector_names[j] for j in fixed], self.reflector_normals[fixed], all_rows.limit)
+            [self.reflector_names[j] for j in fixed], self.reflector_normals[fixed], all_rows.limit, fixed)
         #: The row families, in row order.
         self.families: tuple[RowFamily, ...] = (JointRows(robot, settings.margins.joint), incidence,
                                                 *families)
@@ -204,6 +207,9 @@ class FeasibilityModel:
             start += len(family)
         self.kinds = tuple(k for f in self.families for k in f.kinds)
         self.labels = tuple(lbl for f in self.families for lbl in f.labels)
+        #: Per row, the reflector whose view of the tracker it guards (its incidence row, the
+        #: beam rows of its laser line), -1 for the other rows, (m,).
+        self.row_reflectors = np.concatenate([f.row_reflectors() for f in self.families]).astype(int)
 
     # ------------------------------------------------------------ layout
     def family_slices(self) -> list[tuple[RowFamily, slice]]:
@@ -222,12 +228,6 @@ class FeasibilityModel:
     def pairs(self) -> np.ndarray:
         """Capsule pairs (P, 2), segment indices."""
         f = self.family(CapsulePairRows)
-        return f.pairs if f is not None else np.zeros((0, 2), dtype=int)
-
-    @property
-    def halfspace_pairs(self) -> np.ndarray:
-        """``(segment, half-space)`` pairs (H, 2)."""
-        f = self.family(HalfspaceRows)
         return f.pairs if f is not None else np.zeros((0, 2), dtype=int)
 
     @property
@@ -314,12 +314,3 @@ class FeasibilityModel:
     def compute_values(self, q: np.ndarray) -> np.ndarray:
         """Constraint values :math:`g(q)`, (n, m)."""
         return self.compute(q, jacobian=False).values
-
-    def sparse_jacobian(self, q: np.ndarray) -> tuple[np.ndarray, scipy.sparse.csr_matrix]:
-        """Values (n·m,) and the block-diagonal Jacobian (n·m, n·nq) of the stacked design."""
-        res = self.compute(q, jacobian=True)
-        n, m, nq = res.jacobian.shape
-        bsr = scipy.sparse.bsr_matrix(
-            (res.jacobian, np.arange(n), np.arange(n + 1)), shape=(n * m, n * nq)
-        )
-        return res.values.ravel(), bsr.tocsr()

@@ -61,10 +61,12 @@ class IncidenceRows(RowFamily):
         reflector_normals: Each reflector's axis in the tool frame, (k, 3) (normalised
             here; ``None``: tool z for every reflector).
         limit: :math:`\beta_{max} - m_\beta` [rad].
+        reflectors: Each row's reflector, its index among the model's reflectors (``None``:
+            0..k-1).
     """
 
     def __init__(self, robot, tracker_position, reflector_offsets, reflector_names, reflector_normals,
-                 limit: float):
+                 limit: float, reflectors=None):
         tool = robot.model.frames[robot.tool_frame_id]
         self.body = int(tool.parentJoint)
         self.tool_rotation = tool.placement.rotation.copy()
@@ -85,6 +87,10 @@ class IncidenceRows(RowFamily):
         self.limit = float(limit)
         self.kinds = ("incidence",) * k
         self.labels = tuple(f"incidence:{name}" for name in reflector_names)
+        self.reflectors = np.arange(k) if reflectors is None else np.asarray(reflectors, dtype=int).reshape(k)
+
+    def row_reflectors(self):
+        return self.reflectors.copy()
 
     def compute(self, q, states: BodyStates, jacobian):
         k, n = len(self), q.shape[0]

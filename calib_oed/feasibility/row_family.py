@@ -12,6 +12,8 @@ convex pieces of two links) and answers every question asked of a row:
 - the kind (``joint``, ``incidence``, ``self``, ``obstacle``, ``beam``) and
   label of each row, the pair each row belongs to (a capsule against a
   half-space gives one row per axis end point, both of one pair),
+- which reflector's view of the tracker a row guards (:meth:`RowFamily.row_reflectors`:
+  its incidence row, the beam rows of its laser line),
 - what moves each side of a row (:meth:`RowFamily.sides`): the data the
   continuous check of moves bounds the row's speed from
   (:mod:`calib_oed.program.continuous`),
@@ -85,6 +87,8 @@ class RowFamily(abc.ABC):
     deferred: bool = False
     #: Rows whose second derivative is zero (joint limits): no curvature asked.
     linear: bool = False
+    #: The segment table (``SegmentTable``) of families whose rows are on capsule axes, else ``None``.
+    segments = None
 
     def __len__(self) -> int:
         return len(self.labels)
@@ -105,13 +109,13 @@ class RowFamily(abc.ABC):
         pairs = self.pair_labels
         return tuple(pairs[p] for p in self.pair_of_row)
 
-    @property
-    def pair_kinds(self) -> tuple[str, ...]:
-        """Kind of each pair."""
-        kinds = [""] * len(self.pair_labels)
-        for row, p in enumerate(self.pair_of_row):
-            kinds[p] = self.kinds[row]
-        return tuple(kinds)
+    def row_reflectors(self) -> np.ndarray:
+        """Per row, the reflector whose laser line (a beam segment of :attr:`segments`) is one
+        side of it, -1 for rows with no beam side, (m,)."""
+        if self.segments is None:
+            return np.full(len(self), -1)
+        seg = self.sides().segments
+        return np.where(seg >= 0, self.segments.beam_of[np.maximum(seg, 0)], -1).max(axis=1, initial=-1)
 
     def row_links(self) -> tuple[frozenset[str] | None, ...]:
         """Per row, the robot links on both sides of a self row (``None`` otherwise)."""

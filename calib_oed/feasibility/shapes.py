@@ -133,6 +133,13 @@ class HalfSpace:
         return np.asarray(points) @ self.normal - self.offset
 
 
+def _check_placement(solid, what: str) -> None:
+    """Check and set a placed solid's ``center``, ``rotation`` and ``ignore_links`` (frozen record)."""
+    object.__setattr__(solid, "center", finite_vector(solid.center, f"{what} center", 3))
+    object.__setattr__(solid, "rotation", _rotation(solid.rotation, f"{what} rotation"))
+    object.__setattr__(solid, "ignore_links", _links(solid.ignore_links, what))
+
+
 @dataclass(frozen=True, eq=False)
 class Box:
     r"""A world-fixed box :math:`\{x : |R^\top(x - c)|_i \le h_i\}`, :math:`h` = ``size``/2.
@@ -153,12 +160,10 @@ class Box:
 
     def __post_init__(self):
         what = f"box {self.name!r}"
-        object.__setattr__(self, "center", finite_vector(self.center, f"{what} center", 3))
+        _check_placement(self, what)
         object.__setattr__(self, "size", finite_vector(self.size, f"{what} size", 3))
         if np.any(self.size <= 0):
             raise ValueError(f"{what}: size must be > 0 [m] along x, y, z, got {self.size.tolist()}")
-        object.__setattr__(self, "rotation", _rotation(self.rotation, f"{what} rotation"))
-        object.__setattr__(self, "ignore_links", _links(self.ignore_links, what))
 
     @property
     def half(self) -> np.ndarray:
@@ -188,11 +193,9 @@ class Cylinder:
 
     def __post_init__(self):
         what = f"cylinder {self.name!r}"
-        object.__setattr__(self, "center", finite_vector(self.center, f"{what} center", 3))
+        _check_placement(self, what)
         object.__setattr__(self, "radius", _positive(self.radius, f"{what}: radius"))
         object.__setattr__(self, "length", _positive(self.length, f"{what}: length"))
-        object.__setattr__(self, "rotation", _rotation(self.rotation, f"{what} rotation"))
-        object.__setattr__(self, "ignore_links", _links(self.ignore_links, what))
 
 
 @dataclass(frozen=True, eq=False)

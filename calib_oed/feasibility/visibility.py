@@ -24,12 +24,7 @@ from calib_oed.feasibility.constraints import FEASIBILITY_TOL, FeasibilityModel
 
 def reflector_rows(model: FeasibilityModel) -> list[np.ndarray]:
     """Indices of each reflector's visibility rows (its incidence row, its beam rows)."""
-    out = []
-    for name in model.reflector_names:
-        out.append(np.array([i for i, (kind, label) in enumerate(zip(model.kinds, model.labels, strict=True))
-                             if (kind == "incidence" and label == f"incidence:{name}")
-                             or (kind == "beam" and f"laser({name})" in label)], dtype=int))
-    return out
+    return [np.flatnonzero(model.row_reflectors == j) for j in range(len(model.reflector_names))]
 
 
 def visible_reflectors(model: FeasibilityModel, q: np.ndarray, margin: float = -FEASIBILITY_TOL) -> np.ndarray:

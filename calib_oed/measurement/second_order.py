@@ -6,7 +6,7 @@ LOCAL regressor (block :math:`K_b` for joint b) times the right Jacobians
 :math:`J_r(\delta_b)` (constant in q). With :math:`A_k = \mathrm{ad}(J_k)`,
 :math:`\partial_k K_b = -A_k K_b` for :math:`k \ge b` and
 :math:`\partial_{kl}K_b = A_{\max(k,l)}A_{\min(k,l)}K_b` for :math:`\min(k,l) \ge b`
-(:func:`~calib_oed.model.kinematics.regressor_config_hessian`):
+(``docs/derivations.md`` §13; its dense form is the tests' reference):
 
 .. math::
     \partial_{kl}(\Lambda K_b) = \big(\Lambda_{kl} - [l \ge b]\,\Lambda_k A_l - [k \ge b]\,\Lambda_l A_k

@@ -20,8 +20,8 @@ A point :math:`c` fixed in the tool frame, :math:`x = t + R c`, then has
 Second order (design optimisation, ``docs/derivations.md`` §11 and §13): the
 configuration derivatives of :math:`K` and :math:`J`
 (:func:`regressor_config_derivative`, :func:`jacobian_config_derivative`,
-:func:`regressor_config_hessian`, all through :math:`\mathrm{ad}(J_k)`,
-:func:`ad_matrices`), and :math:`J_{\log}` (``pin.Jlog3``) with its first and
+all through :math:`\mathrm{ad}(J_k)`, :func:`ad_matrices`; the second derivative of
+:math:`K` is applied in factored form by :mod:`calib_oed.measurement.second_order`), and :math:`J_{\log}` (``pin.Jlog3``) with its first and
 second derivatives in :math:`\theta = \log_3 R` (:func:`log_jacobian`,
 :func:`log_jacobian_derivative`, :func:`log_jacobian_second_derivative`).
 """
@@ -191,41 +191,6 @@ def jacobian_config_derivative(kin: ToolKinematics) -> np.ndarray:
     out = np.zeros((n, 6, nv, nv))
     for k in range(1, nv):
         out[:, :, :k, k] = -_ad_apply(jac[:, :, k], jac[:, :, :k])
-    return out
-
-
-def regressor_config_hessian(kin: ToolKinematics) -> np.ndarray:
-    r""":math:`\partial^2 K/\partial q_k\,\partial q_l`, (n, 6, 6 n_j, nv, nv), of the LOCAL regressor.
-
-    Differentiating :math:`\partial K_i/\partial q_k = -\mathrm{ad}(J_k)\,K_i`
-    (:func:`regressor_config_derivative`) once more, with
-    :math:`\partial J_k/\partial q_l = -\mathrm{ad}(J_l)\,J_k` for :math:`l > k`
-    (:func:`jacobian_config_derivative`) and
-    :math:`\mathrm{ad}(\mathrm{ad}(x)\,y) = \mathrm{ad}(x)\,\mathrm{ad}(y) - \mathrm{ad}(y)\,\mathrm{ad}(x)`,
-    both orders give the same, symmetric result
-
-    .. math::
-        \frac{\partial^2 K_i}{\partial q_k\,\partial q_l} =
-        \begin{cases} \mathrm{ad}(J_{\max(k,l)})\,\mathrm{ad}(J_{\min(k,l)})\,K_i
-            & \min(k, l) \ge i \\ 0 & \text{otherwise} \end{cases}
-
-    (``docs/derivations.md`` §13). Same joint assumptions as
-    :func:`regressor_config_derivative` (revolute or prismatic 1-DoF joints).
-    The measurement models never form this array: they apply the identity in
-    factored form (:func:`calib_oed.measurement.second_order.joint_rows_hessian`);
-    this dense form is the reference the tests difference.
-    """
-    reg, jac = _need_both(kin)
-    n, _, ncol = reg.shape
-    nv = jac.shape[2]
-    out = np.zeros((n, 6, ncol, nv, nv))
-    for k in range(nv):
-        cols = slice(0, 6 * (k + 1))  # blocks i <= k = min(k, l)
-        inner = _ad_apply(jac[:, :, k], reg[:, :, cols])
-        for m in range(k, nv):
-            block = _ad_apply(jac[:, :, m], inner)
-            out[:, :, cols, k, m] = block
-            out[:, :, cols, m, k] = block
     return out
 
 

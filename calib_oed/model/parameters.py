@@ -71,6 +71,22 @@ def report_unit_of(unit: str) -> str:
     return REPORT_UNITS[unit][1]
 
 
+class InReportUnits:
+    """Mixin of a record with an SI ``unit``: its report unit and that unit's SI value."""
+
+    unit: str
+
+    @property
+    def report_scale(self) -> float:
+        """SI value of one report unit (1 mm, 1 mrad, 1 mrad/(kN·m))."""
+        return report_scale_of(self.unit)
+
+    @property
+    def report_unit(self) -> str:
+        """Unit used in reports: ``"mm"``, ``"mrad"`` or ``"mrad/kNm"``."""
+        return report_unit_of(self.unit)
+
+
 class Group(str, Enum):
     """Which part of the set-up a parameter belongs to."""
 
@@ -83,7 +99,7 @@ class Group(str, Enum):
 
 
 @dataclass(frozen=True)
-class Parameter:
+class Parameter(InReportUnits):
     """One scalar calibration parameter.
 
     Attributes:
@@ -102,16 +118,6 @@ class Parameter:
     group: Group
     owner: int
     description: str
-
-    @property
-    def report_scale(self) -> float:
-        """SI value of one report unit (1 mm, 1 mrad, 1 mrad/(kN·m))."""
-        return report_scale_of(self.unit)
-
-    @property
-    def report_unit(self) -> str:
-        """Unit used in reports: ``"mm"``, ``"mrad"`` or ``"mrad/kNm"``."""
-        return report_unit_of(self.unit)
 
 
 class ParameterSpace:

@@ -55,24 +55,22 @@ def _check_symmetric(m: np.ndarray, what: str) -> None:
 
 def as_information(info, what: str = "information matrix") -> np.ndarray:
     """Validated float copy of a square, finite, symmetric (n_p, n_p) matrix, exactly symmetrised."""
-    m = np.array(info, dtype=float)
-    if m.ndim != 2 or m.shape[0] != m.shape[1] or m.shape[0] == 0:
-        raise ShapeError(what, "(n_p, n_p)", m.shape)
-    if not np.all(np.isfinite(m)):
-        raise NonFiniteError(what, np.flatnonzero(~np.isfinite(m)).tolist())
-    _check_symmetric(m, what)
-    return 0.5 * (m + m.T)
+    return _symmetrised(np.array(info, dtype=float), 2, what, "(n_p, n_p)")
 
 
 def _as_informations(infos, what: str = "information matrices") -> np.ndarray:
-    m = np.asarray(infos, dtype=float)
-    if m.ndim != 3 or m.shape[1] != m.shape[2] or m.shape[1] == 0:
-        raise ShapeError(what, "(k, n_p, n_p)", m.shape)
+    """:func:`as_information` of a stack (k, n_p, n_p)."""
+    return _symmetrised(np.asarray(infos, dtype=float), 3, what, "(k, n_p, n_p)")
+
+
+def _symmetrised(m: np.ndarray, ndim: int, what: str, expected: str) -> np.ndarray:
+    if m.ndim != ndim or m.shape[-1] != m.shape[-2] or m.shape[-1] == 0:
+        raise ShapeError(what, expected, m.shape)
     if not np.all(np.isfinite(m)):
         raise NonFiniteError(what, np.flatnonzero(~np.isfinite(m)).tolist())
-    if m.shape[0]:
+    if m.size:
         _check_symmetric(m, what)
-    return 0.5 * (m + np.swapaxes(m, 1, 2))
+    return 0.5 * (m + np.swapaxes(m, -1, -2))
 
 
 def _forward_substitution(low: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -54,7 +54,7 @@ from calib_oed.exceptions import NotIdentifiableError, ShapeError
 from calib_oed.measurement import evaluate_setup
 from calib_oed.oed.criteria import ACriterion, make_criterion
 from calib_oed.oed.criterion_base import Criterion
-from calib_oed.oed.hessian import coupling_factor, has_exact_hessian, structured_hessian
+from calib_oed.oed.hessian import has_exact_hessian, structured_hessian
 from calib_oed.oed.whitening import (
     NoisePieces,
     whitened_row_derivatives,
@@ -160,10 +160,6 @@ class DesignObjective:
     def kpi_weights(self) -> np.ndarray | None:
         """Weights of the KPI points (the scene's), or None (all 1)."""
         return getattr(self.problem.kpi, "weights", None)
-
-    def kpi_criterion(self) -> ACriterion:
-        """The paper's KPI criterion of this problem, weighted as the scene says (whatever is optimised)."""
-        return ACriterion.kpi(self.kpi_jacobian(), self.kpi_weights)
 
     def kpi_point_variances(self, q: np.ndarray) -> np.ndarray:
         r"""Per KPI point :math:`v_i = \mathrm{tr}(G_i C G_i^\top)/3` [mm²], (t,)."""
@@ -375,9 +371,9 @@ class DesignObjective:
         :math:`\nabla^2\phi = \mathrm{blkdiag}(H_1..H_n) + UU^\top`: ``blocks``
         :math:`H_j = \mathrm{tr}(\Gamma\,\partial_{kl}M)` (n, nv, nv), symmetric and
         possibly indefinite, and ``low_rank`` :math:`U` (n·nv, r), the
-        positive semidefinite coupling :math:`\nabla^2\Phi(M)[M_a, M_b]` that
-        :meth:`compute_curvature` returns dense (:mod:`calib_oed.oed.hessian`,
-        ``docs/derivations.md`` §13). The prior :math:`M_0` enters through
+        positive semidefinite coupling :math:`\nabla^2\Phi(M)[M_a, M_b]` through
+        :math:`M`, :math:`M_a = \partial M/\partial q_a`, exact from first derivatives
+        (:mod:`calib_oed.oed.hessian`, ``docs/derivations.md`` §12–13). The prior :math:`M_0` enters through
         :math:`M`. None for criteria other than A (``kpi``, ``params``) and D,
         and when a measurement model has no second configuration derivative
         (:meth:`compute_row_hessians`; e.g. with joint compliance modelled).
@@ -392,38 +388,6 @@ class DesignObjective:
             return structured_hessian(self.criterion, info, rows, d_rows, dd_rows)
         except NotIdentifiableError as exc:
             raise self._named(exc) from None
-
-    def compute_curvature(self, q: np.ndarray) -> np.ndarray | None:
-        r"""The criterion's exact curvature through :math:`M`, (n·nv, n·nv), or None.
-
-        With :math:`M_a = \partial M/\partial q_a
-        = \tilde F_j^\top \partial_a\tilde F_j + \partial_a\tilde F_j^\top \tilde F_j`
-        (``a`` a joint of pose ``j``) and :math:`C = M^{-1}`, the Hessian of
-        :math:`\phi = \Phi(M(q))` is
-
-        .. math::
-            \nabla^2\phi = \underbrace{\nabla^2\Phi[M_a, M_b]}_{\text{this}}
-              + \sum_{rs} \Gamma_{rs}\,\partial_a\partial_b M_{rs},
-
-        and the first term is exact and positive semidefinite for the convex
-        criteria: A (:math:`\Phi = \mathrm{tr}(WC)/k`) gives
-        :math:`\tfrac1k[\mathrm{tr}(P M_a C M_b) + \mathrm{tr}(P M_b C M_a)]`,
-        :math:`P = CWC`; D (:math:`-\log\det M`) gives
-        :math:`\mathrm{tr}(C M_a C M_b)`. Formed as :math:`UU^\top` from the
-        factor of :meth:`compute_hessian` (:func:`calib_oed.oed.hessian.coupling_factor`).
-        The second term is block diagonal per pose (it needs
-        :math:`\partial^2\tilde F_j/\partial q_j^2`): :meth:`compute_hessian`
-        has it, or the SQP's per-pose quasi-Newton blocks stand in for it
-        (``docs/derivations.md`` §12–13). None for other criteria.
-        """
-        if not has_exact_hessian(self.criterion):
-            return None
-        rows, d_rows, info = self._first_order(q)
-        try:
-            u = coupling_factor(self.criterion, info, rows, d_rows)
-        except NotIdentifiableError as exc:
-            raise self._named(exc) from None
-        return u @ u.T
 
     def compute(self, q: np.ndarray) -> DesignEvaluation:
         r""":math:`\phi(q)` and :math:`\partial\phi/\partial q` (n, nv), exact."""

@@ -157,12 +157,6 @@ class DesignProblem:
                                         shape=(k, self.n * nq))
         return stacked, pieces.values, grads
 
-    def constraint_labels(self) -> list[str]:
-        """Label of each stacked row, ``"pose j: <row label>"``."""
-        rows = [lbl for k, lbl in zip(self.feasibility.kinds, self.feasibility.labels, strict=True)
-                if k in self.kinds]
-        return [f"pose {j}: {lbl}" for j in range(self.n) for lbl in rows]
-
     def max_violation(self, x: np.ndarray) -> float:
         """Largest violation of the constraints and bounds (>= 0) [m, rad, cos]."""
         values, _ = self.compute_constraint_rows(x, jacobian=False)

@@ -87,7 +87,7 @@ class FieldReader:
             raise self.fail(key, f"expected a non-empty string, got {value!r}")
         return value
 
-    def integer(self, value, key, minimum) -> int:
+    def integer(self, value, key, minimum=0) -> int:
         if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
             raise self.fail(key, f"expected an integer >= {minimum}, got {value!r}")
         return value

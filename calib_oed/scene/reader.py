@@ -11,7 +11,6 @@ from __future__ import annotations
 import os
 import xml.etree.ElementTree as ET
 from collections.abc import Mapping
-from importlib import resources
 from pathlib import Path
 from typing import Any
 
@@ -47,14 +46,16 @@ from calib_oed.scene.records import (
     TrackerSpec,
     WorkingConfiguration,
 )
-from calib_oed.scene.yaml_file import load_yaml_file
+from calib_oed.scene.yaml_file import load_yaml_file, shipped_file, shipped_names
 from calib_oed.units import ANGLE_UNITS, LENGTH_UNITS
+
+#: The package of the shipped scenes.
+SHIPPED = "calib_oed.scene.shipped"
 
 
 def scene_names() -> list[str]:
     """Names of the shipped scenes (``calib_oed/scene/shipped/<name>.yaml``)."""
-    folder = resources.files("calib_oed.scene.shipped")
-    return sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".yaml"))
+    return shipped_names(SHIPPED)
 
 
 def load_scene(name_or_path: str | os.PathLike, *, check: bool = True) -> Scene:
@@ -69,9 +70,8 @@ def load_scene(name_or_path: str | os.PathLike, *, check: bool = True) -> Scene:
             an impossible scene (the pair and its depth named).
     """
     text = os.fspath(name_or_path)
-    if text in scene_names():
-        path = Path(str(resources.files("calib_oed.scene.shipped").joinpath(f"{text}.yaml")))
-    else:
+    path = shipped_file(SHIPPED, text)
+    if path is None:
         path = Path(text)
         looks_like_path = os.sep in text or path.suffix in (".yaml", ".yml") or path.exists()
         if not looks_like_path:

@@ -45,7 +45,6 @@ import copy
 import math
 import os
 from collections.abc import Mapping
-from importlib import resources
 from pathlib import Path
 from typing import Any
 
@@ -58,9 +57,9 @@ from calib_oed.model.kuka import KUKA_ROBOTS, KukaDimensions, notional_dimension
 from calib_oed.model.registry import NOTIONAL_PATTERN
 from calib_oed.model.robot import load_robot
 from calib_oed.scene.cell import HALFSPACE_SHORTHANDS
-from calib_oed.scene.reader import scene_from_dict, scene_names
+from calib_oed.scene.reader import SHIPPED, scene_from_dict, scene_names
 from calib_oed.scene.records import Scene
-from calib_oed.scene.yaml_file import load_yaml_file
+from calib_oed.scene.yaml_file import load_yaml_file, shipped_file
 from calib_oed.units import ANGLE_UNITS
 
 __all__ = ["STAND_NAME", "TEMPLATE", "kuka_dimensions", "scale_factor", "scaled_scene",
@@ -98,9 +97,8 @@ def _template_data(template: str | os.PathLike | Mapping[str, Any]) -> tuple[dic
     if isinstance(template, Mapping):
         return copy.deepcopy(dict(template)), None
     text = os.fspath(template)
-    if text in scene_names():
-        path = Path(str(resources.files("calib_oed.scene.shipped").joinpath(f"{text}.yaml")))
-    else:
+    path = shipped_file(SHIPPED, text)
+    if path is None:
         path = Path(text)
         if not path.is_file():
             raise SceneError(f"template scene not found: {text!r} is neither a shipped scene "

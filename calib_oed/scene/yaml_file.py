@@ -13,6 +13,7 @@ device such as ``/dev/zero`` never ends) and files over a size bound.
 from __future__ import annotations
 
 import os
+from importlib import resources
 from pathlib import Path
 from typing import Any
 
@@ -21,7 +22,7 @@ import yaml
 from calib_oed.exceptions import InputFileError
 
 __all__ = ["MAX_SMALL_YAML_BYTES", "MAX_TEXT_BYTES", "MAX_YAML_BYTES", "MAX_YAML_NODES", "load_yaml", "load_yaml_file",
-           "read_text_file"]
+           "read_text_file", "shipped_file", "shipped_names"]
 
 #: Largest YAML file read [bytes]: a 10000-pose design.yaml has about 3 MiB.
 MAX_YAML_BYTES = 8 * 2**20
@@ -157,3 +158,15 @@ def load_yaml_file(path: str | os.PathLike, what: str = "YAML file",
                    max_bytes: int = MAX_SMALL_YAML_BYTES) -> Any:
     """:func:`read_text_file` then :func:`load_yaml`; syntax errors as :class:`yaml.YAMLError`."""
     return load_yaml(read_text_file(path, what, max_bytes), os.fspath(path))
+
+
+def shipped_names(package: str) -> list[str]:
+    """Names of the ``<name>.yaml`` files shipped in ``package`` (``"calib_oed.scene.shipped"``)."""
+    return sorted(p.name[:-5] for p in resources.files(package).iterdir() if p.name.endswith(".yaml"))
+
+
+def shipped_file(package: str, name: str) -> Path | None:
+    """The file ``<name>.yaml`` shipped in ``package``, or ``None`` if none has that name."""
+    if name not in shipped_names(package):
+        return None
+    return Path(str(resources.files(package).joinpath(f"{name}.yaml")))

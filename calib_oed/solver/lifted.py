@@ -31,7 +31,15 @@ import numpy as np
 import proxsuite
 import scipy.sparse as sp
 
-from calib_oed.solver.qp import QPSizeError, QPStep, QPSubproblem, _configure, _finish
+from calib_oed.solver.qp import (
+    QPSizeError,
+    QPStep,
+    QPSubproblem,
+    SparseWorkspace,
+    _configure,
+    _finish,
+    warm_duals,
+)
 from calib_oed.solver.result import StructuredHessian
 
 
@@ -47,7 +55,7 @@ def _block_pattern(b: int, s: int, r: int):
     return rows, (blk, np.tile(ii, b), np.tile(jj, b)), indptr
 
 
-class LiftedQPWorkspace:
+class LiftedQPWorkspace(SparseWorkspace):
     r"""ProxQP sparse on the lifted QP of a :class:`StructuredHessian` (module docstring).
 
     The QP object is reused (``update``) while the block sizes, :math:`r` and
@@ -58,14 +66,8 @@ class LiftedQPWorkspace:
     """
 
     def __init__(self, n: int, eps_abs: float, max_iter: int, max_nonzeros: int | None = None):
-        self.n = n
-        self.eps_abs = eps_abs
-        self.max_iter = max_iter
-        self.max_nonzeros = max_nonzeros
-        self._qp = None
+        super().__init__(n, eps_abs, max_iter, max_nonzeros)
         self._key = None
-        self._pattern = None
-        self.n_builds = 0
 
     def _matrices(self, H: StructuredHessian, C):
         n = self.n
@@ -105,19 +107,13 @@ class LiftedQPWorkspace:
             _configure(qp, self.eps_abs, self.max_iter)
             qp.init(Hz, gz, Az, np.zeros(r), Cz, lower, upper)
             self._qp, self._key = qp, key
-            self.n_builds += 1
         else:
             qp = self._qp
             qp.update(Hz, gz, Az, np.zeros(r), Cz, lower, upper)
         if d0 is not None or lam0 is not None or nu0 is not None:
             d = np.zeros(n) if d0 is None else np.asarray(d0, dtype=float)
             w = U.T @ d
-            z = np.zeros(k + n)
-            if lam0 is not None and k:
-                z[:k] = -np.asarray(lam0, dtype=float)
-            if nu0 is not None:
-                z[k:] = -np.asarray(nu0, dtype=float)
-            qp.solve(np.concatenate([d, w]), w, z)
+            qp.solve(np.concatenate([d, w]), w, warm_duals(lam0, nu0, k, n))
         else:
             qp.settings.initial_guess = pq.InitialGuess.NO_INITIAL_GUESS
             qp.solve()

@@ -259,7 +259,6 @@ class DenseQPWorkspace:
             self.min_capacity = self.capacity = min(self.capacity, max(1, int(max_capacity)))
         self.update_preconditioner = update_preconditioner
         self._qp = None
-        self.n_builds = 0
 
     def _build(self, capacity: int):
         pq = proxsuite.proxqp
@@ -268,7 +267,6 @@ class DenseQPWorkspace:
         _configure(qp, self.eps_abs, self.max_iter)
         self.capacity = capacity
         self._qp = qp
-        self.n_builds += 1
 
     def solve(self, sub: QPSubproblem, d0=None, lam0=None, nu0=None) -> QPStep:
         """Solve ``sub``, warm-started from ``(d0, lam0, nu0)`` when given."""
@@ -298,11 +296,7 @@ class DenseQPWorkspace:
             qp.update(sub.H, sub.g, None, None, C, lower, upper, sub.box_lower, sub.box_upper,
                       update_preconditioner=self.update_preconditioner)
         if warm:
-            z = np.zeros(cap + n)
-            if lam0 is not None and k:
-                z[:k] = -np.asarray(lam0, dtype=float)
-            if nu0 is not None:
-                z[cap:] = -np.asarray(nu0, dtype=float)
+            z = warm_duals(lam0, nu0, k, n, box_at=cap)
             # results.x / results.z are views of the solver's vectors: this is the warm start
             qp.results.x[:] = 0.0 if d0 is None else d0
             qp.results.z[:] = z
@@ -311,7 +305,32 @@ class DenseQPWorkspace:
         return _finish(sub, r.x, r.z[:k], r.z[cap:], r.info)
 
 
-class SparseQPWorkspace:
+class SparseWorkspace:
+    """What the ProxQP sparse workspaces share: the size, the tolerances, the bound on the
+    nonzeros, and the QP object kept while its pattern stays (``_pattern``)."""
+
+    def __init__(self, n: int, eps_abs: float, max_iter: int, max_nonzeros: int | None = None):
+        self.n = n
+        self.eps_abs = eps_abs
+        self.max_iter = max_iter
+        self.max_nonzeros = max_nonzeros
+        self._qp = None
+        self._pattern = None
+
+
+def warm_duals(lam0, nu0, k: int, n: int, box_at: int | None = None) -> np.ndarray:
+    """ProxQP's dual guess: :math:`-\\lambda_0` on the ``k`` rows, :math:`-\nu_0` on the ``n``
+    box rows from ``box_at`` (default ``k``), zero where no guess is given."""
+    at = k if box_at is None else box_at
+    z = np.zeros(at + n)
+    if lam0 is not None and k:
+        z[:k] = -np.asarray(lam0, dtype=float)
+    if nu0 is not None:
+        z[at:] = -np.asarray(nu0, dtype=float)
+    return z
+
+
+class SparseQPWorkspace(SparseWorkspace):
     r"""ProxQP sparse backend; the box becomes :math:`n` identity rows of :math:`C`.
 
     :math:`H` is passed with the full upper-triangular pattern (explicit zeros
@@ -325,13 +344,7 @@ class SparseQPWorkspace:
     """
 
     def __init__(self, n: int, eps_abs: float, max_iter: int, max_nonzeros: int | None = None):
-        self.n = n
-        self.eps_abs = eps_abs
-        self.max_iter = max_iter
-        self.max_nonzeros = max_nonzeros
-        self._qp = None
-        self._pattern = None
-        self.n_builds = 0
+        super().__init__(n, eps_abs, max_iter, max_nonzeros)
         self._h_rows = None  # the upper triangle's pattern, built on first use
 
     def _hessian(self, H) -> sp.csc_matrix:
@@ -364,18 +377,12 @@ class SparseQPWorkspace:
             _configure(qp, self.eps_abs, self.max_iter)
             qp.init(H, sub.g, None, None, C, lower, upper)
             self._qp, self._pattern = qp, pattern
-            self.n_builds += 1
         else:
             qp = self._qp
             qp.update(H, sub.g, None, None, C, lower, upper)
         if d0 is not None or lam0 is not None or nu0 is not None:
-            z = np.zeros(k + n)
-            if lam0 is not None and k:
-                z[:k] = -np.asarray(lam0, dtype=float)
-            if nu0 is not None:
-                z[k:] = -np.asarray(nu0, dtype=float)
             x = np.zeros(n) if d0 is None else np.asarray(d0, dtype=float)
-            qp.solve(x, None, z)
+            qp.solve(x, None, warm_duals(lam0, nu0, k, n))
         else:
             qp.settings.initial_guess = pq.InitialGuess.NO_INITIAL_GUESS
             qp.solve()

@@ -39,7 +39,6 @@ import math
 import os
 from collections.abc import Mapping
 from functools import cache
-from importlib import resources
 from pathlib import Path
 from typing import Any
 
@@ -51,9 +50,10 @@ from calib_oed.model.registry import NOTIONAL_PATTERN
 from calib_oed.oed.criteria import CRITERIA
 from calib_oed.oed.design import DESIGN_SQP
 from calib_oed.oed.starts import STARTS
-from calib_oed.scene.reader import load_scene, scene_names
+from calib_oed.scene.fields import FieldReader
+from calib_oed.scene.reader import SHIPPED, load_scene, scene_names
 from calib_oed.scene.scaling import kuka_dimensions
-from calib_oed.scene.yaml_file import load_yaml_file
+from calib_oed.scene.yaml_file import load_yaml_file, shipped_file, shipped_names
 from calib_oed.study.config import (
     DEFAULT_COLLISIONS,
     DEFAULT_CRITERIA,
@@ -75,8 +75,7 @@ _TOP_OPTIONAL = ("description", "n", "heuristic_seeds", "criteria", "collisions"
 
 def study_names() -> list[str]:
     """Names of the shipped study configurations (``calib_oed/study/shipped/<name>.yaml``)."""
-    folder = resources.files("calib_oed.study.shipped")
-    return sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".yaml"))
+    return shipped_names("calib_oed.study.shipped")
 
 
 def load_study_config(name_or_path: str | os.PathLike) -> StudyConfig:
@@ -87,9 +86,8 @@ def load_study_config(name_or_path: str | os.PathLike) -> StudyConfig:
             file, YAML error or invalid content.
     """
     text = os.fspath(name_or_path)
-    if text in study_names():
-        path = Path(str(resources.files("calib_oed.study.shipped").joinpath(f"{text}.yaml")))
-    else:
+    path = shipped_file("calib_oed.study.shipped", text)
+    if path is None:
         path = Path(text)
         if not path.is_file():
             raise StudyConfigError(f"no such file and no shipped study of that name; shipped "
@@ -123,44 +121,19 @@ def _file_digest(path: str) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()[:16]
 
 
-class _Reader:
+class _Reader(FieldReader):
     """Key-by-key validation; errors name the dotted key and the valid choices."""
 
     def __init__(self, source: str | None):
-        self.source = source
+        super().__init__(source)
         self.folder = Path(source).parent if source else Path.cwd()
 
     def fail(self, key: str | None, message: str) -> StudyConfigError:
         return StudyConfigError(message, key=key, source=self.source)
 
-    def mapping(self, value, key, required=(), optional=()) -> dict:
-        valid = (*required, *optional)
-        if not isinstance(value, Mapping):
-            raise self.fail(key, f"expected a mapping with keys {', '.join(valid)}, got {value!r}")
-        where = f"{key}." if key else ""
-        for k in value:
-            if k not in valid:
-                raise self.fail(f"{where}{k}", f"unknown key; valid keys of "
-                                f"{repr(key) if key else 'the top level'} are: {', '.join(valid)}")
-        for k in required:
-            if k not in value:
-                raise self.fail(f"{where}{k}", f"missing required key; required: "
-                                f"{', '.join(required)}")
-        return dict(value)
-
-    def integer(self, value, key, minimum=0) -> int:
-        if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
-            raise self.fail(key, f"expected an integer >= {minimum}, got {value!r}")
-        return value
-
     def boolean(self, value, key) -> bool:
         if not isinstance(value, bool):
             raise self.fail(key, f"expected true or false, got {value!r}")
-        return value
-
-    def string(self, value, key) -> str:
-        if not isinstance(value, str) or not value:
-            raise self.fail(key, f"expected a non-empty string, got {value!r}")
         return value
 
     def items(self, value, key, check) -> tuple:
@@ -301,9 +274,7 @@ class _Reader:
         return str(path.resolve())
 
     def digest(self, scene: str) -> str:
-        if scene in scene_names():
-            return _file_digest(str(resources.files("calib_oed.scene.shipped").joinpath(f"{scene}.yaml")))
-        return _file_digest(scene)
+        return _file_digest(str(shipped_file(SHIPPED, scene) or scene))
 
     def robot_case(self, value, key) -> CaseSpec:
         entry = self.mapping(value, key, ("robot",), ("scene", "scene_template"))

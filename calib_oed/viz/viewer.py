@@ -105,11 +105,6 @@ class EllipsoidView:
         """True half-axes [mm], descending."""
         return self.ellipsoid.half_axes * MM_PER_M
 
-    @property
-    def drawn_half_axes_mm(self) -> np.ndarray:
-        """Half-axes as drawn [mm]."""
-        return self.scale * self.half_axes_mm
-
 
 @dataclass(frozen=True, eq=False)
 class ViewInfo:

@@ -5,7 +5,6 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 import pytest
-import scipy.sparse
 from conftest import central_difference
 
 from calib_oed.feasibility import Capsule, Cell, FeasibilitySettings, HalfSpace
@@ -148,22 +147,6 @@ def test_pair_distances_match_world_capsules(robot):
             c2 = caps[n2] if n2 in caps else cell.capsules[0]
             d = brute_force_distance(*world(c1), *world(c2), n=4001) - c1.radius - c2.radius - clearance
             assert values[k, row] == pytest.approx(d, abs=2e-4)
-
-
-def test_sparse_jacobian_is_block_diagonal(robot):
-    fm, _ = model_for(robot)
-    q = robot.random_configurations(4, 2)
-    values, jac = fm.sparse_jacobian(q)
-    assert scipy.sparse.issparse(jac)
-    m, nq = fm.n_constraints, robot.nq
-    assert jac.shape == (4 * m, 4 * nq)
-    dense = fm.compute(q).jacobian
-    full = jac.toarray()
-    for k in range(4):
-        np.testing.assert_array_equal(full[k * m:(k + 1) * m, k * nq:(k + 1) * nq], dense[k])
-        off = np.delete(full[k * m:(k + 1) * m], np.s_[k * nq:(k + 1) * nq], axis=1)
-        assert not off.any()
-    np.testing.assert_array_equal(values, fm.compute_values(q).ravel())
 
 
 def test_joint_rows_keep_the_margin(robot):

@@ -121,9 +121,11 @@ def test_robots_without_meshes_keep_one_capsule_per_link():
         assert f.capsule_volume <= f.single_volume * (1 + 1e-9)
 
 
-def test_fit_is_cached_and_settings_are_checked():
+def test_fit_is_repeatable_and_settings_are_checked():
     robot, geom, fits = fitted("ur10")
-    assert fit_robot_links(robot, geom) is fits
+    again = fit_robot_links(robot, geom)  # the same capsules on every call (cached or fitted anew)
+    assert [(c.name, c.radius, *c.a, *c.b) for f in again for c in f.capsules] == [
+        (c.name, c.radius, *c.a, *c.b) for f in fits for c in f.capsules]
     fat = fit_link_capsules(robot, geom, margin=0.01)
     assert [c.radius for c in fat] == pytest.approx([c.radius + 0.01 for f in fits for c in f.capsules])
     with pytest.raises(LinkFitSettingsError, match="max_capsules = 0: must be an integer >= 1"):

@@ -11,6 +11,7 @@ import pytest
 import yaml
 
 from calib_oed.feasibility.bodies import compute_body_states
+from calib_oed.feasibility.capsule_rows import HalfspaceRows
 from calib_oed.feasibility.pairs import feasibility_from_scene
 from calib_oed.scene.reader import scene_from_dict
 
@@ -169,7 +170,8 @@ def test_prune_distance_is_monotone(kr16_data, tmp_path):
         pruned.append(far)
         checked.append(set(report.checked))
         # a capsule pair is one row, a half-space pair one row per capsule end
-        n_halfspace = len(model.halfspace_pairs)
+        halfspaces = model.family(HalfspaceRows)
+        n_halfspace = 0 if halfspaces is None else len(halfspaces.pairs)
         assert len(report.checked) + n_halfspace == sum(
             model.count_per_pose()[k] for k in ("self", "obstacle", "beam")
         )

@@ -81,7 +81,10 @@ def test_visibility_rows_and_margin(models, scenes):
     fm = models["manual"]
     rows = reflector_rows(fm)
     assert [fm.labels[i] for i in rows[0]][0] == "incidence:smr0"
-    assert all("laser(smr1)" in fm.labels[i] for i in rows[1])
+    for model in models.values():  # the rows the labels name: the incidence row, the laser line's rows
+        for j, name in enumerate(model.reflector_names):
+            named = [i for i, lbl in enumerate(model.labels) if lbl == f"incidence:{name}" or f"laser({name})" in lbl]
+            assert reflector_rows(model)[j].tolist() == named and len(named) > 1
     q = scenes["manual"].robot.random_configurations(40, 3)
     loose, strict = visible_reflectors(fm, q), visible_reflectors(fm, q, margin=0.05)
     assert np.all(loose >= strict) and np.any(loose & ~strict)

@@ -10,10 +10,14 @@ import numpy as np
 import pinocchio as pin
 import pytest
 from conftest import central_difference, relative_error
-from joint_terms import MODELS, REFLECTORS, TOL, compare_scaled, scaled_difference, tracker
+from joint_terms import (
+    PAYLOAD,
+    REFLECTORS,
+    joint_term,
+    tracker,
+)
 
 from calib_oed.calibration.identification import identify
-from calib_oed.calibration.kpi import TcpKpi
 from calib_oed.calibration.problem import CalibrationProblem
 from calib_oed.calibration.simulation import draw_true_parameters, simulate_observations
 from calib_oed.cli import EXIT_OK, main
@@ -23,28 +27,6 @@ from calib_oed.model.compliance import STIFFNESS_RANGE, Compliance, GravityLoad
 from calib_oed.model.parameters import Group, ParameterSpace
 from calib_oed.scene.reader import load_scene, scene_from_dict
 from calib_oed.scene.records import ComplianceSpec
-
-PAYLOAD = Compliance(12.0, [0.02, -0.03, 0.15])
-
-
-@pytest.fixture(scope="module")
-def cspace(robot):
-    return ParameterSpace(robot, tracker(), REFLECTORS, compliance=PAYLOAD)
-
-
-@pytest.fixture(scope="module")
-def cparams(cspace):
-    """Geometric parameters of a few mm / mrad and compliances of about 1 mrad/(N m) per N m of torque.
-
-    The compliances are scaled so that the largest deflection is tens of mrad: every term of
-    D = I + diag(c) dtau/dq is then visible in the differences.
-    """
-    p = cspace.random(4, 5e-3, 5e-3)
-    q = cspace.robot.random_configurations(50, 0)
-    tau = np.abs(cspace.gravity.torques(q)).max(axis=0)
-    c = np.random.default_rng(5).uniform(0.5, 1.0, cspace.n_joints) * 0.02 / np.maximum(tau, 1.0)
-    p[cspace.compliance_slice] = c
-    return p
 
 
 def test_layout_appends_one_compliance_per_joint(robot):
@@ -82,88 +64,16 @@ def test_gravity_torque_against_pinocchio_with_the_payload(robot):
     assert relative_error(load.torque_derivatives(q), numeric) < 1e-7
 
 
-def test_deflection_lowers_the_potential_energy(cspace, cparams):
+def test_deflection_lowers_the_potential_energy(robot):
     """With c > 0 the arm sags: the effective configuration has less potential energy."""
-    load = cspace.gravity
-    q = cspace.robot.random_configurations(5, 8)
-    state = evaluate_setup(cspace, cparams, q, regressor=False, jacobian=False)
+    term = joint_term(robot, "compliance")
+    load = term.space.gravity
+    q = robot.random_configurations(5, 8)
+    state = evaluate_setup(term.space, term.p, q, regressor=False, jacobian=False)
     data = load.model.createData()
     for qk, qe in zip(q, state.kin.q, strict=True):
         assert pin.computePotentialEnergy(load.model, data, qe) < pin.computePotentialEnergy(
             load.model, data, qk)
-
-
-@pytest.mark.parametrize("kind", MODELS)
-def test_param_jacobian(cspace, cparams, kind):
-    model = MODELS[kind]()
-    q = cspace.robot.random_configurations(3, 11)
-    analytic = model.compute_param_jacobian(evaluate_setup(cspace, cparams, q))
-    numeric = scaled_difference(lambda p: model.compute_values(evaluate_setup(cspace, p, q)),
-                                 cspace, cparams)
-    assert compare_scaled(analytic, numeric, cspace.unit_scale) < TOL
-    assert np.abs(analytic[:, :, cspace.compliance_slice]).max() > 0
-
-
-@pytest.mark.parametrize("kind", MODELS)
-def test_config_jacobian(cspace, cparams, kind):
-    model = MODELS[kind]()
-    q = cspace.robot.random_configurations(3, 12)
-    analytic = model.compute_config_jacobian(evaluate_setup(cspace, cparams, q))
-    numeric = np.stack([
-        central_difference(lambda qk: model.compute_values(evaluate_setup(cspace, cparams, qk))[0], q[k])
-        for k in range(len(q))
-    ])
-    assert relative_error(analytic, numeric) < TOL
-    # D = I + diag(c) dtau/dq is far from I here: the rigid formula at q_eff would fail
-    d = evaluate_setup(cspace, cparams, q).config_chain
-    assert np.abs(d - np.eye(cspace.robot.nq)).max() > 1e-3
-
-
-@pytest.mark.parametrize("kind", MODELS)
-def test_param_config_jacobian(cspace, cparams, kind):
-    """d2h/dp dq over all columns (geometric and compliance) against differences of dh/dp."""
-    model = MODELS[kind]()
-    q = cspace.robot.random_configurations(2, 13)
-    analytic = model.compute_param_config_jacobian(evaluate_setup(cspace, cparams, q))
-    numeric = np.stack([
-        central_difference(
-            lambda qk, k=k: model.compute_param_jacobian(
-                evaluate_setup(cspace, cparams, np.vstack([q[:k], qk, q[k + 1:]])))[k],
-            q[k])
-        for k in range(len(q))
-    ])
-    assert compare_scaled(analytic, numeric, cspace.unit_scale, axis=2) < TOL
-    comp = cspace.compliance_slice
-    assert compare_scaled(analytic[:, :, comp], numeric[:, :, comp], cspace.unit_scale[comp],
-                           axis=2) < TOL
-
-
-@pytest.mark.parametrize("frame", ["world", "tracker"])
-def test_kpi_jacobian(cspace, cparams, frame):
-    q = cspace.robot.random_configurations(2, 21)
-    kpi = TcpKpi(q, point=np.array([0.01, -0.02, 0.1]), frame=frame)
-    g = kpi.compute_param_jacobian(cspace, cparams)
-    numeric = scaled_difference(lambda x: kpi.compute_values(cspace, x).ravel(), cspace, cparams)
-    assert compare_scaled(g, numeric, cspace.unit_scale) < TOL
-    assert np.abs(g[:, cspace.compliance_slice]).max() > 0
-
-
-@pytest.mark.parametrize("kind", MODELS)
-def test_zero_compliance_gives_the_rigid_values_exactly(robot, kind):
-    rigid = ParameterSpace(robot, tracker(), REFLECTORS)
-    space = ParameterSpace(robot, tracker(), REFLECTORS, compliance=PAYLOAD)
-    p = rigid.random(2, 5e-3, 5e-3)
-    pc = np.concatenate([p, np.zeros(robot.nq)])
-    q = robot.random_configurations(3, 4)
-    model = MODELS[kind]()
-    a, b = evaluate_setup(rigid, p, q), evaluate_setup(space, pc, q)
-    n = rigid.size
-    np.testing.assert_array_equal(model.compute_values(a), model.compute_values(b))
-    np.testing.assert_array_equal(model.compute_param_jacobian(a),
-                                  model.compute_param_jacobian(b)[:, :, :n])
-    np.testing.assert_array_equal(model.compute_config_jacobian(a), model.compute_config_jacobian(b))
-    np.testing.assert_array_equal(model.compute_param_config_jacobian(a),
-                                  model.compute_param_config_jacobian(b)[:, :, :n])
 
 
 def test_scene_block_units_and_errors():

@@ -4,10 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import central_difference, relative_error
-from joint_terms import MODELS, REFLECTORS, TOL, compare_scaled, scaled_difference, tracker
+from joint_terms import GAINS, REFLECTORS, tracker
 
-from calib_oed.calibration.kpi import TcpKpi
 from calib_oed.exceptions import ParameterError
 from calib_oed.measurement import TrackerPosition, evaluate_setup
 from calib_oed.measurement.second_order import tool_point_param_config_hessian
@@ -16,25 +14,6 @@ from calib_oed.model.compliance import Compliance
 from calib_oed.model.identifiability import select_gauge
 from calib_oed.model.joint_map import JointGains, controller_ratio_error
 from calib_oed.model.parameters import Group, ParameterSpace
-
-GAINS = JointGains((1, 2, 3, 5), ((3, 2), (1, 4)))
-
-
-@pytest.fixture(scope="module", params=["gains", "gains+compliance"])
-def gspace(robot, request):
-    comp = Compliance(8.0, [0.0, 0.02, 0.1]) if "compliance" in request.param else None
-    return ParameterSpace(robot, tracker(), REFLECTORS, compliance=comp, joint_gains=GAINS)
-
-
-@pytest.fixture(scope="module")
-def gparams(gspace):
-    """Geometric errors of 5 mm / 5 mrad, gains and couplings of 2 % (large: every term shows)."""
-    p = gspace.random(4, 5e-3, 5e-3, sigma_gain=2e-2)
-    if gspace.compliance is not None:
-        q = gspace.robot.random_configurations(50, 0)
-        tau = np.abs(gspace.gravity.torques(q)).max(axis=0)
-        p[gspace.compliance_slice] = 0.01 / np.maximum(tau, 1.0)
-    return p
 
 
 def test_layout_appends_gains_then_couplings(robot):
@@ -77,99 +56,6 @@ def test_effective_configuration_is_the_gain_law(robot):
     expected[:, 2] += 0.5 * q[:, 1]
     np.testing.assert_allclose(qe, expected, rtol=0, atol=1e-15)
     assert controller_ratio_error(0.5, -1.0, 2.0) == -1.0
-
-
-@pytest.mark.parametrize("kind", MODELS)
-def test_param_jacobian(gspace, gparams, kind):
-    model = MODELS[kind]()
-    q = gspace.robot.random_configurations(3, 11)
-    analytic = model.compute_param_jacobian(evaluate_setup(gspace, gparams, q))
-    numeric = scaled_difference(lambda p: model.compute_values(evaluate_setup(gspace, p, q)),
-                                 gspace, gparams)
-    assert compare_scaled(analytic, numeric, gspace.unit_scale) < TOL
-    g = gspace.gain_slice
-    assert compare_scaled(analytic[:, :, g], numeric[:, :, g], gspace.unit_scale[g]) < TOL
-    assert np.abs(analytic[:, :, g]).min(axis=(0, 1)).max() > 0
-
-
-@pytest.mark.parametrize("kind", MODELS)
-def test_config_jacobian(gspace, gparams, kind):
-    model = MODELS[kind]()
-    q = gspace.robot.random_configurations(3, 12)
-    analytic = model.compute_config_jacobian(evaluate_setup(gspace, gparams, q))
-    numeric = np.stack([
-        central_difference(lambda qk: model.compute_values(evaluate_setup(gspace, gparams, qk))[0], q[k])
-        for k in range(len(q))
-    ])
-    assert relative_error(analytic, numeric) < TOL
-
-
-@pytest.mark.parametrize("kind", MODELS)
-def test_param_config_jacobian(gspace, gparams, kind):
-    """d2h/dp dq over every column (the design gradient's input) against differences of dh/dp."""
-    model = MODELS[kind]()
-    q = gspace.robot.random_configurations(2, 13)
-    analytic = model.compute_param_config_jacobian(evaluate_setup(gspace, gparams, q))
-    numeric = np.stack([
-        central_difference(
-            lambda qk, k=k: model.compute_param_jacobian(
-                evaluate_setup(gspace, gparams, np.vstack([q[:k], qk, q[k + 1:]])))[k],
-            q[k])
-        for k in range(len(q))
-    ])
-    assert compare_scaled(analytic, numeric, gspace.unit_scale, axis=2) < TOL
-    g = gspace.gain_slice
-    assert compare_scaled(analytic[:, :, g], numeric[:, :, g], gspace.unit_scale[g], axis=2) < TOL
-
-
-@pytest.mark.parametrize("frame", ["world", "tracker"])
-def test_kpi_jacobian(gspace, gparams, frame):
-    q = gspace.robot.random_configurations(2, 21)
-    kpi = TcpKpi(q, point=np.array([0.01, -0.02, 0.1]), frame=frame)
-    g = kpi.compute_param_jacobian(gspace, gparams)
-    numeric = scaled_difference(lambda x: kpi.compute_values(gspace, x).ravel(), gspace, gparams)
-    assert compare_scaled(g, numeric, gspace.unit_scale) < TOL
-    assert np.abs(g[:, gspace.gain_slice]).max() > 0
-
-
-@pytest.mark.parametrize("kind", MODELS)
-def test_zero_gains_give_the_plain_values_exactly(robot, kind):
-    plain = ParameterSpace(robot, tracker(), REFLECTORS)
-    space = ParameterSpace(robot, tracker(), REFLECTORS, joint_gains=GAINS)
-    p = plain.random(2, 5e-3, 5e-3)
-    pg = np.concatenate([p, np.zeros(GAINS.size)])
-    q = robot.random_configurations(3, 4)
-    model = MODELS[kind]()
-    a, b = evaluate_setup(plain, p, q), evaluate_setup(space, pg, q)
-    n = plain.size
-    np.testing.assert_array_equal(model.compute_values(a), model.compute_values(b))
-    np.testing.assert_array_equal(model.compute_param_jacobian(a), model.compute_param_jacobian(b)[:, :, :n])
-    np.testing.assert_array_equal(model.compute_config_jacobian(a), model.compute_config_jacobian(b))
-    np.testing.assert_array_equal(model.compute_param_config_jacobian(a),
-                                  model.compute_param_config_jacobian(b)[:, :, :n])
-
-
-@pytest.mark.parametrize("kind", MODELS)
-def test_param_config_hessian(gspace, gparams, kind):
-    """d3h/dp dq dq (the design's exact Hessian) against differences of d2h/dp dq; None with compliance."""
-    model = MODELS[kind]()
-    q = gspace.robot.random_configurations(2, 14)
-    analytic = model.compute_param_config_hessian(evaluate_setup(gspace, gparams, q))
-    if gspace.compliance is not None:
-        assert analytic is None
-        return
-    numeric = np.stack([
-        central_difference(
-            lambda qk, k=k: model.compute_param_config_jacobian(
-                evaluate_setup(gspace, gparams, np.vstack([q[:k], qk, q[k + 1:]])))[k],
-            q[k])
-        for k in range(len(q))
-    ])
-    assert compare_scaled(analytic, numeric, gspace.unit_scale, axis=2) < TOL
-    g = gspace.gain_slice
-    assert compare_scaled(analytic[:, :, g], numeric[:, :, g], gspace.unit_scale[g], axis=2) < TOL
-    assert np.abs(analytic[:, :, g]).max() > 0
-    np.testing.assert_allclose(analytic, np.swapaxes(analytic, 3, 4), rtol=0, atol=1e-9 * np.abs(analytic).max())
 
 
 def test_rigid_second_order_refuses_a_state_with_gains(robot):

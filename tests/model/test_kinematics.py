@@ -15,7 +15,6 @@ from calib_oed.model.kinematics import (
     log_jacobian_derivative,
     log_jacobian_second_derivative,
     regressor_config_derivative,
-    regressor_config_hessian,
 )
 
 
@@ -31,6 +30,22 @@ def test_regressor_and_jacobian_derivatives(robot):
         num_j = central_difference(lambda x: _kin(robot, x).jacobian[0], qk)
         assert relative_error(regressor_config_derivative(kin)[0], num_k) < 1e-7
         assert relative_error(jacobian_config_derivative(kin)[0], num_j) < 1e-7
+
+
+def regressor_config_hessian(kin) -> np.ndarray:
+    """The dense d2K/dq_k dq_l, (n, 6, 6 n_j, nv, nv): ad(J_max(k,l)) ad(J_min(k,l)) K_i for
+    min(k, l) >= i, else 0 (docs/derivations.md §13), the reference for the factored form."""
+    reg, jac = kin.regressor, kin.jacobian
+    n, _, ncol = reg.shape
+    nv = jac.shape[2]
+    ad = ad_matrices(jac)  # (n, nv, 6, 6)
+    out = np.zeros((n, 6, ncol, nv, nv))
+    for k in range(nv):
+        cols = slice(0, 6 * (k + 1))  # blocks i <= k = min(k, l)
+        inner = ad[:, k] @ reg[:, :, cols]
+        for m in range(k, nv):
+            out[:, :, cols, k, m] = out[:, :, cols, m, k] = ad[:, m] @ inner
+    return out
 
 
 def test_regressor_second_derivative(robot):
@@ -56,8 +71,6 @@ def test_second_order_needs_both(robot):
     kin = compute_tool_kinematics(robot.model, robot.tool_frame_id, q, jacobian=False)
     with pytest.raises(ValueError, match="regressor and the Jacobian"):
         regressor_config_derivative(kin)
-    with pytest.raises(ValueError, match="regressor and the Jacobian"):
-        regressor_config_hessian(kin)
 
 
 #: Rotation angles from tiny to just below pi: the series of J_log covers all of log3's range.

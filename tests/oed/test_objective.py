@@ -137,7 +137,8 @@ def test_curvature_is_the_criterion_hessian_along_dm(criterion):
     robot = load_robot("ur5")
     objective = DesignObjective(_problem(robot), criterion)
     q = robot.random_configurations(7, 35)
-    h1 = objective.compute_curvature(q)
+    low = objective.compute_hessian(q).low_rank
+    h1 = low @ low.T
     assert h1.shape == (q.size, q.size) and np.allclose(h1, h1.T)
     assert np.linalg.eigvalsh(h1).min() >= -1e-9 * np.abs(h1).max()  # convex criteria: PSD
     info = objective.compute_information(q)
@@ -159,11 +160,6 @@ def test_curvature_is_the_criterion_hessian_along_dm(criterion):
                    - phi(info - eps * mats[a] + eps * mats[b]) + phi(info - eps * mats[a] - eps * mats[b])
                    ) / (4 * eps**2)
             assert np.isclose(h1[a, b], num, rtol=1e-4, atol=1e-6 * np.abs(h1).max())
-
-
-def test_no_curvature_for_eigenvalue_criteria(robot):
-    objective = DesignObjective(_problem(robot), "E")
-    assert objective.compute_curvature(robot.random_configurations(8, 1)) is None
 
 
 # ------------------------------------------------------------------ exact Hessian
@@ -229,7 +225,7 @@ def test_hessian_with_prior_weights_and_perturbed_parameters(robot):
 
 @pytest.mark.parametrize("criterion", ["kpi", "params", "D"])
 def test_hessian_low_rank_part_is_the_curvature_through_m(criterion):
-    """U U^T = compute_curvature (PSD); U's columns: r_W n_f for A, n_f(n_f+1)/2 for D."""
+    """U U^T is the coupling formed directly (PSD); U's columns: r_W n_f for A, n_f(n_f+1)/2 for D."""
     from calib_oed import load_robot
 
     robot = load_robot("kr16")
@@ -237,9 +233,8 @@ def test_hessian_low_rank_part_is_the_curvature_through_m(criterion):
     q = robot.random_configurations(8, 40)
     hess = objective.compute_hessian(q)
     low = hess.low_rank
-    curvature = objective.compute_curvature(q)
-    assert relative_error(low @ low.T, _dense_curvature(objective, q)) < 1e-12
-    assert np.array_equal(curvature, low @ low.T)
+    curvature = low @ low.T
+    assert relative_error(curvature, _dense_curvature(objective, q)) < 1e-12
     nf = objective.n_free
     cols = {"kpi": 6 * nf, "params": nf * nf, "D": nf * (nf + 1) // 2}[criterion]  # 2 KPI points
     assert low.shape == (q.size, cols)
@@ -274,10 +269,9 @@ def test_hessian_of_a_singular_design_names_the_parameters():
     robot = load_robot("ur5")
     objective = DesignObjective(_problem(robot), "D")
     q = np.repeat(robot.random_configurations(1, 4), 20, axis=0)  # one pose, 20 times
-    for method in (objective.compute_hessian, objective.compute_curvature):
-        with pytest.raises(NotIdentifiableError) as err:
-            method(q)
-        assert set(err.value.names) <= set(objective.free_names)
+    with pytest.raises(NotIdentifiableError) as err:
+        objective.compute_hessian(q)
+    assert set(err.value.names) <= set(objective.free_names)
 
 
 @pytest.mark.parametrize("criterion", ["E", "O1", "O3"])
