@@ -190,7 +190,7 @@ CASES = [
     ("identify-registration-rms-inf", ["identify", S, "{d}/m.csv", "--max-registration-rms", "inf"],
      "--max-registration-rms: expected"),
     ("joint-gains-beyond-the-joints", ["identifiability", S, "--joint-gains", "2,9"], "joint numbers 1..6"),
-    ("joint-gains-not-numbers", ["design", S, "--joint-gains", "a2"], "joint numbers 1..6"),
+    ("joint-gains-not-numbers", ["design", S, "--joint-gains=a2"], "joint numbers 1..6"),
     ("joint-gains-twice", ["simulate", S, "-n", "5", "-o", "{t}/x.csv", "--joint-gains", "2,2"], "distinct"),
     ("scene-payload-grams", ["identifiability", "{d}/payload.yaml"], "no industrial robot carries more"),
     # -- files of another robot or scene
