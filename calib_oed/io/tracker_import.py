@@ -10,7 +10,8 @@ Two layouts, as tracker software and measurement scripts write them:
   triplets of ``smrs`` (default: the scene's reflectors in order). An SMR whose three
   fields are empty or ``NaN`` was not seen at that pose (a broken beam): that
   measurement is left out and counted, the pose's other SMRs are kept.
-- ``points`` (:func:`read_point_export`): one measured point per row under a header,
+- ``points`` (:func:`read_point_export`): one measured point per row under a header
+  (or without one, SpatialAnalyzer's ASCII export: ``Collection Group Target x y z``),
   the point export of tracker software: a target id, ``X``, ``Y``, ``Z`` and
   optionally ``U95``, temperature, pressure, a time stamp and, for a 6-DoF probe, its
   orientation as a unit quaternion ``Q0..Q3`` (scalar first; also ``Qw, Qx, Qy, Qz``).
@@ -295,6 +296,19 @@ def _header_roles(header: list[str], columns: Mapping[str, str], problems: _Prob
     return roles
 
 
+#: The columns of SpatialAnalyzer's ASCII point export ("Collection Group target" names, then
+#: Cartesian x, y, z); further columns (tolerance, uncertainties, time stamp, as the export's
+#: options add them) are ``column7``, ``column8``, ... for ``columns`` (``{"u95": "column7"}``).
+SA_ASCII_COLUMNS = ("Collection", "Group", "Target", "X", "Y", "Z")
+
+
+def _is_sa_ascii(first: list[str], decimal_comma: bool) -> bool:
+    """Whether the first data line is a point of SpatialAnalyzer's headerless ASCII export:
+    three names, then three numbers."""
+    return (len(first) >= 6 and all(isinstance(_number(f, decimal_comma), float) for f in first[3:6])
+            and not isinstance(_number(first[2], decimal_comma), float))
+
+
 def read_point_export(source, robot: Robot, reflector_names: Sequence[str], design_q: np.ndarray, *,
                       smrs: Mapping[str, str] | None = None, columns: Mapping[str, str] | None = None,
                       target_pattern: str = DEFAULT_TARGET_PATTERN,
@@ -336,6 +350,10 @@ def read_point_export(source, robot: Robot, reflector_names: Sequence[str], desi
         problems.raise_if_any()
     split, decimal_comma = _splitter(lines[0][1])
     header = split(lines[0][1])
+    headerless = _is_sa_ascii(header, decimal_comma)
+    if headerless:  # SpatialAnalyzer's ASCII point export: no header, the first line is a point
+        header = [*SA_ASCII_COLUMNS, *(f"column{k}" for k in range(len(SA_ASCII_COLUMNS) + 1, len(header) + 1))]
+        lines = [(None, ""), *lines]
     roles = _header_roles(header, columns or {}, problems, lines[0][0])
     for role in ("x", "y", "z", "u95"):
         unit = roles.get(role, (0, None))[1]
@@ -352,6 +370,8 @@ def read_point_export(source, robot: Robot, reflector_names: Sequence[str], desi
             problems.add(number, f"expected {len(header)} fields as in the header, got {len(fields)}")
             continue
         target = fields[roles["target"][0]].strip().strip('"')
+        if headerless and "target" not in (columns or {}):  # the pose may be the group: "P001 A"
+            target = f"{fields[1].strip().strip(chr(34))} {target}"
         match = pattern.match(target)
         if not match:
             problems.add(number, f"target id {target!r} does not match the target pattern "
