@@ -458,6 +458,28 @@ def colour_counts(image: np.ndarray, where: np.ndarray) -> dict[str, int]:
     return {name: int((mask & where).sum()) for name, mask in masks.items()}
 
 
+@pytest.mark.slow  # 1-4 min of software WebGL on a shared 2-core machine; timed by bench/bench_viewer_page.py
+def test_60_pose_mesh_page_loads_and_renders_in_headless_chromium(chromium, tmp_path):
+    """The page of bench/bench_viewer_page.py (a 60-pose UR10 design, meshes) loads in headless
+    Chromium and draws: the design robots (coarsened meshes, docs/benchmarks.md) and the selected
+    pose solid in its colour. Before issue 34 this page did not finish loading within 600 s."""
+    scene = Path(__file__).resolve().parents[2] / "bench" / "scenes" / "ur10_cell.yaml"
+    s60 = setup(load_scene(str(scene)))
+    written = sessions.write_static_html(tmp_path / "ur10_60.html", s60, heuristic_design(s60, 60, seed=0))
+    assert written.info.robot_drawing == "visual" and written.info.n_poses == 60
+    empty_html = tmp_path / "empty.html"
+    empty_html.write_text(empty_meshcat_page(), encoding="utf-8")
+    empty = screenshot(chromium, empty_html, tmp_path / "empty.png")
+    image = screenshot(chromium, written.path, tmp_path / "ur10_60.png")
+    changed = np.abs(image.astype(int) - empty.astype(int)).max(axis=2) > 24
+    assert changed.mean() > 0.10 and len(np.unique(image.reshape(-1, 3), axis=0)) > 2000
+    r, g, b = (image[..., i].astype(int) for i in range(3))
+    # the selected pose, solid (0.15, 0.35, 0.85): deep blue, far bluer than the faint design
+    # poses (0.55, 0.65, 0.85 at opacity 0.35) and the sky
+    solid = (b - r > 130) & (b - g > 80)
+    assert (solid & changed).sum() >= 100, "the selected pose is not drawn solid in its colour"
+
+
 #: Run in the page after it loaded: press keys and click the pose list like a user, and
 #: after each action read the three.js scene itself (robot groups' material opacity and
 #: colour, beam nodes' visibility), the selector's panel and meshcat's pose slider.
