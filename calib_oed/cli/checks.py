@@ -119,6 +119,7 @@ def _ranges(args) -> None:
     _positive(args, "seconds", "a time in seconds", allow_zero=True)  # 0: start and stop
     _positive(args, "scale", "a drawing scale")
     _positive(args, "max_rms", "an RMS in mm")
+    _positive(args, "max_error", "a position error in mm")
     _positive(args, "max_registration_rms", "an RMS in mm")
     level = getattr(args, "level", None)
     if getattr(args, "command", None) == "view" and level is not None and not 0 < level < 1:
