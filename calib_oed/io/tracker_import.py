@@ -33,7 +33,6 @@ Nothing is half-read: every problem is collected with its line and raised as one
 
 from __future__ import annotations
 
-import math
 import os
 import re
 from collections.abc import Mapping, Sequence
@@ -42,11 +41,14 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
-from calib_oed.exceptions import InputFileError, MeasurementFileError
+from calib_oed.exceptions import MeasurementFileError
+from calib_oed.io.export_fields import data_lines as _data_lines
+from calib_oed.io.export_fields import number as _number
+from calib_oed.io.export_fields import splitter as _splitter
+from calib_oed.io.export_fields import text as _text
 from calib_oed.io.measurement_format import MAX_SIGMA, MAX_TRACKER_RANGE
 from calib_oed.measurement.dataset import MeasurementSet
 from calib_oed.model.robot import Robot
-from calib_oed.scene.yaml_file import read_text_file
 from calib_oed.units import ANGLE_UNITS, LENGTH_UNITS
 
 __all__ = ["DEFAULT_TARGET_PATTERN", "LAYOUTS", "POINT_ROLES", "TrackerImport", "detect_layout", "read_point_export",
@@ -119,41 +121,6 @@ class _Problems:
         if self.items:
             raise MeasurementFileError(self.where, sorted(self.items, key=lambda p: p[0] or 0),
                                        kind="tracker export")
-
-
-def _text(source) -> tuple[str, str]:
-    where = os.fspath(source)
-    try:
-        return read_text_file(where, "tracker export"), where
-    except InputFileError as exc:
-        raise MeasurementFileError(where, [(None, exc.problem)], kind="tracker export") from exc
-
-
-def _data_lines(text: str) -> list[tuple[int, str]]:
-    return [(i, line.strip()) for i, line in enumerate(re.split(r"\r\n|\r|\n", text), start=1)
-            if line.strip() and not line.strip().startswith(("#", "//"))]
-
-
-def _splitter(line: str):
-    """A field splitter for the file's separator and whether a decimal comma is used."""
-    for sep in (";", "\t"):
-        if sep in line:
-            return (lambda s, sep=sep: [f.strip() for f in s.split(sep)]), True
-    if "," in line:
-        return (lambda s: [f.strip() for f in s.split(",")]), False
-    return (lambda s: s.split()), False
-
-
-def _number(field: str, decimal_comma: bool) -> float | None | str:
-    """A finite number, None for a missing value (empty, NaN, '-'), or a message."""
-    text = field.strip().replace(",", ".") if decimal_comma else field.strip()
-    if text.lower() in ("", "nan", "-", "n/a", "none"):
-        return None
-    try:
-        value = float(text)
-    except ValueError:
-        return f"{field!r} is not a number"
-    return value if math.isfinite(value) else f"{field!r} is not finite"
 
 
 def _unit_scale(unit: str, table: Mapping[str, float], what: str) -> float:
