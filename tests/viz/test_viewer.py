@@ -575,3 +575,23 @@ def test_each_pose_carries_its_number_and_reflector_axis(s, design, page):
         np.testing.assert_allclose(ends[0], tool.act(s.scene.reflectors[0].offset), atol=1e-6)
     gaps = [np.linalg.norm(a - b) for i, a in enumerate(positions) for b in positions[i + 1:]]
     assert min(gaps) > 0.01  # every label at its own place
+
+
+def test_inlined_commands_are_meshcats_in_the_same_order():
+    """sessions.inline_commands: the blobs of meshcat's fetch() calls, each once and in page order,
+    in one list; a page without such calls is left as it is."""
+    import base64
+
+    import umsgpack
+
+    blobs = [base64.b64encode(umsgpack.packb({"type": "set_property", "path": f"/n{k}", "value": k})).decode()
+             for k in range(3)]
+    fetches = "".join(f'fetch("data:application/octet-binary;base64,{b}")\n    .then(res => res.arrayBuffer())\n'
+                      "    .then(buffer => viewer.handle_command_bytearray(new Uint8Array(buffer)));\n    \n"
+                      for b in blobs)
+    page = f"<script>\nvar viewer = new MeshCat.Viewer(pane);\n{fetches}</script>\n<style>x</style>"
+    inlined = sessions.inline_commands(page)
+    assert "fetch(" not in inlined and inlined.endswith("</script>\n<style>x</style>")
+    assert [c["value"] for c in decode_commands(inlined)] == [0, 1, 2]
+    assert decode_commands(inlined) == decode_commands(page)  # the helper reads both forms
+    assert sessions.inline_commands("<p>no commands</p>") == "<p>no commands</p>"
