@@ -35,7 +35,7 @@ from calib_oed.cli._contract import (
     EXIT_INTERRUPTED,
     OneLineParser,
     check_outputs,
-    join_signed_values,
+    normalise_argv,
     notes_as_lines,
     sigterm_as_interrupt,
 )
@@ -50,6 +50,7 @@ from calib_oed.cli.calibration_commands import (
     cmd_validate,
 )
 from calib_oed.cli.checks import check_inputs
+from calib_oed.cli.compensate_commands import add_compensate_parser
 from calib_oed.cli.design_commands import (
     cmd_compare,
     cmd_design,
@@ -59,7 +60,6 @@ from calib_oed.cli.design_commands import (
     cmd_sequential,
     cmd_view,
 )
-from calib_oed.cli.compensate_commands import add_compensate_parser
 from calib_oed.cli.import_command import add_import_parser
 from calib_oed.cli.program_commands import add_program_parser
 from calib_oed.cli.table_command import add_table_parser
@@ -373,9 +373,10 @@ def build_parser() -> argparse.ArgumentParser:
                        "robot.compliance payload (docs/scenes.md)")
         p.add_argument("--payload-kg", type=float, metavar="KG", help="payload mass of the "
                        "compliance model (implies --compliance; centre of mass from the scene)")
-        p.add_argument("--joint-gains", nargs="?", const="all", metavar="JOINTS", help="model a "
-                       "gain joint<i>.gain of every joint (or of the joints listed, e.g. 2,3), as a "
-                       "scene's robot.joint_gains block does (docs/scenes.md)")
+        p.add_argument("--joint-gains", metavar="JOINTS", help="model a gain joint<i>.gain of "
+                       "every joint (bare, or 'all'), or of the joints listed (e.g. 2,3), as a scene's "
+                       "robot.joint_gains block does (docs/scenes.md); the next argument is taken "
+                       "as JOINTS only when it is 'all' or joint numbers")
     return parser
 
 
@@ -395,7 +396,7 @@ def main(argv: list[str] | None = None, *, as_command: bool | None = None) -> in
         as_command = argv is None
     parser = build_parser()
     argv = list(sys.argv[1:] if argv is None else argv)
-    args = parser.parse_args(join_signed_values(argv, parser))
+    args = parser.parse_args(normalise_argv(argv, parser))
     args.argv = argv
     signals = sigterm_as_interrupt() if as_command else contextlib.nullcontext()
     try:

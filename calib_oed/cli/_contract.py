@@ -26,8 +26,9 @@ from pathlib import Path
 from calib_oed.cli._common import EXIT_INTERRUPTED
 from calib_oed.exceptions import CalibOedNote, OutputPathError
 
-__all__ = ["EXIT_INTERRUPTED", "OneLineParser", "check_output", "check_outputs",
-           "join_signed_values", "notes_as_lines", "sigterm_as_interrupt"]
+__all__ = ["EXIT_INTERRUPTED", "OPTIONAL_VALUES", "OneLineParser", "attach_optional_values",
+           "check_output", "check_outputs", "join_signed_values", "normalise_argv", "notes_as_lines",
+           "sigterm_as_interrupt"]
 
 #: Suffixes of figure files (those of ``calib_oed.viz.plots.FIGURE_FORMATS``).
 FIGURE_SUFFIXES = (".png", ".svg", ".pdf")
@@ -177,6 +178,60 @@ def notes_as_lines() -> Iterator[None]:
 
 
 _SIGNED_VALUE = re.compile(r"^-(\d|\.\d)")
+
+#: Options whose value may be left out: option -> (value when left out, form of a value).
+#: The parser declares them with a required value; :func:`attach_optional_values` supplies it.
+OPTIONAL_VALUES = {"--joint-gains": ("all", re.compile(r"^\s*(all|\d[\d\s,]*)\s*$"))}
+
+
+def _long_options(parser: argparse.ArgumentParser) -> set[str]:
+    parsers = [parser, *(parser._subparsers._group_actions[0].choices.values() if parser._subparsers else ())]
+    return {s for p in parsers for a in p._actions for s in a.option_strings if s.startswith("--")}
+
+
+def attach_optional_values(argv: list[str], parser: argparse.ArgumentParser) -> list[str]:
+    """``--joint-gains`` -> ``--joint-gains=all``; ``--joint-gains 2,3`` -> ``--joint-gains=2,3``.
+
+    An option of :data:`OPTIONAL_VALUES` takes the next argument as its value only
+    when that argument has the value's form (``all`` or joint numbers), so a bare
+    option never swallows a positional argument: in ``identify --joint-gains
+    fms_kr16 m.csv`` the scene stays the scene (argparse's ``nargs='?'`` would take
+    it for the joints). Unambiguous abbreviations (``--joint-g``) count as the option.
+    """
+    others = _long_options(parser)
+    names = {}
+    for option in OPTIONAL_VALUES:
+        rivals = others - {option}
+        names[option] = option
+        for k in range(3, len(option)):
+            if not any(r.startswith(option[:k]) for r in rivals):
+                names[option[:k]] = option
+    out: list[str] = []
+    i = 0
+    while i < len(argv):
+        token = argv[i]
+        if token == "--":  # everything after is positional
+            return out + argv[i:]
+        option = names.get(token)
+        if option is None:
+            head, eq, value = token.partition("=")
+            out.append(f"{names[head]}={value}" if eq and head in names else token)
+            i += 1
+            continue
+        default, form = OPTIONAL_VALUES[option]
+        if i + 1 < len(argv) and form.match(argv[i + 1]):
+            out.append(f"{option}={argv[i + 1]}")
+            i += 2
+        else:
+            out.append(f"{option}={default}")
+            i += 1
+    return out
+
+
+def normalise_argv(argv: list[str], parser: argparse.ArgumentParser) -> list[str]:
+    """The command line as the parser reads it: :func:`attach_optional_values`, then
+    :func:`join_signed_values`."""
+    return join_signed_values(attach_optional_values(argv, parser), parser)
 
 
 def join_signed_values(argv: list[str], parser: argparse.ArgumentParser) -> list[str]:

@@ -194,6 +194,14 @@ def cmd_identify(args) -> int:
     )
 
     s, mset = _scene_and_measurements(args)
+    if args.cv:  # the folds' bound before any fit (a bad --cv is bad input, not a late failure)
+        from calib_oed.calibration.crossval import pose_index
+        from calib_oed.exceptions import ParameterError
+
+        n_poses = int(np.unique(pose_index(mset.q)).size)
+        if not 2 <= args.cv <= n_poses:
+            raise ParameterError(f"--cv: K must be between 2 and the number of poses ({n_poses}), "
+                                 f"got {args.cv}")
     if args.adopt_registration:  # the fitted tracker pose (and offsets) into a new scene, used from here on
         s = _adopt(s, mset, args)
     sanity, blocks, robust = _identify_fit(s, mset, args)

@@ -40,14 +40,14 @@ class ArgumentError(CalibOedError, ValueError):
 def given_options(args) -> set[str]:
     """The ``dest`` of every option and positional given on the command line of ``args``."""
     from calib_oed.cli import build_parser
-    from calib_oed.cli._contract import join_signed_values
+    from calib_oed.cli._contract import normalise_argv
 
     parser = build_parser()
     parsers = [parser, *(parser._subparsers._group_actions[0].choices.values())]
     for p in parsers:
         for action in p._actions:
             action.default = argparse.SUPPRESS
-    namespace = parser.parse_args(join_signed_values(list(args.argv), parser))
+    namespace = parser.parse_args(normalise_argv(list(args.argv), parser))
     return set(vars(namespace)) - {"func", "outputs", "command"}
 
 
@@ -119,6 +119,7 @@ def _ranges(args) -> None:
     _positive(args, "seconds", "a time in seconds", allow_zero=True)  # 0: start and stop
     _positive(args, "scale", "a drawing scale")
     _positive(args, "max_rms", "an RMS in mm")
+    _positive(args, "max_error", "a position error in mm")
     _positive(args, "max_registration_rms", "an RMS in mm")
     level = getattr(args, "level", None)
     if getattr(args, "command", None) == "view" and level is not None and not 0 < level < 1:

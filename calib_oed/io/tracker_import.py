@@ -12,7 +12,8 @@ Two layouts, as tracker software and measurement scripts write them:
   measurement is left out and counted, the pose's other SMRs are kept. With
   ``controller`` (the scene's block unless ``--joints urdf``) the joint values
   are the controller's, mapped to URDF joints :math:`q = A c + b`.
-- ``points`` (:func:`read_point_export`): one measured point per row under a header,
+- ``points`` (:func:`read_point_export`): one measured point per row under a header
+  (or without one, SpatialAnalyzer's ASCII export: ``Collection Group Target x y z``),
   the point export of tracker software: a target id, ``X``, ``Y``, ``Z`` and
   optionally ``U95``, temperature, pressure, a time stamp and, for a 6-DoF probe, its
   orientation as a unit quaternion ``Q0..Q3`` (scalar first; also ``Qw, Qx, Qy, Qz``).
@@ -34,7 +35,6 @@ Nothing is half-read: every problem is collected with its line and raised as one
 
 from __future__ import annotations
 
-import math
 import os
 import re
 from collections.abc import Mapping, Sequence
@@ -43,12 +43,15 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
-from calib_oed.exceptions import InputFileError, MeasurementFileError
+from calib_oed.exceptions import MeasurementFileError
+from calib_oed.io.export_fields import data_lines as _data_lines
+from calib_oed.io.export_fields import number as _number
+from calib_oed.io.export_fields import splitter as _splitter
+from calib_oed.io.export_fields import text as _text
 from calib_oed.io.measurement_format import MAX_SIGMA, MAX_TRACKER_RANGE
 from calib_oed.measurement.dataset import MeasurementSet
 from calib_oed.model.controller import ControllerConvention
 from calib_oed.model.robot import Robot
-from calib_oed.scene.yaml_file import read_text_file
 from calib_oed.units import ANGLE_UNITS, LENGTH_UNITS
 
 __all__ = ["DEFAULT_TARGET_PATTERN", "LAYOUTS", "POINT_ROLES", "TrackerImport", "detect_layout", "read_point_export",
@@ -121,41 +124,6 @@ class _Problems:
         if self.items:
             raise MeasurementFileError(self.where, sorted(self.items, key=lambda p: p[0] or 0),
                                        kind="tracker export")
-
-
-def _text(source) -> tuple[str, str]:
-    where = os.fspath(source)
-    try:
-        return read_text_file(where, "tracker export"), where
-    except InputFileError as exc:
-        raise MeasurementFileError(where, [(None, exc.problem)], kind="tracker export") from exc
-
-
-def _data_lines(text: str) -> list[tuple[int, str]]:
-    return [(i, line.strip()) for i, line in enumerate(re.split(r"\r\n|\r|\n", text), start=1)
-            if line.strip() and not line.strip().startswith(("#", "//"))]
-
-
-def _splitter(line: str):
-    """A field splitter for the file's separator and whether a decimal comma is used."""
-    for sep in (";", "\t"):
-        if sep in line:
-            return (lambda s, sep=sep: [f.strip() for f in s.split(sep)]), True
-    if "," in line:
-        return (lambda s: [f.strip() for f in s.split(",")]), False
-    return (lambda s: s.split()), False
-
-
-def _number(field: str, decimal_comma: bool) -> float | None | str:
-    """A finite number, None for a missing value (empty, NaN, '-'), or a message."""
-    text = field.strip().replace(",", ".") if decimal_comma else field.strip()
-    if text.lower() in ("", "nan", "-", "n/a", "none"):
-        return None
-    try:
-        value = float(text)
-    except ValueError:
-        return f"{field!r} is not a number"
-    return value if math.isfinite(value) else f"{field!r} is not finite"
 
 
 def _unit_scale(unit: str, table: Mapping[str, float], what: str) -> float:
@@ -303,6 +271,19 @@ def _header_roles(header: list[str], columns: Mapping[str, str], problems: _Prob
     return roles
 
 
+#: The columns of SpatialAnalyzer's ASCII point export ("Collection Group target" names, then
+#: Cartesian x, y, z); further columns (tolerance, uncertainties, time stamp, as the export's
+#: options add them) are ``column7``, ``column8``, ... for ``columns`` (``{"u95": "column7"}``).
+SA_ASCII_COLUMNS = ("Collection", "Group", "Target", "X", "Y", "Z")
+
+
+def _is_sa_ascii(first: list[str], decimal_comma: bool) -> bool:
+    """Whether the first data line is a point of SpatialAnalyzer's headerless ASCII export:
+    three names, then three numbers."""
+    return (len(first) >= 6 and all(isinstance(_number(f, decimal_comma), float) for f in first[3:6])
+            and not isinstance(_number(first[2], decimal_comma), float))
+
+
 def read_point_export(source, robot: Robot, reflector_names: Sequence[str], design_q: np.ndarray, *,
                       smrs: Mapping[str, str] | None = None, columns: Mapping[str, str] | None = None,
                       target_pattern: str = DEFAULT_TARGET_PATTERN,
@@ -344,6 +325,10 @@ def read_point_export(source, robot: Robot, reflector_names: Sequence[str], desi
         problems.raise_if_any()
     split, decimal_comma = _splitter(lines[0][1])
     header = split(lines[0][1])
+    headerless = _is_sa_ascii(header, decimal_comma)
+    if headerless:  # SpatialAnalyzer's ASCII point export: no header, the first line is a point
+        header = [*SA_ASCII_COLUMNS, *(f"column{k}" for k in range(len(SA_ASCII_COLUMNS) + 1, len(header) + 1))]
+        lines = [(None, ""), *lines]
     roles = _header_roles(header, columns or {}, problems, lines[0][0])
     for role in ("x", "y", "z", "u95"):
         unit = roles.get(role, (0, None))[1]
@@ -360,6 +345,8 @@ def read_point_export(source, robot: Robot, reflector_names: Sequence[str], desi
             problems.add(number, f"expected {len(header)} fields as in the header, got {len(fields)}")
             continue
         target = fields[roles["target"][0]].strip().strip('"')
+        if headerless and "target" not in (columns or {}):  # the pose may be the group: "P001 A"
+            target = f"{fields[1].strip().strip(chr(34))} {target}"
         match = pattern.match(target)
         if not match:
             problems.add(number, f"target id {target!r} does not match the target pattern "

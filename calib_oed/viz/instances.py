@@ -46,6 +46,41 @@ def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return np.divide(normals, length, out=np.zeros_like(normals), where=length > 0)
 
 
+#: Most triangles of a design's robots together before their meshes are coarsened.
+TRIANGLE_BUDGET = 1_000_000
+#: Clustering cells tried in turn, finest first [m].
+CELLS = (0.002, 0.005, 0.01, 0.02, 0.05)
+
+
+def cluster_vertices(vertices: np.ndarray, faces: np.ndarray, cell: float) -> tuple[np.ndarray, np.ndarray]:
+    r"""A coarser copy of a triangle mesh by vertex clustering (Rossignac and Borrel, 1993).
+
+    Every vertex moves to the mean of the vertices in its cube of the grid of
+    edge ``cell`` (the mesh's own units); triangles whose corners fall into
+    fewer than three cubes, and repeated triangles, are dropped. No vertex moves
+    by more than :math:`\sqrt{3}\,`\ ``cell``.
+
+    Returns:
+        (vertices (m, 3), faces (k, 3)): the coarse mesh, faces indexing its vertices.
+    """
+    v = np.asarray(vertices, dtype=float)
+    f = np.asarray(faces, dtype=np.int64)
+    keys = np.floor((v - v.min(axis=0)) / cell).astype(np.int64)
+    _, cluster, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
+    cluster = cluster.reshape(-1)
+    merged = np.zeros((len(counts), 3))
+    np.add.at(merged, cluster, v)
+    merged /= counts[:, None]
+    g = cluster[f]
+    g = g[(g[:, 0] != g[:, 1]) & (g[:, 1] != g[:, 2]) & (g[:, 0] != g[:, 2])]
+    start = np.argmin(g, axis=1)[:, None]  # corners rolled to start at the least: one key per triangle
+    rolled = np.take_along_axis(g, (start + np.arange(3)) % 3, axis=1)
+    _, first = np.unique(rolled, axis=0, return_index=True)
+    g = g[np.sort(first)]
+    used, g = np.unique(g, return_inverse=True)
+    return merged[used], g.reshape(-1, 3)
+
+
 def _meshcat_geometry(geometry_object: pin.GeometryObject):
     """meshcat geometry of a Pinocchio geometry object (Pinocchio's own conversion), or None."""
     from pinocchio.visualize import meshcat_visualizer as pmv
@@ -86,14 +121,21 @@ class RobotInstances:
         configurations: Poses (n, nq) [rad, or m for prismatic joints].
         materials: One meshcat material per pose.
         visible: Whether each pose's group is shown (default: all).
+        triangle_budget: Most triangles of all poses together; above it the meshes are
+            coarsened (:func:`cluster_vertices`) with the finest cell of :data:`CELLS`
+            that keeps within it (software WebGL draws a 60-pose UR10, 7 million
+            triangles, in about a minute a frame; docs/benchmarks.md, issue 34).
 
     Attributes:
         names: Group name of each pose (``pose_000``, ...).
         skipped: Geometry objects meshcat cannot draw (left out).
+        cell: The clustering cell after :meth:`lower` [m], or None (the meshes as they are).
+        triangles: Triangles of one pose's robot (after coarsening), and before it.
     """
 
     def __init__(self, model: pin.Model, geom: pin.GeometryModel, configurations: np.ndarray,
-                 materials: Sequence, visible: Sequence[bool] | None = None):
+                 materials: Sequence, visible: Sequence[bool] | None = None,
+                 triangle_budget: int = TRIANGLE_BUDGET):
         if len(materials) != len(configurations):
             raise ValueError(f"one material per pose: {len(materials)} for {len(configurations)} poses")
         self.uuid = str(uuid.uuid1())
@@ -103,16 +145,45 @@ class RobotInstances:
         self.visible = [True] * len(self.q) if visible is None else [bool(v) for v in visible]
         self.names = tuple(f"pose_{k:03d}" for k in range(len(self.q)))
         self.skipped: list[str] = []
+        self.triangle_budget = int(triangle_budget)
+        self.cell: float | None = None
+        self.triangles = (0, 0)
+
+    def _shapes(self) -> list[tuple[int, object]]:
+        """(geometry object index, meshcat geometry), coarsened to the triangle budget."""
+        shapes = []
+        for g, obj in enumerate(self.geom.geometryObjects):
+            shape = _meshcat_geometry(obj)
+            if shape is None:
+                self.skipped.append(obj.name)
+            else:
+                shapes.append((g, shape))
+        meshes = [k for k, (_, shape) in enumerate(shapes) if hasattr(shape, "faces")]
+        full = sum(len(shapes[k][1].faces) for k in meshes)
+        self.triangles = (full, full)
+        if full * len(self.q) <= self.triangle_budget:
+            return shapes
+        import meshcat.geometry as mg
+
+        for cell in CELLS:  # the finest that keeps within the budget, else the coarsest
+            coarse = dict(shapes)
+            for k in meshes:
+                g, shape = shapes[k]
+                scale = float(np.min(self.geom.geometryObjects[g].meshScale))
+                v, f = cluster_vertices(shape.vertices, shape.faces, cell / scale)
+                coarse[g] = mg.TriangularMeshGeometry(v.astype(shape.vertices.dtype), f.astype(shape.faces.dtype))
+            count = sum(len(coarse[shapes[k][0]].faces) for k in meshes)
+            if count * len(self.q) <= self.triangle_budget:
+                break
+        self.cell, self.triangles = cell, (count, full)
+        return list(coarse.items())
 
     def lower(self) -> dict:
         """The three.js JSON object (meshcat's ``set_object`` payload)."""
         data: dict = {"metadata": {"version": 4.5, "type": "Object"}, "geometries": [], "materials": []}
         shapes = []  # (geometry object index, geometry uuid, intrinsic transform)
-        for g, obj in enumerate(self.geom.geometryObjects):
-            shape = _meshcat_geometry(obj)
-            if shape is None:
-                self.skipped.append(obj.name)
-                continue
+        for g, shape in self._shapes():
+            obj = self.geom.geometryObjects[g]
             intrinsic = np.diag([*obj.meshScale, 1.0]) @ shape.intrinsic_transform()
             shapes.append((g, _lower_geometry(shape, data), intrinsic))
         material_ids = [m.lower_in_object(data) for m in self.materials]

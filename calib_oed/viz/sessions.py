@@ -14,6 +14,7 @@ from __future__ import annotations
 import contextlib
 import io
 import os
+import re
 import warnings
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, NamedTuple
@@ -99,9 +100,59 @@ def static_html(s: Setup, q_design: np.ndarray | None = None, **kw: Any) -> tupl
     vis = _start_visualizer()
     try:
         info = build_view(vis, s, q_design, **kw)
-        return vis.static_html(), info
+        return inline_commands(vis.static_html()), info
     finally:
         _shutdown(vis)
+
+
+#: One drawing command in meshcat's static page: a ``fetch`` of a base64 ``data:`` URL.
+_FETCH = re.compile(r'fetch\("data:application/octet-binary;base64,([A-Za-z0-9+/=]*)"\)\s*'
+                    r'\.then\(res => res\.arrayBuffer\(\)\)\s*'
+                    r'\.then\(buffer => viewer\.handle_command_bytearray\(new Uint8Array\(buffer\)\)\);\s*')
+
+#: Where :func:`inline_commands` puts the commands (``COMMANDS_BEGIN`` ... ``COMMANDS_END``).
+COMMANDS_BEGIN = "// calib_oed: drawing commands, in order"
+COMMANDS_END = "// calib_oed: end of drawing commands"
+
+_REPLAY = """(() => {{  {begin}
+  const commands = [
+{blobs}
+  ];  {end}
+  for (const text of commands) {{
+    const raw = atob(text);
+    const bytes = new Uint8Array(raw.length);
+    for (let i = 0; i < raw.length; i++) bytes[i] = raw.charCodeAt(i);
+    viewer.handle_command_bytearray(bytes);
+  }}
+}})();
+"""
+
+
+def inline_commands(html: str) -> str:
+    """meshcat's static page with its drawing commands replayed in one script, in order.
+
+    meshcat writes one ``fetch`` of a ``data:`` URL per command (5743 for a
+    60-pose UR10 design with capsules). Each is a request of its own, resolved
+    in no guaranteed order, and the viewer redraws between them: in headless
+    Chromium with software WebGL such a page did not finish loading within
+    300 s (docs/benchmarks.md, issue 34). Here the same base64 blobs are
+    decoded with ``atob`` and handed to ``viewer.handle_command_bytearray`` one
+    after the other in a single script, so the scene is complete before the
+    first frame is drawn. The page stays self-contained; a page without such
+    commands is returned as it is.
+    """
+    blobs: list[str] = []
+
+    def take(match: re.Match) -> str:
+        blobs.append(match.group(1))
+        return "\0calib_oed_commands\0" if len(blobs) == 1 else ""
+
+    replaced = _FETCH.sub(take, html)
+    if not blobs:
+        return html
+    script = _REPLAY.format(begin=COMMANDS_BEGIN, end=COMMANDS_END,
+                            blobs="\n".join(f'"{b}",' for b in blobs))
+    return replaced.replace("\0calib_oed_commands\0", script, 1)
 
 
 def write_static_html(path: str | os.PathLike, s: Setup, q_design: np.ndarray | None = None,

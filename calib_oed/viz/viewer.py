@@ -360,6 +360,11 @@ def build_view(
                                 [_pose_material(c, k == 0) for k, c in enumerate(colors)],
                                 visible=[ghosts or k == 0 for k in range(len(q))])
         draw_instances(vis[robots_path], robots)
+        if robots.cell is not None:
+            notes.append(f"design poses drawn with meshes coarsened to {robots.cell * 1e3:g} mm cells "
+                         f"({robots.triangles[0]} triangles per robot instead of {robots.triangles[1]}, "
+                         f"{len(q)} poses) so that the page draws quickly; the working configurations' "
+                         "robots keep the full meshes")
         if robots.skipped:
             notes.append(f"visual geometry meshcat cannot draw, left out: {', '.join(robots.skipped)}")
     labels, short = pose_labels(s.problem.robot.model, q, infeasible)

@@ -352,3 +352,40 @@ def test_demo_writes_to_demo_out_by_default():
     args = build_parser().parse_args(["demo"])
     assert args.output == "demo_out"
     assert tempfile.gettempdir() not in args.output
+
+
+@pytest.mark.parametrize("argv, expected", [
+    (["identify", "--joint-gains", "fms_kr16", "m.csv"],
+     ["identify", "--joint-gains=all", "fms_kr16", "m.csv"]),
+    (["identify", "fms_kr16", "m.csv", "--joint-gains"], ["identify", "fms_kr16", "m.csv", "--joint-gains=all"]),
+    (["design", "--joint-gains", "2,3", "fms_kr16"], ["design", "--joint-gains=2,3", "fms_kr16"]),
+    (["design", "--joint-gains", "all", "fms_kr16"], ["design", "--joint-gains=all", "fms_kr16"]),
+    (["design", "--joint-g", "fms_kr16"], ["design", "--joint-gains=all", "fms_kr16"]),
+    (["design", "--joint-g=5", "fms_kr16"], ["design", "--joint-gains=5", "fms_kr16"]),
+    (["design", "fms_kr16", "--joint-gains", "-n", "5"], ["design", "fms_kr16", "--joint-gains=all", "-n", "5"]),
+    (["design", "--jo", "2"], ["design", "--jo", "2"]),  # --jobs, --json: ambiguous, argparse decides
+    (["view", "--", "--joint-gains", "2"], ["view", "--", "--joint-gains", "2"]),
+])
+def test_an_option_with_an_optional_value_takes_only_a_value_of_its_form(argv, expected):
+    """``--joint-gains`` never swallows the positional argument after it (argparse's nargs='?' did)."""
+    from calib_oed.cli._contract import attach_optional_values
+
+    assert attach_optional_values(argv, build_parser()) == expected
+
+
+def test_no_option_takes_an_optional_value_from_argparse():
+    """Every option with an optional value goes through ``attach_optional_values``: argparse's
+    ``nargs='?'`` on an option swallows the next argument, whatever it is."""
+    parser = build_parser()
+    for sub in [parser, *parser._subparsers._group_actions[0].choices.values()]:
+        for action in sub._actions:
+            assert not (action.option_strings and action.nargs in ("?", "*")), (sub.prog, action.option_strings)
+
+
+def test_joint_gains_before_the_scene_keeps_the_scene(capsys):
+    capsys.readouterr()
+    assert main(["identifiability", "--joint-gains", "fms_kr16", "--json"]) == EXIT_OK
+    assert "joint6.gain" in capsys.readouterr().out
+    assert main(["identifiability", "--joint-gains", "4", "fms_kr16", "--json"]) == EXIT_OK
+    out = capsys.readouterr().out
+    assert "joint4.gain" in out and "joint3.gain" not in out

@@ -93,6 +93,32 @@ def test_a_point_export_with_u95_is_imported_and_identified(two_smrs, tmp_path, 
     _identified_near_truth(s, out, p_true)
 
 
+@pytest.mark.parametrize("group, target", [("P{k:03d}", "{smr}"), ("Robot", "P{k:03d}_{smr}")],
+                         ids=["pose-as-group", "pose-in-target"])
+def test_spatialanalyzer_ascii_point_export_is_imported(two_smrs, tmp_path, group, target):
+    """SpatialAnalyzer's "Export ASCII points" (SA User's Manual, "Exporting ASCII Formatted
+    Points"): no header; ``//`` comments with the SA version and working frame; each line
+    "Collection Group Target x y z" in the working frame, blank separated, then the columns
+    the export's options add (here the coordinate uncertainty, mapped with --columns)."""
+    d, s, q, xyz, p_true = two_smrs
+    lines = ["// SA Version 2026.1.0101.1", "// Working Frame: A::Tracker", "// Units: mm"]
+    for k in range(N_POSES):
+        for j, smr in enumerate(("A", "B")):
+            names = ["Calib", group.format(k=k + 1), target.format(k=k + 1, smr=smr)]
+            lines.append(" ".join([*names, *(f"{v:.6f}" for v in xyz[k, j] * 1e3), "0.020000"]))
+    (tmp_path / "export.txt").write_text("\n".join(lines) + "\n")
+    out = tmp_path / "m.csv"
+    assert main(["import", str(d / "scene.yaml"), str(tmp_path / "export.txt"), "--design",
+                 str(d / "design.csv"), "--smrs", "A,B", "--columns", "u95=column7", "-o", str(out),
+                 "--quiet"]) == EXIT_OK
+    mset = read_scene_measurements(s, out)
+    assert len(mset.q) == 2 * N_POSES
+    np.testing.assert_allclose(mset.sigma, 1e-5)  # 0.02 mm at k = 2
+    np.testing.assert_allclose(mset.positions[mset.reflector == 0], xyz[:, 0], atol=1e-9)
+    np.testing.assert_allclose(mset.q[mset.reflector == 1], q, atol=1e-12)
+    _identified_near_truth(s, out, p_true)
+
+
 def test_a_six_dof_probe_quaternion_becomes_the_rotation_vector(two_smrs, tmp_path):
     d, s, q, xyz, _ = two_smrs
     rng = np.random.default_rng(0)

@@ -1,5 +1,7 @@
 """Reading meshcat's static page back (a helper of the tests in this folder, not a test module):
-each drawing command is a base64 msgpack blob in the page, decoded with umsgpack."""
+each drawing command is a base64 msgpack blob in the page, decoded with umsgpack. The page holds
+them as one list (calib_oed.viz.sessions.inline_commands), or as meshcat writes them, one
+``fetch`` each."""
 
 from __future__ import annotations
 
@@ -12,7 +14,13 @@ import umsgpack
 
 def decode_commands(html: str) -> list[dict]:
     """The meshcat commands embedded in a static page, in page order."""
-    blobs = re.findall(r'fetch\("data:application/octet-binary;base64,([A-Za-z0-9+/=]+)"\)', html)
+    from calib_oed.viz.sessions import COMMANDS_BEGIN, COMMANDS_END
+
+    if COMMANDS_BEGIN in html:
+        block = html.split(COMMANDS_BEGIN, 1)[1].split(COMMANDS_END, 1)[0]
+        blobs = re.findall(r'^"([A-Za-z0-9+/=]+)",$', block, flags=re.MULTILINE)
+    else:
+        blobs = re.findall(r'fetch\("data:application/octet-binary;base64,([A-Za-z0-9+/=]+)"\)', html)
     return [umsgpack.unpackb(base64.b64decode(b)) for b in blobs]
 
 
