@@ -185,10 +185,12 @@ def cmd_identify(args) -> int:
         raise ParameterError(f"--max-registration-rms must be a positive length in mm, got "
                              f"{args.max_registration_rms:g}")
     s = _setup(args.scene)
+    p_true = read_truth(args.truth, s) if args.truth else None  # checked before the fit: bad input exits at once
     units = {k: v for k, v in (("length_unit", args.length_unit), ("angle_unit", args.angle_unit)) if v}
     mset = read_scene_measurements(s, args.measurements, **units)
     if args.adopt_registration:  # the fitted tracker pose (and offsets) into a new scene, used from here on
         s = _adopt(s, mset, args)
+        p_true = read_truth(args.truth, s) if args.truth else None
     sanity, blocks, robust = _identify_fit(s, mset, args)
     result = robust.result
     report = fit_report(s.problem.space, mset, blocks, sanity, robust, s.reflector_names)
@@ -205,7 +207,6 @@ def cmd_identify(args) -> int:
     if cv is not None:
         data["cross_validation"] = cv.to_dict()
     if args.truth:
-        p_true = read_truth(args.truth, s)
         data["tcp_error_mm"] = {
             "before": (np.linalg.norm(tcp_errors(s, p_true, None), axis=1) * 1e3).tolist(),
             "after": (np.linalg.norm(tcp_errors(s, p_true, result.p), axis=1) * 1e3).tolist(),

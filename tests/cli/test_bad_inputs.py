@@ -292,8 +292,6 @@ def _snapshot(*folders: Path) -> dict:
 def test_bad_input_is_one_line_exit_2_and_writes_nothing(argv, fragment, files, tmp_path, capsys, monkeypatch,
                                                          no_heavy_work):
     monkeypatch.chdir(tmp_path)
-    if argv[0] == "identify" and "--truth" in argv:  # identify reads --truth after the fit
-        no_heavy_work("scipy.optimize", "least_squares")
     argv = [a.format(d=files, t=tmp_path) for a in argv]
     before = _snapshot(files, tmp_path)
     capsys.readouterr()
