@@ -33,7 +33,15 @@ import pinocchio as pin
 
 from calib_oed.exceptions import ProgramError
 from calib_oed.program.parse.poses import from_euler_mm_deg, to_euler_mm_deg
-from calib_oed.program.parse.targets import NUMBER, Language, Number, ParsedProgram, Target, line_of, skipped_move
+from calib_oed.program.parse.targets import (
+    NUMBER,
+    Language,
+    Number,
+    ParsedProgram,
+    Target,
+    line_of,
+    skipped_move,
+)
 
 _POS = re.compile(r"^[ \t]*P\[(\d+)(?::[^\]]*)?\][ \t]*\{", re.MULTILINE)
 _GP1 = re.compile(r"GP1[ \t]*:")
