@@ -11,6 +11,8 @@
   (docs/benchmarks.md) in its summaries and docs/oed.md.
 - docs/benchmarks.md's commands exist with the options they are given.
 - DEVELOPERS.md's module map lists every module; links between the docs resolve.
+- Test files (and tests) that modules, docs, README.md, DEVELOPERS.md, benchmarks,
+  examples and shipped YAML comments name are there.
 """
 
 from __future__ import annotations
@@ -431,12 +433,27 @@ def test_links_between_the_docs_resolve():
     assert not broken, "links to missing pages or headings: " + "; ".join(broken)
 
 
-def test_test_files_named_in_module_docstrings_exist():
-    """A module that says where it is checked (``tests/.../test_x.py``) names a file that is there."""
-    missing = sorted({f"{module.relative_to(ROOT)}: {name}" for module in (ROOT / "calib_oed").rglob("*.py")
-                      for name in re.findall(r"tests/[\w/]+\.py", module.read_text(encoding="utf-8"))
-                      if not (ROOT / name).is_file()})
-    assert not missing, "test files named but missing: " + "; ".join(missing)
+def _texts_naming_tests() -> list[Path]:
+    """Every text that may say where something is checked: the package's modules and shipped
+    YAML (its comments), the docs, README.md, DEVELOPERS.md, the benchmarks and examples."""
+    return sorted([*(ROOT / "calib_oed").rglob("*.py"), *(ROOT / "calib_oed").rglob("shipped/*.yaml"),
+                   *DOCS.glob("*.md"), ROOT / "README.md", ROOT / "DEVELOPERS.md",
+                   *(ROOT / "bench").rglob("*.py"), *(ROOT / "examples").rglob("*.py")])
+
+
+def test_test_files_named_in_the_texts_exist():
+    """A module, doc page or shipped YAML that says where it is checked (``tests/.../test_x.py``,
+    or ``tests/.../test_x.py::test_name``) names a file, and a test in it, that is there."""
+    texts = _texts_naming_tests()
+    assert any(p.suffix == ".yaml" for p in texts) and DOCS / "oed.md" in texts
+    missing = set()
+    for path in texts:
+        for name, test in re.findall(r"(tests/[\w/]+\.py)(?:::(\w+))?", path.read_text(encoding="utf-8")):
+            target = ROOT / name
+            if not target.is_file() or (test and not re.search(rf"^\s*def {test}\(", target.read_text(
+                    encoding="utf-8"), re.MULTILINE)):
+                missing.add(f"{path.relative_to(ROOT)}: {name}{'::' + test if test else ''}")
+    assert not missing, "test files or tests named but missing: " + "; ".join(sorted(missing))
 
 
 # --------------------------------------------------------------------------- design figures quoted from benchmarks.md

@@ -37,6 +37,7 @@ from calib_oed.exceptions import CompensationError, UnknownParameterError
 from calib_oed.measurement.discrepancy import DiscrepancyPrior
 from calib_oed.model.parameters import ParameterSpace
 from calib_oed.model.robot import Robot, load_robot
+from calib_oed.scene.yaml_file import MAX_TEXT_BYTES, read_text_file
 
 #: Largest joint placement change [m] and [rad] a calibration of this robot can hold.
 PLAUSIBLE_LENGTH = 0.05
@@ -58,7 +59,9 @@ def load_calibration(space: ParameterSpace, folder: str | os.PathLike) -> tuple[
 
     Raises:
         ExportError: files missing; CompensationError: another robot's calibration, joint
-            compliance or gains, or an ``identification.json`` that does not fit the scene.
+            compliance or gains, or an ``identification.json`` that does not fit the scene;
+            InputFileError: an ``identification.json`` that is not a regular file or is larger
+            than :data:`~calib_oed.scene.yaml_file.MAX_TEXT_BYTES` (the bound ``validate`` reads it with).
     """
     robot = space.robot
     files = find_calibration_files(folder, robot.name)
@@ -79,11 +82,12 @@ def load_calibration(space: ParameterSpace, folder: str | os.PathLike) -> tuple[
             "not a calibration of this robot (give the scene the calibration was identified in)")
     path = Path(files["urdf"]).parent / "identification.json"
     out = {k: str(v) for k, v in files.items()}
-    if not path.is_file():
+    if not path.exists():
         return calibrated, None, out
     out["identification"] = str(path)
+    text = read_text_file(path, "identification", MAX_TEXT_BYTES)     # bounded; a folder or pipe refused
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
+        data = json.loads(text)
         p = np.zeros(space.size)
         for name, value in data["p"].items():
             p[space.index(name)] = float(value)

@@ -194,6 +194,7 @@ def cmd_identify(args) -> int:
     )
 
     s, mset = _scene_and_measurements(args)
+    p_true = read_truth(args.truth, s) if args.truth else None  # checked before the fit: bad input exits at once
     if args.cv:  # the folds' bound before any fit (a bad --cv is bad input, not a late failure)
         from calib_oed.calibration.crossval import pose_index
         from calib_oed.exceptions import ParameterError
@@ -204,6 +205,7 @@ def cmd_identify(args) -> int:
                                  f"got {args.cv}")
     if args.adopt_registration:  # the fitted tracker pose (and offsets) into a new scene, used from here on
         s = _adopt(s, mset, args)
+        p_true = read_truth(args.truth, s) if args.truth else None
     sanity, blocks, robust = _identify_fit(s, mset, args)
     result = robust.result
     report = fit_report(s.problem.space, mset, blocks, sanity, robust, s.reflector_names)
@@ -220,7 +222,6 @@ def cmd_identify(args) -> int:
     if cv is not None:
         data["cross_validation"] = cv.to_dict()
     if args.truth:
-        p_true = read_truth(args.truth, s)
         data["tcp_error_mm"] = {
             "before": (np.linalg.norm(tcp_errors(s, p_true, None), axis=1) * 1e3).tolist(),
             "after": (np.linalg.norm(tcp_errors(s, p_true, result.p), axis=1) * 1e3).tolist(),

@@ -12,7 +12,10 @@ controller's convention and unit), Cartesian targets with :math:`P'` in the lang
 convention (angles the representation nearest the original, status/turn/confdata as
 written). A target whose inverse kinematics did not converge is left as written and
 named; one near a singularity or outside the calibrated joint range is compensated and
-named. Each target gets a comment with its predicted residual.
+named. Each target gets a comment with its predicted residual. A move whose point the
+parser does not read (a relative move, an undeclared name, a register; the language modules)
+is left as written and named in the parser's notes (``file:line``, why), which the report and
+``to_dict`` carry.
 
 **Controller configuration.** A KRL, RAPID or TP Cartesian target carries the
 configuration the controller solves it in (KUKA's ``S``/``T``, ABB's ``confdata``, FANUC's

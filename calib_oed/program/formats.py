@@ -1,4 +1,4 @@
-"""The program formats and writing a program's files (atomically, one file at a time)."""
+"""The program formats and writing a program's files (atomically, all of them as one set)."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from calib_oed.exceptions import ProgramError
-from calib_oed.io.atomic import atomic_write_text
+from calib_oed.io.atomic import atomic_write_files
 from calib_oed.program.csv_format import write_csv
 from calib_oed.program.fanuc_tp import write_tp
 from calib_oed.program.krl import write_krl
@@ -38,10 +38,11 @@ def write_program(program: Program, fmt: str, directory: str | os.PathLike,
                   name: str = "calib_program") -> list[Path]:
     """Write the program's files into ``directory`` (created if missing); returns their paths.
 
-    The texts are all built before the first file is written, and each file is
-    written atomically (never half-written).
+    The texts are all built before the first file is written, and the files are written
+    as one set (:func:`~calib_oed.io.atomic.atomic_write_files`): a KRL ``.src`` and its
+    ``.dat`` both appear or neither does, never half-written.
     """
     texts = program_texts(program, fmt, name)
     folder = Path(directory)
     folder.mkdir(parents=True, exist_ok=True)
-    return [atomic_write_text(folder / fname, text) for fname, text in texts.items()]
+    return atomic_write_files({folder / fname: text.encode("utf-8") for fname, text in texts.items()})

@@ -83,3 +83,22 @@ def test_the_fitted_model_error_enters_the_prediction(tmp_path):
     (tmp_path / "identification.json").write_text(json.dumps(data))
     with pytest.raises(CompensationError, match="cannot read the identification"):
         load_calibration(problem.space, tmp_path)
+
+
+def test_identification_json_is_read_bounded(tmp_path, monkeypatch):
+    """identification.json is read like every input file: a file over the bound and a folder of
+    that name are refused, naming the file (never read whole, never taken for "no file")."""
+    import calib_oed.calibration.compensation_files as files_module
+    from calib_oed.exceptions import InputFileError
+
+    problem, _, _ = write_calibration(tmp_path)
+    size = (tmp_path / "identification.json").stat().st_size
+    monkeypatch.setattr(files_module, "MAX_TEXT_BYTES", size - 1)
+    with pytest.raises(InputFileError, match=r"identification\.json: the identification has .* more than"):
+        load_calibration(problem.space, tmp_path)
+    monkeypatch.setattr(files_module, "MAX_TEXT_BYTES", size)
+    assert load_calibration(problem.space, tmp_path)[1] is not None
+    (tmp_path / "identification.json").unlink()
+    (tmp_path / "identification.json").mkdir()
+    with pytest.raises(InputFileError, match="is a folder"):
+        load_calibration(problem.space, tmp_path)

@@ -108,3 +108,21 @@ def test_a_tp_program_mixing_tool_frames_is_one_line_exit_2(calibration, tmp_pat
     err = capsys.readouterr().err.strip()
     assert "P[1] in UT 1, P[2] in UT 2" in err and len(err.splitlines()) == 1, err
     assert not (tmp_path / "compensated").exists()
+
+
+def test_moves_not_compensated_are_in_the_report_and_the_json(calibration, tmp_path, capsys):
+    """A move whose point is not read (here a KRL LIN_REL) is named in the text report's notes and
+    in --json's notes, with its file and line, and left as written."""
+    src = samples.KRL_SRC.replace("PTP XP4\n", "PTP XP4\nLIN_REL {X 100} C_DIS\n", 1)
+    line = src.splitlines().index("LIN_REL {X 100} C_DIS") + 1
+    (tmp_path / "w.src").write_text(src)
+    (tmp_path / "w.dat").write_text(samples.KRL_DAT)
+    args = ["compensate", "fms_kr16", str(calibration), str(tmp_path / "w.src"), "-o", str(tmp_path / "out")]
+    assert main([*args, "--json"]) == 0
+    notes = json.loads(capsys.readouterr().out)["notes"]
+    assert [n for n in notes if "NOT compensated" in n] == [
+        f"w.src:{line}: LIN_REL {{X 100}} C_DIS: NOT compensated: a relative move (LIN_REL): its target is an "
+        "offset from where the robot is, not a point"]
+    assert "\nLIN_REL {X 100} C_DIS\n" in (tmp_path / "out" / "w.src").read_text()
+    assert main(args) == 0
+    assert f"  note: w.src:{line}: LIN_REL {{X 100}} C_DIS: NOT compensated" in capsys.readouterr().out

@@ -10,7 +10,7 @@ import re
 import numpy as np
 import pytest
 
-from calib_oed.exceptions import ProgramError
+from calib_oed.exceptions import ExportError, ProgramError
 from calib_oed.program.continuous import MoveCheck
 from calib_oed.program.fanuc_tp import J2_J3_NOTE
 from calib_oed.program.format_common import header_lines, steps
@@ -330,3 +330,15 @@ def test_tool_base_and_payload_are_declared(program):
     assert "set_payload(1.500, [0.000000, 0.000000, 0.030000])" in ur
     with pytest.raises(ProgramError, match="mass > 0"):
         program_texts(dataclasses.replace(prog, payload=None), "rapid", "cp")
+
+
+def test_krl_pair_is_written_as_one(program, tmp_path):
+    """A KRL .src and its .dat appear together or not at all: a .dat that cannot be written
+    (a folder of its name) leaves no .src and no temporary file behind."""
+    names = list(program_texts(program, "krl"))
+    assert len(names) == 2
+    (tmp_path / names[-1]).mkdir()                       # the file written last cannot be written
+    with pytest.raises(ExportError, match=names[-1]):
+        write_program(program, "krl", tmp_path)
+    assert sorted(p.name for p in tmp_path.iterdir()) == [names[-1]]     # no .src, no temporary file
+    assert (tmp_path / names[-1]).is_dir()

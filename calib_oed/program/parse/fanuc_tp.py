@@ -14,6 +14,13 @@ note says which frames the targets are in. Comments: TP comment lines ``! text ;
 no ``;`` inside; they are appended at the end of ``/MN`` with the next line numbers, and
 ``LINE_COUNT`` in ``/ATTR`` (if present) is raised by their count: the only line besides
 the targets that changes.
+
+A motion statement of ``/MN`` (``J``, ``L``, ``C``, ``A``) moves to the ``P[k]`` read from ``/POS``.
+Those whose position is not read are left as written and named in the notes (``file:line``,
+why): a position register ``PR[..]`` (controller data), an indirect ``P[R[..]]``, a ``P[k]``
+without a ``GP1`` position in ``/POS``, an incremental move (``INC``: an offset, not a point),
+and a move with ``Offset``/``Tool_Offset``/``VOFFSET`` (its ``P[k]`` is compensated as a
+point, the offset added to it is not).
 """
 
 from __future__ import annotations
@@ -26,7 +33,15 @@ import pinocchio as pin
 
 from calib_oed.exceptions import ProgramError
 from calib_oed.program.parse.poses import from_euler_mm_deg, to_euler_mm_deg
-from calib_oed.program.parse.targets import NUMBER, Language, Number, ParsedProgram, Target, line_of
+from calib_oed.program.parse.targets import (
+    NUMBER,
+    Language,
+    Number,
+    ParsedProgram,
+    Target,
+    line_of,
+    skipped_move,
+)
 
 _POS = re.compile(r"^[ \t]*P\[(\d+)(?::[^\]]*)?\][ \t]*\{", re.MULTILINE)
 _GP1 = re.compile(r"GP1[ \t]*:")
@@ -35,6 +50,9 @@ _JOINT = re.compile(rf"\bJ([1-6])[ \t]*=[ \t]*({NUMBER})[ \t]*deg")
 _CART = re.compile(rf"\b([XYZWPR])[ \t]*=[ \t]*({NUMBER})[ \t]*(?:mm|deg)")
 _FRAMES = re.compile(r"\bUF[ \t]*:[ \t]*(\w+)[ \t]*,[ \t]*UT[ \t]*:[ \t]*(\w+)")
 _MN_LINE = re.compile(r"^[ \t]*(\d+):", re.MULTILINE)
+_MOTION = re.compile(r"^[ \t]*\d+:[ \t]*([JLCA])[ \t]+([^;]*);", re.MULTILINE)
+_POINT = re.compile(r"\b(PR|P)\[(R\[[^\]]*\]|[^\]\[]*)\]")
+_OFFSET = re.compile(r"\b(Tool_Offset|VOFFSET|Offset)\b", re.IGNORECASE)
 COMMENT_WIDTH = 32
 
 
@@ -103,7 +121,36 @@ def parse(texts: dict[str, str]) -> ParsedProgram:
             else:
                 raise ProgramError("program", file, f"{name}: GP1 needs J1..J6 (deg) or X, Y, Z (mm), "
                                    "W, P, R (deg)")
-    return ParsedProgram(LANGUAGE, dict(texts), tuple(targets), notes=_one_frame_pair(targets, frames))
+    notes = _one_frame_pair(targets, frames) + _unread_points(texts, {(t.file, t.name) for t in targets})
+    return ParsedProgram(LANGUAGE, dict(texts), tuple(targets), notes=notes)
+
+
+def _unread_points(texts: dict[str, str], read: set[tuple[str, str]]) -> tuple[str, ...]:
+    """Notes naming the motion statements of ``/MN`` whose positions are not read (module docstring)."""
+    notes = []
+    for file, text in texts.items():
+        mn = text.find("/MN")
+        end = min((i for i in (text.find("/POS", mn), text.find("/END", mn)) if i >= 0), default=len(text))
+        if mn < 0:
+            continue
+        for m in _MOTION.finditer(text, mn, end):
+            why = []
+            for p in _POINT.finditer(m.group(2)):
+                number = p.group(2).split(":")[0].strip()
+                if p.group(1) == "PR":
+                    why.append(f"PR[{p.group(2)}] is a position register (controller data, not in the file)")
+                elif not number.isdigit():
+                    why.append(f"P[{p.group(2)}] is indirect (a register's value)")
+                elif (file, f"P[{number}]") not in read:
+                    why.append(f"P[{number}] has no GP1 position in /POS")
+            if re.search(r"\bINC\b", m.group(2)):
+                why.append("INC: the position is an offset from where the robot is, not a point")
+            if _OFFSET.search(m.group(2)):
+                why.append(f"{_OFFSET.search(m.group(2)).group(1)}: the position is compensated, the offset "
+                           "added to it is not")
+            if why:
+                notes.append(skipped_move(file, text, m.start(1), "; ".join(why)))
+    return tuple(notes)
 
 
 def _one_frame_pair(targets: list[Target], frames: dict[str, tuple[str, str]]) -> tuple[str, ...]:

@@ -8,7 +8,12 @@ aggregate ``{A1 v, ..., A6 v, E1 v, ...}`` [deg] (``AXIS``/``E6AXIS``) or
 written inline after ``PTP``/``LIN``/``CIRC`` (and the spline moves ``SPTP``/``SLIN``/
 ``SCIRC``/``SPL``) in the ``.src``; a circular move takes two points, the auxiliary (via)
 point and the end point, and each written inline is a target (named ``... (via)`` and
-``... (end)``). Relative moves (``PTP_REL`` ...) are not targets. Only A1..A6 or X..C are
+``... (end)``). A move to a name declared in the files read (``PTP XP1``) moves to that
+declaration's target. A move whose point is not read is left as written and named in the notes
+(``file:line``, why): a relative move (``PTP_REL``, ``LIN_REL``, ``CIRC_REL`` and the spline
+``_REL`` moves: an offset from where the robot is), a name not declared as ``E6AXIS``/``AXIS``/
+``E6POS``/``POS`` in the files read (``XHOME`` of ``$config.dat``), any other expression
+(``XP1:{A1 10}``, ``$POS_ACT``). Only A1..A6 or X..C are
 rewritten; ``S``, ``T`` (decimal or ``'B...'``, read into :attr:`Target.declared` and
 checked against the joints, :mod:`calib_oed.program.compensate`) and external axes stay as
 written. ``$TOOL={X .., ..., C ..}`` and
@@ -35,6 +40,7 @@ from calib_oed.program.parse.targets import (
     Target,
     indent_of,
     line_of,
+    skipped_move,
 )
 
 _AGG = re.compile(r"\{([^{}]*)\}")
@@ -43,6 +49,8 @@ _DECL = re.compile(r"^[ \t]*(?:DECL[ \t]+)?(?:GLOBAL[ \t]+)?(E6AXIS|AXIS|E6POS|P
                    re.IGNORECASE | re.MULTILINE)
 _MOVE = re.compile(r"^[ \t]*(PTP|LIN|CIRC|SPTP|SLIN|SCIRC|SPL)[ \t]+", re.IGNORECASE | re.MULTILINE)
 _CIRCULAR = ("CIRC", "SCIRC")
+_RELATIVE = re.compile(r"^[ \t]*(S?PTP|S?LIN|S?CIRC)_REL\b", re.IGNORECASE | re.MULTILINE)
+_NAME = re.compile(r"(\w+)(?:[ \t]+\w.*)?[ \t]*$")
 _FRAME = re.compile(r"^[ \t]*\$(TOOL|BASE)[ \t]*=[ \t]*\{", re.IGNORECASE | re.MULTILINE)
 _JOINTS = tuple(f"A{i}" for i in range(1, 7))
 _POSE = ("X", "Y", "Z", "A", "B", "C")
@@ -85,23 +93,42 @@ def _status(text: str, brace: int) -> tuple[tuple[str, int], ...]:
     return tuple((k, found[k]) for k in ("S", "T") if k in found)
 
 
-def _move_points(text: str, move: re.Match, file: str) -> list[tuple[int, str]]:
-    """(brace, name) of the inline aggregates among a move's points: the first argument, the
-    first two of a circular move (via, end); arguments end at the line's end or a ``;``."""
+def _move_points(text: str, move: re.Match, file: str) -> list[tuple[int, str, str]]:
+    """(start, name, argument text) of a move's points: the first argument, the first two of a
+    circular move (via, end); arguments end at the line's end or a ``;``."""
     args, depth, start = [], 0, move.end()
     for k in range(move.end(), len(text) + 1):
         c = text[k] if k < len(text) else "\n"
         depth += (c == "{") - (c == "}")
         if depth <= 0 and c in ",;\r\n":
-            args.append(start + len(text[start:k]) - len(text[start:k].lstrip()))
+            args.append((start + len(text[start:k]) - len(text[start:k].lstrip()), text[start:k].strip()))
             start = k + 1
             if c != ",":
                 break
     line = f"{file} line {line_of(text, move.start()) + 1}"
     if move.group(1).upper() not in _CIRCULAR:
-        return [(args[0], line)] if text.startswith("{", args[0]) else []
-    return [(a, f"{line} ({which})") for a, which in zip(args[:2], ("via", "end"), strict=False)
-            if text.startswith("{", a)]
+        return [(args[0][0], line, args[0][1])]
+    return [(a, f"{line} ({which})", arg) for (a, arg), which in zip(args[:2], ("via", "end"), strict=False)]
+
+
+def _unread_points(texts: dict[str, str]) -> list[str]:
+    """Notes naming the moves whose points are not read (module docstring), in file order."""
+    declared = {m.group(2).upper() for text in texts.values() for m in _DECL.finditer(text)}
+    notes = []
+    for file, text in texts.items():
+        found = [(m.start(), f"a relative move ({m.group(1).upper()}_REL): its target is an offset from where "
+                  "the robot is, not a point") for m in _RELATIVE.finditer(text)]
+        for m in _MOVE.finditer(text):
+            for start, point, arg in _move_points(text, m, file):
+                name = _NAME.match(arg)
+                if arg.startswith("{") or (name and name.group(1).upper() in declared):
+                    continue
+                which = "the " + point[point.index("(") + 1:-1] + " point" if point.endswith(")") else "its point"
+                found.append((start, f"{which} {name.group(1)} is not an E6AXIS, AXIS, E6POS or POS declared in "
+                              "the files read (its .dat not given, or $config.dat)" if name else
+                              f"{which} {arg!r} is not a declared name or an aggregate"))
+        notes += [skipped_move(file, text, pos, why) for pos, why in sorted(found)]
+    return notes
 
 
 def parse(texts: dict[str, str]) -> ParsedProgram:
@@ -110,7 +137,8 @@ def parse(texts: dict[str, str]) -> ParsedProgram:
     for file in sorted(texts, key=lambda f: not f.lower().endswith(".dat")):     # .dat first
         text = texts[file]
         found = [(m.end() - 1, m.group(2), m.group(1).upper()) for m in _DECL.finditer(text)]
-        found += [(brace, name, None) for m in _MOVE.finditer(text) for brace, name in _move_points(text, m, file)]
+        found += [(brace, name, None) for m in _MOVE.finditer(text) for brace, name, _ in _move_points(text, m, file)
+                  if text.startswith("{", brace)]
         for brace, name, decl in sorted(found):
             what = name
             kind, comps = _aggregate(text, brace, what, file)
@@ -138,4 +166,4 @@ def parse(texts: dict[str, str]) -> ParsedProgram:
         if re.search(r"\$TOOL[ \t]*=[ \t]*TOOL_DATA", text, re.IGNORECASE):
             notes.append(f"{file}: $TOOL=TOOL_DATA[..] refers to $config.dat (not read): the tool is the "
                          "scene's or --tool's")
-    return ParsedProgram(LANGUAGE, dict(texts), tuple(targets), tool, base, tuple(notes))
+    return ParsedProgram(LANGUAGE, dict(texts), tuple(targets), tool, base, tuple(notes + _unread_points(texts)))

@@ -12,6 +12,14 @@ external axes stay. A module declaring exactly one ``tooldata`` (``[robhold, [[x
 [q1..q4]], load]``) and at most one ``wobjdata`` (``[robhold, ufprog, ufmec, uframe,
 oframe]``, base :math:`T_{W,B} = uframe\,oframe`) gives the tool and base; with several,
 the scene's or ``--tool``/``--base`` apply and a note says so. Comments are ``!`` lines.
+
+A move to a name declared in the modules read moves to that declaration's target. Points the
+parser does not read are left as written and named in the notes (``file:line``, why): a name not
+declared as ``jointtarget``/``robtarget`` in the modules read, an expression (``Offs(p10, ..)``,
+``RelTool(..)``, ``CRobT()``), and inline points of the other motion instructions (by their
+point arguments: ``TriggL``/``TriggJ``/``ArcL*``/``CapL``/``SpotL``/``SpotJ``/``DispL``/``PaintL``
+the first, ``TriggC``/``ArcC*``/``CapC``/``DispC``/``PaintC`` the first two, ``SearchL`` the
+third, ``SearchC`` the third and fourth).
 """
 
 from __future__ import annotations
@@ -23,11 +31,23 @@ import pinocchio as pin
 
 from calib_oed.exceptions import ProgramError
 from calib_oed.program.parse.poses import from_quaternion_mm, to_quaternion_mm
-from calib_oed.program.parse.targets import Language, ParsedProgram, Target, indent_of, line_of, numbers_in
+from calib_oed.program.parse.targets import (
+    Language,
+    ParsedProgram,
+    Target,
+    indent_of,
+    line_of,
+    numbers_in,
+    skipped_move,
+)
 
 _DECL = re.compile(r"^[ \t]*(?:LOCAL[ \t]+|TASK[ \t]+)?(?:CONST|PERS|VAR)[ \t]+(jointtarget|robtarget|tooldata|wobjdata)"
                    r"[ \t]+(\w+)[ \t]*:=[ \t]*\[", re.IGNORECASE | re.MULTILINE)
 _MOVE = re.compile(r"^[^!\n]*?\b(Move\w*)[ \t]+", re.IGNORECASE | re.MULTILINE)
+#: Motion instructions besides ``Move*`` (their point arguments' positions; module docstring).
+_OTHER = re.compile(r"^[^!\n]*?\b(Trigg[LJ]\w*|ArcL\w*|CapL|SpotM?[LJ]|DispL|PaintL|"
+                    r"TriggC\w*|ArcC\w*|CapC|DispC|PaintC|SearchL\w*|SearchC\w*)[ \t]+", re.IGNORECASE | re.MULTILINE)
+_NAME = re.compile(r"(\w+)[ \t]*(?:[,;\\]|$)")
 
 
 def _pose_from(v: np.ndarray) -> pin.SE3:
@@ -118,6 +138,44 @@ def _frame(text, start, file, what) -> pin.SE3:
                        "[[x, y, z], [q1, q2, q3, q4]]")
 
 
+def _point_arguments(instruction: str) -> tuple[int, ...]:
+    """Which positional arguments of a motion instruction are points (module docstring)."""
+    word = instruction.upper()
+    if word.startswith("SEARCH"):
+        return (2, 3) if word.startswith("SEARCHC") else (2,)
+    if word.startswith(("MOVEC", "TRIGGC", "ARCC")) or word in ("CAPC", "DISPC", "PAINTC"):
+        return (0, 1)
+    return (0,)
+
+
+def _unread_points(texts: dict[str, str]) -> list[str]:
+    """Notes naming the motion instructions with a point that is not read (module docstring)."""
+    declared = {m.group(2).upper() for text in texts.values() for m in _DECL.finditer(text)
+                if m.group(1).lower() in ("jointtarget", "robtarget")}
+    notes = []
+    for file, text in texts.items():
+        found = []
+        for m in [*_MOVE.finditer(text), *_OTHER.finditer(text)]:
+            if m.group(1).upper() == "MOVEEXTJ":
+                continue
+            args = _arguments(text, m.end())
+            for k in _point_arguments(m.group(1)):
+                if k >= len(args):
+                    continue
+                start, moved = args[k], m.group(1).upper().startswith("MOVE")
+                name = _NAME.match(text, start)
+                if moved and text.startswith("[", start) or name and name.group(1).upper() in declared:
+                    continue
+                end = min((i for i in (text.find(c, start) for c in ",;\n") if i >= 0), default=len(text))
+                point = text[start:end].strip()
+                point = point[:point.index("(")] + "(..)" if "(" in point else point
+                found.append((start, f"the inline point of {m.group(1)} is not read" if text.startswith("[", start)
+                              else f"{name.group(1)} is not a jointtarget or robtarget declared in the modules read"
+                              if name else f"the point {point} is computed, not a declared target"))
+        notes += [skipped_move(file, text, pos, why) for pos, why in sorted(found)]
+    return notes
+
+
 def parse(texts: dict[str, str]) -> ParsedProgram:
     """Targets of RAPID modules ``{name.mod: text}``."""
     targets, frames, notes = [], {"tooldata": [], "wobjdata": []}, []
@@ -140,6 +198,7 @@ def parse(texts: dict[str, str]) -> ParsedProgram:
                     kind = "pose" if len(inner) >= 3 else "joint"     # robtarget has 4 groups, jointtarget 2
                     found.append((start, f"{name} ({which})" if which else name, kind))
         targets += [_target(text, s, file, name, kind) for s, name, kind in sorted(found)]
+    notes += _unread_points(texts)
     tool = base = None
     for kind, values in frames.items():
         if len(values) == 1:

@@ -131,6 +131,17 @@ def line_of(text: str, pos: int) -> int:
     return int(np.searchsorted(cached[1], pos, side="right") - 1)
 
 
+def skipped_move(file: str, text: str, pos: int, why: str) -> str:
+    """The note naming a move whose target the parser does not read, so it is left as written:
+    ``file:line: <the move's line>: NOT compensated: why`` (``pos``: a character of the move)."""
+    line = line_of(text, pos)
+    start = text.rfind("\n", 0, pos) + 1
+    end = text.find("\n", start)
+    code = " ".join(text[start:end if end >= 0 else len(text)].split())
+    code = code if len(code) <= 60 else code[:57] + "..."
+    return f"{file}:{line + 1}: {code}: NOT compensated: {why}"
+
+
 def indent_of(text: str, pos: int) -> str:
     start = text.rfind("\n", 0, pos) + 1
     line = text[start:pos]
@@ -201,4 +212,4 @@ def insert_after_lines(text: str, comments: list[tuple[int, str]]) -> str:
 
 
 __all__ = ["NUMBER", "Language", "Number", "ParsedProgram", "Target", "format_number", "indent_of",
-           "insert_after_lines", "line_of", "numbers_in", "rewrite"]
+           "insert_after_lines", "line_of", "numbers_in", "rewrite", "skipped_move"]

@@ -1,11 +1,13 @@
-r"""Universal Robots URScript: joint lists and poses of ``movej``/``movel``/``movep``/``movec``/``servoj``.
+r"""Universal Robots URScript: joint lists and poses of ``movej``/``movel``/``movep``/``movec``/``servoj``/``servoc``.
 
 Grammar used (Universal Robots *The URScript Programming Language*, "Module motion" and
 "pose" type): a move's first argument (``movec``: its first two, the via point and the
 end point, named ``line N (via)``, ``line N (end)``) is a joint list ``[q1, ..., q6]`` [rad], a pose
 ``p[x, y, z, rx, ry, rz]`` [m; rotation vector] (also inside ``get_inverse_kin(p[...])``),
-or a variable assigned such a literal (``name = p[...]``, ``global name = [...]``), which is
-then rewritten where it is assigned. ``set_tcp(p[...])`` declares the TCP :math:`T_{F,E}`;
+or a variable assigned such a literal once (``name = p[...]``, ``global name = [...]``), which is
+then rewritten where it is assigned. A point that is none of these (an expression, a function's
+argument, a variable assigned more than once: its value at the move is not known) is left as
+written and named in the notes (``file:line``, why). ``set_tcp(p[...])`` declares the TCP :math:`T_{F,E}`;
 poses are in the robot base (feature frames built with ``pose_trans`` are not followed:
 such moves are named). Comments are ``#`` lines after the target's line.
 """
@@ -19,10 +21,19 @@ import pinocchio as pin
 
 from calib_oed.exceptions import ProgramError
 from calib_oed.program.parse.poses import from_rotvec_m, to_rotvec_m
-from calib_oed.program.parse.targets import Language, ParsedProgram, Target, indent_of, line_of, numbers_in
+from calib_oed.program.parse.targets import (
+    Language,
+    ParsedProgram,
+    Target,
+    indent_of,
+    line_of,
+    numbers_in,
+    skipped_move,
+)
 
-_MOVE = re.compile(r"\b(movej|movel|movep|movec|servoj)[ \t]*\(")
+_MOVE = re.compile(r"\b(movej|movel|movep|movec|servoj|servoc)[ \t]*\(")
 _ASSIGN = re.compile(r"^[ \t]*(?:global[ \t]+|local[ \t]+)?(\w+)[ \t]*=[ \t]*(p?)\[", re.MULTILINE)
+_ANY_ASSIGN = re.compile(r"^[ \t]*(?:global[ \t]+|local[ \t]+)?(\w+)[ \t]*=(?!=)", re.MULTILINE)
 _TCP = re.compile(r"\bset_tcp[ \t]*\([ \t]*p\[")
 _LITERAL = re.compile(r"(p?)\[")
 
@@ -67,6 +78,9 @@ def parse(texts: dict[str, str]) -> ParsedProgram:
     targets, tool, notes = {}, None, []
     for file, text in texts.items():
         assigned = {m.group(1): (m.end() - 1, bool(m.group(2))) for m in _ASSIGN.finditer(text)}
+        times: dict[str, list[int]] = {}
+        for m in _ANY_ASSIGN.finditer(text):
+            times.setdefault(m.group(1), []).append(line_of(text, m.start()) + 1)
         for m in _TCP.finditer(text):
             t = _literal(text, m.end() - 1, file, "set_tcp", True)
             tool = _pose_from(t.values)
@@ -82,11 +96,15 @@ def parse(texts: dict[str, str]) -> ParsedProgram:
                     targets[(file, bracket)] = _literal(text, bracket, file, name, bool(lit.group(1)))
                     continue
                 var = re.match(r"(\w+)[ \t]*[,)]", arg)
-                if var and var.group(1) in assigned:
+                if var and var.group(1) in assigned and len(times[var.group(1)]) == 1:
                     bracket, pose = assigned[var.group(1)]
                     targets[(file, bracket)] = _literal(text, bracket, file, var.group(1), pose)
+                elif var and len(times.get(var.group(1), ())) > 1:
+                    notes.append(skipped_move(file, text, at, f"the {what} {var.group(1)} is assigned "
+                                              f"{len(times[var.group(1)])} times (lines "
+                                              f"{', '.join(map(str, times[var.group(1)]))}): its value here is not known"))
                 else:
-                    notes.append(f"{file} line {line}: the move's {what} is not a literal or a variable "
-                                 "assigned one: not compensated")
+                    notes.append(skipped_move(file, text, at, f"the {what} is not a literal or a variable "
+                                              "assigned one"))
     ordered = tuple(targets[k] for k in sorted(targets))
     return ParsedProgram(LANGUAGE, dict(texts), ordered, tool, None, tuple(notes))

@@ -56,3 +56,28 @@ def test_a_joint_target_in_another_user_frame_is_accepted():
     """A joint position does not depend on the user frame (a home taught in UF 0)."""
     parsed = fanuc_tp.parse({"p.ls": _in_frames(1, 1, p1_uf=0)})
     assert [t.kind for t in parsed.targets] == ["joint", "pose", "pose"]
+
+
+def test_moves_whose_positions_are_not_read_are_named():
+    """PR[] registers, indirect P[R[]], INC, offsets and a P[k] without a position are left as
+    written and named (file:line, why); the moves to positions read are not."""
+    moves = ("   5:L P[3:weld] 100mm/sec FINE    ;\n"
+             "   6:L PR[4] 100mm/sec FINE    ;\n"
+             "   7:L P[2] 100mm/sec FINE INC    ;\n"
+             "   8:J P[R[1]] 50% FINE    ;\n"
+             "   9:L P[3] 100mm/sec FINE Offset,PR[2]    ;\n"
+             "  10:C P[2]    \n"
+             "    :  P[7] 100mm/sec FINE    ;\n")
+    text = samples.TP_LS.replace("   5:L P[3:weld] 100mm/sec FINE    ;\n", moves)
+    parsed = fanuc_tp.parse({"p.ls": text})
+    assert [t.name for t in parsed.targets] == ["P[1]", "P[2]", "P[3]"]
+    named = [n.split(": NOT compensated: ") for n in parsed.notes[1:]]
+    assert [(code.split(":")[1], why) for code, why in named] == [
+        ("15", "PR[4] is a position register (controller data, not in the file)"),
+        ("16", "INC: the position is an offset from where the robot is, not a point"),
+        ("17", "P[R[1]] is indirect (a register's value)"),
+        ("18", "PR[2] is a position register (controller data, not in the file); Offset: the position is "
+               "compensated, the offset added to it is not"),
+        ("19", "P[7] has no GP1 position in /POS")]
+    assert named[0][0] == "p.ls:15: 6:L PR[4] 100mm/sec FINE ;"
+    assert fanuc_tp.parse({"p.ls": samples.TP_LS}).notes[1:] == ()

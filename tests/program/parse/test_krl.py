@@ -58,3 +58,28 @@ def test_a_circular_move_has_two_targets_via_and_end():
         "c.src line 2 (via)", "c.src line 2 (end)", "c.src line 3 (end)", "c.src line 4 (via)",
         "c.src line 4 (end)", "c.src line 5"]
     assert [t.values[0] for t in parsed.targets] == [10, 40, 70, 1, 4, 7]
+
+
+def test_moves_whose_points_are_not_read_are_named():
+    """Relative moves, names not declared in the files read and other expressions are left as
+    written and named (file:line, why); a move to a declared name and inline points are not."""
+    src = ("DEF m( )\n"
+           "PTP XP1 C_PTP\n"
+           "PTP_REL {A1 5}\n"
+           "LIN_REL {X 100} C_DIS\n"
+           "SCIRC_REL {X 1,Y 2,Z 0},{X 2,Y 0,Z 0}\n"
+           "PTP XHOME\n"
+           "CIRC XAUX, {X 70,Y 80,Z 90,A 0,B 90,C 0}, CA 90\n"
+           "LIN XP1:{Z 50}\n"
+           "LIN $POS_ACT\n"
+           "END\n")
+    dat = "DECL E6AXIS XP1={A1 0,A2 -90,A3 90,A4 0,A5 30,A6 0}\n"
+    parsed = krl.parse({"m.src": src, "m.dat": dat})
+    assert [t.name for t in parsed.targets] == ["XP1", "m.src line 7 (end)"]
+    assert [n.split(": NOT compensated: ")[0] for n in parsed.notes] == [
+        "m.src:3: PTP_REL {A1 5}", "m.src:4: LIN_REL {X 100} C_DIS", "m.src:5: SCIRC_REL {X 1,Y 2,Z 0},{X 2,Y 0,Z 0}",
+        "m.src:6: PTP XHOME", "m.src:7: CIRC XAUX, {X 70,Y 80,Z 90,A 0,B 90,C 0}, CA 90", "m.src:8: LIN XP1:{Z 50}",
+        "m.src:9: LIN $POS_ACT"]
+    assert "relative move (SCIRC_REL)" in parsed.notes[2] and "the via point XAUX is not" in parsed.notes[4]
+    assert "XHOME is not an E6AXIS" in parsed.notes[3] and "'$POS_ACT' is not a declared name" in parsed.notes[6]
+    assert "XP1 C_PTP" in krl.parse({"m.src": src}).notes[0]          # without the .dat, XP1 is not read

@@ -45,3 +45,42 @@ def test_movec_has_two_targets_cirpoint_and_topoint():
     assert [t.name for t in parsed.targets] == ["pCir", "M.mod line 4 (via)", "M.mod line 4 (end)",
                                                 "M.mod line 5 (end)", "M.mod line 7"]
     assert [t.values[0] for t in parsed.targets] == [1, 2, 3, 4, 6]
+
+
+_NINES = "[9E9,9E9,9E9,9E9,9E9,9E9]"
+_UNREAD = rf"""MODULE M
+  CONST robtarget p10 := [[600,0,800],[0,0,1,0],[0,0,0,0],{_NINES}];
+  PROC main()
+    MoveL p10, v100, fine, tool0;
+    MoveLDO [[600,0,810],[0,0,1,0],[0,0,0,0],{_NINES}], v100, fine, tool0, do1, 1;
+    MoveJDO p20, v100, fine, tool0, do1, 1;
+    TriggL [[600,0,820],[0,0,1,0],[0,0,0,0],{_NINES}], v100, trig1, fine, tool0;
+    TriggL p10, v100, trig1, fine, tool0;
+    TriggC p10, [[600,0,830],[0,0,1,0],[0,0,0,0],{_NINES}], v100, trig1, fine, tool0;
+    SearchL \Stop, di1, sp, p30, v100, tool0;
+    SearchC di1, sp, p10, p10, v100, tool0;
+    ArcLStart p10, v100, seam1, weld1, fine, tool0;
+    ArcC p40, p10, v100, seam1, weld1, fine, tool0;
+    MoveL Offs(p10, 0, 0, 100), v100, fine, tool0;
+    MoveAbsJ jhome\NoEOffs, v100, fine, tool0;
+  ENDPROC
+ENDMODULE
+"""
+
+
+def test_points_not_read_are_named():
+    """Inline points of Trigg*/Search*/Arc* and the like, undeclared names and expressions are left
+    as written and named (file:line, why); declared names and inline Move* points (MoveLDO too)
+    are read."""
+    parsed = rapid.parse({"m.mod": _UNREAD})
+    assert [t.name for t in parsed.targets] == ["p10", "m.mod line 5"]            # MoveLDO's inline point
+    lines = [n.split(": NOT compensated: ") for n in parsed.notes]
+    assert [(code.split(":")[1], why) for code, why in lines] == [
+        ("6", "p20 is not a jointtarget or robtarget declared in the modules read"),
+        ("7", "the inline point of TriggL is not read"),
+        ("9", "the inline point of TriggC is not read"),
+        ("10", "p30 is not a jointtarget or robtarget declared in the modules read"),
+        ("13", "p40 is not a jointtarget or robtarget declared in the modules read"),
+        ("14", "the point Offs(..) is computed, not a declared target"),
+        ("15", "jhome is not a jointtarget or robtarget declared in the modules read")]
+    assert lines[1][0].startswith("m.mod:7: TriggL [[600,0,820]")

@@ -13,7 +13,7 @@ def test_get_inverse_kin_and_unfollowed_moves():
             "  movel(pose_trans(feature, p[0, 0, 0.1, 0, 0, 0]))\nend\n")
     parsed = urscript.parse({"f.script": text})
     assert [t.kind for t in parsed.targets] == ["pose"]
-    assert "line 3" in parsed.notes[0]
+    assert parsed.notes[0].startswith("f.script:3: movel(pose_trans(")
 
 
 def test_short_joint_list_is_named():
@@ -32,5 +32,21 @@ def test_movec_has_two_targets_via_and_end():
     assert [t.name for t in parsed.targets] == ["via", "line 3 (via)", "line 3 (end)", "line 4 (end)",
                                                 "line 5 (via)"]
     assert [t.values[0] for t in parsed.targets] == [0.1, 0.4, 0.5, 0.6, 0.7]
-    assert parsed.notes == ("f.script line 5: the move's end point is not a literal or a variable assigned "
-                            "one: not compensated",)
+    assert parsed.notes == ("f.script:5: movec(p[0.7, 0.1, 0.2, 0, 3.14, 0], pose_trans(feature, p...: "
+                            "NOT compensated: the end point is not a literal or a variable assigned one",)
+
+
+def test_points_whose_value_is_not_known_are_named():
+    """A variable assigned more than once, a function's argument and an expression (servoc too) are
+    left as written and named (file:line, why); a literal inside a branch is read."""
+    text = ("def f(q_start):\n  p1 = p[0.4, 0.1, 0.3, 0, 3.14, 0]\n  movel(p1, a=1.2, v=0.25)\n"
+            "  p1 = pose_trans(p1, p[0, 0, 0.1, 0, 0, 0])\n  movel(p1)\n  servoc(get_actual_tcp_pose())\n"
+            "  movej(q_start)\n  if p1 == p1:\n    movej([0.1, 0.2, 0.3, 0.4, 0.5, 0.6])\n  end\nend\n")
+    parsed = urscript.parse({"f.script": text})
+    assert [t.name for t in parsed.targets] == ["line 9"]
+    assert [n.split(": NOT compensated: ") for n in parsed.notes] == [
+        ["f.script:3: movel(p1, a=1.2, v=0.25)", "the target p1 is assigned 2 times (lines 2, 4): its value here "
+                                                 "is not known"],
+        ["f.script:5: movel(p1)", "the target p1 is assigned 2 times (lines 2, 4): its value here is not known"],
+        ["f.script:6: servoc(get_actual_tcp_pose())", "the target is not a literal or a variable assigned one"],
+        ["f.script:7: movej(q_start)", "the target is not a literal or a variable assigned one"]]
