@@ -13,7 +13,11 @@ assembles what ``calib-oed identify`` reports beside the parameters:
   :math:`\beta = \Sigma^{-1}e` summed per configuration and component, so that
   :math:`\mu_c(q) = \sum_P k(q, q_P)\,\beta_{P,c}` [m] in the tracker frame;
 - the training joint ranges (``validate`` warns for poses outside them);
-- plausibility warnings (:mod:`calib_oed.calibration.plausibility`).
+- plausibility warnings (:mod:`calib_oed.calibration.plausibility`);
+- the linearised identification (``prediction_data``: :math:`J`, the noise blocks, the
+  residuals, the configurations, the free parameters' names), from which ``validate``
+  predicts the error at each of its poses
+  (:mod:`calib_oed.calibration.pose_prediction`).
 """
 
 from __future__ import annotations
@@ -69,9 +73,11 @@ class Trust:
     joint_ranges: np.ndarray = field(repr=False)
     joint_names: tuple[str, ...] = ()
     implausible: tuple[Implausible, ...] = ()
+    linearisation: Linearisation | None = field(default=None, repr=False)
+    free_names: tuple[str, ...] = ()
 
     def to_dict(self) -> dict:
-        return {
+        out = {
             "predicted_accuracy": {"uncompensated": self.predicted.to_dict(),
                                    "compensated": self.predicted_compensated.to_dict()},
             "compensation": {"configurations_rad": self.configs.tolist(),
@@ -82,6 +88,10 @@ class Trust:
                                       in zip(self.joint_names, self.joint_ranges, strict=True)},
             "implausible": [w.to_dict() for w in self.implausible],
         }
+        if self.linearisation is not None:
+            out["prediction_data"] = {"free_names": list(self.free_names),
+                                      **self.linearisation.to_dict()}
+        return out
 
     def lines(self) -> list[str]:
         out = [self.prior.describe()]
@@ -108,4 +118,5 @@ def assess(problem, robust: RobustIdentification) -> Trust:
                  configs, weights, np.stack([q_train.min(axis=0), q_train.max(axis=0)], axis=1),
                  tuple(problem.robot.joint_names),
                  tuple(check_plausibility(problem.space, res.free_names, res.p[free],
-                                          robust.parameter_std)))
+                                          robust.parameter_std)),
+                 lin, tuple(res.free_names))
