@@ -195,7 +195,8 @@ def cmd_identify(args) -> int:
     cv = None
     if args.cv:
         cv = cross_validate(s.problem.space, mset, s.problem.identifiability, args.cv,
-                            error_model=s.scene.error_model())
+                            error_model=s.scene.error_model(),
+                            model_error=robust.model_error.prior)
     trust = assess(s.problem, robust)
     data = result.to_dict()
     data["fit"] = fit_dict(report, robust, sanity)
