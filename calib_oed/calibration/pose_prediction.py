@@ -19,7 +19,9 @@ point evaluated with the calibrated files (the same parameter names; it differs
 from the Jacobian at the estimate only by second-order terms in the parameter
 change). Per measurement: :math:`\sqrt{\mathrm{tr}\,V_\ast}`, the expected RMS of its
 3-D error [mm], and whether the error lies in its 95 % prediction region
-:math:`r^\top V_\ast^{-1} r \le \chi^2_3(0.95)`.
+:math:`r^\top V_\ast^{-1} r \le c`, :math:`c` the identification's ``region_threshold``
+(widened for the uncertainty of the fitted model error,
+:mod:`calib_oed.calibration.hyper_uncertainty`; :math:`\chi^2_3(0.95)` when not recorded).
 """
 
 from __future__ import annotations
@@ -74,11 +76,23 @@ def read_record(identification: dict | None) -> tuple[Linearisation, Discrepancy
         return None
 
 
+def region_threshold_of(identification: dict | None, compensated: bool) -> float:
+    r"""The identification's ``region_threshold`` of the 95 % regions, or :math:`\chi^2_3(0.95)`."""
+    try:
+        block = identification["predicted_accuracy"]["compensated" if compensated else "uncompensated"]
+        value = float(block["region_threshold"])
+    except (TypeError, KeyError, ValueError):
+        return float(chi2.ppf(LEVEL, 3))
+    return value if np.isfinite(value) and value > 0 else float(chi2.ppf(LEVEL, 3))
+
+
 def predict_rows(record, space: ParameterSpace, p: np.ndarray | None, mset, blocks,
-                 residual: np.ndarray, compensated: bool = False) -> RowPrediction:
-    """:class:`RowPrediction` of the rows of the measurement set ``mset`` (``blocks`` =
+                 residual: np.ndarray, compensated: bool = False,
+                 threshold: float | None = None) -> RowPrediction:
+    r""":class:`RowPrediction` of the rows of the measurement set ``mset`` (``blocks`` =
     ``mset.blocks(...)``) with the calibrated ``space`` at ``p``; ``residual`` the measured
-    minus predicted position per row of ``mset``, (n, 3) [m].
+    minus predicted position per row of ``mset``, (n, 3) [m]; ``threshold`` :math:`c`
+    (None: :math:`\chi^2_3(0.95)`).
 
     Raises:
         ParameterError: a free parameter of the record is not a parameter of ``space``.
@@ -97,5 +111,6 @@ def predict_rows(record, space: ParameterSpace, p: np.ndarray | None, mset, bloc
         noise = block.model.noise_covariance(h, block.sigma)[:, :3, :3]
         cov[mset.reflector == j] = error_covariances(lin, prior, jac, block.q, noise, compensated)
     t = np.einsum("ni,nij,nj->n", residual, np.linalg.inv(cov), residual)
-    return RowPrediction(np.sqrt(np.trace(cov, axis1=1, axis2=2)) * MM_PER_M,
-                         t <= chi2.ppf(LEVEL, 3), bool(compensated))
+    limit = float(chi2.ppf(LEVEL, 3)) if threshold is None else threshold
+    return RowPrediction(np.sqrt(np.trace(cov, axis1=1, axis2=2)) * MM_PER_M, t <= limit,
+                         bool(compensated))

@@ -7,7 +7,9 @@ assembles what ``calib-oed identify`` reports beside the parameters:
 - the model error's hyperparameters (restricted likelihood,
   :mod:`calib_oed.calibration.model_error`);
 - the predicted accuracy of the calibrated model (:mod:`calib_oed.calibration.prediction`),
-  without and with the fitted model error's mean compensated;
+  without and with the fitted model error's mean compensated, with the 95 % range of the
+  new-pose RMS and the widened prediction regions that the uncertainty of the fitted model
+  error gives (:mod:`calib_oed.calibration.hyper_uncertainty`);
 - the data a later ``validate --compensate`` needs to add that mean: the
   distinct training configurations and the weights
   :math:`\beta = \Sigma^{-1}e` summed per configuration and component, so that
@@ -27,6 +29,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.linalg
 
+from calib_oed.calibration.hyper_uncertainty import laplace_covariance
 from calib_oed.calibration.model_error import Linearisation
 from calib_oed.calibration.plausibility import Implausible, check_plausibility
 from calib_oed.calibration.prediction import PredictedAccuracy, predict_accuracy
@@ -114,7 +117,9 @@ def assess(problem, robust: RobustIdentification) -> Trust:
     q_train = np.unique(lin.q, axis=0)
     args = (problem, lin, prior, res.p, free, q_train)
     configs, weights = compensation_weights(lin, prior)
-    return Trust(prior, predict_accuracy(*args), predict_accuracy(*args, compensate=True),
+    spread = laplace_covariance(lin, prior)
+    return Trust(prior, predict_accuracy(*args, spread=spread),
+                 predict_accuracy(*args, compensate=True, spread=spread),
                  configs, weights, np.stack([q_train.min(axis=0), q_train.max(axis=0)], axis=1),
                  tuple(problem.robot.joint_names),
                  tuple(check_plausibility(problem.space, res.free_names, res.p[free],

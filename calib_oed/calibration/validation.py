@@ -39,7 +39,12 @@ import numpy as np
 import pinocchio as pin
 
 from calib_oed.calibration.crossval import noise_floor
-from calib_oed.calibration.pose_prediction import RowPrediction, predict_rows, read_record
+from calib_oed.calibration.pose_prediction import (
+    RowPrediction,
+    predict_rows,
+    read_record,
+    region_threshold_of,
+)
 from calib_oed.calibration.sensor_file import (
     read_sensor_compliance,
     read_sensor_gains,
@@ -252,7 +257,8 @@ def validate_calibration(scene: Scene, calibration: str | os.PathLike, mset: Mea
     floor = noise_floor(mset, blocks)
     calibrated_errors, residual = _errors(calibrated_space, mset, blocks, "calibrated", p_calibrated,
                                           _compensation(files) if compensated else None)
-    record = read_record(read_identification(files))
+    ident = read_identification(files)
+    record = read_record(ident)
     return ValidationResult(
         nominal=_errors(nominal_space, mset, blocks, "nominal")[0],
         calibrated=calibrated_errors,
@@ -260,5 +266,6 @@ def validate_calibration(scene: Scene, calibration: str | os.PathLike, mset: Mea
         source=mset.source,
         files={k: str(v) for k, v in files.items()},
         predicted=None if record is None else predict_rows(
-            record, calibrated_space, p_calibrated, mset, blocks, residual, compensated),
+            record, calibrated_space, p_calibrated, mset, blocks, residual, compensated,
+            region_threshold_of(ident, compensated)),
     )
