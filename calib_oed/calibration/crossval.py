@@ -25,7 +25,9 @@ under a smooth model error: given the model error (``model_error=``, as
 CV's RMS as a prediction of the RMS on new poses in the training ranges, from the
 Gaussian-process covariance of all the held-out and new errors
 (:mod:`calib_oed.calibration.crossval_error`), and CV's expected excess over that
-RMS (``bias_mm``, the folds train on fewer poses) is reported beside it.
+RMS (``bias_mm``: the folds train on fewer poses, and a design confined to part
+of the joint-range box, as in a cell, leaves new poses of the box farther from
+any training pose than its own poses are from each other) is reported beside it.
 
 **Noise floor** (:func:`noise_floor`): the RMS position error a perfect model
 would show, :math:`\sqrt{\mathrm{mean}_i\, E\lVert e_i\rVert^2}` with
@@ -158,8 +160,10 @@ class CrossValidation:
     def _se_words(self) -> str:
         if self.bias_mm is None:
             return "poses taken as independent"
-        return (f"against new poses under the fitted model error, which shares errors between "
-                f"nearby poses; CV expected {self.bias_mm:+.4f} mm off them")
+        word = "above" if self.bias_mm >= 0 else "below"
+        return (f"as a prediction of new poses uniform in the training joint ranges, under the "
+                f"fitted model error, which nearby poses share; CV expected "
+                f"{abs(self.bias_mm):.4f} mm {word} their RMS")
 
     def to_dict(self) -> dict:
         return {"k": self.k, "seed": self.seed, "rms_mm": self.rms_mm, "se_mm": self.se_mm,

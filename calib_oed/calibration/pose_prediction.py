@@ -57,12 +57,18 @@ class RowPrediction:
     inside: np.ndarray = field(repr=False)
     compensated: bool
 
+    @property
+    def total_rms_mm(self) -> float:
+        """The predicted RMS over all rows [mm]: :math:`\\sqrt{\\mathrm{mean}\\,\\mathrm{tr}\\,V_\\ast}`."""
+        return float(np.sqrt(np.mean(self.rms_mm**2)))
+
     def line(self) -> str:
-        """The coverage of the prediction regions, in words."""
+        """The predicted RMS at these measurements and the coverage of their regions, in words."""
         n, k = self.inside.size, int(self.inside.sum())
-        return (f"prediction regions: {k} of {n} measurements ({100 * k / n:.1f} %) inside their "
-                f"{100 * LEVEL:.0f} % region (parameter uncertainty + model error + noise; about "
-                f"{100 * LEVEL:.0f} % expected when the calibration's statistics hold)")
+        return (f"predicted at these measurements: RMS {self.total_rms_mm:.4f} mm (parameter "
+                f"uncertainty + model error + noise); {k} of {n} ({100 * k / n:.1f} %) inside their "
+                f"{100 * LEVEL:.0f} % prediction regions (about {100 * LEVEL:.0f} % expected when "
+                "the calibration's statistics hold)")
 
 
 def read_record(identification: dict | None) -> tuple[Linearisation, DiscrepancyPrior, tuple[str, ...]] | None:

@@ -127,7 +127,8 @@ class ValidationResult:
                 "noise_floor_mm": self.noise_floor_mm, "nominal": self.nominal.to_dict(),
                 "calibrated": self.calibrated.to_dict(), "rms_over_noise_floor": self.check(),
                 "inside_95_percent_regions": None if self.predicted is None
-                else int(self.predicted.inside.sum())}
+                else int(self.predicted.inside.sum()),
+                "predicted_rms_mm": None if self.predicted is None else self.predicted.total_rms_mm}
 
     def summary(self) -> str:
         lines = [f"validation on {self.n} measurements of {self.source} "

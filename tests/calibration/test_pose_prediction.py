@@ -76,7 +76,8 @@ def test_validate_predicts_each_pose_as_the_identification_does(calibrated, comp
     direct = np.sqrt(np.trace(v, axis1=1, axis2=2)) * 1e3
     assert np.allclose(pred.rms_mm, direct, rtol=1e-2), np.max(np.abs(pred.rms_mm / direct - 1))
     assert 0.85 <= pred.inside.mean() <= 0.99, pred.inside.mean()
-    assert "inside their 95 % region" in result.summary()
+    assert "inside their 95 % prediction regions" in result.summary()
+    assert result.to_dict()["predicted_rms_mm"] == pytest.approx(np.sqrt(np.mean(direct**2)), rel=1e-2)
     table = pose_table(val.q, result.calibrated.position_mm, val.lines, val.joint_names, None,
                        pred.rms_mm, pred.inside)
     assert [r["predicted_rms_mm"] for r in table] == pytest.approx(pred.rms_mm.tolist(), rel=1e-12)
