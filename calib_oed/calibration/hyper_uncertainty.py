@@ -24,6 +24,13 @@ first order, :math:`\mathrm{sd}(\log v) = \tau = \sqrt{g^\top H^{-1} g}`,
 :math:`g = \partial\log v/\partial\theta` by central differences. The predicted
 RMS then lies in :math:`\mathrm{RMS}\,e^{\pm 1.96\tau/2}` with 95 % probability.
 
+**Not determined.** When the model error is small against the noise the
+likelihood is flat in its size (an exact model's data fit :math:`\sigma` of a few µm
+with a Laplace sd of hundreds in :math:`\log\sigma`), the quadratic approximation
+fails and :math:`\tau` is meaningless; above :data:`TAU_MAX` no range is given
+(the prediction is then noise-dominated or the poses too few to size the model
+error, and the report says so) and the regions stay at :math:`\chi^2_3(0.95)`.
+
 **Prediction regions** (:func:`region_threshold`). A new point's error with
 :math:`V_\ast` scaled by :math:`e^{x}`, :math:`x \sim N(0, \tau^2)`, has
 :math:`t = e^\top V_\ast^{-1} e \sim e^{x}\chi^2_3`; the 95 % region of the
@@ -54,6 +61,8 @@ STEP = 1e-3
 EIGEN_FLOOR = 1e-6
 #: A log-hyperparameter within this of a bound is taken as at the bound.
 AT_BOUND = 0.05
+#: Above this sd of the log prediction the Laplace range is not given (module docstring).
+TAU_MAX = 0.5
 
 
 def theta_of(prior: DiscrepancyPrior) -> np.ndarray:
@@ -112,7 +121,8 @@ def region_threshold(tau: float, dim: int = 3, level: float = 0.95) -> float:
     x, w = np.polynomial.hermite_e.hermegauss(40)
     w = w / w.sum()
 
-    def gap(c):
-        return float(np.sum(w * chi2.cdf(c * np.exp(-tau * x), dim))) - level
+    def gap(log_c):
+        return float(np.sum(w * chi2.cdf(np.exp(log_c - tau * x), dim))) - level
 
-    return float(scipy.optimize.brentq(gap, base, base * np.exp(10 * tau)))
+    return float(np.exp(scipy.optimize.brentq(gap, np.log(base), np.log(base) + 10 * tau + 1,
+                                              maxiter=200)))

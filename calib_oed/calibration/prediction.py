@@ -36,7 +36,7 @@ import numpy as np
 import scipy.linalg
 from scipy.stats import chi2
 
-from calib_oed.calibration.hyper_uncertainty import log_spread, region_threshold
+from calib_oed.calibration.hyper_uncertainty import TAU_MAX, log_spread, region_threshold
 from calib_oed.calibration.model_error import Linearisation
 from calib_oed.measurement.base import evaluate_setup
 from calib_oed.measurement.discrepancy import DiscrepancyPrior
@@ -125,6 +125,8 @@ class PredictedAccuracy:
             fitted model error (:mod:`calib_oed.calibration.hyper_uncertainty`), or None.
         region_threshold: :math:`c` of the 95 % prediction regions :math:`e^\top V^{-1}e \le c`,
             widened for that uncertainty (:math:`\chi^2_3(0.95)` = 7.81 without it).
+        log_variance_sd: :math:`\tau`, the sd of the log predicted variance, or None when not
+            computed; above ``TAU_MAX`` the range is None (not determined).
     """
 
     names: tuple[str, ...]
@@ -136,13 +138,14 @@ class PredictedAccuracy:
     covers: str
     new_pose_rms_range_mm: tuple[float, float] | None = None
     region_threshold: float = float(chi2.ppf(0.95, 3))
+    log_variance_sd: float | None = None
 
     def to_dict(self) -> dict:
         return {"compensated": self.compensated, "covers": self.covers,
                 "new_pose_rms_mm": self.new_pose_rms_mm,
                 "new_pose_rms_range_mm": None if self.new_pose_rms_range_mm is None
                 else list(self.new_pose_rms_range_mm),
-                "region_threshold": self.region_threshold,
+                "region_threshold": self.region_threshold, "log_variance_sd": self.log_variance_sd,
                 "noise_only_new_pose_rms_mm": self.noise_only_new_pose_rms_mm,
                 "working_configurations": [
                     {"name": n, "sigma_mm": s, "rms_mm": r}
@@ -158,6 +161,9 @@ class PredictedAccuracy:
             lo, hi = self.new_pose_rms_range_mm
             out.append(f"    95 % range {lo:.4f}..{hi:.4f} mm: how well the model error's size is known "
                        "from these poses")
+        elif self.log_variance_sd is not None:
+            out.append("    95 % range not determined: these poses do not determine the model error's "
+                       "size (small against the noise, or too few poses)")
         out += [f"  TCP at {n}: {s:.4f} mm per axis, {r:.4f} mm RMS (3-D)"
                 for n, s, r in zip(self.names, self.tcp_sigma_mm, self.tcp_rms_mm, strict=True)]
         return out
@@ -189,15 +195,16 @@ def predict_accuracy(problem, lin: Linearisation, prior: DiscrepancyPrior | None
         tr.append(np.trace(error_covariances(lin, prior, jac, q_new, noise, compensate), axis1=1, axis2=2))
         tr_noise.append(np.trace(error_covariances(lin, None, jac, q_new, noise), axis1=1, axis2=2))
     rms_new = float(np.sqrt(np.mean(np.concatenate(tr))) * MM_PER_M)
-    rms_range, threshold = None, float(chi2.ppf(0.95, 3))
+    rms_range, threshold, tau = None, float(chi2.ppf(0.95, 3)), None
     if spread is not None and prior is not None:
         def mean_trace(pr):
             return float(np.mean([np.trace(error_covariances(lin, pr, j, q_new[:N_SPREAD], n, compensate),
                                            axis1=1, axis2=2).mean() for j, n in parts]))
 
         tau = log_spread(prior, *spread, mean_trace)
-        rms_range = (rms_new * float(np.exp(-0.98 * tau)), rms_new * float(np.exp(0.98 * tau)))
-        threshold = region_threshold(tau)
+        if tau <= TAU_MAX:
+            rms_range = (rms_new * float(np.exp(-0.98 * tau)), rms_new * float(np.exp(0.98 * tau)))
+            threshold = region_threshold(tau)
     kpi = problem.kpi
     g = kpi.compute_param_jacobian(space, p)[:, free].reshape(-1, 3, free.size)
     rho = _repeatability(problem.models)
@@ -210,4 +217,4 @@ def predict_accuracy(problem, lin: Linearisation, prior: DiscrepancyPrior | None
         tuple(kpi.names), tuple(float(x) for x in np.sqrt(t / 3) * MM_PER_M),
         tuple(float(x) for x in np.sqrt(t) * MM_PER_M),
         rms_new, float(np.sqrt(np.mean(np.concatenate(tr_noise))) * MM_PER_M), bool(compensate),
-        ", ".join(words), rms_range, threshold)
+        ", ".join(words), rms_range, threshold, tau)

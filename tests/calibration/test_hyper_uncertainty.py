@@ -97,3 +97,29 @@ def test_the_spread_of_the_predicted_rms_against_monte_carlo(fms):
         tau = log_spread(prior, *laplace_covariance(lin, prior), mean_trace)
         z.append((np.log(mean_trace(prior)) - np.log(mean_trace(TRUE))) / tau)
     assert 0.36 < np.mean(np.square(z)) < 2.0, np.round(z, 2)
+
+
+
+def test_an_exact_model_has_no_range_and_chi2_regions(fms, tmp_path):
+    """Data with noise only (the model exact; the CLI's simulate of tests/cli/test_cli_inspect.py,
+    which made identify fail before): the fitted model error is a few um and its size not
+    determined (Laplace sd of the log variance far above TAU_MAX): no range, regions at
+    chi2_3(0.95), said in the report; a huge tau still gives a finite threshold."""
+    from calib_oed.calibration.hyper_uncertainty import TAU_MAX
+    from calib_oed.calibration.robust import identify_robust
+    from calib_oed.calibration.trust import assess
+    from calib_oed.calibration.workflow import read_scene_measurements
+    from calib_oed.cli import EXIT_OK, main
+
+    path = tmp_path / "cal.csv"
+    assert main(["simulate", "fms_kr16", "-n", "40", "--seed", "0", "--truth-seed", "4",
+                 "-o", str(path), "--quiet"]) == EXIT_OK
+    pr = fms.problem
+    blocks = read_scene_measurements(fms, path).blocks(error_model=fms.scene.error_model())
+    rob = identify_robust(pr.space, blocks, pr.identifiability, model_error=fms.scene.discrepancy())
+    acc = assess(pr, rob).predicted
+    assert rob.model_error.prior.sigma < 1e-5  # a few um: noise only
+    assert acc.log_variance_sd > TAU_MAX and acc.new_pose_rms_range_mm is None
+    assert acc.region_threshold == pytest.approx(chi2.ppf(0.95, 3))
+    assert any("range not determined" in line for line in acc.lines())
+    assert np.isfinite(region_threshold(30.0)) and region_threshold(30.0) > region_threshold(1.0)
