@@ -19,7 +19,15 @@ pose has a training pose within 15 % of the joint's measured range.
 :math:`p` and :math:`n_p` its rows, :math:`\mathrm{RMS}^2 = \sum e_p/\sum n_p`
 (a ratio estimator over independent poses); its standard error is
 :math:`\mathrm{sd}_p(e_p - \mathrm{RMS}^2 n_p)/(\sqrt P\,\bar n)`, and that of the
-RMS half of it divided by the RMS (delta method).
+RMS half of it divided by the RMS (delta method). Poses are not independent
+under a smooth model error: given the model error (``model_error=``, as
+``identify --cv`` does with the fitted one), the standard error is instead that of
+CV's RMS as a prediction of the RMS on new poses in the training ranges, from the
+Gaussian-process covariance of all the held-out and new errors
+(:mod:`calib_oed.calibration.crossval_error`), and CV's expected excess over that
+RMS (``bias_mm``: the folds train on fewer poses, and a design confined to part
+of the joint-range box, as in a cell, leaves new poses of the box farther from
+any training pose than its own poses are from each other) is reported beside it.
 
 **Noise floor** (:func:`noise_floor`): the RMS position error a perfect model
 would show, :math:`\sqrt{\mathrm{mean}_i\, E\lVert e_i\rVert^2}` with
@@ -37,10 +45,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from calib_oed.calibration.crossval_error import cv_difference
 from calib_oed.calibration.identification import identify
+from calib_oed.calibration.model_error import linearise
 from calib_oed.exceptions import NotIdentifiableError, ParameterError
 from calib_oed.measurement.base import evaluate_setup
 from calib_oed.measurement.dataset import MeasurementSet
+from calib_oed.measurement.discrepancy import DiscrepancyPrior
 from calib_oed.measurement.error_model import ErrorModel
 from calib_oed.model.parameters import ParameterSpace
 
@@ -117,6 +128,8 @@ class CrossValidation:
         fold: Fold of every measurement row (n,): every row is used, flagged or not.
         errors_mm: Held-out position error per row [mm].
         rms_mm, se_mm: Pooled held-out RMS and its standard error [mm].
+        se_basis: ``"independent poses"`` or ``"model error"`` (module docstring).
+        bias_mm: With the model error: CV's expected RMS minus the new poses' [mm], else None.
         fold_rms_mm: Per fold [mm].
         noise_floor_mm: RMS a perfect model would show (measurement noise, :func:`noise_floor`) [mm].
         warnings: Coverage warnings (:func:`coverage_warnings`).
@@ -131,19 +144,30 @@ class CrossValidation:
     fold_rms_mm: tuple[float, ...]
     noise_floor_mm: float
     warnings: tuple[str, ...]
+    se_basis: str = "independent poses"
+    bias_mm: float | None = None
 
     def summary(self) -> str:
         lines = [f"cross-validation, {self.k} folds balanced over the joint ranges (seed {self.seed}), "
                  f"every one of the {self.fold.size} rows used (flagged rows too): "
                  f"predicted position error on unseen poses RMS {self.rms_mm:.4f} ± {self.se_mm:.4f} mm "
-                 f"(standard error; noise floor {self.noise_floor_mm:.4f} mm, ratio "
-                 f"{self.rms_mm / self.noise_floor_mm:.2f})",
+                 f"(standard error, {self._se_words()}; noise floor {self.noise_floor_mm:.4f} mm, "
+                 f"ratio {self.rms_mm / self.noise_floor_mm:.2f})",
                  "  per fold RMS [mm]: " + ", ".join(f"{r:.4f}" for r in self.fold_rms_mm)]
         lines += [f"  warning: {w}" for w in self.warnings]
         return "\n".join(lines)
 
+    def _se_words(self) -> str:
+        if self.bias_mm is None:
+            return "poses taken as independent"
+        word = "above" if self.bias_mm >= 0 else "below"
+        return (f"as a prediction of new poses uniform in the training joint ranges, under the "
+                f"fitted model error, which nearby poses share; CV expected "
+                f"{abs(self.bias_mm):.4f} mm {word} their RMS")
+
     def to_dict(self) -> dict:
         return {"k": self.k, "seed": self.seed, "rms_mm": self.rms_mm, "se_mm": self.se_mm,
+                "se_basis": self.se_basis, "bias_mm": self.bias_mm,
                 "fold_rms_mm": list(self.fold_rms_mm), "noise_floor_mm": self.noise_floor_mm,
                 "warnings": list(self.warnings)}
 
@@ -179,13 +203,15 @@ def held_out_errors(space: ParameterSpace, mset: MeasurementSet, p: np.ndarray |
 
 
 def cross_validate(space: ParameterSpace, mset: MeasurementSet, free, k: int, *,
-                   error_model: ErrorModel, seed: int = 0) -> CrossValidation:
+                   error_model: ErrorModel, seed: int = 0,
+                   model_error: DiscrepancyPrior | None = None) -> CrossValidation:
     """K-fold cross-validation over the poses of ``mset``, every row included.
 
     No row is left out, flagged or not: a flagged row that is model error is what
     new poses will show too, and leaving it out made the prediction optimistic.
     ``error_model``: the measurement model of the fits and of the noise floor
-    (``scene.error_model()``).
+    (``scene.error_model()``); ``model_error``: the standard error against new poses under
+    this model error (module docstring), None: poses taken as independent.
 
     Raises:
         ParameterError: K not in 2..number of poses.
@@ -215,8 +241,21 @@ def cross_validate(space: ParameterSpace, mset: MeasurementSet, free, k: int, *,
     ms = e_pose.sum() / n_pose.sum()
     se_ms = np.std(e_pose - ms * n_pose, ddof=1) / (np.sqrt(e_pose.size) * n_pose.mean())
     rms = float(np.sqrt(ms))
-    floor = noise_floor(data, data.blocks(error_model=error_model))
+    blocks = data.blocks(error_model=error_model)
+    floor = noise_floor(data, blocks)
+    basis, bias = "independent poses", None
+    if model_error is not None:
+        full = identify(space, blocks, free)
+        lin = linearise(space, blocks, full.p, full.free_indices)
+        fold_meas = np.concatenate([fold[data.reflector == j] for j in data.reflectors])
+        mean_d, sd_d = cv_difference(lin, model_error, fold_meas, space, full.p, full.free_indices,
+                                     [b.model for b in blocks])
+        rms_si = rms / MM_PER_M
+        se_ms = sd_d * MM_PER_M**2
+        basis = "model error"
+        bias = float(rms - np.sqrt(max(rms_si**2 - mean_d, 0.0)) * MM_PER_M)
     return CrossValidation(k, int(seed) if isinstance(seed, (int, np.integer)) else 0, fold,
                            errors, rms, float(se_ms / (2 * rms)), tuple(fold_rms),
                            floor * MM_PER_M, tuple(coverage_warnings(poses, fold_of_pose,
-                                                                     mset.joint_names)))
+                                                                     mset.joint_names)),
+                           basis, bias)

@@ -132,6 +132,31 @@ class Linearisation:
                              np.unique(self.measurement[rows], return_inverse=True)[1].ravel(),
                              self.jac[rows], self.noise[np.ix_(rows, rows)], self.residual[rows])
 
+    def to_dict(self) -> dict:
+        """JSON form (SI): distinct configurations, per value its configuration index, kind and
+        row of :math:`J`, per measurement its noise block; :meth:`from_dict` inverts it."""
+        configs, index, _ = self._configs
+        noise = [self.noise[np.ix_(r, r)].tolist() for r in
+                 (np.flatnonzero(self.measurement == i) for i in range(int(self.measurement.max()) + 1))]
+        return {"configurations_rad": configs.tolist(), "configuration": index.tolist(),
+                "position": self.position.astype(int).tolist(), "component": self.component.tolist(),
+                "measurement": self.measurement.tolist(), "jacobian": self.jac.tolist(),
+                "residual": self.residual.tolist(), "noise": noise}
+
+    @classmethod
+    def from_dict(cls, data) -> Linearisation:
+        """From :meth:`to_dict`'s form (``KeyError``, ``ValueError`` or ``IndexError`` when malformed)."""
+        configs = np.array(data["configurations_rad"], float)
+        measurement = np.array(data["measurement"], int)
+        noise = np.zeros((measurement.size, measurement.size))
+        for i, block in enumerate(data["noise"]):
+            rows = np.flatnonzero(measurement == i)
+            noise[np.ix_(rows, rows)] = np.array(block, float)
+        jac = np.array(data["jacobian"], float).reshape(measurement.size, -1)
+        return cls(configs[np.array(data["configuration"], int)], np.array(data["position"], bool),
+                   np.array(data["component"], int), measurement, jac, noise,
+                   np.array(data["residual"], float))
+
     def covariance(self, prior: DiscrepancyPrior | None) -> np.ndarray:
         r""":math:`\Sigma = K + N` (m, m) [SI²]."""
         if prior is None:

@@ -34,7 +34,9 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.linalg
+from scipy.stats import chi2
 
+from calib_oed.calibration.hyper_uncertainty import TAU_MAX, log_spread, region_threshold
 from calib_oed.calibration.model_error import Linearisation
 from calib_oed.measurement.base import evaluate_setup
 from calib_oed.measurement.discrepancy import DiscrepancyPrior
@@ -42,6 +44,8 @@ from calib_oed.measurement.discrepancy import DiscrepancyPrior
 MM_PER_M = 1e3
 #: New poses for the expected RMS: this many, uniform in the training joint ranges, this seed.
 N_NEW_POSES, NEW_POSE_SEED = 200, 0
+#: New poses (the first of them) for the derivative of the expected RMS in the hyperparameters.
+N_SPREAD = 50
 
 
 def _cross(lin: Linearisation, prior: DiscrepancyPrior | None, q_new: np.ndarray) -> np.ndarray:
@@ -106,17 +110,23 @@ def new_poses(q_train: np.ndarray, n: int = N_NEW_POSES, seed: int = NEW_POSE_SE
 
 @dataclass(frozen=True)
 class PredictedAccuracy:
-    """Predicted error of the calibrated model, per working configuration and on new poses [mm].
+    r"""Predicted error of the calibrated model, per working configuration and on new poses [mm].
 
     Attributes:
         names: Working configurations.
-        tcp_sigma_mm: Per working configuration, :math:`\\sqrt{\\mathrm{tr} V/3}` (per axis) [mm].
-        tcp_rms_mm: Per working configuration, :math:`\\sqrt{\\mathrm{tr} V}` (3-D RMS) [mm].
+        tcp_sigma_mm: Per working configuration, :math:`\sqrt{\mathrm{tr} V/3}` (per axis) [mm].
+        tcp_rms_mm: Per working configuration, :math:`\sqrt{\mathrm{tr} V}` (3-D RMS) [mm].
         new_pose_rms_mm: Expected RMS of the measured position error (3-D) on new poses
             uniform in the training joint ranges, noise included [mm].
         noise_only_new_pose_rms_mm: The same if the model were exact (noise only) [mm].
         compensated: Whether the predictions add the fitted model error's mean.
         covers: What the numbers cover, in words.
+        new_pose_rms_range_mm: 95 % range of ``new_pose_rms_mm`` from the uncertainty of the
+            fitted model error (:mod:`calib_oed.calibration.hyper_uncertainty`), or None.
+        region_threshold: :math:`c` of the 95 % prediction regions :math:`e^\top V^{-1}e \le c`,
+            widened for that uncertainty (:math:`\chi^2_3(0.95)` = 7.81 without it).
+        log_variance_sd: :math:`\tau`, the sd of the log predicted variance, or None when not
+            computed; above ``TAU_MAX`` the range is None (not determined).
     """
 
     names: tuple[str, ...]
@@ -126,10 +136,16 @@ class PredictedAccuracy:
     noise_only_new_pose_rms_mm: float
     compensated: bool
     covers: str
+    new_pose_rms_range_mm: tuple[float, float] | None = None
+    region_threshold: float = float(chi2.ppf(0.95, 3))
+    log_variance_sd: float | None = None
 
     def to_dict(self) -> dict:
         return {"compensated": self.compensated, "covers": self.covers,
                 "new_pose_rms_mm": self.new_pose_rms_mm,
+                "new_pose_rms_range_mm": None if self.new_pose_rms_range_mm is None
+                else list(self.new_pose_rms_range_mm),
+                "region_threshold": self.region_threshold, "log_variance_sd": self.log_variance_sd,
                 "noise_only_new_pose_rms_mm": self.noise_only_new_pose_rms_mm,
                 "working_configurations": [
                     {"name": n, "sigma_mm": s, "rms_mm": r}
@@ -141,6 +157,13 @@ class PredictedAccuracy:
                f"  new poses in the training joint ranges: expected RMS position error "
                f"{self.new_pose_rms_mm:.4f} mm (3-D; noise alone would give "
                f"{self.noise_only_new_pose_rms_mm:.4f} mm)"]
+        if self.new_pose_rms_range_mm is not None:
+            lo, hi = self.new_pose_rms_range_mm
+            out.append(f"    95 % range {lo:.4f}..{hi:.4f} mm: how well the model error's size is known "
+                       "from these poses")
+        elif self.log_variance_sd is not None:
+            out.append("    95 % range not determined: these poses do not determine the model error's "
+                       "size (small against the noise, or too few poses)")
         out += [f"  TCP at {n}: {s:.4f} mm per axis, {r:.4f} mm RMS (3-D)"
                 for n, s, r in zip(self.names, self.tcp_sigma_mm, self.tcp_rms_mm, strict=True)]
         return out
@@ -153,19 +176,35 @@ def _repeatability(models) -> float:
 
 def predict_accuracy(problem, lin: Linearisation, prior: DiscrepancyPrior | None, p: np.ndarray,
                      free: np.ndarray, q_train: np.ndarray, compensate: bool = False,
-                     n_new: int = N_NEW_POSES, seed: int = NEW_POSE_SEED) -> PredictedAccuracy:
+                     n_new: int = N_NEW_POSES, seed: int = NEW_POSE_SEED,
+                     spread: tuple | None = None) -> PredictedAccuracy:
     """:class:`PredictedAccuracy` of the calibration ``p`` of ``problem`` (a
-    :class:`~calib_oed.calibration.problem.CalibrationProblem`) identified from ``lin``."""
+    :class:`~calib_oed.calibration.problem.CalibrationProblem`) identified from ``lin``;
+    ``spread``: the Laplace approximation ``(active, cov)`` of ``prior``'s fit
+    (:func:`~calib_oed.calibration.hyper_uncertainty.laplace_covariance`), for the range of the
+    new-pose RMS and the widened regions (its derivative on the first :data:`N_SPREAD` new poses)."""
     space = problem.space
     q_new = new_poses(q_train, n_new, seed)
     state = evaluate_setup(space, p, q_new, regressor=True, jacobian=False)
-    tr, tr_noise = [], []
+    tr, tr_noise, parts = [], [], []
     for mdl in problem.models:
         h = mdl.compute_values(state)
         jac = mdl.compute_param_jacobian(state)[:, :3][:, :, free]
         noise = mdl.noise_covariance(h)[:, :3, :3]
+        parts.append((jac[:N_SPREAD], noise[:N_SPREAD]))
         tr.append(np.trace(error_covariances(lin, prior, jac, q_new, noise, compensate), axis1=1, axis2=2))
         tr_noise.append(np.trace(error_covariances(lin, None, jac, q_new, noise), axis1=1, axis2=2))
+    rms_new = float(np.sqrt(np.mean(np.concatenate(tr))) * MM_PER_M)
+    rms_range, threshold, tau = None, float(chi2.ppf(0.95, 3)), None
+    if spread is not None and prior is not None:
+        def mean_trace(pr):
+            return float(np.mean([np.trace(error_covariances(lin, pr, j, q_new[:N_SPREAD], n, compensate),
+                                           axis1=1, axis2=2).mean() for j, n in parts]))
+
+        tau = log_spread(prior, *spread, mean_trace)
+        if tau <= TAU_MAX:
+            rms_range = (rms_new * float(np.exp(-0.98 * tau)), rms_new * float(np.exp(0.98 * tau)))
+            threshold = region_threshold(tau)
     kpi = problem.kpi
     # the model error is a process of tracker-frame positions: its cross-covariance with the
     # TCP's holds component by component in that frame (the trace is the same in any frame)
@@ -175,11 +214,10 @@ def predict_accuracy(problem, lin: Linearisation, prior: DiscrepancyPrior | None
     v = error_covariances(lin, prior, g, kpi.configurations,
                           np.broadcast_to(rho**2 * np.eye(3), (g.shape[0], 3, 3)), compensate)
     t = np.trace(v, axis1=1, axis2=2)
-    parts = ["parameter uncertainty"] + (["model error"] if prior is not None else []) \
+    words = ["parameter uncertainty"] + (["model error"] if prior is not None else []) \
         + ["tracker noise and robot repeatability on measured points; repeatability at the TCP"]
     return PredictedAccuracy(
         tuple(kpi.names), tuple(float(x) for x in np.sqrt(t / 3) * MM_PER_M),
         tuple(float(x) for x in np.sqrt(t) * MM_PER_M),
-        float(np.sqrt(np.mean(np.concatenate(tr))) * MM_PER_M),
-        float(np.sqrt(np.mean(np.concatenate(tr_noise))) * MM_PER_M), bool(compensate),
-        ", ".join(parts))
+        rms_new, float(np.sqrt(np.mean(np.concatenate(tr_noise))) * MM_PER_M), bool(compensate),
+        ", ".join(words), rms_range, threshold, tau)

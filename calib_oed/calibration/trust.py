@@ -7,13 +7,19 @@ assembles what ``calib-oed identify`` reports beside the parameters:
 - the model error's hyperparameters (restricted likelihood,
   :mod:`calib_oed.calibration.model_error`);
 - the predicted accuracy of the calibrated model (:mod:`calib_oed.calibration.prediction`),
-  without and with the fitted model error's mean compensated;
+  without and with the fitted model error's mean compensated, with the 95 % range of the
+  new-pose RMS and the widened prediction regions that the uncertainty of the fitted model
+  error gives (:mod:`calib_oed.calibration.hyper_uncertainty`);
 - the data a later ``validate --compensate`` needs to add that mean: the
   distinct training configurations and the weights
   :math:`\beta = \Sigma^{-1}e` summed per configuration and component, so that
   :math:`\mu_c(q) = \sum_P k(q, q_P)\,\beta_{P,c}` [m] in the tracker frame;
 - the training joint ranges (``validate`` warns for poses outside them);
-- plausibility warnings (:mod:`calib_oed.calibration.plausibility`).
+- plausibility warnings (:mod:`calib_oed.calibration.plausibility`);
+- the linearised identification (``prediction_data``: :math:`J`, the noise blocks, the
+  residuals, the configurations, the free parameters' names), from which ``validate``
+  predicts the error at each of its poses
+  (:mod:`calib_oed.calibration.pose_prediction`).
 """
 
 from __future__ import annotations
@@ -23,6 +29,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.linalg
 
+from calib_oed.calibration.hyper_uncertainty import laplace_covariance
 from calib_oed.calibration.model_error import Linearisation
 from calib_oed.calibration.plausibility import Implausible, check_plausibility
 from calib_oed.calibration.prediction import PredictedAccuracy, predict_accuracy
@@ -69,9 +76,11 @@ class Trust:
     joint_ranges: np.ndarray = field(repr=False)
     joint_names: tuple[str, ...] = ()
     implausible: tuple[Implausible, ...] = ()
+    linearisation: Linearisation | None = field(default=None, repr=False)
+    free_names: tuple[str, ...] = ()
 
     def to_dict(self) -> dict:
-        return {
+        out = {
             "predicted_accuracy": {"uncompensated": self.predicted.to_dict(),
                                    "compensated": self.predicted_compensated.to_dict()},
             "compensation": {"configurations_rad": self.configs.tolist(),
@@ -82,6 +91,10 @@ class Trust:
                                       in zip(self.joint_names, self.joint_ranges, strict=True)},
             "implausible": [w.to_dict() for w in self.implausible],
         }
+        if self.linearisation is not None:
+            out["prediction_data"] = {"free_names": list(self.free_names),
+                                      **self.linearisation.to_dict()}
+        return out
 
     def lines(self) -> list[str]:
         out = [self.prior.describe()]
@@ -104,8 +117,11 @@ def assess(problem, robust: RobustIdentification) -> Trust:
     q_train = np.unique(lin.q, axis=0)
     args = (problem, lin, prior, res.p, free, q_train)
     configs, weights = compensation_weights(lin, prior)
-    return Trust(prior, predict_accuracy(*args), predict_accuracy(*args, compensate=True),
+    spread = laplace_covariance(lin, prior)
+    return Trust(prior, predict_accuracy(*args, spread=spread),
+                 predict_accuracy(*args, compensate=True, spread=spread),
                  configs, weights, np.stack([q_train.min(axis=0), q_train.max(axis=0)], axis=1),
                  tuple(problem.robot.joint_names),
                  tuple(check_plausibility(problem.space, res.free_names, res.p[free],
-                                          robust.parameter_std)))
+                                          robust.parameter_std)),
+                 lin, tuple(res.free_names))

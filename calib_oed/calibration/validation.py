@@ -39,6 +39,12 @@ import numpy as np
 import pinocchio as pin
 
 from calib_oed.calibration.crossval import noise_floor
+from calib_oed.calibration.pose_prediction import (
+    RowPrediction,
+    predict_rows,
+    read_record,
+    region_threshold_of,
+)
 from calib_oed.calibration.sensor_file import (
     read_sensor_compliance,
     read_sensor_gains,
@@ -97,6 +103,8 @@ class ValidationResult:
             :math:`\\sqrt{\\mathrm{mean}_k\\,\\mathrm{tr}\\,\\Sigma_k}` [mm] (module docstring).
         source: The measurement file.
         files: The calibrated URDF and sensor YAML used.
+        predicted: The predicted error per row (:mod:`calib_oed.calibration.pose_prediction`),
+            or None when ``identification.json`` does not record what it needs.
     """
 
     nominal: ErrorStatistics
@@ -104,6 +112,7 @@ class ValidationResult:
     noise_floor_mm: float
     source: str
     files: dict[str, str]
+    predicted: RowPrediction | None = None
 
     @property
     def n(self) -> int:
@@ -116,7 +125,10 @@ class ValidationResult:
     def to_dict(self) -> dict:
         return {"source": self.source, "files": dict(self.files), "n": self.n,
                 "noise_floor_mm": self.noise_floor_mm, "nominal": self.nominal.to_dict(),
-                "calibrated": self.calibrated.to_dict(), "rms_over_noise_floor": self.check()}
+                "calibrated": self.calibrated.to_dict(), "rms_over_noise_floor": self.check(),
+                "inside_95_percent_regions": None if self.predicted is None
+                else int(self.predicted.inside.sum()),
+                "predicted_rms_mm": None if self.predicted is None else self.predicted.total_rms_mm}
 
     def summary(self) -> str:
         lines = [f"validation on {self.n} measurements of {self.source} "
@@ -131,6 +143,8 @@ class ValidationResult:
                              f"max {d['rotation_max_mrad']:.4f} mrad")
         lines.append(f"  noise floor (a perfect model): RMS {self.noise_floor_mm:.4f} mm; calibrated "
                      f"RMS / noise floor = {self.check():.2f}")
+        if self.predicted is not None:
+            lines.append("  " + self.predicted.line())
         return "\n".join(lines)
 
 
@@ -167,8 +181,9 @@ def find_calibration_files(path: str | os.PathLike, robot_name: str) -> dict[str
 
 
 def _errors(space: ParameterSpace, mset: MeasurementSet, blocks, model: str, p=None,
-            offset=None) -> ErrorStatistics:
-    position = np.empty(mset.n)
+            offset=None) -> tuple[ErrorStatistics, np.ndarray]:
+    """The statistics and the position residual per row, (n, 3) [m]."""
+    residual = np.empty((mset.n, 3))
     rotation = None if mset.rotations is None else np.empty(mset.n)
     for j, block in zip(mset.reflectors, blocks, strict=True):
         rows = np.flatnonzero(mset.reflector == j)
@@ -176,11 +191,11 @@ def _errors(space: ParameterSpace, mset: MeasurementSet, blocks, model: str, p=N
         predicted = np.array(block.model.compute_values(state))
         if offset is not None:  # the fitted model error's mean, tracker frame
             predicted[:, :3] += offset(block.q)
-        position[rows] = np.linalg.norm(block.values[:, :3] - predicted[:, :3], axis=1) * MM_PER_M
+        residual[rows] = block.values[:, :3] - predicted[:, :3]
         if rotation is not None:
             rotation[rows] = [np.linalg.norm(pin.log3(pin.exp3(a).T @ pin.exp3(b))) * MRAD_PER_RAD
                               for a, b in zip(predicted[:, 3:], block.values[:, 3:], strict=True)]
-    return ErrorStatistics(model, position, rotation)
+    return ErrorStatistics(model, np.linalg.norm(residual, axis=1) * MM_PER_M, rotation), residual
 
 
 def _compensation(files: dict):
@@ -241,11 +256,17 @@ def validate_calibration(scene: Scene, calibration: str | os.PathLike, mset: Mea
         if gains is not None:
             p_calibrated[calibrated_space.gain_slice] = gains[1]
     floor = noise_floor(mset, blocks)
+    calibrated_errors, residual = _errors(calibrated_space, mset, blocks, "calibrated", p_calibrated,
+                                          _compensation(files) if compensated else None)
+    ident = read_identification(files)
+    record = read_record(ident)
     return ValidationResult(
-        nominal=_errors(nominal_space, mset, blocks, "nominal"),
-        calibrated=_errors(calibrated_space, mset, blocks, "calibrated", p_calibrated,
-                           _compensation(files) if compensated else None),
+        nominal=_errors(nominal_space, mset, blocks, "nominal")[0],
+        calibrated=calibrated_errors,
         noise_floor_mm=floor * MM_PER_M,
         source=mset.source,
         files={k: str(v) for k, v in files.items()},
+        predicted=None if record is None else predict_rows(
+            record, calibrated_space, p_calibrated, mset, blocks, residual, compensated,
+            region_threshold_of(ident, compensated)),
     )

@@ -13,7 +13,9 @@ r"""The verdict of a validation: the user's tolerance, the prediction, the poses
   reported, and a ratio above :data:`WORSE_THAN_PREDICTED` is called out with its
   likely causes. This is a statement about the calibration's self-knowledge, not
   a pass or fail.
-- **Per pose**: RMS and largest error of each validation pose, and the joints
+- **Per pose**: RMS and largest error of each validation pose, beside its predicted
+  RMS and the rows inside their 95 % prediction regions
+  (:mod:`calib_oed.calibration.pose_prediction`), and the joints
   of poses outside the training joint ranges (beyond :data:`RANGE_SLACK` of the
   range), where the calibration extrapolates.
 """
@@ -150,8 +152,12 @@ def judge(position_mm: np.ndarray, max_rms_mm: float | None = None, max_error_mm
 
 
 def pose_table(q: np.ndarray, position_mm: np.ndarray, lines: np.ndarray, joint_names,
-               ranges: dict | None) -> list[dict]:
-    """Per validation pose: rows, file lines, RMS and max [mm], joints outside the training ranges."""
+               ranges: dict | None, predicted_mm: np.ndarray | None = None,
+               inside: np.ndarray | None = None) -> list[dict]:
+    """Per validation pose: rows, file lines, RMS and max [mm], joints outside the training ranges;
+    with the predicted error per row (``predicted_mm``, :math:`\\sqrt{\\mathrm{tr}\\,V_\\ast}` [mm],
+    and ``inside`` its 95 % region, :mod:`calib_oed.calibration.pose_prediction`) the pose's
+    predicted RMS [mm] and how many of its rows lie in their regions."""
     pose = pose_index(q)
     out = []
     for p in range(int(pose.max()) + 1):
@@ -167,19 +173,27 @@ def pose_table(q: np.ndarray, position_mm: np.ndarray, lines: np.ndarray, joint_
                 outside.append({"joint": name, "value_deg": float(np.degrees(qp[j])),
                                 "range_deg": [float(np.degrees(lo)), float(np.degrees(hi))]})
         e = position_mm[rows]
-        out.append({"pose": p + 1, "lines": [int(x) for x in lines[rows]], "n": int(rows.size),
-                    "rms_mm": float(np.sqrt(np.mean(e**2))), "max_mm": float(e.max()),
-                    "outside_training_ranges": outside})
+        row = {"pose": p + 1, "lines": [int(x) for x in lines[rows]], "n": int(rows.size),
+               "rms_mm": float(np.sqrt(np.mean(e**2))), "max_mm": float(e.max()),
+               "outside_training_ranges": outside}
+        if predicted_mm is not None:
+            row["predicted_rms_mm"] = float(np.sqrt(np.mean(predicted_mm[rows] ** 2)))
+            row["inside_95"] = int(np.sum(inside[rows]))
+        out.append(row)
     return out
 
 
 def pose_lines(table: list[dict], top: int = 10) -> list[str]:
     """The worst ``top`` poses, and a warning for every pose outside the training ranges."""
     worst = sorted(table, key=lambda r: -r["max_mm"])[:top]
-    out = [f"per pose (worst {len(worst)} of {len(table)} by largest error, mm):"]
+    out = [f"per pose (worst {len(worst)} of {len(table)} by largest error, mm"
+           + ("; predicted: the RMS the identification expects there, and the rows inside their "
+              "95 % prediction regions):" if table and "predicted_rms_mm" in table[0] else "):")]
     out += [f"  pose {r['pose']} (line {r['lines'][0]}): n {r['n']}, RMS {r['rms_mm']:.4f}, "
-            f"max {r['max_mm']:.4f}" + (" (outside the training ranges)"
-                                        if r["outside_training_ranges"] else "") for r in worst]
+            f"max {r['max_mm']:.4f}"
+            + (f", predicted RMS {r['predicted_rms_mm']:.4f} ({r['inside_95']} of {r['n']} inside)"
+               if "predicted_rms_mm" in r else "")
+            + (" (outside the training ranges)" if r["outside_training_ranges"] else "") for r in worst]
     for r in table:
         for o in r["outside_training_ranges"]:
             out.append(f"warning: validation pose {r['pose']} (line {r['lines'][0]}) has "

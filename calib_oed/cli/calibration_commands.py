@@ -212,7 +212,8 @@ def cmd_identify(args) -> int:
     cv = None
     if args.cv:
         cv = cross_validate(s.problem.space, mset, s.problem.identifiability, args.cv,
-                            error_model=s.scene.error_model())
+                            error_model=s.scene.error_model(),
+                            model_error=robust.model_error.prior)
     trust = assess(s.problem, robust)
     data = result.to_dict()
     data["fit"] = fit_dict(report, robust, sanity)
@@ -279,8 +280,10 @@ def cmd_validate(args) -> int:
     ident = read_identification(result.files)
     verdict = judge(result.calibrated.position_mm, args.max_rms, args.max_error,
                     predicted_rms_mm(ident, args.compensate))
+    pred = result.predicted
     table = pose_table(mset.q, result.calibrated.position_mm, mset.lines, mset.joint_names,
-                       (ident or {}).get("training_joint_ranges"))
+                       (ident or {}).get("training_joint_ranges"),
+                       None if pred is None else pred.rms_mm, None if pred is None else pred.inside)
     if args.json:
         data = result.to_dict()
         data["compensated"] = bool(args.compensate)

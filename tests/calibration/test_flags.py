@@ -99,3 +99,21 @@ def test_the_gross_error_probability_quoted_is_that_of_chi2_per_dimension():
     for d in (3, 6):              # a position, a pose
         assert f"{chi2.sf(flags.GROSS_Z ** 2, d):.2g} for a {'position' if d == 3 else 'pose'}" \
             in " ".join(flags.__doc__.split()), d
+
+
+def test_a_gross_error_at_a_joint_end_is_no_model_error():
+    """A 39-sigma flag and a 5-sigma suspect at the same end of a1 (the realistic UR5, truth 5):
+    not a cluster of model error; the gross one is left out, the suspect kept."""
+    names = [f"a{i}" for i in range(1, 4)]
+    q = np.random.default_rng(1).uniform(-1, 1, (60, 3))
+    q[17, 0], q[18, 0] = -1.0, -0.98
+    flagged = np.zeros(60, bool)
+    flagged[[17, 18]] = True
+    t = np.full(60, 4.0)
+    t[17], t[18] = 38.7**2, 5.1**2
+    classes = classify_flags(flagged, np.arange(60), q, names, t)
+    assert np.flatnonzero(classes.gross).tolist() == [17] and not classes.model_error.any()
+    assert not any("end of a1" in f for f in classes.findings)
+    assert any("1 flagged measurement(s) within 10" in f for f in classes.findings)
+    # without the statistic both are model error, as before
+    assert classify_flags(flagged, np.arange(60), q, names).model_error[[17, 18]].all()

@@ -31,7 +31,10 @@ def _case(s, truth, n_train=60, n_new=200):
     return rob, test, q_new
 
 
-def _score(s, rob, test, q_new):
+CHI2_95 = float(chi2.ppf(0.95, 3))
+
+
+def _score(s, rob, test, q_new, threshold=CHI2_95):
     lin, prior, res = rob.linearisation, rob.model_error.prior, rob.result
     state = evaluate_setup(s.problem.space, res.p, q_new, regressor=True, jacobian=False)
     sq = tr = inside = n = 0.0
@@ -40,9 +43,9 @@ def _score(s, rob, test, q_new):
         jac = b.model.compute_param_jacobian(state)[:, :, res.free_indices]
         v = error_covariances(lin, prior, jac, q_new, b.model.noise_covariance(h))
         e = b.values - h
-        inside += np.sum(np.einsum("ni,nij,nj->n", e, np.linalg.inv(v), e) <= chi2.ppf(0.95, 3))
+        inside += np.sum(np.einsum("ni,nij,nj->n", e, np.linalg.inv(v), e) <= threshold)
         sq, tr, n = sq + np.sum(e**2), tr + np.trace(v, axis1=1, axis2=2).sum(), n + e.shape[0]
-    return np.sqrt(tr / sq), inside / n
+    return np.sqrt(tr / sq), inside / n, np.sqrt(sq / n) * 1e3
 
 
 def test_realistic_kr16_predicted_accuracy_and_flags():
@@ -53,9 +56,15 @@ def test_realistic_kr16_predicted_accuracy_and_flags():
     s = setup(load_scene("fms_kr16"))
     rob, test, q_new = _case(s, 0)
     assert rob.linear.sigma0 > 5 and not rob.dropped.any()
-    ratio, cover = _score(s, rob, test, q_new)
+    ratio, cover, achieved = _score(s, rob, test, q_new)
     assert 0.8 < ratio < 1.25 and 0.9 <= cover <= 0.98, (ratio, cover)
     trust = assess(s.problem, rob)
+    # the uncertainty of the fitted model error: a range that holds the achieved RMS, and
+    # regions wider than chi2_3(0.95) that hold more of the new points
+    lo, hi = trust.predicted.new_pose_rms_range_mm
+    assert lo < achieved < hi and 1.05 < hi / trust.predicted.new_pose_rms_mm < 1.5, (lo, achieved, hi)
+    c = trust.predicted.region_threshold
+    assert c > chi2.ppf(0.95, 3) and _score(s, rob, test, q_new, c)[1] >= cover
     assert trust.predicted.new_pose_rms_mm > 3 * trust.predicted.noise_only_new_pose_rms_mm
     assert np.allclose(compensate(trust.prior, trust.configs, trust.weights, q_new),
                        compensation(rob.linearisation, trust.prior, q_new), rtol=1e-8, atol=1e-12)
@@ -71,7 +80,7 @@ def test_realistic_targets_over_three_truths(scene):
     covers = []
     for truth in range(3):
         rob, test, q_new = _case(s, truth)
-        ratio, cover = _score(s, rob, test, q_new)
+        ratio, cover, _ = _score(s, rob, test, q_new)
         assert 0.8 < ratio < 1.25 and not rob.dropped.any(), (truth, ratio)
         covers.append(cover)
     assert 0.9 <= np.mean(covers) <= 0.98, covers
