@@ -203,6 +203,18 @@ def test_the_default_criterion_is_kpi_model_with_a_scene_prior(kr16, tmp_path):
     assert default_criterion(scene_with(tmp_path, "kpi:\n", "kpi:\n  aggregate: max\n")) == "kpi"
 
 
+@pytest.mark.parametrize(("keys", "expected"), [
+    ("  compliance: {payload: {mass: 0.3}}\n  joint_gains: {joints: all}\n", MODEL_ERROR),
+    ("  compliance: {payload: {mass: 0.3}}\n", "kpi"),
+    ("  joint_gains: {joints: all}\n", "kpi"),
+    ("  compliance: {enabled: false}\n  joint_gains: {joints: all}\n", "kpi"),
+])
+def test_the_default_criterion_is_kpi_model_with_compliance_and_gains(tmp_path, keys, expected):
+    """Identifying joint compliance and joint gains makes kpi_model the default (the case the
+    realistic simulator measured better, docs/oed.md); either alone keeps kpi."""
+    assert default_criterion(scene_with(tmp_path, "robot:\n", "robot:\n" + keys)) == expected
+
+
 def test_a_pose_measurement_has_no_model_error_value():
     """The record of a 6-D pose design gives NaN for the model-error criteria, and asking for one says why."""
     from calib_oed import PoseMeasurement
