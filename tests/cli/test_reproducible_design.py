@@ -38,10 +38,6 @@ def _assert_same_bytes(outs: list[Path]) -> None:
     assert "seconds" in yaml.safe_load((outs[0] / "timing.yaml").read_text())
 
 
-@pytest.mark.xfail(strict=False, reason="issue 31 open: the approximate design's deterministic QP is used only "
-                   "up to DETERMINISTIC_QP_MAX candidates (it was 20-40x slower than ProxQP beyond, "
-                   "examples/05_own_urdf.py 8.5 min instead of 21 s); larger supports take ProxQP, whose "
-                   "last bits vary between processes")
 def test_two_processes_same_seed_same_bytes(tmp_path):
     """The default pipeline's path (approximate design with local maxima, exchange, SQP), small."""
     outs = _designs_in_parallel(tmp_path, ["fms_kr16", "-n", "12", "--pool", "200", "--no-certificate",
