@@ -12,13 +12,13 @@ last bit for bit-identical inputs, depending on where its buffers are allocated
 (Eigen's vectorised reductions start at an aligned address); the SQP that
 starts from the approximate design amplifies that into another design. This
 solver does every step through numpy/LAPACK on arrays of its own, in a fixed
-order, with one BLAS thread, so the same input gives the same bits in any process.
+order, with one BLAS thread, so the same input gives the same bits in any process,
+and it is as fast as ProxQP on the approximate design's steps
+(``bench/bench_simplex_qp.py``, ``docs/benchmarks.md``).
 
-**Method**: the primal active-set method for convex QPs (Nocedal & Wright,
-*Numerical Optimization*, 2nd ed., Algorithm 16.3), in the form that solves for
-the working set's minimiser itself rather than for a step. The working set
-:math:`W` holds the bounds held fixed, at their values :math:`s_W = \ell_W` or
-:math:`u_W`; with :math:`F` the free indices each iteration solves
+**Method.** Both phases solve, for a working set :math:`W` of bounds held
+fixed at their values :math:`s_W = \ell_W` or :math:`u_W` (:math:`F` the free
+indices), the working set's minimiser
 
 .. math::
     \begin{pmatrix} H_{FF} & a_F \\ a_F^\top & 0 \end{pmatrix}
@@ -26,19 +26,31 @@ the working set's minimiser itself rather than for a step. The working set
     \begin{pmatrix} -g_F - H_{FW} s_W \\ b - a_W^\top s_W \end{pmatrix},
     \qquad x_W = s_W,
 
-by LAPACK (LU, partial pivoting). If :math:`x` is inside the box it is the new
-iterate and the bound multipliers :math:`\nu_i = (Hx + g)_i + \mu a_i`
-(:math:`\nu_i \ge 0` at a lower bound, :math:`\le 0` at an upper one) decide:
-the most violated bound is released (the first in index order on a tie), or
-:math:`x` is the optimum. Otherwise the iterate moves from :math:`s` towards
-:math:`x` to the first bound met (the first index on a tie), which joins
-:math:`W`. The answer is therefore the solution of one linear system fixed by
-the final working set and the input, whatever path led there: a warm start
-(``fixed``, e.g. the active set a faster solver identified) changes only the
-number of iterations, not the bits. A free component within a rounding error
-outside its bound (a weakly active bound) is set to it rather than starting a
-cycle. Finite for positive definite :math:`H` barring degenerate cycling,
-which an iteration cap turns into a failure (``None``).
+by LAPACK (LU, partial pivoting), with the bound multipliers
+:math:`\nu_i = (Hx + g)_i + \mu a_i` (:math:`\nu_i \ge 0` at a lower bound,
+:math:`\le 0` at an upper one). :math:`x` is the optimum when it is inside the
+box and every :math:`\nu_i` has its sign (to rounding).
+
+1. *Block principal pivoting* (Júdice & Pires, *Comput. Oper. Res.* 21, 1994;
+   Kim & Park, *SIAM J. Sci. Comput.* 33, 2011, for NNLS): every free index
+   outside its bound and every fixed one whose multiplier has the wrong sign
+   changes side at once; when that does not lower the number of such indices,
+   only the worst half of the last block changes (scored by violation relative
+   to the largest), down to one. Few solves where the active set changes a lot
+   (a Newton step that drops half the support).
+2. If that has not converged after :data:`_PRIMAL_DUAL_CAP` solves, the primal
+   active-set method (Nocedal & Wright, *Numerical Optimization*, 2nd ed.,
+   Algorithm 16.3) from ``start``: move towards :math:`x` to the first bound met
+   (first index on a tie), which joins :math:`W`; at :math:`x` release the most
+   wrong multiplier (first index on a tie). Finite barring degenerate cycling,
+   which its cap turns into a failure (``None``).
+
+**Same bits.** The answer is the solution of the one linear system fixed by
+the final working set and the input, whatever path led there; every choice
+(ties, block sizes) is made by index order, no time or thread count enters,
+and BLAS runs on one thread inside (a threaded LU or GEMV may sum in another
+order). A free component within a rounding error outside its bound (a weakly
+active bound) is set to it rather than exchanged.
 """
 
 from __future__ import annotations
@@ -55,8 +67,6 @@ _MULTIPLIER_TOL = 1e-12
 
 #: Iterations of block principal pivoting before the primal active-set method takes over.
 _PRIMAL_DUAL_CAP = 100
-#: Full exchanges allowed without fewer infeasibilities before single (Murty) exchanges.
-_BACKUP_EXCHANGES = 3
 
 _THREADS: list[ThreadpoolController] = []
 
