@@ -56,7 +56,7 @@ largest :math:`d_i > \bar d`; on it one QP
 :math:`\min_s \tfrac12 s^\top H s - d^\top s`, :math:`\mathbf 1^\top s = 0`,
 :math:`s \ge -w` (a deterministic active-set QP, :mod:`calib_oed.solver.simplex_qp`:
 ProxQP's last bits depend on where its buffers lie, which made designs differ
-between processes; the active-set QP is as fast here, ``docs/benchmarks.md``, issue 31)
+between processes; the solve takes 0.9-1.3x its CPU with ProxQP, ``docs/benchmarks.md``)
 with the exact Hessian
 :math:`H_{ij} = c\sum (F_i(-\Gamma)F_j^\top)\odot(F_i M^{-1}F_j^\top)`
 (:math:`c = 2` for A, 1 for D; ``docs/derivations.md`` §12), then an
