@@ -80,14 +80,18 @@ def cmd_design(args) -> int:
             comment=f"scene {result.scene}: {result.criterion}-optimal design of {result.n} poses"
             + (" (INTERRUPTED: the best feasible design when stopped)" if result.interrupted else ""),
             angle_unit=controller.angle, controller=controller)
+    winding = _home_winding(s.scene, result.q)
     if args.json:
         data = result.to_dict()
         data["files"] = {k: str(v) for k, v in paths.items()}
         data["joint_window"] = s.pairs.window  # the design's joint ranges (feasibility/window.py)
+        data["home_winding"] = winding
         print(json.dumps(data, indent=2))
         return code
     print(result.summary())
     print("  " + s.pairs.window)
+    if winding:
+        print(f"warning: {winding}", file=sys.stderr)
     if paths:
         print(f"wrote {paths['yaml']} and {paths['csv']}"
               + (f" and {paths['controller_csv']} (controller joint values)"
@@ -99,6 +103,19 @@ def cmd_design(args) -> int:
         print("interrupted: the best feasible design found so far"
               + (", written" if paths else "") + "; the certificate was skipped", file=sys.stderr)
     return code
+
+
+def _home_winding(scene, q) -> str:
+    """The program command's warning about poses home may not wind to, said by the design (issue 31)."""
+    from calib_oed.exceptions import CalibOedError
+    from calib_oed.program.build import home_winding_note
+    from calib_oed.program.settings import ProgramSettings, program_settings_from_scene
+
+    try:
+        settings = program_settings_from_scene(scene)
+    except CalibOedError:  # a bad program: block is the program command's to report
+        settings = ProgramSettings()
+    return home_winding_note(scene, q, settings)
 
 
 def cmd_evaluate(args) -> int:

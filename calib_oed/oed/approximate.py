@@ -56,7 +56,8 @@ largest :math:`d_i > \bar d`; on it one QP
 :math:`\min_s \tfrac12 s^\top H s - d^\top s`, :math:`\mathbf 1^\top s = 0`,
 :math:`s \ge -w` (a deterministic active-set QP, :mod:`calib_oed.solver.simplex_qp`:
 ProxQP's last bits depend on where its buffers lie, which made designs differ
-between processes) with the exact Hessian
+between processes; the solve takes 0.9-1.3x its CPU with ProxQP, ``docs/benchmarks.md``)
+with the exact Hessian
 :math:`H_{ij} = c\sum (F_i(-\Gamma)F_j^\top)\odot(F_i M^{-1}F_j^\top)`
 (:math:`c = 2` for A, 1 for D; ``docs/derivations.md`` §12), then an
 Armijo line search; a pairwise (vertex-exchange) step when the QP gives no
@@ -73,7 +74,6 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
-import proxsuite
 import scipy.linalg
 
 from calib_oed.exceptions import CertificateError, NotIdentifiableError
@@ -236,34 +236,17 @@ def _hessian(blocks_s: np.ndarray, gamma: np.ndarray, cov: np.ndarray, kind: str
     return 0.5 * (h + h.T)
 
 
-#: Supports up to this size take the deterministic active-set QP (the same bits in every
-#: process); larger ones ProxQP, which is 20-40x faster there (the active-set method's
-#: iterations grow with the support: 0.19 s per QP at 100-150 candidates in
-#: examples/05_own_urdf.py, where ProxQP takes milliseconds).
-DETERMINISTIC_QP_MAX = 48
-
-
 def _newton_direction(h: np.ndarray, grad: np.ndarray, w: np.ndarray) -> np.ndarray | None:
     r"""Step :math:`s` of :math:`\min \tfrac12 s^\top H s + g^\top s`, :math:`\mathbf 1^\top s = 0`,
-    :math:`-w \le s \le 1 - w`: by the deterministic active-set QP
-    (:func:`calib_oed.solver.simplex_qp.solve_simplex_qp`) up to :data:`DETERMINISTIC_QP_MAX`
-    candidates, else by ProxQP.
+    :math:`-w \le s \le 1 - w`, by the deterministic active-set QP
+    (:func:`calib_oed.solver.simplex_qp.solve_simplex_qp`), started at :math:`s = 0` (the
+    support free, every other candidate at its bound); ``None`` if it fails.
     """
     m = w.size
     # H is singular for rank-deficient W (kpi: rank 3) once the working set is large; a
     # Levenberg term keeps the KKT systems regular and the step a descent one
     reg = NEWTON_REGULARISATION * max(float(np.max(np.diag(h))), 1e-300)
-    if m <= DETERMINISTIC_QP_MAX:
-        step = solve_simplex_qp(h + reg * np.eye(m), grad, np.ones(m), -w, 1.0 - w, np.zeros(m))
-    else:
-        qp = proxsuite.proxqp.dense.QP(m, 1, 0, True)
-        st = qp.settings
-        st.eps_abs, st.eps_rel, st.verbose = 1e-10, 0.0, False
-        st.max_iter, st.max_iter_in = 500, 200  # bound the time of a degenerate QP
-        qp.init(h + reg * np.eye(m), grad, np.ones((1, m)), np.zeros(1), None, None, None, -w, 1.0 - w)
-        qp.solve()
-        step = np.array(qp.results.x, dtype=float)
-    # check the constraints ourselves (ProxQP does not flag failures)
+    step = solve_simplex_qp(h + reg * np.eye(m), grad, np.ones(m), -w, 1.0 - w, np.zeros(m))
     if step is None or not np.all(np.isfinite(step)) or abs(step.sum()) > 1e-6 or np.min(w + step) < -1e-6:
         return None
     return step

@@ -309,15 +309,48 @@ def nearest_turns(robot, q: np.ndarray, home: np.ndarray, margin: float = 0.0) -
     return out, changed
 
 
-def _wrap_hint(q: np.ndarray, home: np.ndarray, robot) -> str:
-    """A note when a joint of the pose is a full turn from a value nearer home (same geometry)."""
+def _turns_nearer_home(q: np.ndarray, home: np.ndarray, robot, margin: float = 0.0) -> list[str]:
+    """The pose's joints a whole turn from a value nearer home within the limits less ``margin``
+    (the same geometry), each as ``"name q deg (= x deg)"``."""
     turns = []
     for i, name in enumerate(robot.joint_names):
         for k in (-2, -1, 1, 2):
             x = q[i] + 2 * np.pi * k
-            if robot.lower[i] <= x <= robot.upper[i] and abs(x - home[i]) < abs(q[i] - home[i]):
+            if robot.lower[i] + margin <= x <= robot.upper[i] - margin and abs(x - home[i]) < abs(q[i] - home[i]):
                 turns.append(f"{name} {np.rad2deg(q[i]):.1f} deg (= {np.rad2deg(x):.1f})")
                 break
+    return turns
+
+
+def home_winding_note(scene, q: np.ndarray, settings: ProgramSettings | None = None) -> str:
+    """A warning naming the design's poses (1-based) the program may not reach from home, or ``""``.
+
+    The program command's own check (:func:`_wrap_hint`, when it cannot reach a pose): a
+    joint a whole turn from a value nearer home, within the limits less the joint margin,
+    so the move from home would wind it (through the cell). The design command says it
+    before the program fails; ``program --wrap`` measures such poses at those values.
+    """
+    settings = settings or ProgramSettings()
+    try:
+        home, _ = home_configuration(scene, settings)
+    except ProgramError:  # no home: the program command asks for one
+        return ""
+    margin = scene.feasibility.margins.joint
+    found = [(k + 1, t) for k, pose in enumerate(np.asarray(q, dtype=float))
+             if (t := _turns_nearer_home(pose, home, scene.robot, margin))]
+    if not found:
+        return ""
+    shown = "; ".join(f"pose {k}: {', '.join(t)}" for k, t in found[:5])
+    more = f" and {len(found) - 5} more" if len(found) > 5 else ""
+    return (f"{len(found)} of {len(q)} poses have a joint a whole turn from a value nearer home "
+            f"({shown}{more}): the program may not reach them from home (the move would wind the "
+            "joint, e.g. through the table); `calib-oed program --wrap` measures them at the "
+            "values nearer home (the same robot geometry)")
+
+
+def _wrap_hint(q: np.ndarray, home: np.ndarray, robot) -> str:
+    """A note when a joint of the pose is a full turn from a value nearer home (same geometry)."""
+    turns = _turns_nearer_home(q, home, robot)
     if not turns:
         return ""
     return ("; the same robot geometry is nearer home with " + ", ".join(turns)

