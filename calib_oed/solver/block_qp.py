@@ -62,6 +62,7 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.linalg
+import scipy.optimize
 import scipy.sparse as sp
 
 from calib_oed.solver.qp import QPStep, QPSubproblem
@@ -79,6 +80,10 @@ _ACCEPT = 10.0
 
 _POLISH_FROM = 1e5
 """The active set is polished (:meth:`_Rows.polish`) once violation and complementarity are below this many ``eps_abs``."""
+
+_RANK_TOL = 1e-7
+"""Singular values of a pose's active rows below this times the largest: dependent rows (a kinked
+row and its piece differ by ~1e-9 where both are active; taken as two, their multipliers reach 1e5)."""
 
 _GAP_FLOOR = 1e-4
 """Complementarity below this many ``eps_abs``: the iteration stops with the best point seen."""
@@ -125,25 +130,30 @@ class _Rows:
         self.Cx = C[self.cross]
 
     def polish(self, H: StructuredHessian, g: np.ndarray, h: np.ndarray, act: np.ndarray,
-               vtol: float) -> tuple[np.ndarray, np.ndarray] | None:
+               vtol: float, z0: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
         r"""The exact KKT point of the QP with the rows ``act`` held as equalities, :math:`(d, z)`,
         or None (a row spanning poses is active, or the active set keeps growing).
 
         Per pose the active rows :math:`A_j` (box sides included) have the SVD
-        :math:`A_j = P_j \Sigma_j Q_j^\top`; with :math:`Q_j = [R_j\ N_j]` split at its rank,
+        :math:`A_j = P_j \Sigma_j Q_j^\top`; with :math:`Q_j = [R_j\ N_j]` split at its rank
+        (singular values above ``_RANK_TOL`` times the largest),
         :math:`d = d_p + N y`, :math:`d_{p,j} = R_j \Sigma_j^{-1} P_j^\top h_j` (least norm on
         :math:`A_j d_j = h_j`) and
 
         .. math::
             (N^\top H N)\, y = -N^\top (H d_p + g), \qquad
-            z_j = P_j \Sigma_j^{-1} R_j^\top (H d + g)_j,
+            z_j = z_{0,j} + P_j \Sigma_j^{-1} R_j^\top \bigl((H d + g)_j - A_j^\top z_{0,j}\bigr),
 
         :math:`N^\top H N = \mathrm{blkdiag}(N_j^\top D_j N_j) + (N^\top U)(N^\top U)^\top`,
         factored per pose with Woodbury as the Newton steps are: :math:`O(n)`, and no
         interior-point weights, so the residuals are those of one well-scaled solve (the
         interior point's stop near 4e-8 on directions of curvature 1e-8 does not occur).
-        Rows the point violates by more than ``vtol`` join ``act`` (up to three rounds), as in
-        :func:`calib_oed.solver.polish.polish`; None if the rows held are inconsistent (more of
+        Where a pose's active rows are dependent (a kinked row and its piece, a row along a
+        box side) the multipliers are not unique: :math:`z_j` is the one nearest to the
+        interior point's :math:`z_0`, and where that one is negative, nonnegative least squares
+        (Lawson & Hanson) picks nonnegative ones if there are. Rows the point violates by more
+        than ``vtol`` join ``act`` (up to three rounds), as in
+        :func:`calib_oed.solver.polish.polish`. None if the rows held are inconsistent (more of
         them on a pose than it has variables, least squares not meeting them); negative
         multipliers are set to 0 and show in the dual residual the caller checks.
         """
@@ -163,7 +173,7 @@ class _Rows:
             sv_full = np.zeros((b, s))
             sv_full[:, :sv.shape[1]] = sv[:, :s]
             top = np.max(sv_full, axis=1, keepdims=True, initial=0.0)
-            keep = sv_full > 1e-10 * top  # the range of A_j^T, per pose
+            keep = sv_full > _RANK_TOL * top  # the range of A_j^T, per pose
             inv = np.where(keep, 1.0 / np.where(keep, sv_full, 1.0), 0.0)
             q = qt.transpose(0, 2, 1)  # (b, s, s), columns Q_j
             m = min(width, s)
@@ -176,7 +186,14 @@ class _Rows:
             y = _Newton(np.linalg.cholesky(red).transpose(0, 2, 1), V).solve(rhs)
             d = (d_p + np.einsum("jai,ji->ja", N, y.reshape(b, s))).reshape(-1)
             grad = (H @ d + g).reshape(b, s)
-            zj = np.einsum("jwi,ji,jai,ja->jw", p[:, :, :m], inv[:, :m], q[:, :, :m], grad)
+            z0j = np.zeros((b, width))
+            z0j[self.block[on], self.slot[on]] = z0[self.local[on]]
+            zj = z0j + np.einsum("jwi,ji,jai,ja->jw", p[:, :, :m], inv[:, :m], q[:, :, :m],
+                                 grad - np.einsum("jwa,jw->ja", A, z0j))
+            # dependent rows: the nearest multipliers may be negative where nonnegative ones exist
+            dependent = keep.sum(axis=1) < np.count_nonzero(np.any(A != 0, axis=2), axis=1)
+            for j in np.flatnonzero(dependent & np.any(zj < 0, axis=1)):
+                zj[j] = scipy.optimize.nnls(A[j].T, grad[j])[0]
             z = np.zeros(h.size)
             z[self.local[on]] = np.maximum(zj[self.block[on], self.slot[on]], 0.0)
             slack = self.C @ d - h
@@ -288,11 +305,11 @@ class BlockQPWorkspace:
         box = (hi - lo)[np.isfinite(hi - lo)]
         vtol = min(self.eps_abs, 1e-3 * float(np.min(box))) if box.size else self.eps_abs
 
-        def finish(d, t, z, status, it):
+        def finish(d, t, z, status, it, polish=True):
             """``(step, err)``: the better of the point and its polish on the active set
             :math:`z > t` (:meth:`_Rows.polish`), err its largest residual in tolerances."""
             out = None
-            for dz in (rows.polish(H, g, h, z > t, vtol), (d, np.where(z > t, z, 0.0))):
+            for dz in (rows.polish(H, g, h, z > t, vtol, z) if polish else None, (d, np.where(z > t, z, 0.0))):
                 if dz is None:
                     continue
                 nu = np.zeros(n)
@@ -306,20 +323,25 @@ class BlockQPWorkspace:
                     break
             return out
 
-        status, it, best, best_err = "max_iter", 0, None, np.inf
+        status, it, best, best_err, last_act, polished = "max_iter", 0, None, np.inf, None, False
         for it in range(1, self.max_iter + 1):
             rd = H @ d + g - GT @ z
             rp = G @ d - t - h
             viol = float(np.max(np.abs(rp), initial=0.0))
             gap = float(np.max(t * z, initial=0.0))
             if viol <= _POLISH_FROM * self.eps_abs and gap <= _POLISH_FROM * self.eps_abs:
-                step, err = finish(d, t, z, status, it)
+                # polished once it stops changing (a polish costs about a Newton step), and at the end
+                act = z > t
+                polished = np.array_equal(act, last_act) or gap <= _GAP_FLOOR * self.eps_abs
+                step, err = finish(d, t, z, status, it, polished)
+                last_act = act
                 if err <= 1.0:
                     return step._replace(status="solved")
                 if err < best_err:
                     best, best_err = step, err
                 if gap <= _GAP_FLOOR * self.eps_abs:  # complementarity beyond need: rounding only from here
                     break
+            polished = False
             if float(np.max(z, initial=0.0)) > _DIVERGED and viol > self.eps_abs:
                 status = "primal_infeasible"
                 break
@@ -346,6 +368,10 @@ class BlockQPWorkspace:
             if max(ap, ad) < _STALLED:  # rounding now dominates the Newton steps
                 break
             d, t, z = d + ap * dd, np.maximum(t + ap * dt, _TINY), np.maximum(z + ad * dz, _TINY)
-        if best is not None:  # the SQP holds the step to 10 eps_abs (scaled): its own test decides
-            return best._replace(status="solved" if best_err <= _ACCEPT else status, iterations=it)
-        return finish(d, t, z, status, it)[0]
+        if not polished:  # the last point, polished, unless that was just done
+            step, err = finish(d, t, z, status, it)
+            if err < best_err:
+                best, best_err = step, err
+        # the SQP holds the step to 10 eps_abs (scaled): its own test decides
+        solved = best_err <= _ACCEPT and status != "primal_infeasible"
+        return best._replace(status="solved" if solved else status, iterations=it)
