@@ -310,8 +310,13 @@ class BlockQPWorkspace:
         def finish(d, t, z, status, it, polish=True):
             """``(step, err)``: the better of the point and its polish on the active set
             :math:`z > t` (:meth:`_Rows.polish`), err its largest residual in tolerances."""
-            out = None
-            for dz in (rows.polish(H, g, h, z > t, vtol, z) if polish else None, (d, np.where(z > t, z, 0.0))):
+            out, polished_dz = None, None
+            if polish:
+                try:
+                    polished_dz = rows.polish(H, g, h, z > t, vtol, z)
+                except (np.linalg.LinAlgError, RuntimeError, ValueError):  # a failed polish leaves the point
+                    polished_dz = None
+            for dz in (polished_dz, (d, np.where(z > t, z, 0.0))):
                 if dz is None:
                     continue
                 nu = np.zeros(n)

@@ -175,3 +175,10 @@ def test_auto_takes_the_block_qp_from_its_size_on(min_size, backend):
     step = solver.solve(sub)
     assert solver.last_backend == backend
     _same_solution(step, DenseQPWorkspace(n, 1e-11, 1000).solve(dense_sub))
+
+
+def test_default_keeps_sixty_poses_on_the_lifted_qp():
+    """The shipped scenes' default n = 60 (6 or 7 joints: 360 or 420 variables) stays on the lifted QP, so
+    their designs are those of before; 100 poses of 6 joints and more go to the block QP."""
+    settings = SQPSettings()
+    assert 60 * 7 < settings.block_qp_min_size <= 100 * 6
