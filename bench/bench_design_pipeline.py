@@ -23,8 +23,10 @@ default before the convex hulls).
 ``--structured-qp lifted,block`` runs every case once per QP path of the
 structured Hessian (``SQPSettings.structured_qp``; the child sets it on
 ``DESIGN_SQP`` before the CLI runs) and adds the QP's process CPU time, the
-number of QPs, and the CPU time per SQP iteration, for side-by-side figures
-on a shared machine.
+number of QPs, the QP's and the whole SQP's CPU time per SQP iteration and the
+start's share of the design's CPU (column generation and exchange), for
+side-by-side figures on a shared machine (``auto``, the default, for the
+default call with these timings).
 
 Scenes: the five shipped ones and ``bench/scenes/ur10_cell.yaml``,
 ``bench/scenes/panda_cell.yaml`` (example-robot-data arms in cells of our
@@ -77,12 +79,26 @@ def timed(self, *a, **k):
         used[0] += time.process_time() - t
         used[1] += 1
 sub.QPSolver.solve = timed
+phases = {}
+def phase(name, fn):
+    def wrapper(*a, **k):
+        t = time.process_time()
+        try:
+            return fn(*a, **k)
+        finally:
+            phases[name] = phases.get(name, 0.0) + time.process_time() - t
+    return wrapper
+for name, attr in (("pool", "candidate_pool"), ("columns", "approximate_pool"),
+                   ("exchange", "approximate_start"), ("sqp", "optimise_starts")):
+    setattr(design, attr, phase(name, getattr(design, attr)))
 from calib_oed.cli import main
 code = main(sys.argv[1:])
-json.dump({"qp_cpu_s": used[0], "qps": used[1]}, open(out, "w"))
+json.dump({"qp_cpu_s": used[0], "qps": used[1], "phases": phases}, open(out, "w"))
 sys.exit(code)
 """
-"""Child that sets ``DESIGN_SQP.structured_qp`` and times the QPs in process CPU (``--structured-qp``)."""
+"""Child that sets ``DESIGN_SQP.structured_qp`` and times the QPs and the phases in process CPU
+(``--structured-qp``): the pool, the column generation, the exchange, the SQP (as
+``bench/bench_design_phases.py`` names them)."""
 
 
 def run_case(scene: str, n: int, certificate: bool, extra=(), structured_qp: str = "") -> dict:
@@ -116,7 +132,7 @@ def run_case(scene: str, n: int, certificate: bool, extra=(), structured_qp: str
         "efficiency": record.get("efficiency"), "design_cpu_s": solver.get("cpu_seconds"),
         "design_wall_s": record["seconds"], "certificate_cpu_s": cert.get("cpu_seconds"),
         "process_cpu_s": cpu, "peak_rss_mb": peak, "structured_qp": structured_qp or None,
-        "qp_cpu_s": qp.get("qp_cpu_s"), "qps": qp.get("qps"),
+        "qp_cpu_s": qp.get("qp_cpu_s"), "qps": qp.get("qps"), "phases_cpu_s": qp.get("phases"),
     }
 
 
@@ -160,7 +176,7 @@ def main(argv=None) -> int:
     print()
     print(f"{'scene':18s} {'n':>4s} {'K':>3s} {'distinct':>8s} {'status':>15s} {'it':>4s} {'value':>11s} "
           f"{'eff':>6s} {'design cpu':>10s} {'approx cpu':>10s} {'cert cpu':>8s} {'proc cpu':>8s} "
-          f"{'peak MB':>8s} {'qp':>6s} {'qp cpu/it':>9s}")
+          f"{'peak MB':>8s} {'qp':>6s} {'qp cpu/it':>9s} {'sqp cpu/it':>10s} {'start %':>7s}")
     for r in rows:
         if "error" in r:
             print(f"{r['scene']:18s} {r['n']:4d} ERROR {r['error']}")
@@ -169,10 +185,16 @@ def main(argv=None) -> int:
         cert = "-" if r["certificate_cpu_s"] is None else f"{r['certificate_cpu_s']:.1f}"
         approx = "-" if r["approximate_cpu_s"] is None else f"{r['approximate_cpu_s']:.1f}"
         per_it = "-" if r.get("qp_cpu_s") is None else f"{r['qp_cpu_s'] / max(r['iterations'], 1):.3f}"
+        ph = r.get("phases_cpu_s") or {}
+        sqp_it = "-" if "sqp" not in ph else f"{ph['sqp'] / max(r['iterations'], 1):.3f}"
+        # the start: the column generation and the exchange, as a share of the design's CPU
+        start = "-" if "exchange" not in ph else \
+            f"{100 * (ph.get('columns', 0.0) + ph['exchange']) / max(r['design_cpu_s'], 1e-9):.0f}"
         print(f"{r['scene']:18s} {r['n']:4d} {r.get('replicates', 1):3d} {r['distinct_poses']:8d} "
               f"{r['status']:>15s} {r['iterations']:4d} {r['value']:11.4e} {eff:>6s} "
               f"{r['design_cpu_s']:10.1f} {approx:>10s} {cert:>8s} {r['process_cpu_s']:8.1f} "
-              f"{r['peak_rss_mb']:8.0f} {r.get('structured_qp') or '-':>6s} {per_it:>9s}")
+              f"{r['peak_rss_mb']:8.0f} {r.get('structured_qp') or '-':>6s} {per_it:>9s} {sqp_it:>10s} "
+              f"{start:>7s}")
     return 0
 
 

@@ -31,13 +31,23 @@ Woodbury identity with the :math:`(r + k_\times)^2` capacitance
 the exact matrix keep the solve accurate when :math:`W` spans many decades
 near the end.
 
-The iteration stops when the dual residual is below ``eps_abs`` (times
-:math:`\max(1, \|g\|_\infty)`), the rows' violation below ``eps_abs`` and
-every complementarity product below ``eps_abs / 100``; then the multipliers of
-rows and box sides with :math:`\lambda_i \le t_i` (inactive) are set to 0, so
-:math:`\lambda > 0` marks the active set as ProxQP's answer does
+Once the rows' violation and every complementarity product are below
+``eps_abs``, the active set :math:`\{i : \lambda_i > t_i\}` is polished
+(:meth:`_Rows.polish`): the exact KKT point with those rows and box sides held
+as equalities, by per-pose null spaces and the same Woodbury solve, :math:`O(n)`,
+no interior-point weights in it (as OSQP's solution polishing, Stellato et al.,
+*Math. Prog. Comp.* 12, 2020, §5, and :mod:`calib_oed.solver.polish` for the
+dense QPs). Of the point and its polish the one with the smaller residuals is
+kept; the iteration returns it as ``"solved"`` when its primal and
+complementarity residuals are below ``eps_abs`` and its dual residual below
+``eps_abs`` times :math:`\max(1, \|g\|_\infty)`, and otherwise goes on until
+complementarity falls below ``1e-4 eps_abs`` (then the best point seen counts
+as solved up to ten times those tolerances, the SQP's own acceptance). Without
+the polish the dual residual stopped near 4e-8 on the design QPs, whose
+Hessian has directions of curvature 1e-8 (its eigenvalue floor), above the
+SQP's 1e-8. :math:`\lambda > 0` marks the active set as ProxQP's answer does
 (:mod:`calib_oed.solver.subproblem` keeps rows with :math:`\lambda > 0`).
-The step's residuals are then computed as for every backend
+The step's residuals are computed as for every backend
 (:meth:`~calib_oed.solver.qp.QPSubproblem.residuals`) and the SQP's own test
 (:meth:`~calib_oed.solver.qp.QPStep.is_solved`) decides, as for ProxQP.
 Status ``"solved"``, or ``"max_iter"`` after ``max_iter`` steps (an
@@ -52,6 +62,7 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.linalg
+import scipy.optimize
 import scipy.sparse as sp
 
 from calib_oed.solver.qp import QPStep, QPSubproblem
@@ -66,6 +77,13 @@ _REFINE = 2
 _ACCEPT = 10.0
 """A stalled iteration's best point counts as solved with residuals up to this many ``eps_abs``
 (scaled as in the stopping test): the SQP's own acceptance test allows ten (:mod:`calib_oed.solver.subproblem`)."""
+
+_POLISH_FROM = 1e5
+"""The active set is polished (:meth:`_Rows.polish`) once violation and complementarity are below this many ``eps_abs``."""
+
+_RANK_TOL = 1e-7
+"""Singular values of a pose's active rows below this times the largest: dependent rows (a kinked
+row and its piece differ by ~1e-9 where both are active; taken as two, their multipliers reach 1e5)."""
 
 _GAP_FLOOR = 1e-4
 """Complementarity below this many ``eps_abs``: the iteration stops with the best point seen."""
@@ -111,46 +129,83 @@ class _Rows:
         self.width = int(counts.max(initial=0))
         self.Cx = C[self.cross]
 
-    def _active_transposed(self, z: np.ndarray, b: int) -> tuple[np.ndarray, np.ndarray]:
-        """Per pose the active one-pose rows as columns (b, s, width) and the mask of active local rows."""
-        s = self.a.shape[1]
-        on = z[self.local] > 0
-        At = np.zeros((b, s, max(self.width, 1)))
-        At[self.block[on], :, self.slot[on]] = self.a[on]
-        return At, on
+    def polish(self, H: StructuredHessian, g: np.ndarray, h: np.ndarray, act: np.ndarray,
+               vtol: float, z0: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        r"""The exact KKT point of the QP with the rows ``act`` held as equalities, :math:`(d, z)`,
+        or None (a row spanning poses is active, or the active set keeps growing).
 
-    def null_space_step(self, H: StructuredHessian, rd: np.ndarray, z: np.ndarray) -> np.ndarray:
-        r"""The Newton step on the QP with the active rows held, :math:`A_j \Delta d_j = 0`:
-        :math:`\Delta d = N y`, :math:`(N^\top H N) y = -N^\top r_d`, with :math:`N = \mathrm{blkdiag}(N_j)`
-        the per-pose null spaces of the active rows (SVD), so :math:`N^\top H N` is again blocks plus
-        :math:`(N^\top U)(N^\top U)^\top`, solved as the Newton steps are. No huge weights: this
-        gives the accuracy the interior steps lose to rounding near the end."""
+        Per pose the active rows :math:`A_j` (box sides included) have the SVD
+        :math:`A_j = P_j \Sigma_j Q_j^\top`; with :math:`Q_j = [R_j\ N_j]` split at its rank
+        (singular values above ``_RANK_TOL`` times the largest),
+        :math:`d = d_p + N y`, :math:`d_{p,j} = R_j \Sigma_j^{-1} P_j^\top h_j` (least norm on
+        :math:`A_j d_j = h_j`) and
+
+        .. math::
+            (N^\top H N)\, y = -N^\top (H d_p + g), \qquad
+            z_j = z_{0,j} + P_j \Sigma_j^{-1} R_j^\top \bigl((H d + g)_j - A_j^\top z_{0,j}\bigr),
+
+        :math:`N^\top H N = \mathrm{blkdiag}(N_j^\top D_j N_j) + (N^\top U)(N^\top U)^\top`,
+        factored per pose with Woodbury as the Newton steps are: :math:`O(n)`, and no
+        interior-point weights, so the residuals are those of one well-scaled solve (the
+        interior point's stop near 4e-8 on directions of curvature 1e-8 does not occur).
+        Where a pose's active rows are dependent (a kinked row and its piece, a row along a
+        box side) the multipliers are not unique: :math:`z_j` is the one nearest to the
+        interior point's :math:`z_0`, and where that one is negative, nonnegative least squares
+        (Lawson & Hanson) picks nonnegative ones if there are. Rows the point violates by more
+        than ``vtol`` join ``act`` (up to three rounds), as in
+        :func:`calib_oed.solver.polish.polish`. None if the rows held are inconsistent (more of
+        them on a pose than it has variables, least squares not meeting them); negative
+        multipliers are set to 0 and show in the dual residual the caller checks.
+        """
+        if np.any(act[self.cross]):
+            return None
         b, s, _ = H.blocks.shape
-        At, _ = self._active_transposed(z, b)
-        _, sv, vt = np.linalg.svd(At.transpose(0, 2, 1))
-        sv_full = np.zeros((b, s))
-        sv_full[:, :sv.shape[1]] = sv[:, :s]
-        rank = (sv_full > 1e-10 * np.max(sv_full, axis=1, keepdims=True, initial=0.0)).sum(axis=1)
-        keep = np.arange(s)[None, :] >= rank[:, None]
-        N = vt.transpose(0, 2, 1) * keep[:, None, :]
-        red = np.einsum("jai,jab,jbk->jik", N, H.blocks, N)
-        red[:, np.arange(s), np.arange(s)] += ~keep
         U = H.low_rank if H.low_rank is not None else np.zeros((b * s, 0))
-        V = np.einsum("jai,jar->jir", N, U.reshape(b, s, -1)).reshape(b * s, -1)
-        y = _Newton(np.linalg.cholesky(red).transpose(0, 2, 1), V).solve(
-            -np.einsum("jai,ja->ji", N, rd.reshape(b, s)).reshape(-1))
-        return np.einsum("jai,ji->ja", N, y.reshape(b, s)).reshape(-1)
-
-    def dual_correction(self, rd: np.ndarray, z: np.ndarray) -> np.ndarray:
-        r""":math:`z + \delta z`, :math:`\delta z` on the active (:math:`z > 0`) one-pose rows minimising
-        :math:`\|A_j^\top \delta z_j - r_{d,j}\|` pose by pose (:math:`r_d` the dual residual), kept :math:`\ge 0`."""
-        s = self.a.shape[1]
-        b = rd.size // s
-        At, on = self._active_transposed(z, b)
-        dz = np.einsum("jwa,ja->jw", np.linalg.pinv(At), rd.reshape(b, s))
-        out = z.copy()
-        out[self.local[on]] = np.maximum(z[self.local[on]] + dz[self.block[on], self.slot[on]], 0.0)
-        return out
+        act = act.copy()
+        for _ in range(3):
+            on = act[self.local]
+            width = max(self.width, 1)
+            A = np.zeros((b, width, s))
+            A[self.block[on], self.slot[on]] = self.a[on]
+            hj = np.zeros((b, width))
+            hj[self.block[on], self.slot[on]] = h[self.local[on]]
+            p, sv, qt = np.linalg.svd(A)
+            sv_full = np.zeros((b, s))
+            sv_full[:, :sv.shape[1]] = sv[:, :s]
+            top = np.max(sv_full, axis=1, keepdims=True, initial=0.0)
+            keep = sv_full > _RANK_TOL * top  # the range of A_j^T, per pose
+            inv = np.where(keep, 1.0 / np.where(keep, sv_full, 1.0), 0.0)
+            q = qt.transpose(0, 2, 1)  # (b, s, s), columns Q_j
+            m = min(width, s)
+            d_p = np.einsum("jai,ji,jwi,jw->ja", q[:, :, :m], inv[:, :m], p[:, :, :m], hj)
+            N = q * ~keep[:, None, :]
+            red = np.einsum("jai,jab,jbk->jik", N, H.blocks, N)
+            red[:, np.arange(s), np.arange(s)] += keep
+            V = np.einsum("jai,jar->jir", N, U.reshape(b, s, -1)).reshape(b * s, -1)
+            rhs = -np.einsum("jai,ja->ji", N, (H @ d_p.reshape(-1) + g).reshape(b, s)).reshape(-1)
+            y = _Newton(np.linalg.cholesky(red).transpose(0, 2, 1), V).solve(rhs)
+            d = (d_p + np.einsum("jai,ji->ja", N, y.reshape(b, s))).reshape(-1)
+            grad = (H @ d + g).reshape(b, s)
+            z0j = np.zeros((b, width))
+            z0j[self.block[on], self.slot[on]] = z0[self.local[on]]
+            zj = z0j + np.einsum("jwi,ji,jai,ja->jw", p[:, :, :m], inv[:, :m], q[:, :, :m],
+                                 grad - np.einsum("jwa,jw->ja", A, z0j))
+            # dependent rows: the nearest multipliers may be negative where nonnegative ones exist
+            dependent = keep.sum(axis=1) < np.count_nonzero(np.any(A != 0, axis=2), axis=1)
+            for j in np.flatnonzero(dependent & np.any(zj < 0, axis=1)):
+                zj[j] = scipy.optimize.nnls(A[j].T, grad[j])[0]
+            z = np.zeros(h.size)
+            z[self.local[on]] = np.maximum(zj[self.block[on], self.slot[on]], 0.0)
+            slack = self.C @ d - h
+            # inconsistent rows held: no KKT point here (a row and its piece may differ by ~1e-9 in
+            # their constants: least squares meets both to half that, which the acceptance allows)
+            if np.any(np.abs(slack[act]) > _ACCEPT * vtol):
+                return None
+            new = (slack < -vtol) & ~act
+            if not new.any():
+                return d, z
+            act |= new
+        return None
 
     def stack(self, chol_t: np.ndarray, w: np.ndarray) -> np.ndarray:
         r"""Per pose :math:`S_j = [L_j^\top;\ W_j^{1/2} A_j]` (b, s + width, s): :math:`S_j^\top S_j = D_j + A_j^\top W_j A_j`."""
@@ -249,22 +304,51 @@ class BlockQPWorkspace:
         t = np.maximum(G @ d - h, 1.0)
         z = np.ones(m)
         tol_d = self.eps_abs * max(1.0, float(np.max(np.abs(g), initial=0.0)))
-        status, it, best, best_err = "max_iter", 0, None, np.inf
+        box = (hi - lo)[np.isfinite(hi - lo)]
+        vtol = min(self.eps_abs, 1e-3 * float(np.min(box))) if box.size else self.eps_abs
+
+        def finish(d, t, z, status, it, polish=True):
+            """``(step, err)``: the better of the point and its polish on the active set
+            :math:`z > t` (:meth:`_Rows.polish`), err its largest residual in tolerances."""
+            out, polished_dz = None, None
+            if polish:
+                try:
+                    polished_dz = rows.polish(H, g, h, z > t, vtol, z)
+                except (np.linalg.LinAlgError, RuntimeError, ValueError):  # a failed polish leaves the point
+                    polished_dz = None
+            for dz in (polished_dz, (d, np.where(z > t, z, 0.0))):
+                if dz is None:
+                    continue
+                nu = np.zeros(n)
+                nu[i_lo] += dz[1][k:k + i_lo.size]
+                nu[i_hi] -= dz[1][k + i_lo.size:]
+                primal, dual, comp = sub.residuals(dz[0], dz[1][:k], nu)
+                err = max(primal / self.eps_abs, dual / tol_d, comp / self.eps_abs)
+                if out is None or err < out[1]:
+                    out = QPStep(dz[0], dz[1][:k], nu, status, it, primal, dual, comp), err
+                if err <= 1.0:
+                    break
+            return out
+
+        status, it, best, best_err, last_act, polished = "max_iter", 0, None, np.inf, None, False
         for it in range(1, self.max_iter + 1):
             rd = H @ d + g - GT @ z
             rp = G @ d - t - h
             viol = float(np.max(np.abs(rp), initial=0.0))
             gap = float(np.max(t * z, initial=0.0))
-            if viol <= self.eps_abs and gap <= self.eps_abs:
-                step = self._step(sub, d, t, z, k, i_lo, i_hi, status, it, rows, H, g)
-                err = max(step.primal_residual / self.eps_abs, step.dual_residual / tol_d,
-                          step.complementarity / self.eps_abs)
+            if viol <= _POLISH_FROM * self.eps_abs and gap <= _POLISH_FROM * self.eps_abs:
+                # polished once it stops changing (a polish costs about a Newton step), and at the end
+                act = z > t
+                polished = np.array_equal(act, last_act) or gap <= _GAP_FLOOR * self.eps_abs
+                step, err = finish(d, t, z, status, it, polished)
+                last_act = act
                 if err <= 1.0:
                     return step._replace(status="solved")
                 if err < best_err:
                     best, best_err = step, err
                 if gap <= _GAP_FLOOR * self.eps_abs:  # complementarity beyond need: rounding only from here
                     break
+            polished = False
             if float(np.max(z, initial=0.0)) > _DIVERGED and viol > self.eps_abs:
                 status = "primal_infeasible"
                 break
@@ -291,28 +375,10 @@ class BlockQPWorkspace:
             if max(ap, ad) < _STALLED:  # rounding now dominates the Newton steps
                 break
             d, t, z = d + ap * dd, np.maximum(t + ap * dt, _TINY), np.maximum(z + ad * dz, _TINY)
-        if best is not None:  # the SQP holds the step to 10 eps_abs (scaled): its own test decides
-            return best._replace(status="solved" if best_err <= _ACCEPT else status, iterations=it)
-        return self._step(sub, d, t, z, k, i_lo, i_hi, status, it, rows, H, g)
-
-    @staticmethod
-    def _step(sub, d, t, z, k, i_lo, i_hi, status, it, rows=None, H=None, g=None) -> QPStep:
-        r"""The step with the multipliers of inactive rows and box sides (:math:`z \le t`) set to 0;
-        polished on that active set (:meth:`_Rows.null_space_step`, :meth:`_Rows.dual_correction`)
-        where that lowers the largest residual."""
-        z = np.where(z > t, z, 0.0)
-
-        def record(d, z):
-            nu = np.zeros(d.size)
-            nu[i_lo] += z[k:k + i_lo.size]
-            nu[i_hi] -= z[k + i_lo.size:]
-            primal, dual, comp = sub.residuals(d, z[:k], nu)
-            return QPStep(d, z[:k], nu, status, it, primal, dual, comp)
-
-        step = record(d, z)
-        if rows is not None and not np.any(z[rows.cross] > 0):
-            d2 = d + rows.null_space_step(H, H @ d + g - rows.CT @ z, z)
-            polished = record(d2, rows.dual_correction(H @ d2 + g - rows.CT @ z, z))
-            if max(polished[5:8]) < max(step[5:8]):
-                return polished
-        return step
+        if not polished:  # the last point, polished, unless that was just done
+            step, err = finish(d, t, z, status, it)
+            if err < best_err:
+                best, best_err = step, err
+        # the SQP holds the step to 10 eps_abs (scaled): its own test decides
+        solved = best_err <= _ACCEPT and status != "primal_infeasible"
+        return best._replace(status="solved" if solved else status, iterations=it)

@@ -173,8 +173,9 @@ class IterationRecord:
             its QP failed): the BFGS one was.
         hessian_modified: Eigenvalues of the exact Hessian changed to make it
             positive definite (:mod:`calib_oed.solver.hessian`).
-        qp_backend: ``"dense"``, ``"sparse"`` or ``"lifted"`` (sparse, the
-            coupling :math:`U U^\top` kept factored); ``""`` when no QP was solved.
+        qp_backend: ``"dense"``, ``"sparse"``, ``"lifted"`` (sparse, the
+            coupling :math:`U U^\top` kept factored) or ``"block"`` (the interior point of
+            :mod:`calib_oed.solver.block_qp`); ``""`` when no QP was solved.
         n_rows_dropped: Near-active rows left out by ``SQPSettings.max_qp_rows``
             (the farthest from activity).
         n_pieces: Extra QP rows: the smooth pieces of kinked rows at :math:`x_k`

@@ -5,8 +5,9 @@ and never lets it raise:
 
 * a :class:`~calib_oed.solver.result.StructuredHessian` goes to the lifted
   sparse QP (:mod:`calib_oed.solver.lifted`), or with ``structured_qp="block"``
-  to the interior point method of :mod:`calib_oed.solver.block_qp` (no warm
-  start, so no cold retry; no dense polish: its steps come accurate);
+  (``"auto"``, the default: from ``block_qp_min_size`` variables on) to the
+  interior point method of :mod:`calib_oed.solver.block_qp` (no warm start, so
+  no cold retry; no dense polish: it polishes its own active set in O(n));
 * a dense Hessian goes to the dense backend (``qp_backend="dense"``) only
   while :math:`n + K \le` ``max_dense_qp_size`` (:math:`K` its row capacity,
   at most that bound minus :math:`n`); otherwise to the sparse backend;
@@ -94,6 +95,8 @@ class QPSolver:
         s, n = self.s, self.n
         if isinstance(sub.H, StructuredHessian):
             name = s.structured_qp
+            if name == "auto":
+                name = "block" if n >= s.block_qp_min_size else "lifted"
         else:
             name = "dense" if self.dense_ok(sub.lower.size) else "sparse"
         if name not in self._ws:
@@ -262,7 +265,7 @@ class _SubproblemMixin:
         step = self.qp.solve(sub, lam0, nu0)
         self._info.backend = self.qp.last_backend
         if (self.s.qp_polish and step.status not in CRASHED and step.primal_residual <= 1e3 * tol
-                and not (self.qp.last_backend == "block" and step.is_solved(tol, tol))
+                and self.qp.last_backend != "block"  # it polishes its own active set, O(n)
                 and self.pt.x.size <= self.s.max_dense_qp_size):
             step = polish(sub, step, tol) or step
         return step
