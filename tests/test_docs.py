@@ -233,7 +233,7 @@ def test_study_summary_table_quotes_the_study_tables(study):
         quoted, mean = study.arms_sqrt[other]
         assert row[3] == f"{quoted} (mean {mean} %)", claim
         # the 90 arms' extremes in √V are Table 7's per-arm extremes in V, mapped (a monotone map)
-        for value, extreme in zip(map(float, re.findall(r"\d+\.\d", quoted)), (low, high)):
+        for value, extreme in zip(map(float, re.findall(r"\d+\.\d", quoted)), (low, high), strict=False):
             bounds = [100 * (1 - math.sqrt(1 - (extreme + d) / 100)) for d in (-0.05, 0.05)]
             assert bounds[0] - 0.05 <= value <= bounds[1] + 0.05, (
                 f"docs/study.md: {quoted} in √V does not follow from Table 7's {low}–{high} %")

@@ -52,7 +52,7 @@ def blocks_with_output(text: str) -> list[tuple[list[str], str | None]]:
     shows), if one follows before the next ```sh block."""
     pieces = re.split(r"```sh\n(.*?)```", text, flags=re.S)
     out = []
-    for block, after in zip(pieces[1::2], pieces[2::2]):
+    for block, after in zip(pieces[1::2], pieces[2::2], strict=False):
         shown = re.match(r"(?:(?!```sh).)*?```text\n(.*?)```", after, flags=re.S)
         out.append((shell_commands(f"```sh\n{block}```"), shown.group(1) if shown else None))
     return out

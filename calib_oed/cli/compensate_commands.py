@@ -52,11 +52,11 @@ def _frame(text: str | None, option: str):
 def cmd_compensate(args) -> int:
     from calib_oed.calibration.compensation import SINGULAR_THRESHOLD
     from calib_oed.calibration.compensation_files import load_calibration
+    from calib_oed.calibration.problem import CalibrationProblem
     from calib_oed.io.atomic import atomic_write_files
     from calib_oed.program.compensate import compensate_program
     from calib_oed.program.parse.files import program_files, read_program
     from calib_oed.scene.reader import load_scene
-    from calib_oed.calibration.problem import CalibrationProblem
 
     scene = load_scene(args.scene)
     files = program_files(args.program)

@@ -10,7 +10,11 @@ import pytest
 
 from calib_oed import load_robot
 from calib_oed.exceptions import ParameterTableError
-from calib_oed.io.parameter_table import parse_parameter_table, read_parameter_table, write_parameter_table
+from calib_oed.io.parameter_table import (
+    parse_parameter_table,
+    read_parameter_table,
+    write_parameter_table,
+)
 from calib_oed.model.dh import CONVENTIONS, compute_table
 from calib_oed.model.dh_urdf import table_urdf_text
 from calib_oed.model.parameters import ParameterSpace

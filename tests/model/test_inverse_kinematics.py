@@ -7,7 +7,12 @@ import pinocchio as pin
 import pytest
 
 from calib_oed import load_robot
-from calib_oed.model.inverse_kinematics import IkSettings, TcpKinematics, characteristic_length, solve_ik
+from calib_oed.model.inverse_kinematics import (
+    IkSettings,
+    TcpKinematics,
+    characteristic_length,
+    solve_ik,
+)
 from tests.conftest import central_difference, relative_error
 
 TOOL = pin.SE3(pin.rpy.rpyToMatrix(0.1, -0.2, 0.3), np.array([0.02, -0.01, 0.15]))

@@ -124,7 +124,7 @@ def _frame(text, start, file, what) -> pin.SE3:
     """tooldata's tframe or wobjdata's uframe * oframe."""
     groups = _groups(text, start, file)
     poses = []
-    for g0, g1 in groups:
+    for g0, _g1 in groups:
         inner = _groups(text, g0, file)
         if len(inner) == 2:
             nums = numbers_in(text, *inner[0]) + numbers_in(text, *inner[1])
