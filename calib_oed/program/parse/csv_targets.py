@@ -10,26 +10,14 @@ ry_deg, rz_deg`` (fixed XYZ angles, :math:`R = R_z(rz)R_y(ry)R_x(rx)`). A ``name
 
 from __future__ import annotations
 
-import numpy as np
-import pinocchio as pin
-
 from calib_oed.exceptions import ProgramError
-from calib_oed.program.parse.poses import from_euler_mm_deg, to_euler_mm_deg
+from calib_oed.program.parse.poses import from_euler_mm_deg, in_order, to_euler_mm_deg
 from calib_oed.program.parse.targets import Language, Number, ParsedProgram, Target
 
 POSE_COLUMNS = ("x_mm", "y_mm", "z_mm", "rx_deg", "ry_deg", "rz_deg")
 
 
-def _pose_from(v: np.ndarray) -> pin.SE3:
-    return from_euler_mm_deg(*v)
-
-
-def _pose_to(m: pin.SE3, old: np.ndarray) -> np.ndarray:
-    xyz, rpy = to_euler_mm_deg(m, near=old[3:])
-    return np.r_[xyz, rpy]
-
-
-LANGUAGE = Language("csv", "rad", _pose_from, _pose_to, lambda text: f"# {text}", (10, 4, 6))
+LANGUAGE = Language("csv", "rad", *in_order(from_euler_mm_deg, to_euler_mm_deg), lambda text: f"# {text}", (10, 4, 6))
 
 
 def _cells(line: str, offset: int) -> list[Number]:

@@ -28,11 +28,8 @@ from __future__ import annotations
 import re
 import textwrap
 
-import numpy as np
-import pinocchio as pin
-
 from calib_oed.exceptions import ProgramError
-from calib_oed.program.parse.poses import from_euler_mm_deg, to_euler_mm_deg
+from calib_oed.program.parse.poses import from_euler_mm_deg, in_order, to_euler_mm_deg
 from calib_oed.program.parse.targets import (
     NUMBER,
     Language,
@@ -54,15 +51,6 @@ _MOTION = re.compile(r"^[ \t]*\d+:[ \t]*([JLCA])[ \t]+([^;]*);", re.MULTILINE)
 _POINT = re.compile(r"\b(PR|P)\[(R\[[^\]]*\]|[^\]\[]*)\]")
 _OFFSET = re.compile(r"\b(Tool_Offset|VOFFSET|Offset)\b", re.IGNORECASE)
 COMMENT_WIDTH = 32
-
-
-def _pose_from(v: np.ndarray) -> pin.SE3:
-    return from_euler_mm_deg(*v)
-
-
-def _pose_to(m: pin.SE3, old: np.ndarray) -> np.ndarray:
-    xyz, wpr = to_euler_mm_deg(m, near=old[3:])
-    return np.r_[xyz, wpr]
 
 
 def _comment(text: str) -> str:
@@ -89,7 +77,7 @@ def _insert(text: str, comments: list[tuple[int, str]]) -> str:
                   text, count=1)
 
 
-LANGUAGE = Language("tp", "deg", _pose_from, _pose_to, _comment, (4, 3, 4), _insert)
+LANGUAGE = Language("tp", "deg", *in_order(from_euler_mm_deg, to_euler_mm_deg), _comment, (4, 3, 4), _insert)
 
 
 def parse(texts: dict[str, str]) -> ParsedProgram:

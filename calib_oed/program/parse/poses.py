@@ -21,6 +21,8 @@ KUKA's :math:`R_z(A)R_y(B)R_x(C)` and FANUC's :math:`R_z(R)R_y(P)R_x(W)` are the
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 import pinocchio as pin
 
@@ -72,3 +74,19 @@ def to_rotvec_m(m: pin.SE3, near=None) -> tuple[np.ndarray, np.ndarray]:
             if np.linalg.norm(alt - near) < np.linalg.norm(r - near):
                 r = alt
     return m.translation.copy(), r
+
+
+def in_order(from_pose: Callable[..., pin.SE3], to_pose: Callable[..., tuple[np.ndarray, np.ndarray]]):
+    """``(pose_from, pose_to)`` of a language whose pose numbers are ``from_pose``'s arguments in order.
+
+    ``pose_from(v)`` is ``from_pose(*v)``; ``pose_to(m, old)`` is ``to_pose``'s position, then its
+    rotation numbers, the representation nearest the old ones ``old[3:]``.
+    """
+    def pose_from(v: np.ndarray) -> pin.SE3:
+        return from_pose(*v)
+
+    def pose_to(m: pin.SE3, old: np.ndarray) -> np.ndarray:
+        xyz, rotation = to_pose(m, near=old[3:])
+        return np.r_[xyz, rotation]
+
+    return pose_from, pose_to

@@ -26,11 +26,10 @@ from __future__ import annotations
 
 import re
 
-import numpy as np
 import pinocchio as pin
 
 from calib_oed.exceptions import ProgramError
-from calib_oed.program.parse.poses import from_quaternion_mm, to_quaternion_mm
+from calib_oed.program.parse.poses import from_quaternion_mm, in_order, to_quaternion_mm
 from calib_oed.program.parse.targets import (
     Language,
     ParsedProgram,
@@ -50,16 +49,7 @@ _OTHER = re.compile(r"^[^!\n]*?\b(Trigg[LJ]\w*|ArcL\w*|CapL|SpotM?[LJ]|DispL|Pai
 _NAME = re.compile(r"(\w+)[ \t]*(?:[,;\\]|$)")
 
 
-def _pose_from(v: np.ndarray) -> pin.SE3:
-    return from_quaternion_mm(*v)
-
-
-def _pose_to(m: pin.SE3, old: np.ndarray) -> np.ndarray:
-    xyz, q = to_quaternion_mm(m, near=old[3:])
-    return np.r_[xyz, q]
-
-
-LANGUAGE = Language("rapid", "deg", _pose_from, _pose_to, lambda text: f"! {text}", (4, 3, 9))
+LANGUAGE = Language("rapid", "deg", *in_order(from_quaternion_mm, to_quaternion_mm), lambda text: f"! {text}", (4, 3, 9))
 
 
 def _bracket_end(text: str, start: int, file: str) -> int:

@@ -16,11 +16,8 @@ from __future__ import annotations
 
 import re
 
-import numpy as np
-import pinocchio as pin
-
 from calib_oed.exceptions import ProgramError
-from calib_oed.program.parse.poses import from_rotvec_m, to_rotvec_m
+from calib_oed.program.parse.poses import from_rotvec_m, in_order, to_rotvec_m
 from calib_oed.program.parse.targets import (
     Language,
     ParsedProgram,
@@ -38,16 +35,7 @@ _TCP = re.compile(r"\bset_tcp[ \t]*\([ \t]*p\[")
 _LITERAL = re.compile(r"(p?)\[")
 
 
-def _pose_from(v: np.ndarray) -> pin.SE3:
-    return from_rotvec_m(*v)
-
-
-def _pose_to(m: pin.SE3, old: np.ndarray) -> np.ndarray:
-    xyz, r = to_rotvec_m(m, near=old[3:])
-    return np.r_[xyz, r]
-
-
-LANGUAGE = Language("urscript", "rad", _pose_from, _pose_to, lambda text: f"# {text}", (6, 6, 6))
+LANGUAGE = Language("urscript", "rad", *in_order(from_rotvec_m, to_rotvec_m), lambda text: f"# {text}", (6, 6, 6))
 
 
 def _literal(text: str, bracket: int, file: str, name: str, pose: bool) -> Target:
@@ -83,7 +71,7 @@ def parse(texts: dict[str, str]) -> ParsedProgram:
             times.setdefault(m.group(1), []).append(line_of(text, m.start()) + 1)
         for m in _TCP.finditer(text):
             t = _literal(text, m.end() - 1, file, "set_tcp", True)
-            tool = _pose_from(t.values)
+            tool = LANGUAGE.pose_from(t.values)
         for m in _MOVE.finditer(text):
             line, args = line_of(text, m.start()) + 1, _arguments(text, m.end()) or [m.end()]
             points = [(args[0], f"line {line}", "target")] if m.group(1) != "movec" else \

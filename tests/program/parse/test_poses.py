@@ -44,3 +44,12 @@ def test_euler_round_trip_and_nearest_angles(near):
     assert np.allclose(poses.from_euler_mm_deg(*xyz, *rpy).homogeneous, m.homogeneous)
     if near is not None:
         assert np.all(np.abs(rpy - near) <= 180.0)
+
+
+def test_in_order_reads_the_numbers_as_arguments_and_writes_the_rotation_nearest_the_old():
+    pose_from, pose_to = poses.in_order(poses.from_quaternion_mm, poses.to_quaternion_mm)
+    old = np.array([1.0, 2.0, 3.0, -np.sqrt(0.5), 0.0, 0.0, -np.sqrt(0.5)])    # 90 deg about z, w < 0
+    m = pose_from(old)
+    assert m.isApprox(poses.from_quaternion_mm(*old))
+    new = pose_to(pin.SE3(m.rotation, m.translation + [0.001, 0, 0]), old)
+    assert new.shape == (7,) and np.allclose(new, old + [1, 0, 0, 0, 0, 0, 0])   # same sign as before
