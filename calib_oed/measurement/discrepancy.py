@@ -32,7 +32,9 @@ configurations but shared by every reflector measured at one (the motor-side
 transmission errors of a joint repeat every few degrees, far below any length scale),
 :math:`k_w(q_1, q_2) = \sigma_w^2\,[q_1 = q_2]`. It is not differentiable in
 :math:`q` and not part of :meth:`DiscrepancyPrior.kernel` (the smooth part a design
-differentiates): a design counts it as extra noise of each distinct arm position.
+differentiates). The design criteria of :mod:`calib_oed.oed.model_error` use the
+smooth part only: the white part would add extra noise to each distinct arm position
+and a constant to the predicted TCP variance, which they do not count yet.
 :meth:`DiscrepancyPrior.covariance_kernel` is the sum, which the statistics use.
 
 Both are radial; with :math:`g(r) = k'(r)/r` and :math:`h(r) = g'(r)/r`
