@@ -83,3 +83,24 @@ def test_leave_one_out_is_the_prediction_from_the_others(fms):
         d = lin.residual[rows] - pred
         assert d @ np.linalg.solve(var, d) == pytest.approx(t[i], rel=1e-6)
     assert np.all(dim == 3)
+
+
+def test_leave_one_out_statistic_is_chi2_under_the_model(fms):
+    """20 truths of a GP model error (the model's own assumptions), 60 poses each: the
+    leave-one-out statistics t_i the flags judge by are chi2_d, as the module says: mean t/d
+    within 10 % of 1 (measured 1.003; a variance off by 1.5x gives 1.5) and the counts beyond the
+    99 % and 99.9 % quantiles near 1 % and 0.1 % of 1200 (measured 15 and 2; the bounds allow for
+    the correlation of measurements within one truth)."""
+    from scipy.stats import chi2
+
+    ts, ds = [], []
+    for seed in range(20):
+        _, _, lin = _data(fms, 100 + seed)
+        t, d = leave_one_out(lin, TRUE)
+        ts.append(t)
+        ds.append(d)
+    t, d = np.concatenate(ts), np.concatenate(ds)
+    assert t.size == 1200
+    assert abs(np.mean(t / d) - 1) < 0.1, np.mean(t / d)
+    assert 3 <= np.sum(t > chi2.ppf(0.99, d)) <= 30
+    assert np.sum(t > chi2.ppf(0.999, d)) <= 8
