@@ -24,7 +24,7 @@ demo: $(STAMP)
 # one pytest worker per core (pytest-xdist), each single-threaded BLAS so the workers do not
 # oversubscribe the cores; `pytest` alone runs the suite serially
 test: $(STAMP)
-	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 $(PY) -m pytest -q -n auto --dist worksteal
+	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 $(PY) -m pytest -q -n auto --maxprocesses 4 --dist worksteal
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check calib_oed tests bench examples
