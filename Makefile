@@ -21,7 +21,7 @@ DEMO_OUT ?= demo_out
 demo: $(STAMP)
 	$(VENV)/bin/calib-oed demo -o $(DEMO_OUT)
 
-# one pytest worker per core (pytest-xdist), each single-threaded BLAS so the workers do not
+# one pytest worker per core, at most 4 (pytest-xdist), each single-threaded BLAS so the workers do not
 # oversubscribe the cores; `pytest` alone runs the suite serially
 test: $(STAMP)
 	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 $(PY) -m pytest -q -n auto --maxprocesses 4 --dist worksteal
