@@ -265,7 +265,7 @@ def certify(
     n, p = q.shape[0], objective.n_free
     cand = np.vstack([q, candidates])
     blocks = objective.compute_blocks(cand)
-    with threadpool_limits(limits=1, user_api="blas"):
+    with threadpool_limits(limits=1):
         if approximate is None:
             approx = solve_approximate(blocks, crit, start=np.arange(n), tol=tol,
                                        max_iterations=max_iterations)

@@ -303,7 +303,7 @@ def design(
                   else has_exact_hessian(criterion)))
     check_memory(n, s.problem.robot.nq, int(len(s.feasibility.labels)), dense=not exact)
     t0, cpu0 = time.perf_counter(), time.process_time()
-    with threadpool_limits(limits=1, user_api="blas"):
+    with threadpool_limits(limits=1):
         objective = DesignObjective(s.problem, criterion)
         start_objective = DesignObjective(s.problem, "kpi") if objective.needs_design else objective  # kpi's start
         needs_pool = (isinstance(start, str) and start == "exchange") or certificate
@@ -429,7 +429,7 @@ def exchange_baseline(
     t0 = time.perf_counter()
     cands = candidate_pool(s, pool, seed)
     objective = DesignObjective(s.problem, criterion)
-    with threadpool_limits(limits=1, user_api="blas"):
+    with threadpool_limits(limits=1):
         q, result = exchange_start(objective, cands, n, seed, replicates)
     record = result.to_dict()
     record["pool"] = cands.to_dict()

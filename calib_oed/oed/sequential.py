@@ -193,7 +193,7 @@ class SequentialDesigner:
         seed = self.seed + self.n_proposals
         self.n_proposals += 1
         pool = self.candidates(current_pose, seed)
-        with threadpool_limits(limits=1, user_api="blas"):
+        with threadpool_limits(limits=1):
             start = exchange_design(objective.compute_blocks(pool), k, objective.criterion,
                                     rng=seed, prior=objective.prior)
             q0 = pool[np.asarray(start.indices)]

@@ -84,7 +84,7 @@ def run_case(case: StudyCase) -> CaseResult:
     """
     t0 = time.perf_counter()
     plan = case.plan
-    with threadpool_limits(limits=1, user_api="blas"):
+    with threadpool_limits(limits=1):
         s = setup(case.spec.load_scene())
         fm = s.feasibility
         names = tuple(s.problem.robot.joint_names)

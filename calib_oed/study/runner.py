@@ -66,7 +66,7 @@ __all__ = ["read_study", "run_study"]
 def _execute(case: StudyCase) -> CaseResult | CaseFailure:
     """Worker entry: :func:`~calib_oed.study.case.run_case` (looked up at call time), failures as records."""
     try:
-        with threadpool_limits(limits=1, user_api="blas"):
+        with threadpool_limits(limits=1):
             return run_case(case)
     except Exception as exc:  # a failed case must not stop the others; it is reported
         return CaseFailure(case.case_id, f"{type(exc).__name__}: {exc}", traceback.format_exc())
