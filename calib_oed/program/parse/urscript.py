@@ -9,7 +9,8 @@ then rewritten where it is assigned. A point that is none of these (an expressio
 argument, a variable assigned more than once: its value at the move is not known) is left as
 written and named in the notes (``file:line``, why). ``set_tcp(p[...])`` declares the TCP :math:`T_{F,E}`;
 poses are in the robot base (feature frames built with ``pose_trans`` are not followed:
-such moves are named). Comments are ``#`` lines after the target's line.
+such moves are named). Comments are ``#`` lines after the target's line. Text in ``#`` comments
+and in string literals is not code: a move written there is neither read nor rewritten.
 """
 
 from __future__ import annotations
@@ -38,6 +39,29 @@ _LITERAL = re.compile(r"(p?)\[")
 LANGUAGE = Language("urscript", "rad", *in_order(from_rotvec_m, to_rotvec_m), lambda text: f"# {text}", (6, 6, 6))
 
 
+def _code_only(text: str) -> str:
+    """``text`` with every comment and string literal blanked (same length, newlines kept).
+
+    URScript comments run from ``#`` to the end of the line; strings are ``"..."`` or
+    ``'...'`` on one line. Offsets into the result are offsets into ``text``.
+    """
+    out, quote, comment = list(text), None, False
+    for k, c in enumerate(text):
+        if c == "\n":
+            quote, comment = None, False
+        elif comment:
+            out[k] = " "
+        elif quote is not None:
+            out[k] = " " if c != quote else c
+            if c == quote:
+                quote = None
+        elif c == "#":
+            comment, out[k] = True, " "
+        elif c in "\"'":
+            quote = c
+    return "".join(out)
+
+
 def _literal(text: str, bracket: int, file: str, name: str, pose: bool) -> Target:
     end = text.find("]", bracket)
     nums = numbers_in(text, bracket + 1, end)
@@ -64,7 +88,8 @@ def _arguments(text: str, start: int) -> list[int]:
 def parse(texts: dict[str, str]) -> ParsedProgram:
     """Targets of URScript files ``{name.script: text}``."""
     targets, tool, notes = {}, None, []
-    for file, text in texts.items():
+    for file, source in texts.items():
+        text = _code_only(source)
         assigned = {m.group(1): (m.end() - 1, bool(m.group(2))) for m in _ASSIGN.finditer(text)}
         times: dict[str, list[int]] = {}
         for m in _ANY_ASSIGN.finditer(text):
@@ -88,11 +113,11 @@ def parse(texts: dict[str, str]) -> ParsedProgram:
                     bracket, pose = assigned[var.group(1)]
                     targets[(file, bracket)] = _literal(text, bracket, file, var.group(1), pose)
                 elif var and len(times.get(var.group(1), ())) > 1:
-                    notes.append(skipped_move(file, text, at, f"the {what} {var.group(1)} is assigned "
+                    notes.append(skipped_move(file, source, at, f"the {what} {var.group(1)} is assigned "
                                               f"{len(times[var.group(1)])} times (lines "
                                               f"{', '.join(map(str, times[var.group(1)]))}): its value here is not known"))
                 else:
-                    notes.append(skipped_move(file, text, at, f"the {what} is not a literal or a variable "
+                    notes.append(skipped_move(file, source, at, f"the {what} is not a literal or a variable "
                                               "assigned one"))
     ordered = tuple(targets[k] for k in sorted(targets))
     return ParsedProgram(LANGUAGE, dict(texts), ordered, tool, None, tuple(notes))

@@ -50,3 +50,20 @@ def test_points_whose_value_is_not_known_are_named():
         ["f.script:5: movel(p1)", "the target p1 is assigned 2 times (lines 2, 4): its value here is not known"],
         ["f.script:6: servoc(get_actual_tcp_pose())", "the target is not a literal or a variable assigned one"],
         ["f.script:7: movej(q_start)", "the target is not a literal or a variable assigned one"]]
+
+
+def test_moves_in_comments_and_strings_are_not_code():
+    """A move in a ``#`` comment or a string is neither read nor rewritten; a ``#`` inside a
+    string does not start a comment, and a variable assigned only in a comment is not assigned."""
+    text = ("def f():\n"
+            "  # movej([9, 9, 9, 9, 9, 9])  old target, kept for reference\n"
+            "  # home = [5, 5, 5, 5, 5, 5]\n"
+            "  home = [0.1, -1.5, 1.4, -1.5, -1.6, 0.0]\n"
+            "  popup(\"next: movel(p[1, 1, 1, 0, 0, 0]) # not code\")\n"
+            "  movej(home)  # movej([8, 8, 8, 8, 8, 8])\n"
+            "  textmsg('#', \"x\")\n"
+            "  movel(p[0.4, 0.1, 0.3, 0, 3.14, 0])\nend\n")
+    parsed = urscript.parse({"f.script": text})
+    assert [(t.name, t.line, t.values[0]) for t in parsed.targets] == [("home", 3, 0.1),
+                                                                       ("line 8", 7, 0.4)]
+    assert parsed.notes == ()
