@@ -201,6 +201,23 @@ def _start_designs(s: Setup, objective: DesignObjective, n: int, start, seed: in
     return [(None, given_start(s, start, n))]
 
 
+def _check_enough_values(objective: DesignObjective, n: int) -> None:
+    """Refuse ``n`` poses that give fewer measured values than free parameters, before the pool.
+
+    Each pose gives the same number of values (the rows of one pose's block at the joint
+    limits' midpoint); with no prior, ``n`` times that must reach the free parameters.
+    """
+    if objective.prior is not None:
+        return
+    robot = objective.problem.robot
+    per_pose = objective.compute_blocks(0.5 * (robot.lower + robot.upper)[None, :]).shape[1]
+    if n * per_pose < objective.n_free:
+        raise NotIdentifiableError(
+            objective.free_names,
+            f"a design of {n} poses gives {n * per_pose} measured values for {objective.n_free} "
+            f"free parameters; measure at least {-(-objective.n_free // per_pose)} configurations")
+
+
 def design(
     scene: Scene | Setup,
     n: int = 60,
@@ -248,9 +265,9 @@ def design(
             candidates themselves (N, nq) [rad]; infeasible ones are dropped
             and counted in the record.
         seed: Seed of the pool and the starts; start ``k`` of a multi-start
-            uses ``seed + k``. Same seed, same design up to rounding: ProxQP's
-            results are not bitwise reproducible, so designs of one seed agree to
-            about 1e-6 rad, not bit for bit.
+            uses ``seed + k``. Same seed, same design bit for bit on one machine,
+            under any load (every thread pool is held to one thread; checked by
+            ``tests/cli/test_reproducible_design.py`` with two processes).
         n_starts: Run from this many seeded starts and keep the best.
         refine: Refine the start with the SQP (default); ``False`` keeps the
             start (pure selection from the pool with ``start="exchange"``).
@@ -306,6 +323,7 @@ def design(
     with threadpool_limits(limits=1):
         objective = DesignObjective(s.problem, criterion)
         start_objective = DesignObjective(s.problem, "kpi") if objective.needs_design else objective  # kpi's start
+        _check_enough_values(objective, n)
         needs_pool = (isinstance(start, str) and start == "exchange") or certificate
         cands = candidate_pool(s, pool, seed, collisions) if needs_pool else None
         use = refine and isinstance(start, str) and start == "exchange" and aggregate == "mean"

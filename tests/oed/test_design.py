@@ -116,3 +116,19 @@ def test_multi_start_keeps_the_best(kr16):
                   certificate=False)
     assert np.isclose(best.value, min(r.value for r in runs), rtol=1e-6)
     assert best.seed == min(runs, key=lambda r: r.value).seed
+
+
+def test_too_few_poses_are_refused_before_the_pool_is_drawn(kr16, monkeypatch):
+    """n poses that give fewer measured values than free parameters are refused at once, naming the
+    smallest n that can work; no candidate pool (seconds of sampling) is drawn first."""
+    import calib_oed.oed.design as design_module
+    from calib_oed.exceptions import NotIdentifiableError
+
+    def no_pool(*args, **kwargs):
+        raise AssertionError("the candidate pool was drawn before the count was checked")
+
+    monkeypatch.setattr(design_module, "candidate_pool", no_pool)
+    n_free = DesignObjective(kr16.problem, "kpi").n_free
+    with pytest.raises(NotIdentifiableError, match=rf"5 poses gives 15 measured values for {n_free} free "
+                                                   rf"parameters; measure at least {-(-n_free // 3)} "):
+        design(kr16, 5)
