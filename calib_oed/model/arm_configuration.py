@@ -91,6 +91,18 @@ def kuka_status(cfg: ArmConfiguration) -> tuple[np.ndarray, np.ndarray]:
     return s, (cfg.joints < 0).astype(int) @ (1 << np.arange(cfg.joints.shape[1]))
 
 
+def abb_confdata(cfg: ArmConfiguration) -> np.ndarray:
+    r"""ABB's ``confdata`` ``[cf1, cf4, cf6, cfx]`` of every row (n, 4): the quadrants
+    :math:`\lfloor\theta/90°\rfloor` of axes 1, 4 and 6, and ``cfx`` = 4 (wrist centre behind
+    axis 1) + 2 (wrist centre behind the lower arm) + 1 (axis 5 negative), the robot-series table
+    of ABB's *Technical reference manual - RAPID Instructions, Functions and Data types*,
+    ``confdata`` (0: in front of both, axis 5 positive). Behind axis 1 is the shoulder margin
+    at or below 0, as KUKA's overhead area; behind the lower arm the elbow margin below 0."""
+    _, quadrants = cfg.turns("abb")
+    cfx = 4 * (cfg.shoulder <= 0) + 2 * (cfg.elbow < 0) + (cfg.wrist < 0)
+    return np.column_stack([quadrants, cfx]).astype(int)
+
+
 def _nearest_points(points: np.ndarray, directions: np.ndarray) -> np.ndarray:
     """Per row, the point nearest (least squares) to the lines ``points + t directions``,
     (n, k, 3) each -> (n, 3)."""
@@ -206,5 +218,5 @@ def configuration_changes(before: ArmConfiguration, after: ArmConfiguration, ven
     return out
 
 
-__all__ = ["VENDORS", "ArmConfiguration", "ConfigurationKinematics", "compute_arm_configuration",
+__all__ = ["VENDORS", "ArmConfiguration", "ConfigurationKinematics", "abb_confdata", "compute_arm_configuration",
            "configuration_changes", "kuka_status"]

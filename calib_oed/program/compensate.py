@@ -44,6 +44,7 @@ from calib_oed.model.arm_configuration import (
     VENDORS,
     ConfigurationKinematics,
     configuration_changes,
+    abb_confdata,
     kuka_status,
 )
 from calib_oed.model.controller import ControllerConvention
@@ -278,7 +279,7 @@ def _configuration_checks(parsed: ParsedProgram, nominal: Robot, q0: np.ndarray,
                           controller) -> tuple[tuple[tuple[str, ...], ...], tuple[str, ...]]:
     r"""Per target, the configuration bits of its language that :math:`\hat q` changes (Cartesian
     targets of KRL, RAPID, TP on a 6-axis arm), and how a KRL target's declared ``S``/``T``
-    differ from those of :math:`q^0` (module docstring)."""
+    differ from those of :math:`q^0`, and a RAPID target's declared ``confdata`` (module docstring)."""
     vendor = VENDORS.get(parsed.language.name)
     n = len(parsed.targets)
     poses = [i for i, t in enumerate(parsed.targets) if t.kind == "pose" and comp.converged[i]]
@@ -290,21 +291,31 @@ def _configuration_checks(parsed: ParsedProgram, nominal: Robot, q0: np.ndarray,
     before, after = arm.compute(q0[poses]), arm.compute(comp.q[poses])
     for i, found in zip(poses, configuration_changes(before, after, vendor, nominal.joint_names), strict=True):
         changes[i] = tuple(found)
-    if vendor == "kuka":
-        status, turn = kuka_status(before)
+    if vendor in ("kuka", "abb"):
+        ours_all = _vendor_bits(vendor, before)
+        masks = {"S": 0b111, "T": 0b111111}
         for k, i in enumerate(poses):
             declared = dict(parsed.targets[i].declared)
-            ours = {"S": int(status[k]), "T": int(turn[k])}
-            masks = {"S": 0b111, "T": 0b111111}
-            if any(key in declared and (declared[key] & masks[key]) != ours[key] for key in ours):
-                said = ", ".join(f"{key} {declared[key]}" for key in ("S", "T") if key in declared)
-                got = ", ".join(f"{key} {ours[key]}" for key in ("S", "T") if key in declared)
+            ours = ours_all[k]
+            keys = [key for key in ours if key in declared]
+            if any((declared[key] & masks.get(key, -1)) != ours[key] for key in keys):
+                said = ", ".join(f"{key} {declared[key]}" for key in keys)
+                got = ", ".join(f"{key} {ours[key]}" for key in keys)
                 joints = ", ".join(f"{v:.1f}" for v in np.degrees(before.joints[k]))
                 branch[i] = (f"declared {said}, the nominal solution compensated has {got}: the controller "
-                             "reaches this pose on another branch (another shoulder or elbow, or beyond the joint "
-                             f"limits) than the joints compensated ({joints} deg); give a joint target or the S "
-                             "and T of that branch")
+                             "reaches this pose on another branch (another shoulder, elbow, wrist or turn, or beyond "
+                             f"the joint limits) than the joints compensated ({joints} deg); give a joint target or "
+                             f"the {'S and T' if vendor == 'kuka' else 'confdata'} of that branch")
     return tuple(changes), tuple(branch)
+
+
+def _vendor_bits(vendor: str, cfg) -> list[dict[str, int]]:
+    """Per row, the configuration a ``vendor`` target declares for these joints: KUKA's ``S``,
+    ``T``; ABB's ``cf1``, ``cf4``, ``cf6``, ``cfx``."""
+    if vendor == "kuka":
+        status, turn = kuka_status(cfg)
+        return [{"S": int(s), "T": int(t)} for s, t in zip(status, turn, strict=True)]
+    return [dict(zip(("cf1", "cf4", "cf6", "cfx"), map(int, row), strict=True)) for row in abb_confdata(cfg)]
 
 
 __all__ = ["CompensatedProgram", "compensate_program"]

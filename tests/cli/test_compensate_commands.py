@@ -58,7 +58,22 @@ def test_a_configuration_change_is_named(calibration, tmp_path, capsys):
     assert any(line.startswith("pApproach: the controller configuration changes (turn of joint_a4")
                for line in data["issues"])
     assert "controller configuration changes: turn of joint_a4" in (out / "p.mod").read_text()
-    assert target["declared_configuration"] is None          # RAPID's confdata is not read
+    assert target["declared_configuration"] is None          # its confdata [0, 0, -1, 0] is that of its joints
+
+
+def test_a_rapid_confdata_of_another_branch_is_named(calibration, tmp_path, capsys):
+    """The last MoveL declares confdata [0, 0, 0, 0], but the nominal controller solves its pose at
+    (-15, -100, 110, -20, 40, 60) deg, whose axes 1 and 4 are in quadrant -1: the controller would
+    refuse the move or take other joints than those compensated, so the target is named."""
+    (tmp_path / "p.mod").write_text(samples.RAPID_MOD)
+    assert main(["compensate", "fms_kr16", str(calibration), str(tmp_path / "p.mod"), "-o", str(tmp_path / "o"),
+                 "--json"]) == 0
+    data = json.loads(capsys.readouterr().out)
+    last = data["targets"][-1]
+    assert last["declared_configuration"].startswith("declared cf1 0, cf4 0, cf6 0, cfx 0, the nominal solution "
+                                                     "compensated has cf1 -1, cf4 -1, cf6 0, cfx 0")
+    assert [t["declared_configuration"] for t in data["targets"][:-1]] == [None] * (len(data["targets"]) - 1)
+    assert any(line.startswith(f"{last['name']}: declared cf1 0") for line in data["issues"])
 
 
 def test_text_report_and_default_folder(calibration, tmp_path, capsys):

@@ -12,6 +12,7 @@ from calib_oed import load_robot
 from calib_oed.exceptions import ParameterError
 from calib_oed.model.arm_configuration import (
     ArmConfiguration,
+    abb_confdata,
     compute_arm_configuration,
     configuration_changes,
     kuka_status,
@@ -124,3 +125,20 @@ def test_elbow_flip_keeps_the_wrist_centre_and_mirrors_the_elbow():
         pin.forwardKinematics(robot.model, data, row)
         centres.append(data.oMi[5].translation.copy())        # the kr16's wrist centre: the A5 origin
     assert np.allclose(centres[0], centres[1], atol=1e-12)
+
+
+def test_abb_confdata_on_an_abb_arm():
+    """The ABB IRB 140 description of the rtb-data wheel (joint directions ABB's): quadrants of axes 1, 4,
+    6 (0 from 0 to 90 deg, -1 from -90 to 0) and cfx = 4 behind axis 1 + 2 behind the lower arm +
+    1 axis 5 negative; the synchronisation position with axis 5 at 30 deg is [0, 0, 0, 0]."""
+    from pathlib import Path
+
+    rtbdata = pytest.importorskip("rtbdata")
+    robot = load_robot(str(Path(rtbdata.__file__).parent / "xacro" / "abb_irb140_description" / "urdf" / "irb140.urdf"))
+    q = np.radians([[0, 0, 0, 0, 30, 0],          # synchronisation position, axis 5 tilted
+                    [100, 0, 0, 185, -30, -200],  # quadrants 1, 2, -3; axis 5 negative
+                    [-10, 40, -120, 0, 30, 0],    # lower arm forward, upper arm folded back past it
+                    [-10, 0, -120, 0, 30, 0],     # the same with the lower arm upright: wrist centre
+                    [0, -90, -150, 0, 30, 0]])    # behind axis 1 too; and with the arm leaning back
+    assert abb_confdata(compute_arm_configuration(robot, q)).tolist() == [
+        [0, 0, 0, 0], [1, 2, -3, 1], [-1, 0, 0, 2], [-1, 0, 0, 6], [0, 0, 0, 6]]

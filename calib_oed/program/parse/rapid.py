@@ -8,7 +8,8 @@ types*, data types ``jointtarget``, ``robtarget``, ``orient``, ``tooldata``, ``w
 jointtarget|robtarget name := [...];``) or written inline as the first argument of a
 ``Move*`` instruction (``MoveC*``: its first two, ``CirPoint`` and ``ToPoint``, named
 ``... (via)`` and ``... (end)``; switches such as ``\Conc`` before them skipped). Only ``rax`` or ``x, y, z, q1..q4`` are rewritten; ``confdata`` and
-external axes stay. A module declaring exactly one ``tooldata`` (``[robhold, [[x, y, z],
+external axes stay (``confdata`` is read into :attr:`Target.declared`: a target the nominal
+controller would reach with other joints than those compensated is named). A module declaring exactly one ``tooldata`` (``[robhold, [[x, y, z],
 [q1..q4]], load]``) and at most one ``wobjdata`` (``[robhold, ufprog, ufmec, uframe,
 oframe]``, base :math:`T_{W,B} = uframe\,oframe`) gives the tool and base; with several,
 the scene's or ``--tool``/``--base`` apply and a note says so. Comments are ``!`` lines.
@@ -107,7 +108,19 @@ def _target(text, start, file, name, kind) -> Target:
         if len(nums) != 7:
             raise ProgramError("program", file, f"{name}: a robtarget needs [[x, y, z], [q1, q2, q3, q4], ...]")
     end = text.find(";", _bracket_end(text, start, file))
-    return Target(name, kind, file, line_of(text, end if end >= 0 else start), tuple(nums), indent_of(text, start))
+    return Target(name, kind, file, line_of(text, end if end >= 0 else start), tuple(nums), indent_of(text, start),
+                  declared=_confdata(text, groups, file, name) if kind == "pose" else ())
+
+
+def _confdata(text: str, groups: list[tuple[int, int]], file: str, name: str) -> tuple[tuple[str, int], ...]:
+    """A robtarget's ``confdata`` ``[cf1, cf4, cf6, cfx]`` as declared (integers), or () if absent."""
+    if len(groups) < 3:
+        return ()
+    cf = [n.value for n in numbers_in(text, *groups[2])]
+    if len(cf) != 4 or any(v != int(v) for v in cf):
+        raise ProgramError("program", file, f"{name}: a robtarget's confdata needs 4 integers "
+                           f"[cf1, cf4, cf6, cfx], has {cf}")
+    return tuple(zip(("cf1", "cf4", "cf6", "cfx"), (int(v) for v in cf), strict=True))
 
 
 def _frame(text, start, file, what) -> pin.SE3:

@@ -51,7 +51,8 @@ class Target:
             ``"rad+deg"``: the joints in radians, then the same in degrees), else "".
         commented: Whether the target gets a comment (a CSV row's degree copy does not).
         declared: The configuration the file gives a Cartesian target, as ``(name, value)`` pairs
-            (KRL: ``("S", s), ("T", t)``); read, never rewritten.
+            (KRL: ``("S", s), ("T", t)``; RAPID: ``("cf1", .), ("cf4", .), ("cf6", .), ("cfx", .)``);
+            read, never rewritten.
     """
 
     name: str

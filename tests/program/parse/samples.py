@@ -43,13 +43,15 @@ ENDDAT
 """
 
 #: ABB "Technical reference manual - RAPID Instructions, Functions and Data types":
-#: MODULE, tooldata/wobjdata, robtarget/jointtarget (CONST/PERS), MoveAbsJ/MoveJ/MoveL.
+#: MODULE, tooldata/wobjdata, robtarget/jointtarget (CONST/PERS), MoveAbsJ/MoveJ/MoveL. The confdata
+#: of pApproach and pWeld are those of the joints they were taught at; the last MoveL's [0,0,0,0] is not
+#: (its joints, -15, -100, 110, -20, 40, 60 deg, have cf1 -1 and cf4 -1).
 RAPID_MOD = """MODULE WeldDemo
     ! taught on the pendant
     PERS tooldata tWeld:=[TRUE,[[12.5,0,180],[1,0,0,0]],[2.5,[0,0,100],[1,0,0,0],0,0,0]];
     TASK PERS wobjdata wTable:=[FALSE,TRUE,"",[[1000,-200,0],[0.707106781,0,0,0.707106781]],[[0,0,0],[1,0,0,0]]];
     CONST jointtarget jHome:=[[0,-90,90,0,30,0],[9E9,9E9,9E9,9E9,9E9,9E9]];
-    CONST robtarget pApproach:=[[-16.4,-227.4,889.6],[0.24598,0.70773,0.59386,-0.29315],[-1,0,-1,0],[9E9,9E9,9E9,9E9,9E9,9E9]];
+    CONST robtarget pApproach:=[[-16.4,-227.4,889.6],[0.24598,0.70773,0.59386,-0.29315],[0,0,-1,0],[9E9,9E9,9E9,9E9,9E9,9E9]];
     PERS robtarget pWeld:=[[-237.6,-18.8,620.4],[-0.00253,0.9025,0.40816,-0.13745],[0,0,-1,0],[9E9,9E9,9E9,9E9,9E9,9E9]];
 
     PROC main()

@@ -84,3 +84,15 @@ def test_points_not_read_are_named():
         ("14", "the point Offs(..) is computed, not a declared target"),
         ("15", "jhome is not a jointtarget or robtarget declared in the modules read")]
     assert lines[1][0].startswith("m.mod:7: TriggL [[600,0,820]")
+
+
+def test_confdata_is_read_as_declared_and_checked():
+    parsed = rapid.parse({"WeldDemo.mod": samples.RAPID_MOD})
+    poses = [t for t in parsed.targets if t.kind == "pose"]
+    assert [dict(t.declared) for t in poses] == [{"cf1": 0, "cf4": 0, "cf6": -1, "cfx": 0},
+                                                 {"cf1": 0, "cf4": 0, "cf6": -1, "cfx": 0},
+                                                 {"cf1": 0, "cf4": 0, "cf6": 0, "cfx": 0}]
+    assert all(t.declared == () for t in parsed.targets if t.kind == "joint")
+    with pytest.raises(ProgramError, match=r"confdata needs 4 integers \[cf1, cf4, cf6, cfx\], has \[0.0, 0.5"):
+        rapid.parse({"m.mod": "MODULE m\n  CONST robtarget p:=[[1,2,3],[1,0,0,0],[0,0.5,0,0],[9E9,9E9,9E9,9E9,9E9,9E9]];\n"
+                              "  PROC r()\n    MoveL p, v100, fine, tool0;\n  ENDPROC\nENDMODULE\n"})
