@@ -43,8 +43,8 @@ from calib_oed.calibration.compensation import (
 from calib_oed.model.arm_configuration import (
     VENDORS,
     ConfigurationKinematics,
-    configuration_changes,
     abb_confdata,
+    configuration_changes,
     kuka_status,
 )
 from calib_oed.model.controller import ControllerConvention
