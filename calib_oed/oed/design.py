@@ -201,23 +201,6 @@ def _start_designs(s: Setup, objective: DesignObjective, n: int, start, seed: in
     return [(None, given_start(s, start, n))]
 
 
-def _check_enough_values(objective: DesignObjective, n: int) -> None:
-    """Refuse ``n`` poses that give fewer measured values than free parameters, before the pool.
-
-    Each pose gives the same number of values (the rows of one pose's block at the joint
-    limits' midpoint); with no prior, ``n`` times that must reach the free parameters.
-    """
-    if objective.prior is not None:
-        return
-    robot = objective.problem.robot
-    per_pose = objective.compute_blocks(0.5 * (robot.lower + robot.upper)[None, :]).shape[1]
-    if n * per_pose < objective.n_free:
-        raise NotIdentifiableError(
-            objective.free_names,
-            f"a design of {n} poses gives {n * per_pose} measured values for {objective.n_free} "
-            f"free parameters; measure at least {-(-objective.n_free // per_pose)} configurations")
-
-
 def design(
     scene: Scene | Setup,
     n: int = 60,
@@ -323,7 +306,7 @@ def design(
     with threadpool_limits(limits=1):
         objective = DesignObjective(s.problem, criterion)
         start_objective = DesignObjective(s.problem, "kpi") if objective.needs_design else objective  # kpi's start
-        _check_enough_values(objective, n)
+        objective.check_design_size(n)
         needs_pool = (isinstance(start, str) and start == "exchange") or certificate
         cands = candidate_pool(s, pool, seed, collisions) if needs_pool else None
         use = refine and isinstance(start, str) and start == "exchange" and aggregate == "mean"

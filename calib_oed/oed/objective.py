@@ -270,6 +270,24 @@ class DesignObjective:
         """
         return self._row_hessians(self._state(q, second_order=True))
 
+    def check_design_size(self, n: int) -> None:
+        """Refuse ``n`` poses that give fewer measured values than free parameters (no prior),
+        before any pose is drawn: each pose gives the rows of one block (here at the joint
+        limits' midpoint).
+
+        Raises:
+            NotIdentifiableError: naming the smallest ``n`` that can work.
+        """
+        if self.prior is not None:
+            return
+        robot = self.problem.robot
+        per_pose = self.compute_blocks(0.5 * (robot.lower + robot.upper)[None, :]).shape[1]
+        if n * per_pose < self.n_free:
+            raise NotIdentifiableError(
+                self.free_names,
+                f"a design of {n} poses gives {n * per_pose} measured values for {self.n_free} "
+                f"free parameters; measure at least {-(-self.n_free // per_pose)} configurations")
+
     def information(self, blocks: np.ndarray) -> np.ndarray:
         """:math:`M = M_0 + \\sum_j \\tilde F_j^\\top \\tilde F_j` from per-pose blocks (n, d, n_f).
 
