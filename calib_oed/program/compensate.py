@@ -38,6 +38,7 @@ from calib_oed.calibration.compensation import (
     SINGULAR_THRESHOLD,
     CalibrationUncertainty,
     Compensation,
+    calibrated_kinematics,
     compensate_joints,
 )
 from calib_oed.model.arm_configuration import (
@@ -47,6 +48,7 @@ from calib_oed.model.arm_configuration import (
     kuka_status,
 )
 from calib_oed.model.controller import ControllerConvention
+from calib_oed.model.deflected_kinematics import JointDeflection
 from calib_oed.model.inverse_kinematics import IkSettings, TcpKinematics
 from calib_oed.model.robot import Robot
 from calib_oed.program.parse.targets import ParsedProgram, Target, rewrite
@@ -170,12 +172,15 @@ def compensate_program(parsed: ParsedProgram, nominal: Robot, calibrated: Robot,
                        controller: ControllerConvention | None = None, tool: pin.SE3 | None = None,
                        base: pin.SE3 | None = None, home: np.ndarray | None = None,
                        settings: IkSettings | None = None,
-                       singular_threshold: float = SINGULAR_THRESHOLD) -> CompensatedProgram:
+                       singular_threshold: float = SINGULAR_THRESHOLD,
+                       deflection: JointDeflection | None = None) -> CompensatedProgram:
     """Compensate every target of ``parsed`` (module docstring).
 
     Args:
         tool, base: :math:`T_{F,E}`, :math:`T_{W,B}` unless the program declares them.
         home: Seed of the first Cartesian target (nq,) [rad]; None: the joint-range middle.
+        deflection: The calibration's joint compliance (with the scene's payload) and gains,
+            or None (:func:`~calib_oed.calibration.compensation.compensate_joints`).
     """
     settings = settings or IkSettings()
     sources = {"tool": "file" if parsed.tool is not None else "given" if tool is not None else "none (the tool frame)",
@@ -201,9 +206,9 @@ def compensate_program(parsed: ParsedProgram, nominal: Robot, calibrated: Robot,
         if ok[i]:       # a failed solve's end point is no branch to follow
             seed = q0[i]
     comp = compensate_joints(nominal, calibrated, q0, tool=tool, base=base, uncertainty=uncertainty,
-                             settings=settings, singular_threshold=singular_threshold)
+                             settings=settings, singular_threshold=singular_threshold, deflection=deflection)
     comp = Compensation(**{**comp.__dict__, "converged": comp.converged & ok})
-    cal = TcpKinematics(calibrated, tool, length=nom.length)
+    cal = calibrated_kinematics(calibrated, deflection, tool, nom.length)
     shift = np.array([1e3 * np.linalg.norm(cal.compute_pose(q).translation - nom.compute_pose(q).translation)
                       for q in q0])
     configuration, branch = _configuration_checks(parsed, nominal, q0, comp, controller)
