@@ -7,7 +7,8 @@ random poses are measured and identified with ``identify_robust`` and the scene'
 prior, in three models: ``rigid`` (the kinematic model), ``compliance`` (plus one compliance per
 joint, with the payload on the arm: the scene's payload plus the reflector nest, as the truth
 carries it) and ``compliance+gains`` (plus a gain per joint). 120 random joint targets are
-compensated (``compensate_joints``, with the calibration's ``JointDeflection`` for the last two);
+compensated (``compensate_joints``, with the calibration's ``JointDeflection`` for the last two;
+``realistic_errors`` of tests/calibration/test_compensation_realistic.py);
 over the targets not named, the RMS TCP error of the true robot at the compensated joints, the
 predicted residual (``CalibrationUncertainty.from_robust``: covariance plus the fitted model
 error) and the error without compensation [mm]; and what is left of the truth's unmodelled joint
@@ -20,75 +21,15 @@ errors (transmission, balancer torque) at the targets, in mm at the TCP (``--exp
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import tempfile
 from pathlib import Path
 
 import numpy as np
 
-from calib_oed.calibration.compensation import (
-    CalibrationUncertainty,
-    calibrated_robot,
-    compensate_joints,
-)
-from calib_oed.calibration.problem import CalibrationProblem
-from calib_oed.calibration.realistic import sample_truth
-from calib_oed.calibration.realistic_measure import measure
-from calib_oed.calibration.robust import identify_robust
-from calib_oed.calibration.workflow import setup
-from calib_oed.model.compliance import Compliance
-from calib_oed.model.deflected_kinematics import JointDeflection
+from calib_oed.calibration.compensation import calibrated_robot
 from calib_oed.model.inverse_kinematics import TcpKinematics
-from calib_oed.model.joint_map import JointGains
-from calib_oed.scene.records import ComplianceSpec
-
-MODELS = ("rigid", "compliance", "compliance+gains")
-
-
-def rms(a) -> float:
-    return float(np.sqrt(np.mean(np.square(a))))
-
-
-def fit_scene(scene, truth, model: str):
-    """The scene the calibration is identified in: the scene's own (``rigid``), or with compliance
-    under the payload the truth carries (the scene's payload and the reflector nest), and gains."""
-    if model == "rigid":
-        return scene
-    links = scene.compliance.payload if scene.compliance is not None else Compliance()
-    payload = Compliance(truth.payload_mass, truth.payload_com, link_masses=links.link_masses,
-                         link_coms=links.link_coms)
-    gains = JointGains.all_joints(scene.robot.nq) if model == "compliance+gains" else scene.joint_gains
-    return dataclasses.replace(scene, compliance=ComplianceSpec(True, payload), joint_gains=gains)
-
-
-def study(scene_name: str, model: str, truths=(1, 2, 3), n_design: int = 60, n_targets: int = 120) -> list[dict]:
-    """Per truth: TCP errors [mm] after/before compensation and predicted, over the targets not named."""
-    s = setup(scene_name)
-    problem = s.problem
-    robot = problem.space.robot
-    q_design = robot.random_configurations(n_design, 0)
-    nominal = TcpKinematics(robot)
-    out = []
-    for seed in truths:
-        rng = np.random.default_rng(seed)
-        truth = sample_truth(s, rng)
-        meas = measure(truth, problem.models, q_design, rng)
-        fit = CalibrationProblem.from_scene(fit_scene(s.scene, truth, model))
-        space = fit.space
-        robust = identify_robust(space, list(meas.blocks), fit.identifiability, model_error=s.scene.discrepancy())
-        p = robust.result.p
-        deflection = JointDeflection.from_space(space, p)
-        targets = robot.random_configurations(n_targets, 100 + seed)
-        comp = compensate_joints(robot, calibrated_robot(space, p), targets,
-                                 uncertainty=CalibrationUncertainty.from_robust(space, robust),
-                                 deflection=deflection)
-        ok = ~comp.flagged
-        goal = np.array([nominal.compute_pose(q).translation for q in targets])
-        out.append({"after": 1e3 * np.linalg.norm(truth.compute_tcp(comp.q[ok]) - goal[ok], axis=1),
-                    "before": 1e3 * np.linalg.norm(truth.compute_tcp(targets[ok]) - goal[ok], axis=1),
-                    "predicted": comp.predicted_mm[ok], "truth": truth, "q": comp.q[ok], "space": space,
-                    "p": p, "sigma0": float(robust.result.sigma0), "n_named": int(comp.flagged.sum())})
-    return out
+from tests.calibration.test_compensation import _rms as rms
+from tests.calibration.test_compensation_realistic import MODELS, realistic_errors
 
 
 def unmodelled_mm(t: dict) -> dict:
@@ -126,17 +67,19 @@ def main() -> None:
 
                 scene = str(kr120_scene_file(Path(tmp)))
             for model in args.models:
-                trials = study(scene, model, tuple(args.truths))
+                trials = realistic_errors(scene, tuple(args.truths), model=model)
                 after = np.concatenate([t["after"] for t in trials])
                 pred = np.concatenate([t["predicted"] for t in trials])
                 gains = [rms(t["before"]) / rms(t["after"]) for t in trials]
                 print(f"{name:10s} {model:17s} compensated {rms(after):.4f} mm, predicted {rms(pred):.4f} mm, "
-                      f"ratio {rms(after) / rms(pred):.2f}; uncompensated "
+                      f"ratio {rms(after) / rms(pred):.2f}; marginal "
+                      f"{rms(np.concatenate([t['marginal'] for t in trials])):.4f} mm, noise only "
+                      f"{rms(np.concatenate([t['noise_only'] for t in trials])):.4f} mm; uncompensated "
                       f"{rms(np.concatenate([t['before'] for t in trials])):.3f} mm; gain per truth "
                       + ", ".join(f"{g:.1f}x" for g in gains)
                       + "; per truth " + ", ".join(f"{rms(t['after']):.4f}/{rms(t['predicted']):.4f}/"
                                                    f"{rms(t['before']):.3f}" for t in trials)
-                      + f"; named {[t['n_named'] for t in trials]}", flush=True)
+                      + f"; named {[int(t['comp'].flagged.sum()) for t in trials]}", flush=True)
                 if args.explain:
                     for k, t in enumerate(trials):
                         parts = unmodelled_mm(t)
