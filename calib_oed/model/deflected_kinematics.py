@@ -40,7 +40,7 @@ import pinocchio as pin
 from calib_oed.exceptions import ShapeError
 from calib_oed.model.compliance import GravityLoad
 from calib_oed.model.inverse_kinematics import TcpKinematics
-from calib_oed.model.joint_map import config_chain_term, effective_configurations
+from calib_oed.model.joint_map import config_chain_term
 from calib_oed.model.parameters import ParameterSpace
 from calib_oed.model.robot import Robot
 
@@ -68,6 +68,10 @@ class JointDeflection:
             raise ValueError("a joint deflection needs both the gravity load and the compliances, or neither")
         if (self.gain_basis is None) != (self.gains is None):
             raise ValueError("a joint deflection needs both the gain basis and the gains, or neither")
+        # sum_m theta_m E_m once (the map is linear in q); the gravity model's own data for one row
+        gain = None if self.gains is None else config_chain_term(self.gain_basis, self.gains)
+        object.__setattr__(self, "_gain", gain)
+        object.__setattr__(self, "_data", None if self.gravity is None else self.gravity.model.createData())
 
     @classmethod
     def from_space(cls, space: ParameterSpace, p: np.ndarray, payload=None) -> JointDeflection | None:
@@ -98,22 +102,29 @@ class JointDeflection:
     def compute_effective(self, q: np.ndarray) -> np.ndarray:
         r""":math:`q_{eff}` at every row of ``q`` (n, nq) [rad or m]."""
         q = np.atleast_2d(np.asarray(q, dtype=float))
-        out = q.copy()
-        if self.compliance is not None:
-            out = out + self.compliance * self.gravity.torques(q)
-        if self.gains is not None:
-            out = out + (effective_configurations(q, self.gain_basis, self.gains) - q)
-        return out
+        return np.array([self.compute_effective_one(row) for row in q]).reshape(q.shape)
 
     def compute_chain(self, q: np.ndarray) -> np.ndarray:
         r""":math:`D = \partial q_{eff}/\partial q` at every row of ``q``, (n, nq, nq) [1]."""
         q = np.atleast_2d(np.asarray(q, dtype=float))
-        n, nq = q.shape
-        d = np.broadcast_to(np.eye(nq), (n, nq, nq)).copy()
+        return np.array([self.compute_chain_one(row) for row in q]).reshape(q.shape + q.shape[-1:])
+
+    def compute_effective_one(self, q: np.ndarray) -> np.ndarray:
+        r""":math:`q_{eff}` of one configuration (nq,) (the inverse kinematics' call)."""
+        out = q.copy()
         if self.compliance is not None:
-            d += self.compliance[None, :, None] * self.gravity.torque_derivatives(q)
-        if self.gains is not None:
-            d += config_chain_term(self.gain_basis, self.gains)[None]
+            out -= self.compliance * pin.computeGeneralizedGravity(self.gravity.model, self._data, q)
+        if self._gain is not None:
+            out += self._gain @ q
+        return out
+
+    def compute_chain_one(self, q: np.ndarray) -> np.ndarray:
+        r""":math:`D` of one configuration (nq, nq): :math:`I + \mathrm{diag}(c)\,\partial\tau_g/\partial q + \sum_m\theta_m E_m`."""
+        d = np.eye(q.shape[0])
+        if self.compliance is not None:
+            d -= self.compliance[:, None] * pin.computeGeneralizedGravityDerivatives(self.gravity.model, self._data, q)
+        if self._gain is not None:
+            d += self._gain
         return d
 
 
@@ -134,20 +145,21 @@ class DeflectedTcpKinematics(TcpKinematics):
         super().__init__(robot, tool, length)
         self.deflection = deflection
 
-    def _effective(self, q: np.ndarray) -> np.ndarray:
+    def _check(self, q: np.ndarray) -> np.ndarray:
         q = np.asarray(q, dtype=float)
         if q.shape != (self.model.nq,):
             raise ShapeError("q", f"({self.model.nq},)", q.shape)
-        return self.deflection.compute_effective(q[None])[0]
+        return q
 
     def compute_pose(self, q: np.ndarray) -> pin.SE3:
         """:math:`T_{W,E}(q_{eff}(q))` of one commanded configuration (nq,)."""
-        return super().compute_pose(self._effective(q))
+        return super().compute_pose(self.deflection.compute_effective_one(self._check(q)))
 
     def compute_jacobian(self, q: np.ndarray) -> tuple[pin.SE3, np.ndarray]:
         """:math:`T_{W,E}(q_{eff})` and :math:`{}^{E}J_E(q_{eff})\\,D(q)` (6, nq), along the commanded joints."""
-        pose, jac = super().compute_jacobian(self._effective(q))
-        return pose, jac @ self.deflection.compute_chain(np.asarray(q, dtype=float)[None])[0]
+        q = self._check(q)
+        pose, jac = super().compute_jacobian(self.deflection.compute_effective_one(q))
+        return pose, jac @ self.deflection.compute_chain_one(q)
 
 
 __all__ = ["DeflectedTcpKinematics", "JointDeflection"]

@@ -6,7 +6,8 @@ controller convention (:math:`q = Ac + b`, :mod:`calib_oed.model.controller`), C
 targets :math:`P` (in the base frame) by the nominal inverse kinematics seeded at the
 previous target's :math:`q^0` (the first at ``home``; a target whose inverse kinematics
 failed is skipped as a seed), so the branch is the one the program moves along. Then :func:`calib_oed.calibration.compensation.compensate_joints`
-gives :math:`\hat q` and, for Cartesian targets, the pose :math:`P'` the nominal
+gives :math:`\hat q` (with the calibration's joint compliance and gains when given a
+``deflection``: the commanded joints) and, for Cartesian targets, the pose :math:`P'` the nominal
 controller must be given. Joint targets are rewritten with :math:`\hat q` (back in the
 controller's convention and unit), Cartesian targets with :math:`P'` in the language's
 convention (angles the representation nearest the original, status/turn/confdata as
@@ -64,7 +65,7 @@ class CompensatedProgram:
         compensation: The compensation of every target (in program order).
         changed: Whether each target was rewritten (False: inverse kinematics failed).
         shift_mm: :math:`\\lVert \\hat t(q^0) - t^0(q^0)\\rVert` [mm]: how far the calibrated model
-            puts the TCP from the target without compensation (n,).
+            (deflected, with a ``deflection``) puts the TCP from the target without compensation (n,).
         sources: Where the tool and base came from (``file``, ``given``, ``none``).
         configuration: Per target, what of the controller configuration :math:`\\hat q` changes
             against :math:`q^0` (Cartesian KRL, RAPID and TP targets; empty: nothing).
