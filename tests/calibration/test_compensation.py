@@ -164,3 +164,28 @@ def test_model_error_hook_adds_to_the_prediction():
     c0 = base.compute_covariance(q, np.zeros(3))
     c1 = extra.compute_covariance(q, np.zeros(3))
     assert np.allclose(c1 - c0, np.eye(3) * 1e-8)
+
+
+def test_pose_compensation_with_a_deflection():
+    """Cartesian targets with joint compliance and gains: the deflected calibrated model reaches the
+    target at the compensated (commanded) joints; the commanded pose is the nominal one there."""
+    space = CalibrationProblem.from_scene(deflecting_scene()).space
+    robot = space.robot
+    rng = np.random.default_rng(8)
+    p = space.zeros()
+    p[space.joints_slice] = rng.normal(scale=5e-4, size=6 * robot.nq)
+    p[space.compliance_slice] = 3e-6
+    p[space.gain_slice] = rng.normal(scale=1e-3, size=robot.nq)
+    deflection = JointDeflection.from_space(space, p)
+    tool = pin.SE3(np.eye(3), np.array([0.0, 0.05, 0.2]))
+    q0 = np.radians([[20.0, -70.0, 100.0, 15.0, 50.0, -30.0], [-35.0, -100.0, 80.0, -40.0, -60.0, 90.0]])
+    nom = TcpKinematics(robot, tool)
+    poses = [nom.compute_pose(q) for q in q0]
+    comp = compensate_pose(robot, calibrated_robot(space, p), poses, q0 + 0.05, tool=tool, deflection=deflection)
+    cal = calibrated_kinematics(calibrated_robot(space, p), deflection, tool)
+    assert np.all(comp.converged)
+    for i in range(2):
+        assert np.allclose(cal.compute_pose(comp.q[i]).homogeneous, poses[i].homogeneous, atol=1e-10)
+        assert np.allclose(comp.commanded[i].homogeneous, nom.compute_pose(comp.q[i]).homogeneous, atol=1e-12)
+    rigid = compensate_pose(robot, calibrated_robot(space, p), poses, q0 + 0.05, tool=tool)
+    assert np.abs(rigid.q - comp.q).max() > 1e-4                   # the deflection is compensated too
