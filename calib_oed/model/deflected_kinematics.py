@@ -71,6 +71,7 @@ class JointDeflection:
         # sum_m theta_m E_m once (the map is linear in q); the gravity model's own data for one row
         gain = None if self.gains is None else config_chain_term(self.gain_basis, self.gains)
         object.__setattr__(self, "_gain", gain)
+        object.__setattr__(self, "_chain", None if gain is None else np.eye(gain.shape[0]) + gain)   # I + gains
         object.__setattr__(self, "_data", None if self.gravity is None else self.gravity.model.createData())
 
     @classmethod
@@ -120,12 +121,11 @@ class JointDeflection:
 
     def compute_chain_one(self, q: np.ndarray) -> np.ndarray:
         r""":math:`D` of one configuration (nq, nq): :math:`I + \mathrm{diag}(c)\,\partial\tau_g/\partial q + \sum_m\theta_m E_m`."""
-        d = np.eye(q.shape[0])
+        chain = np.eye(q.shape[0]) if self._chain is None else self._chain.copy()
         if self.compliance is not None:
-            d -= self.compliance[:, None] * pin.computeGeneralizedGravityDerivatives(self.gravity.model, self._data, q)
-        if self._gain is not None:
-            d += self._gain
-        return d
+            chain -= self.compliance[:, None] * pin.computeGeneralizedGravityDerivatives(
+                self.gravity.model, self._data, q)
+        return chain
 
 
 class DeflectedTcpKinematics(TcpKinematics):
