@@ -77,6 +77,7 @@ def cmd_compensate(args) -> int:
     from calib_oed.calibration.compensation_files import load_compensation
     from calib_oed.calibration.problem import CalibrationProblem
     from calib_oed.io.atomic import atomic_write_files
+    from calib_oed.model.parameters import ParameterSpace
     from calib_oed.program.compensate import compensate_program
     from calib_oed.program.parse.files import program_files, read_program
     from calib_oed.scene.reader import load_scene
@@ -91,7 +92,11 @@ def cmd_compensate(args) -> int:
     if not threshold >= 0:
         raise CompensationError(f"--singular {args.singular}: give a threshold >= 0 (default 0.01)")
     problem = CalibrationProblem.from_scene(scene)
-    loaded = load_compensation(problem.space, args.calibration, _payload_mass(args.working_payload_kg))
+    space = problem.space      # the working payload: the scene's robot.compliance block's, even if disabled
+    if scene.compliance is not None and space.compliance is None:
+        space = ParameterSpace(space.robot, space.tracker_placement0, space.reflector_offsets0,
+                               compliance=scene.compliance.payload)
+    loaded = load_compensation(space, args.calibration, _payload_mass(args.working_payload_kg))
     if args.working_payload_kg is not None and not loaded.payload:
         raise CompensationError(f"--payload-kg {args.working_payload_kg:g}: the calibration {loaded.files['sensor']} "
                                 "identified no joint compliance, so the payload changes nothing; leave it out")

@@ -38,7 +38,7 @@ import numpy as np
 import pinocchio as pin
 
 from calib_oed.exceptions import ShapeError
-from calib_oed.model.compliance import GravityLoad
+from calib_oed.model.compliance import Compliance, GravityLoad
 from calib_oed.model.inverse_kinematics import TcpKinematics
 from calib_oed.model.joint_map import config_chain_term
 from calib_oed.model.parameters import ParameterSpace
@@ -75,7 +75,8 @@ class JointDeflection:
         object.__setattr__(self, "_data", None if self.gravity is None else self.gravity.model.createData())
 
     @classmethod
-    def from_space(cls, space: ParameterSpace, p: np.ndarray, payload=None) -> JointDeflection | None:
+    def from_space(cls, space: ParameterSpace, p: np.ndarray,
+                   payload: Compliance | None = None) -> JointDeflection | None:
         r"""The deflection of the parameters ``p`` of ``space``; None if ``space`` has neither
         compliance nor gains (a rigid arm: :math:`q_{eff} = q`).
 

@@ -169,3 +169,25 @@ def test_payload_without_compliance_is_one_line(calibration, tmp_path, capsys):
     assert main(["compensate", "fms_kr16", str(calibration), str(tmp_path / "p.ls"), "--payload-kg", "5"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "identified no joint compliance" in err[0]
+
+
+def test_the_scenes_payload_is_the_working_one_even_with_compliance_disabled(tmp_path, capsys):
+    """fms_kr300 declares its rated 300 kg under robot.compliance with enabled: false; a calibration
+    identified under 100 kg is compensated for the scene's 300 kg."""
+    import dataclasses
+
+    from calib_oed.model.compliance import Compliance
+    from calib_oed.scene.reader import load_scene
+    from calib_oed.scene.records import ComplianceSpec
+
+    scene = load_scene("fms_kr300")
+    assert scene.compliance is not None and not scene.compliance.enabled
+    identified = dataclasses.replace(scene, compliance=ComplianceSpec(True, Compliance(100.0, [0.0, 0.0, 0.1])))
+    (tmp_path / "cal").mkdir()
+    write_calibration(tmp_path / "cal", identified)
+    (tmp_path / "p.src").write_text(samples.KRL_SRC)
+    (tmp_path / "p.dat").write_text(samples.KRL_DAT)
+    assert main(["compensate", "fms_kr300", str(tmp_path / "cal"), str(tmp_path / "p.src"), "-o",
+                 str(tmp_path / "out"), "--json"]) == 0
+    text = json.loads(capsys.readouterr().out)["joint_deflection"]
+    assert "payload 300 kg at [0.0, 0.0, 200.0] mm" in text and "the scene's robot.compliance.payload" in text
