@@ -33,7 +33,7 @@ def add_compensate_parser(sub) -> None:
     p.add_argument("--payload-kg", type=float, default=None, metavar="KG", dest="working_payload_kg",
                    help="payload on the tool while the program runs, for a calibration that identified joint "
                    "compliance (default: the scene's robot.compliance payload, else the one identified under; "
-                   "the centre of mass stays the scene's)")
+                   "the centre of mass stays the scene's, else the identified one)")
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.set_defaults(func=cmd_compensate, outputs={"output": "dir"})
 
