@@ -14,7 +14,11 @@ best of ``--repeat`` runs of the same work (CPU time: the figure a shared machin
 change much). It also reports how many targets were named and the
 true TCP error after compensation on the well-conditioned ones against the prediction.
 
-    .venv/bin/python bench/bench_compensate.py [-n 1000] [--repeat 3]
+With ``--deflection`` the same follows, in the same run, for a calibration that identified joint
+compliance (16 kg payload 0.1 m out on the tool) and every joint's gain (a simulated truth with
+them), compensated with the joint deflection (``load_compensation``).
+
+    .venv/bin/python bench/bench_compensate.py [-n 1000] [--repeat 3] [--deflection]
 """
 
 from __future__ import annotations
@@ -27,17 +31,20 @@ from pathlib import Path
 
 import numpy as np
 
-from calib_oed.calibration.compensation_files import load_calibration
+from calib_oed.calibration.compensation import calibrated_kinematics, calibrated_robot
+from calib_oed.calibration.compensation_files import load_compensation
 from calib_oed.calibration.export import export_calibration
 from calib_oed.calibration.identification import identify
 from calib_oed.calibration.problem import CalibrationProblem
 from calib_oed.calibration.simulation import draw_true_parameters, simulate_observations
 from calib_oed.model.arm_configuration import compute_arm_configuration, kuka_status
+from calib_oed.model.deflected_kinematics import JointDeflection
 from calib_oed.model.inverse_kinematics import TcpKinematics
 from calib_oed.program.compensate import compensate_program
 from calib_oed.program.parse.files import read_program
 from calib_oed.program.parse.poses import to_euler_mm_deg
 from calib_oed.scene.reader import load_scene
+from tests.calibration.test_compensation import deflecting_scene
 
 
 def _krl(q_deg: np.ndarray) -> tuple[str, str]:
@@ -71,8 +78,16 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("-n", type=int, default=1000)
     ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--deflection", action="store_true", help="also (after the rigid calibration, in the same "
+                    "run) a calibration with joint compliance (16 kg) and joint gains, compensated with them")
     args = ap.parse_args()
-    scene = load_scene("fms_kr16")
+    for deflected in (False, True) if args.deflection else (False,):
+        run(args, deflected)
+
+
+def run(args, deflected: bool) -> None:
+    """Time the three programs for a rigid calibration or one with joint compliance and gains."""
+    scene = deflecting_scene() if deflected else load_scene("fms_kr16")
     problem = CalibrationProblem.from_scene(scene)
     space, robot = problem.space, scene.robot
     rng = np.random.default_rng(1)
@@ -89,7 +104,8 @@ def main() -> None:
         export_calibration(space, result.p, folder)
         (folder / "identification.json").write_text(json.dumps(result.to_dict()))
         t0 = time.perf_counter()
-        calibrated, unc, _ = load_calibration(space, folder)
+        loaded = load_compensation(space, folder)
+        calibrated, unc = loaded.robot, loaded.uncertainty
         load_s = time.perf_counter() - t0
         src, dat = _krl(np.degrees(q))
         (folder / "bench.src").write_text(src)
@@ -100,15 +116,17 @@ def main() -> None:
         src, dat = _krl_poses(poses, *kuka_status(compute_arm_configuration(robot, q)))
         (folder / "benchp.src").write_text(src)
         (folder / "benchp.dat").write_text(dat)
-        truth = TcpKinematics(type(robot)(**{**robot.__dict__, "model": space.perturbed_model(p_true)}))
-        print(f"fms_kr16, {args.n} targets; calibration loaded in {load_s:.2f} s (shared 2-core machine)")
+        truth = calibrated_kinematics(calibrated_robot(space, p_true), JointDeflection.from_space(space, p_true))
+        print(f"fms_kr16, {args.n} targets, {'joint compliance and gains' if deflected else 'rigid'} calibration; "
+              f"loaded in {load_s:.2f} s (shared 2-core machine)")
         for label, path in (("KRL joint targets", "bench.src"), ("CSV Cartesian targets", "bench.csv"),
                             ("KRL Cartesian targets (configuration checked)", "benchp.src")):
             times, cpu = [], []
             for _ in range(args.repeat):
                 t0, c0 = time.perf_counter(), time.process_time()
                 parsed, _ = read_program(folder / path, robot.joint_names)
-                out = compensate_program(parsed, robot, calibrated, uncertainty=unc, home=problem.kpi.configurations[0])
+                out = compensate_program(parsed, robot, calibrated, uncertainty=unc, home=problem.kpi.configurations[0],
+                                         deflection=loaded.deflection)
                 times.append(time.perf_counter() - t0)
                 cpu.append(time.process_time() - c0)
             c = out.compensation

@@ -16,6 +16,15 @@ target is compensated by
   the pose the nominal controller must be given to reach :math:`\hat q`:
   :math:`P' = T_{W,B}^{-1}\,T^0_{W,E}(\hat q)`.
 
+**Joint compliance and gains.** A calibration that identifies them (``robot.compliance``,
+``robot.joint_gains``) has links at :math:`q_{eff}(q) = q + c\circ\tau_g(q) + \sum_m\theta_m E_m q`
+for the commanded :math:`q` (:mod:`calib_oed.model.deflected_kinematics`). Given that
+``deflection``, the compensated joints are the commanded ones:
+:math:`\hat T_{W,E}(q_{eff}(\hat q)) = P`, solved by the same Newton iteration with the
+Jacobian :math:`{}^{E}J_E(q_{eff})\,D(\hat q)` of the deflected model. :math:`\tau_g` is the
+gravity torque with the payload the deflection was built with (the scene's payload: the
+program must run with the payload the scene declares).
+
 **Predicted residual.** After compensation the true TCP misses :math:`P` by
 :math:`\hat t(\hat q) - t^\star(\hat q) \approx G(\hat q)(\hat p - p^\star)`, the
 calibrated model's error at :math:`\hat q`, with :math:`G = \partial t_{W,E}/\partial p`
@@ -47,6 +56,7 @@ import pinocchio as pin
 
 from calib_oed.calibration.kpi import TcpKpi
 from calib_oed.exceptions import CompensationError, ShapeError
+from calib_oed.model.deflected_kinematics import DeflectedTcpKinematics, JointDeflection
 from calib_oed.model.inverse_kinematics import IkSettings, TcpKinematics, solve_ik
 from calib_oed.model.parameters import ParameterSpace
 from calib_oed.model.robot import Robot
@@ -237,9 +247,17 @@ def _check_pair(nominal: Robot, calibrated: Robot) -> None:
             f"robot's {nominal.tool_frame!r}: load both with the same tool_frame")
 
 
+def calibrated_kinematics(calibrated: Robot, deflection: JointDeflection | None,
+                          tool: pin.SE3 | None = None, length: float | None = None) -> TcpKinematics:
+    """The calibrated TCP kinematics of the commanded joints: rigid, or with the joint deflection."""
+    if deflection is None:
+        return TcpKinematics(calibrated, tool, length)
+    return DeflectedTcpKinematics(calibrated, deflection, tool, length)
+
+
 def _finish(nominal: Robot, calibrated: Robot, q_nominal, targets, nominal_ok, base, tool, uncertainty,
-            joint_range, settings, singular_threshold) -> Compensation:
-    cal = TcpKinematics(calibrated, tool)
+            joint_range, settings, singular_threshold, deflection) -> Compensation:
+    cal = calibrated_kinematics(calibrated, deflection, tool)
     world = [base * t for t in targets]
     sol = solve_ik(cal, world, q_nominal, settings)
     nom = TcpKinematics(nominal, tool, length=cal.length)
@@ -260,7 +278,8 @@ def compensate_joints(nominal: Robot, calibrated: Robot, q: np.ndarray, *, tool:
                       base: pin.SE3 | None = None, uncertainty: CalibrationUncertainty | None = None,
                       joint_range: tuple[np.ndarray, np.ndarray] | None = None,
                       settings: IkSettings | None = None,
-                      singular_threshold: float = SINGULAR_THRESHOLD) -> Compensation:
+                      singular_threshold: float = SINGULAR_THRESHOLD,
+                      deflection: JointDeflection | None = None) -> Compensation:
     r"""Compensate joint targets: :math:`\hat q` with :math:`\hat T_{W,E}(\hat q) = T^0_{W,E}(q)`.
 
     Args:
@@ -273,6 +292,10 @@ def compensate_joints(nominal: Robot, calibrated: Robot, q: np.ndarray, *, tool:
         joint_range: ``(lower, upper)`` of the calibrated range (nq,) each; None: the limits.
         settings: Inverse kinematics settings.
         singular_threshold: :math:`\sigma_{min}` below which a target is named [1].
+        deflection: The calibration's joint compliance and gains
+            (:meth:`~calib_oed.model.deflected_kinematics.JointDeflection.from_space`, with the
+            payload the program runs with); :math:`\hat q` then solves
+            :math:`\hat T_{W,E}(q_{eff}(\hat q)) = T^0_{W,E}(q)`, the commanded joints. None: rigid joints.
 
     Raises:
         CompensationError: the two robots differ in joints or tool frame.
@@ -286,7 +309,7 @@ def compensate_joints(nominal: Robot, calibrated: Robot, q: np.ndarray, *, tool:
     binv = base.inverse()
     targets = [binv * nom.compute_pose(row) for row in q]
     return _finish(nominal, calibrated, q, targets, np.ones(len(q), bool), base, tool, uncertainty,
-                   joint_range, settings, singular_threshold)
+                   joint_range, settings, singular_threshold, deflection)
 
 
 def compensate_pose(nominal: Robot, calibrated: Robot, poses, seeds: np.ndarray, *,
@@ -294,7 +317,8 @@ def compensate_pose(nominal: Robot, calibrated: Robot, poses, seeds: np.ndarray,
                     uncertainty: CalibrationUncertainty | None = None,
                     joint_range: tuple[np.ndarray, np.ndarray] | None = None,
                     settings: IkSettings | None = None,
-                    singular_threshold: float = SINGULAR_THRESHOLD) -> Compensation:
+                    singular_threshold: float = SINGULAR_THRESHOLD,
+                    deflection: JointDeflection | None = None) -> Compensation:
     r"""Compensate Cartesian targets: the pose :math:`P'` to give the nominal controller.
 
     Args:
@@ -318,8 +342,9 @@ def compensate_pose(nominal: Robot, calibrated: Robot, poses, seeds: np.ndarray,
     nom = TcpKinematics(nominal, tool)
     sol = solve_ik(nom, [base * t for t in targets], seeds, settings)
     return _finish(nominal, calibrated, sol.q, targets, sol.converged, base, tool, uncertainty,
-                   joint_range, settings, singular_threshold)
+                   joint_range, settings, singular_threshold, deflection)
 
 
-__all__ = ["SINGULAR_THRESHOLD", "CalibrationUncertainty", "Compensation", "calibrated_robot", "compensate_joints",
+__all__ = ["SINGULAR_THRESHOLD", "CalibrationUncertainty", "Compensation", "calibrated_kinematics", "calibrated_robot",
+           "compensate_joints",
            "compensate_pose", "exact_model_error", "marginal_model_error"]

@@ -11,8 +11,14 @@ r"""The calibration ``compensate`` uses: the files ``calib-oed identify -o DIR``
   fitted model error (older ``identify``) uses :math:`C_p\max(1, \hat\sigma_0^2)`: a fit
   whose residuals are larger than the noise model says scales the uncertainty up, never
   down. Without the file there is no prediction (and the report says so);
-* the sensor YAML: a calibration with joint compliance or joint gains is refused (their
-  kinematics are not a URDF's; ``docs/compensate.md``).
+* the sensor YAML: the joint compliances (with the payload they were identified under) and
+  the joint gains of a calibration that identified them. :func:`load_calibration` (a URDF or a
+  parameter table: ``calib-oed table``) refuses them, their kinematics are not a URDF's;
+  :func:`load_compensation` keeps them as a
+  :class:`~calib_oed.model.deflected_kinematics.JointDeflection`, with the **payload the program
+  runs with**: the scene's ``robot.compliance.payload`` if the scene has that block, else the one
+  the compliances were identified under (:attr:`LoadedCalibration.payload` says which). The arm's
+  own weight is the one of the identification.
 
 **Is it this robot's calibration?** Every joint placement of the calibrated URDF must be
 the nominal one times :math:`\exp_6(\delta_i)` with :math:`\delta_i` below
@@ -23,8 +29,10 @@ joint names fails), and with ``identification.json`` the URDF must be
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -35,6 +43,7 @@ from calib_oed.calibration.sensor_file import read_sensor_compliance, read_senso
 from calib_oed.calibration.validation import find_calibration_files
 from calib_oed.exceptions import CompensationError, UnknownParameterError
 from calib_oed.measurement.discrepancy import DiscrepancyPrior
+from calib_oed.model.deflected_kinematics import JointDeflection
 from calib_oed.model.parameters import ParameterSpace
 from calib_oed.model.robot import Robot, load_robot
 from calib_oed.scene.yaml_file import MAX_TEXT_BYTES, read_text_file
@@ -50,8 +59,30 @@ def _placement_deltas(nominal: pin.Model, calibrated: pin.Model) -> np.ndarray:
                      for i in range(1, nominal.njoints)])
 
 
+@dataclass(frozen=True, eq=False)
+class LoadedCalibration:
+    """A calibration as ``compensate`` uses it (:func:`load_compensation`).
+
+    Attributes:
+        robot: The calibrated robot (joint placements).
+        uncertainty: For the predicted residual, or None without ``identification.json``.
+        files: The files used, by role.
+        deflection: Joint compliance (with the working payload) and gains, or None (rigid joints).
+        payload: Where the payload of the deflection comes from (one line), or "" without compliance.
+        space: The calibration's parameter space (the scene's, with the identified compliance and gains).
+    """
+
+    robot: Robot
+    uncertainty: CalibrationUncertainty | None
+    files: dict
+    deflection: JointDeflection | None
+    payload: str
+    space: ParameterSpace
+
+
 def load_calibration(space: ParameterSpace, folder: str | os.PathLike) -> tuple[Robot, CalibrationUncertainty | None, dict]:
-    """(calibrated robot, its uncertainty or None, the files used) of ``identify -o`` output.
+    """(calibrated robot, its uncertainty or None, the files used) of ``identify -o`` output, for
+    what a URDF holds (``calib-oed table``): a calibration with joint compliance or gains is refused.
 
     Args:
         space: The scene's parameter space (nominal robot, tracker, reflectors).
@@ -63,12 +94,65 @@ def load_calibration(space: ParameterSpace, folder: str | os.PathLike) -> tuple[
             InputFileError: an ``identification.json`` that is not a regular file or is larger
             than :data:`~calib_oed.scene.yaml_file.MAX_TEXT_BYTES` (the bound ``validate`` reads it with).
     """
+    files = find_calibration_files(folder, space.robot.name)
+    for read, what in ((read_sensor_compliance, "joint compliance"), (read_sensor_gains, "joint gains")):
+        if read(files["sensor"], space.robot.joint_names) is not None:
+            raise CompensationError(f"{files['sensor']}: the calibration has {what}, which a URDF or a parameter "
+                                    "table cannot hold (`calib-oed compensate` models it): identify without it")
+    return _read(space, files)
+
+
+def load_compensation(space: ParameterSpace, folder: str | os.PathLike,
+                      payload_mass: float | None = None) -> LoadedCalibration:
+    """The calibration ``compensate`` uses: the robot, its uncertainty and the joint deflection.
+
+    Args:
+        space: The scene's parameter space (nominal robot, tracker, reflectors; its compliance
+            block's payload, if any, is the working payload).
+        folder: The folder ``calib-oed identify -o DIR`` wrote, or its URDF.
+        payload_mass: The payload mass the program runs with [kg] (overrides the scene's; the
+            centre of mass stays as below); None: the scene's ``robot.compliance`` payload, else
+            the one the calibration was identified under.
+
+    Raises:
+        As :func:`load_calibration`, without the refusal of compliance and gains.
+    """
     robot = space.robot
     files = find_calibration_files(folder, robot.name)
-    for read, what in ((read_sensor_compliance, "joint compliance"), (read_sensor_gains, "joint gains")):
-        if read(files["sensor"], robot.joint_names) is not None:
-            raise CompensationError(f"{files['sensor']}: the calibration has {what}, which compensate does "
-                                    "not model (the kinematics are not a URDF's): identify without it")
+    found = read_sensor_compliance(files["sensor"], robot.joint_names)
+    gains = read_sensor_gains(files["sensor"], robot.joint_names)
+    compliance, source = None, ""
+    if found is not None:
+        identified = found[0]
+        if space.compliance is not None:
+            load, source = space.compliance, "the scene's robot.compliance.payload"
+        else:
+            load, source = identified, (f"the payload the calibration was identified under ({files['sensor']}); "
+                                        "the scene declares none")
+        if payload_mass is not None:
+            load = dataclasses.replace(load, payload_mass=payload_mass)
+            source = f"--payload-kg, the centre of mass from {source}"
+        compliance = dataclasses.replace(identified, payload_mass=load.payload_mass, payload_com=load.payload_com)
+    own = ParameterSpace(robot, space.tracker_placement0, space.reflector_offsets0, compliance=compliance,
+                         joint_gains=None if gains is None else gains[0])
+    calibrated, uncertainty, out = _read(own, files)
+    sensor = own.zeros()                    # the sensor file's values (no identification.json: these)
+    if found is not None:
+        sensor[own.compliance_slice] = found[1]
+    if gains is not None:
+        sensor[own.gain_slice] = gains[1]
+    joint = slice(own.compliance_slice.start, own.size)
+    if uncertainty is not None and not np.allclose(uncertainty.p[joint], sensor[joint], rtol=1e-9, atol=0):
+        raise CompensationError(f"{out['identification']}: its compliances or gains are not those of "
+                                f"{files['sensor']}: the two files are not from one identification")
+    deflection = JointDeflection.from_space(own, sensor if uncertainty is None else uncertainty.p)
+    text = f"payload {deflection.payload}: {source}" if found is not None else ""
+    return LoadedCalibration(calibrated, uncertainty, out, deflection, text, own)
+
+
+def _read(space: ParameterSpace, files: dict) -> tuple[Robot, CalibrationUncertainty | None, dict]:
+    """The calibrated robot and its uncertainty of ``files``, parameters read into ``space``."""
+    robot = space.robot
     calibrated = load_robot(str(files["urdf"]), tool_frame=robot.tool_frame,
                             lock_joints=robot.locked_joints or None, package_dirs=robot.package_dirs)
     if tuple(calibrated.joint_names) != tuple(robot.joint_names):
@@ -111,4 +195,4 @@ def load_calibration(space: ParameterSpace, folder: str | os.PathLike) -> tuple[
     return calibrated, CalibrationUncertainty(space, p, free, cov * factor, extra), out
 
 
-__all__ = ["load_calibration"]
+__all__ = ["LoadedCalibration", "load_calibration", "load_compensation"]

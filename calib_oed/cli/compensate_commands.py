@@ -30,8 +30,31 @@ def add_compensate_parser(sub) -> None:
     p.add_argument("--singular", type=float, default=None, metavar="SIGMA",
                    help="name targets whose smallest scaled Jacobian singular value is below this "
                    "(default 0.01, docs/compensate.md)")
+    p.add_argument("--payload-kg", type=float, default=None, metavar="KG", dest="working_payload_kg",
+                   help="payload on the tool while the program runs, for a calibration that identified joint "
+                   "compliance (default: the scene's robot.compliance payload, else the one identified under; "
+                   "the centre of mass stays the scene's, else the identified one)")
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.set_defaults(func=cmd_compensate, outputs={"output": "dir"})
+
+
+def _payload_mass(mass: float | None) -> float | None:
+    """``--payload-kg``: the payload mass the program runs with [kg], or None."""
+    from calib_oed.scene.joint_keys import MAX_PAYLOAD_KG
+
+    if mass is not None and not 0 <= mass <= MAX_PAYLOAD_KG:
+        raise CompensationError(f"--payload-kg {mass:g}: give the payload mass from 0 to {MAX_PAYLOAD_KG:g} kg")
+    return mass
+
+
+def _deflection_text(loaded) -> str:
+    """One line: what of the joints' deflection the compensation models, and the payload."""
+    d = loaded.deflection
+    if d is None:
+        return ""
+    parts = (["joint compliance under gravity, " + loaded.payload] if d.compliance is not None else []) + (
+        [f"{len(d.gains)} joint gains and coupling ratios"] if d.gains is not None else [])
+    return "compensated with " + "; ".join(parts)
 
 
 def _frame(text: str | None, option: str):
@@ -51,9 +74,10 @@ def _frame(text: str | None, option: str):
 
 def cmd_compensate(args) -> int:
     from calib_oed.calibration.compensation import SINGULAR_THRESHOLD
-    from calib_oed.calibration.compensation_files import load_calibration
+    from calib_oed.calibration.compensation_files import load_compensation
     from calib_oed.calibration.problem import CalibrationProblem
     from calib_oed.io.atomic import atomic_write_files
+    from calib_oed.model.parameters import ParameterSpace
     from calib_oed.program.compensate import compensate_program
     from calib_oed.program.parse.files import program_files, read_program
     from calib_oed.scene.reader import load_scene
@@ -68,21 +92,32 @@ def cmd_compensate(args) -> int:
     if not threshold >= 0:
         raise CompensationError(f"--singular {args.singular}: give a threshold >= 0 (default 0.01)")
     problem = CalibrationProblem.from_scene(scene)
-    calibrated, uncertainty, cal_files = load_calibration(problem.space, args.calibration)
+    space = problem.space      # the working payload: the scene's robot.compliance block's, even if disabled
+    if scene.compliance is not None and space.compliance is None:
+        space = ParameterSpace(space.robot, space.tracker_placement0, space.reflector_offsets0,
+                               compliance=scene.compliance.payload)
+    loaded = load_compensation(space, args.calibration, _payload_mass(args.working_payload_kg))
+    if args.working_payload_kg is not None and not loaded.payload:
+        raise CompensationError(f"--payload-kg {args.working_payload_kg:g}: the calibration {loaded.files['sensor']} "
+                                "identified no joint compliance, so the payload changes nothing; leave it out")
+    cal_files = loaded.files
     parsed, encodings = read_program(args.program, scene.robot.joint_names)
-    result = compensate_program(parsed, scene.robot, calibrated, uncertainty=uncertainty,
+    result = compensate_program(parsed, scene.robot, loaded.robot, uncertainty=loaded.uncertainty,
                                 controller=scene.controller, tool=_frame(args.tool, "--tool"),
                                 base=_frame(args.base, "--base"), home=problem.kpi.configurations[0],
-                                singular_threshold=threshold)
+                                singular_threshold=threshold, deflection=loaded.deflection)
     out.mkdir(parents=True, exist_ok=True)
     written = [str(p) for p in atomic_write_files({out / name: text.encode(encodings[name])  # .src/.dat as a pair
                                                    for name, text in result.texts.items()})]
     if args.json:
         data = result.to_dict()
-        data.update(scene=scene.name, calibration=cal_files, written=written)
+        data.update(scene=scene.name, calibration=cal_files, written=written,
+                    joint_deflection=_deflection_text(loaded) or None)
         print(json.dumps(data, indent=2))
         return EXIT_OK
     _say(args, f"scene {scene.name!r}, calibration {cal_files['urdf']}")
+    if loaded.deflection is not None:
+        _say(args, _deflection_text(loaded))
     _say(args, result.summary())
     _say(args, f"wrote {', '.join(written)}")
     return EXIT_OK

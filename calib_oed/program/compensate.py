@@ -6,7 +6,8 @@ controller convention (:math:`q = Ac + b`, :mod:`calib_oed.model.controller`), C
 targets :math:`P` (in the base frame) by the nominal inverse kinematics seeded at the
 previous target's :math:`q^0` (the first at ``home``; a target whose inverse kinematics
 failed is skipped as a seed), so the branch is the one the program moves along. Then :func:`calib_oed.calibration.compensation.compensate_joints`
-gives :math:`\hat q` and, for Cartesian targets, the pose :math:`P'` the nominal
+gives :math:`\hat q` (with the calibration's joint compliance and gains when given a
+``deflection``: the commanded joints) and, for Cartesian targets, the pose :math:`P'` the nominal
 controller must be given. Joint targets are rewritten with :math:`\hat q` (back in the
 controller's convention and unit), Cartesian targets with :math:`P'` in the language's
 convention (angles the representation nearest the original, status/turn/confdata as
@@ -38,6 +39,7 @@ from calib_oed.calibration.compensation import (
     SINGULAR_THRESHOLD,
     CalibrationUncertainty,
     Compensation,
+    calibrated_kinematics,
     compensate_joints,
 )
 from calib_oed.model.arm_configuration import (
@@ -48,6 +50,7 @@ from calib_oed.model.arm_configuration import (
     kuka_status,
 )
 from calib_oed.model.controller import ControllerConvention
+from calib_oed.model.deflected_kinematics import JointDeflection
 from calib_oed.model.inverse_kinematics import IkSettings, TcpKinematics
 from calib_oed.model.robot import Robot
 from calib_oed.program.parse.targets import ParsedProgram, Target, rewrite
@@ -63,7 +66,7 @@ class CompensatedProgram:
         compensation: The compensation of every target (in program order).
         changed: Whether each target was rewritten (False: inverse kinematics failed).
         shift_mm: :math:`\\lVert \\hat t(q^0) - t^0(q^0)\\rVert` [mm]: how far the calibrated model
-            puts the TCP from the target without compensation (n,).
+            (deflected, with a ``deflection``) puts the TCP from the target without compensation (n,).
         sources: Where the tool and base came from (``file``, ``given``, ``none``).
         configuration: Per target, what of the controller configuration :math:`\\hat q` changes
             against :math:`q^0` (Cartesian KRL, RAPID and TP targets; empty: nothing).
@@ -171,12 +174,15 @@ def compensate_program(parsed: ParsedProgram, nominal: Robot, calibrated: Robot,
                        controller: ControllerConvention | None = None, tool: pin.SE3 | None = None,
                        base: pin.SE3 | None = None, home: np.ndarray | None = None,
                        settings: IkSettings | None = None,
-                       singular_threshold: float = SINGULAR_THRESHOLD) -> CompensatedProgram:
+                       singular_threshold: float = SINGULAR_THRESHOLD,
+                       deflection: JointDeflection | None = None) -> CompensatedProgram:
     """Compensate every target of ``parsed`` (module docstring).
 
     Args:
         tool, base: :math:`T_{F,E}`, :math:`T_{W,B}` unless the program declares them.
         home: Seed of the first Cartesian target (nq,) [rad]; None: the joint-range middle.
+        deflection: The calibration's joint compliance (with the scene's payload) and gains,
+            or None (:func:`~calib_oed.calibration.compensation.compensate_joints`).
     """
     settings = settings or IkSettings()
     sources = {"tool": "file" if parsed.tool is not None else "given" if tool is not None else "none (the tool frame)",
@@ -202,9 +208,9 @@ def compensate_program(parsed: ParsedProgram, nominal: Robot, calibrated: Robot,
         if ok[i]:       # a failed solve's end point is no branch to follow
             seed = q0[i]
     comp = compensate_joints(nominal, calibrated, q0, tool=tool, base=base, uncertainty=uncertainty,
-                             settings=settings, singular_threshold=singular_threshold)
+                             settings=settings, singular_threshold=singular_threshold, deflection=deflection)
     comp = Compensation(**{**comp.__dict__, "converged": comp.converged & ok})
-    cal = TcpKinematics(calibrated, tool, length=nom.length)
+    cal = calibrated_kinematics(calibrated, deflection, tool, nom.length)
     shift = np.array([1e3 * np.linalg.norm(cal.compute_pose(q).translation - nom.compute_pose(q).translation)
                       for q in q0])
     configuration, branch = _configuration_checks(parsed, nominal, q0, comp, controller)

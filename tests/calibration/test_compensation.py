@@ -9,6 +9,7 @@ import pytest
 from calib_oed import load_robot
 from calib_oed.calibration.compensation import (
     CalibrationUncertainty,
+    calibrated_kinematics,
     calibrated_robot,
     compensate_joints,
     compensate_pose,
@@ -17,8 +18,12 @@ from calib_oed.calibration.identification import identify
 from calib_oed.calibration.problem import CalibrationProblem
 from calib_oed.calibration.simulation import draw_true_parameters, simulate_observations
 from calib_oed.exceptions import CompensationError
+from calib_oed.model.compliance import Compliance
+from calib_oed.model.deflected_kinematics import JointDeflection
 from calib_oed.model.inverse_kinematics import TcpKinematics
+from calib_oed.model.joint_map import JointGains
 from calib_oed.scene.reader import load_scene
+from calib_oed.scene.records import ComplianceSpec
 
 TRUTHS = (1, 2, 3)
 
@@ -27,9 +32,13 @@ def _rms(a) -> float:
     return float(np.sqrt(np.mean(np.square(a))))
 
 
-def _truth_errors(scene_name: str, n_design: int = 60, n_targets: int = 120):
-    """Per truth: compensated and uncompensated TCP errors [mm] and the predicted residual [mm]."""
-    problem = CalibrationProblem.from_scene(load_scene(scene_name))
+def _truth_errors(scene_name, n_design: int = 60, n_targets: int = 120):
+    """Per truth: compensated and uncompensated TCP errors [mm], the predicted residual [mm], the
+    compensation, and the TCP errors [mm] of compensating the joint placements alone.
+
+    ``scene_name``: a name, path or Scene; with joint compliance or gains the truth and the
+    compensation have them (the last item ignores them)."""
+    problem = CalibrationProblem.from_scene(scene_name if not isinstance(scene_name, str) else load_scene(scene_name))
     space = problem.space
     robot = space.robot
     q_design = robot.random_configurations(n_design, 0)   # a calibration design (feasibility not needed)
@@ -41,14 +50,21 @@ def _truth_errors(scene_name: str, n_design: int = 60, n_targets: int = 120):
                           problem.identifiability)
         unc = CalibrationUncertainty.from_identification(space, result)
         targets = robot.random_configurations(n_targets, 100 + seed)
-        comp = compensate_joints(robot, calibrated_robot(space, result.p), targets, uncertainty=unc)
-        true, nominal = TcpKinematics(calibrated_robot(space, p_true)), TcpKinematics(robot)
+        deflection = JointDeflection.from_space(space, result.p)
+        comp = compensate_joints(robot, calibrated_robot(space, result.p), targets, uncertainty=unc,
+                                 deflection=deflection)
+        true = calibrated_kinematics(calibrated_robot(space, p_true), JointDeflection.from_space(space, p_true))
+        nominal = TcpKinematics(robot)
         goal = np.array([nominal.compute_pose(q).translation for q in targets])
-        after = np.array([true.compute_pose(q).translation for q in comp.q]) - goal
-        before = np.array([true.compute_pose(q).translation for q in targets]) - goal
+
+        def error(q, goal=goal, true=true):
+            return 1e3 * np.linalg.norm(np.array([true.compute_pose(row).translation for row in q]) - goal, axis=1)
+
+        after = error(comp.q)
+        rigid = after if deflection is None else error(
+            compensate_joints(robot, calibrated_robot(space, result.p), targets).q)
         ok = comp.converged & comp.in_range & ~comp.near_singular
-        out.append((1e3 * np.linalg.norm(after, axis=1)[ok], 1e3 * np.linalg.norm(before, axis=1)[ok],
-                    comp.predicted_mm[ok], comp))
+        out.append((after[ok], error(targets)[ok], comp.predicted_mm[ok], comp, rigid[ok]))
     return out
 
 
@@ -69,15 +85,34 @@ def test_a_large_arm_from_a_ros_industrial_xacro(tmp_path):
     _check_truths(_truth_errors(str(scene)))
 
 
+def deflecting_scene(name: str = "fms_kr16", payload_kg: float = 16.0):
+    """``name`` with joint compliance (``payload_kg`` 0.1 m out on the tool) and every joint's gain."""
+    import dataclasses
+
+    scene = load_scene(name)
+    return dataclasses.replace(scene, compliance=ComplianceSpec(True, Compliance(payload_kg, [0.0, 0.0, 0.1])),
+                               joint_gains=JointGains.all_joints(scene.robot.nq))
+
+
+def test_compliance_and_gains_are_compensated():
+    """A calibration with joint compliance and gains (simulated truths that have them): the commanded
+    joints from the deflected model's inverse kinematics reach the targets to the predicted accuracy;
+    compensating the joint placements alone leaves the deflection (here >= 5x more)."""
+    trials = _truth_errors(deflecting_scene(), n_targets=60)
+    _check_truths(trials)
+    for after, *_, after_rigid in trials:
+        assert _rms(after_rigid) >= 5 * _rms(after)
+
+
 def _check_truths(trials):
     after = np.concatenate([t[0] for t in trials])
     predicted = np.concatenate([t[2] for t in trials])
-    assert all(len(t[0]) >= 60 for t in trials)               # most random targets are regular
+    assert all(len(t[0]) >= t[3].n // 2 for t in trials)       # most random targets are regular
     # the RMS error over 3 truths is the calibration's predicted accuracy (within 20 %) ...
     assert _rms(after) <= 1.2 * _rms(predicted)
     assert _rms(after) >= 0.6 * _rms(predicted)                # ... and the prediction is not loose
     # ... and at least 5x smaller than without compensation, per truth
-    for a, b, _, _ in trials:
+    for a, b, *_ in trials:
         assert 5.0 * _rms(a) <= _rms(b)
     # flagged targets are named, the others not
     comp = trials[0][3]
@@ -129,3 +164,28 @@ def test_model_error_hook_adds_to_the_prediction():
     c0 = base.compute_covariance(q, np.zeros(3))
     c1 = extra.compute_covariance(q, np.zeros(3))
     assert np.allclose(c1 - c0, np.eye(3) * 1e-8)
+
+
+def test_pose_compensation_with_a_deflection():
+    """Cartesian targets with joint compliance and gains: the deflected calibrated model reaches the
+    target at the compensated (commanded) joints; the commanded pose is the nominal one there."""
+    space = CalibrationProblem.from_scene(deflecting_scene()).space
+    robot = space.robot
+    rng = np.random.default_rng(8)
+    p = space.zeros()
+    p[space.joints_slice] = rng.normal(scale=5e-4, size=6 * robot.nq)
+    p[space.compliance_slice] = 3e-6
+    p[space.gain_slice] = rng.normal(scale=1e-3, size=robot.nq)
+    deflection = JointDeflection.from_space(space, p)
+    tool = pin.SE3(np.eye(3), np.array([0.0, 0.05, 0.2]))
+    q0 = np.radians([[20.0, -70.0, 100.0, 15.0, 50.0, -30.0], [-35.0, -100.0, 80.0, -40.0, -60.0, 90.0]])
+    nom = TcpKinematics(robot, tool)
+    poses = [nom.compute_pose(q) for q in q0]
+    comp = compensate_pose(robot, calibrated_robot(space, p), poses, q0 + 0.05, tool=tool, deflection=deflection)
+    cal = calibrated_kinematics(calibrated_robot(space, p), deflection, tool)
+    assert np.all(comp.converged)
+    for i in range(2):
+        assert np.allclose(cal.compute_pose(comp.q[i]).homogeneous, poses[i].homogeneous, atol=1e-10)
+        assert np.allclose(comp.commanded[i].homogeneous, nom.compute_pose(comp.q[i]).homogeneous, atol=1e-12)
+    rigid = compensate_pose(robot, calibrated_robot(space, p), poses, q0 + 0.05, tool=tool)
+    assert np.abs(rigid.q - comp.q).max() > 1e-4                   # the deflection is compensated too

@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from calib_oed.calibration.compensation_files import load_calibration
+from calib_oed.calibration.compensation_files import load_calibration, load_compensation
 from calib_oed.calibration.export import export_calibration
 from calib_oed.calibration.identification import identify
 from calib_oed.calibration.problem import CalibrationProblem
@@ -17,8 +17,9 @@ from calib_oed.scene.reader import load_scene
 
 
 def write_calibration(folder, scene="fms_kr16", seed=1):
-    """What `identify -o folder` writes (URDF, sensor YAML, identification.json) for a simulated truth."""
-    problem = CalibrationProblem.from_scene(load_scene(scene))
+    """What `identify -o folder` writes (URDF, sensor YAML, identification.json) for a simulated truth
+    (``scene``: a name or a Scene)."""
+    problem = CalibrationProblem.from_scene(load_scene(scene) if isinstance(scene, str) else scene)
     space = problem.space
     rng = np.random.default_rng(seed)
     p_true = draw_true_parameters(space, problem.identifiability.free_indices, rng)
@@ -102,3 +103,36 @@ def test_identification_json_is_read_bounded(tmp_path, monkeypatch):
     (tmp_path / "identification.json").mkdir()
     with pytest.raises(InputFileError, match="is a folder"):
         load_calibration(problem.space, tmp_path)
+
+
+def test_compliance_and_gains_are_kept_for_compensate(tmp_path):
+    """A calibration with joint compliance and gains: ``table``'s reader refuses it (a URDF cannot hold
+    them); ``compensate``'s keeps them as the joint deflection, with the working payload named."""
+    from calib_oed.model.deflected_kinematics import JointDeflection
+    from tests.calibration.test_compensation import deflecting_scene
+
+    problem, result, _ = write_calibration(tmp_path, deflecting_scene())
+    with pytest.raises(CompensationError, match="joint compliance, which a URDF or a parameter table cannot hold"):
+        load_calibration(problem.space, tmp_path)
+    q = problem.space.robot.random_configurations(5, 7)
+    expected = JointDeflection.from_space(problem.space, result.p).compute_effective(q)
+    loaded = load_compensation(problem.space, tmp_path)              # the scene declares the payload
+    assert np.allclose(loaded.deflection.compute_effective(q), expected, rtol=0, atol=1e-14)
+    assert "16 kg" in loaded.payload and "the scene's robot.compliance.payload" in loaded.payload
+    assert np.allclose(loaded.uncertainty.p, result.p) and len(loaded.deflection.gains) == 6
+    plain = CalibrationProblem.from_scene(load_scene("fms_kr16")).space    # no compliance block: the file's
+    loaded = load_compensation(plain, tmp_path)
+    assert np.allclose(loaded.deflection.compute_effective(q), expected, rtol=0, atol=1e-14)
+    assert "identified under" in loaded.payload
+    empty = load_compensation(plain, tmp_path, payload_mass=0.0)      # another payload: another deflection
+    assert "0 kg" in empty.payload and "--payload-kg" in empty.payload
+    assert np.abs(empty.deflection.compute_effective(q) - expected).max() > 1e-6
+    data = json.loads((tmp_path / "identification.json").read_text())
+    data["p"]["joint2.c"] *= 1.01                                     # not the sensor file's compliance
+    (tmp_path / "identification.json").write_text(json.dumps(data))
+    with pytest.raises(CompensationError, match="not from one identification"):
+        load_compensation(plain, tmp_path)
+    (tmp_path / "identification.json").unlink()                       # the sensor file alone
+    loaded = load_compensation(plain, tmp_path)
+    assert loaded.uncertainty is None
+    assert np.allclose(loaded.deflection.compute_effective(q), expected, rtol=0, atol=1e-14)

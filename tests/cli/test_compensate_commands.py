@@ -141,3 +141,68 @@ def test_moves_not_compensated_are_in_the_report_and_the_json(calibration, tmp_p
     assert "\nLIN_REL {X 100} C_DIS\n" in (tmp_path / "out" / "w.src").read_text()
     assert main(args) == 0
     assert f"  note: w.src:{line}: LIN_REL {{X 100}} C_DIS: NOT compensated" in capsys.readouterr().out
+
+
+def test_a_calibration_with_compliance_and_gains_is_compensated_with_them(tmp_path, capsys):
+    """The files written are the program compensated with the joint deflection (payload: the one
+    identified under, the scene declaring none; or --payload-kg), and the report says so."""
+    from calib_oed.calibration.compensation_files import load_compensation
+    from calib_oed.calibration.problem import CalibrationProblem
+    from calib_oed.program.compensate import compensate_program
+    from calib_oed.program.parse.files import read_program
+    from calib_oed.scene.reader import load_scene
+    from tests.calibration.test_compensation import deflecting_scene
+
+    (tmp_path / "cal").mkdir()
+    write_calibration(tmp_path / "cal", deflecting_scene())
+    (tmp_path / "weld_demo.src").write_text(samples.KRL_SRC)
+    (tmp_path / "weld_demo.dat").write_text(samples.KRL_DAT)
+    scene = load_scene("fms_kr16")
+    problem = CalibrationProblem.from_scene(scene)
+    parsed, _ = read_program(tmp_path / "weld_demo.src", scene.robot.joint_names)
+
+    def api(payload_kg=None, rigid=False):
+        loaded = load_compensation(problem.space, tmp_path / "cal", payload_kg)
+        return compensate_program(parsed, scene.robot, loaded.robot, uncertainty=loaded.uncertainty,
+                                  controller=scene.controller, home=problem.kpi.configurations[0],
+                                  deflection=None if rigid else loaded.deflection).texts
+
+    for extra, payload in (([], None), (["--payload-kg", "0"], 0.0)):
+        out = tmp_path / f"out{len(extra)}"
+        assert main(["compensate", "fms_kr16", str(tmp_path / "cal"), str(tmp_path / "weld_demo.src"),
+                     "-o", str(out), *extra]) == 0
+        report = capsys.readouterr().out
+        assert "compensated with joint compliance under gravity, payload" in report and "6 joint gains" in report
+        assert ("--payload-kg" in report) == bool(extra)
+        written = {name: (out / name).read_text() for name in ("weld_demo.src", "weld_demo.dat")}
+        assert written == api(payload)
+    assert api(0.0)["weld_demo.dat"] != api()["weld_demo.dat"] != api(rigid=True)["weld_demo.dat"]
+
+
+def test_payload_without_compliance_is_one_line(calibration, tmp_path, capsys):
+    (tmp_path / "p.ls").write_text(samples.TP_LS)
+    assert main(["compensate", "fms_kr16", str(calibration), str(tmp_path / "p.ls"), "--payload-kg", "5"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "identified no joint compliance" in err[0]
+
+
+def test_the_scenes_payload_is_the_working_one_even_with_compliance_disabled(tmp_path, capsys):
+    """fms_kr300 declares its rated 300 kg under robot.compliance with enabled: false; a calibration
+    identified under 100 kg is compensated for the scene's 300 kg."""
+    import dataclasses
+
+    from calib_oed.model.compliance import Compliance
+    from calib_oed.scene.reader import load_scene
+    from calib_oed.scene.records import ComplianceSpec
+
+    scene = load_scene("fms_kr300")
+    assert scene.compliance is not None and not scene.compliance.enabled
+    identified = dataclasses.replace(scene, compliance=ComplianceSpec(True, Compliance(100.0, [0.0, 0.0, 0.1])))
+    (tmp_path / "cal").mkdir()
+    write_calibration(tmp_path / "cal", identified)
+    (tmp_path / "p.src").write_text(samples.KRL_SRC)
+    (tmp_path / "p.dat").write_text(samples.KRL_DAT)
+    assert main(["compensate", "fms_kr300", str(tmp_path / "cal"), str(tmp_path / "p.src"), "-o",
+                 str(tmp_path / "out"), "--json"]) == 0
+    text = json.loads(capsys.readouterr().out)["joint_deflection"]
+    assert "payload 300 kg at [0.0, 0.0, 200.0] mm" in text and "the scene's robot.compliance.payload" in text
