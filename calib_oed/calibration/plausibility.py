@@ -14,8 +14,11 @@ gear error, a gain that is really gravity). The bounds, per parameter kind
   [N·m/rad] (1e4 for a 1 m arm, 2e5 for a 2.7 m one: joint stiffness of
   industrial arms grows about with the cube of their size); negative is a
   negative stiffness;
-- **joint gains and coupling ratios**: :math:`|g| \le` :data:`MAX_GAIN` (2e-3 = 0.2 %;
-  gear-ratio and encoder errors are 1e-4..1e-3).
+- **joint gains and coupling ratios**: :math:`|g| \le` :data:`MAX_GAIN` (3e-3 = 0.3 %;
+  gear-ratio and encoder errors are 1e-4..1e-3, and the simulator draws them with a
+  standard deviation of 1e-3, :func:`calib_oed.calibration.simulation.draw_true_parameters`:
+  three of its standard deviations, so a simulated truth's gain is called implausible
+  about once in 400 draws, and issue 29's -0.5 % J2 gain still is).
 
 The tracker pose and the reflector offsets have no bound (they are where the
 set-up put them). A value is reported only when it is beyond its bound by more
@@ -38,7 +41,7 @@ MAX_ANGLE_CHANGE = 1e-2
 #: Smallest plausible joint stiffness of a 1 m arm [N·m/rad]; scales with reach cubed.
 STIFFNESS_PER_REACH3 = 1e4
 #: Largest plausible joint gain or coupling ratio error [1].
-MAX_GAIN = 2e-3
+MAX_GAIN = 3e-3
 #: Standard deviations a value must be beyond its bound to be reported.
 SIGNIFICANCE = 2.0
 
