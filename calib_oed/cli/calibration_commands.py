@@ -220,6 +220,7 @@ def cmd_identify(args) -> int:
     data["model_error"] = robust.model_error.to_dict()
     data.update(trust.to_dict())
     data["outliers"] = data["fit"]["outliers"]  # by file line; the fit's own a-priori list is not used
+    del data["noise_factor_inliers"]  # nor its sigma0 without that list (one rule: fit.flag_rule)
     if cv is not None:
         data["cross_validation"] = cv.to_dict()
     if args.truth:
