@@ -322,6 +322,19 @@ def cmd_feasibility(args) -> int:
     return EXIT_OK
 
 
+def _model_error_warning(result) -> str:
+    r"""What ``sequential --measured`` says when the fit's residuals show model error: the KPI sigma
+    then covers only part of the error. Model error is shown when :math:`\hat\sigma_0^2` exceeds 1 by
+    more than 3 of its standard deviations under the noise model, :math:`\sqrt{2/(m - n_f)}`
+    (docs/identification.md, the noise factor); "" otherwise."""
+    if not result.dof > 0 or result.noise_factor <= 1.0 + 3.0 * np.sqrt(2.0 / result.dof):
+        return ""
+    return (f"sigma0 = {result.sigma0:.2f}: the residuals are {result.sigma0:.1f} times the stated noise, "
+            "so these data show model error (gravity, gears, temperature), which the KPI sigma does not "
+            "cover and more poses do not remove; `calib-oed identify` predicts the accuracy with it "
+            "(docs/identification.md#model-error-and-predicted-accuracy)")
+
+
 def _sequential_step(s, args, settings) -> int:
     """One step of a real sequential calibration: identify from the file, then stop or propose."""
     from calib_oed.calibration.workflow import identify_measurements, read_scene_measurements
@@ -339,10 +352,13 @@ def _sequential_step(s, args, settings) -> int:
                                   settings=settings, seed=args.seed + len(q))
     sigma = designer.predicted_sigma_mm(q, p_hat)
     done = bool(sigma.max() <= args.target_sigma)
+    warning = _model_error_warning(result)
     data = {"scene": s.scene.name, "measurements": str(args.measured), "rows": int(mset.n),
             "configurations": len(q), "identification_converged": bool(result.converged),
             "target_sigma_mm": args.target_sigma, "kpi_names": list(s.problem.kpi.names),
-            "sigma_mm": sigma.tolist(), "done": done, "next_q_rad": None, "files": {}}
+            "sigma_mm": sigma.tolist(), "sigma_covers": "measurement noise only, the model taken as exact",
+            "sigma0": result.sigma0, "model_error_warning": warning,
+            "done": done, "next_q_rad": None, "files": {}}
     if not done:
         prop = designer.plan(q, p_hat, current_pose=q[-1] if args.follow_pose else None)
         after = designer.predicted_sigma_mm(np.vstack([q, prop.q]), p_hat)
@@ -364,9 +380,12 @@ def _sequential_step(s, args, settings) -> int:
     print(f"scene {s.scene.name!r}: {len(q)} configurations measured ({mset.n} rows of {args.measured}); "
           f"identification {'converged' if result.converged else 'NOT converged'}")
     for name, sg in zip(s.problem.kpi.names, sigma, strict=True):
-        print(f"  predicted KPI sigma at {name}: {sg:.5f} mm")
+        print(f"  predicted KPI sigma at {name}: {sg:.5f} mm (measurement noise only, the model taken as exact)")
+    if warning:
+        print(f"warning: {warning}")
     if done:
-        print(f"target {args.target_sigma:g} mm reached: stop measuring")
+        print(f"target {args.target_sigma:g} mm reached: stop measuring"
+              + (" (by the noise-only sigma; the model error above is not in it)" if warning else ""))
         return EXIT_OK
     print(f"target {args.target_sigma:g} mm not reached: measure {len(prop.q)} more poses "
           f"(predicted sigma after them: {after.max():.5f} mm)")

@@ -42,3 +42,36 @@ def test_design_warns_when_home_may_not_wind_to_a_pose(capsys, tmp_path):
     err = capsys.readouterr().err
     assert err.startswith("warning: 1 of 12 poses have a joint a whole turn from a value nearer home")
     assert f"pose {k + 1}: shoulder_pan_joint" in err and "program --wrap" in err
+
+
+def test_sequential_step_says_what_its_sigma_covers(capsys, tmp_path):
+    """Review finding: ``sequential --measured`` on data with model error (realistic truth, sigma0
+    about 5, TCP error 0.1 mm) printed a KPI sigma of 6 um and "target 0.02 mm reached: stop
+    measuring" without a word that the sigma is the measurement noise's share only. It now says so,
+    and warns when the fit's sigma0 shows model error; clean data get no warning."""
+    from calib_oed.calibration.workflow import (
+        realistic_measurements,
+        setup,
+        simulated_measurements,
+        write_measurement_file,
+    )
+    from calib_oed.scene.reader import load_scene
+
+    s = setup(load_scene("fms_kr16"))
+    q = s.problem.robot.random_configurations(30, 4)
+    texts = {}
+    for name, mset in (("realistic", realistic_measurements(s, q, 3)[0]),
+                       ("clean", simulated_measurements(s, q, 3)[0])):
+        path = tmp_path / f"{name}.csv"
+        write_measurement_file(s, path, mset, name)
+        argv = ["sequential", "fms_kr16", "--target-sigma", "0.05mm", "--measured", str(path)]
+        assert main(argv) == EXIT_OK
+        texts[name] = capsys.readouterr().out
+        assert main([*argv, "--json"]) == EXIT_OK
+        data = json.loads(capsys.readouterr().out)
+        assert data["done"] and data["sigma_covers"].startswith("measurement noise only")
+        assert bool(data["model_error_warning"]) == (name == "realistic")
+    assert "(measurement noise only, the model taken as exact)" in texts["clean"]
+    assert "reached: stop measuring" in texts["clean"] and "warning" not in texts["clean"]
+    assert "warning: sigma0 = " in texts["realistic"] and "these data show model error" in texts["realistic"]
+    assert "reached: stop measuring (by the noise-only sigma" in texts["realistic"]
