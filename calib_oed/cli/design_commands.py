@@ -57,6 +57,7 @@ def cmd_design(args) -> int:
         args.n = len(start)
     elif args.n is None:
         args.n = 60
+    from calib_oed.calibration.report import KPI_SIGMA_COVERS
     from calib_oed.oed.model_error import default_criterion
 
     # the criterion: --criterion, else kpi_model if the scene gives robot.model_error, else kpi
@@ -89,6 +90,7 @@ def cmd_design(args) -> int:
         print(json.dumps(data, indent=2))
         return code
     print(result.summary())
+    print(KPI_SIGMA_COVERS)  # what the KPI sigma above covers (the measurement noise only)
     print("  " + s.pairs.window)
     if winding:
         print(f"warning: {winding}", file=sys.stderr)
