@@ -236,7 +236,8 @@ def cmd_identify(args) -> int:
 
         data["files"]["residuals"] = str(write_residuals_csv(Path(paths["urdf"]).parent / "residuals.csv",
                                                              report))
-        atomic_write_text(Path(args.output) / "identification.json", json.dumps(data, indent=2))
+        data["files"]["report"] = str(Path(args.output) / "identification.json")
+        atomic_write_text(data["files"]["report"], json.dumps(data, indent=2))
     if args.plot:
         from calib_oed.viz.plots import plot_residuals, save_figure
 
@@ -258,7 +259,7 @@ def cmd_identify(args) -> int:
             print(f"TCP error at {name} against the truth: before {b:.4f} mm, after {a:.4f} mm")
     if args.output:
         print(f"wrote {data['files']['urdf']}, {data['files']['sensor']}, "
-              f"{data['files']['residuals']} and identification.json; "
+              f"{data['files']['residuals']} and {data['files']['report']}; "
               f"round trip of the URDF: {_round_trip_text(data['round_trip_m'])}")
     if args.plot:
         print(f"wrote the residual plot {data['plot']}")

@@ -133,3 +133,6 @@ def test_identify_report_names_one_set_of_outliers(tmp_path, capsys):
     assert data["outliers"] == [] and "outliers (leave-one-out" in text
     assert "without the outliers" not in text
     assert "noise_factor_inliers" not in data
+    # the report's path as written (it said "and identification.json", without the folder)
+    assert f"and {out / 'identification.json'};" in text
+    assert data["files"]["report"] == str(out / "identification.json")
