@@ -199,6 +199,7 @@ def _evaluate_plots(s, q, args) -> dict[str, Path]:
 
 
 def cmd_compare(args) -> int:
+    from calib_oed.calibration.report import KPI_SIGMA_COVERS
     from calib_oed.io.design_file import read_design_file
     from calib_oed.oed.design import evaluate_design
     from calib_oed.oed.result import design_label, format_criteria_table, format_design_table
@@ -223,6 +224,7 @@ def cmd_compare(args) -> int:
         return EXIT_OK
     print(f"scene {s.scene.name!r}: {len(designs)} designs (ratios relative to the first)")
     print(format_design_table(designs))
+    print(KPI_SIGMA_COVERS)
     print()
     print(format_criteria_table(designs))
     if args.plot:

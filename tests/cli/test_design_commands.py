@@ -77,14 +77,19 @@ def test_sequential_step_says_what_its_sigma_covers(capsys, tmp_path):
     assert "reached: stop measuring (by the noise-only sigma" in texts["realistic"]
 
 
-def test_design_says_what_its_kpi_sigma_covers(capsys):
+def test_design_says_what_its_kpi_sigma_covers(capsys, tmp_path):
     """Review finding: ``design`` printed "KPI sigma per axis car_side 0.00310 mm" with no word that
     this is the measurement noise's share only (``evaluate`` and ``demo`` said it; issue 29: the
-    3 um read as what the cell can reach, where a real arm misses new poses by 0.2 mm)."""
+    3 um read as what the cell can reach, where a real arm misses new poses by 0.2 mm); ``compare``
+    neither, under its "KPI sigma" column."""
     from calib_oed.calibration.report import KPI_SIGMA_COVERS
 
     assert main(["design", "fms_kr16", "-n", "30", "--no-refine", "--pool", "60",
-                 "--no-certificate", "--quiet"]) == EXIT_OK
+                 "--no-certificate", "--quiet", "-o", str(tmp_path / "d")]) == EXIT_OK
     out = capsys.readouterr().out
     assert "KPI sigma per axis car_side" in out and KPI_SIGMA_COVERS in out
     assert "covers the measurement noise only" in KPI_SIGMA_COVERS
+    design = str(tmp_path / "d" / "design.csv")
+    assert main(["compare", "fms_kr16", design, design, "--quiet"]) == EXIT_OK
+    out = capsys.readouterr().out
+    assert "KPI sigma" in out and KPI_SIGMA_COVERS in out
