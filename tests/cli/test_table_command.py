@@ -91,3 +91,29 @@ def test_bad_input_is_one_line_and_writes_nothing(tmp_path, capsys, args, messag
     err = capsys.readouterr().err.strip()
     assert message in err and len(err.splitlines()) == 1
     assert sorted(tmp_path.iterdir()) == before
+
+
+def test_a_table_exact_only_through_huge_lengths_is_named(tmp_path, capsys):
+    """Review finding: on a calibrated UR5 (nearly parallel A2-A4) the default modified DH table
+    reproduced the model to 2e-11 m, so nothing was named, through d of hundreds of metres (the
+    common normal of nearly parallel axes is far away): a table no controller can use. Rows with
+    a or d beyond the arm's stretched length are now named, with the advice to use hayati."""
+    from calib_oed.model.inverse_kinematics import characteristic_length
+
+    folder = tmp_path / "cal"
+    folder.mkdir()
+    problem, _, _ = write_calibration(folder, scene="ur5_table", seed=2)
+    robot, _, _ = load_calibration(problem.space, folder)
+    length = characteristic_length(robot)
+    for convention, far in (("mdh", True), ("hayati", False)):
+        out = tmp_path / f"{convention}.yaml"
+        assert main(["table", "ur5_table", str(folder), "--convention", convention, "-o", str(out),
+                     "--json"]) == 0
+        data = json.loads(capsys.readouterr().out)
+        table = read_parameter_table(out)
+        assert data["exact"]  # the round trip alone names nothing
+        big = [r.joint for r in table.rows if max(abs(r.a), abs(r.d)) > length]
+        assert bool(big) is far and data["far_rows"] == big
+    assert main(["table", "ur5_table", str(folder)]) == 0
+    text = capsys.readouterr().out
+    assert "NAMED: " in text and "beyond the arm's stretched length" in text and "hayati" in text
