@@ -167,7 +167,9 @@ def cmd_evaluate(args) -> int:
             print(f"  note: {e.label} is NOT estimable: it depends on "
                   f"{', '.join(n for n in e.gauge if n in unseen)}, which no measurement sees")
     print("criterion values (kpi, params: average variance [mm², params in mm and mrad]; D: log det C; "
-          "E: largest eigenvalue [mm²]; O1..O5: observability indices, larger is better):")
+          "E: largest eigenvalue [mm²]; O1..O5: observability indices, larger is better; kpi_model, "
+          "kpi_kriging: mean squared KPI error per axis with the scene's model-error prior [mm²], of the "
+          "fit and of the best linear predictor, docs/oed.md):")
     print("  " + ", ".join(f"{k} {v:.5g}" for k, v in result.criteria.items()))
     print(f"feasible (every constraint of the capsule model, margins included): {result.feasible}")
     from calib_oed.feasibility.margins import format_margins
