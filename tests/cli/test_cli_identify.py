@@ -136,3 +136,20 @@ def test_identify_report_names_one_set_of_outliers(tmp_path, capsys):
     # the report's path as written (it said "and identification.json", without the folder)
     assert f"and {out / 'identification.json'};" in text
     assert data["files"]["report"] == str(out / "identification.json")
+
+
+def test_validate_names_poses_of_the_identification_itself(files, capsys):
+    """Review finding: ``validate`` on the identification's own measurement file passed without a
+    word (its errors are the fit's residuals, not an independent validation). Validation poses
+    that are training poses are now counted and warned about; separate poses get no warning."""
+    folder, cal, val = files
+    out = folder / "cal_self"
+    assert main(["identify", "fms_kr16", str(cal), "-o", str(out), "--quiet"]) == EXIT_OK
+    capsys.readouterr()
+    for path, shared in ((cal, 60), (val, 0)):
+        assert main(["validate", "fms_kr16", str(out), str(path)]) == EXIT_OK
+        text = capsys.readouterr().out
+        assert ("warning: 60 of 60 validation poses are poses the identification was fitted to"
+                in text) is (shared > 0)
+        assert main(["validate", "fms_kr16", str(out), str(path), "--json"]) == EXIT_OK
+        assert json.loads(capsys.readouterr().out)["poses_in_training"] == shared
