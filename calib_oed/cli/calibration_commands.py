@@ -220,6 +220,7 @@ def cmd_identify(args) -> int:
     data["model_error"] = robust.model_error.to_dict()
     data.update(trust.to_dict())
     data["outliers"] = data["fit"]["outliers"]  # by file line; the fit's own a-priori list is not used
+    del data["noise_factor_inliers"]  # nor its sigma0 without that list (one rule: fit.flag_rule)
     if cv is not None:
         data["cross_validation"] = cv.to_dict()
     if args.truth:
@@ -235,7 +236,8 @@ def cmd_identify(args) -> int:
 
         data["files"]["residuals"] = str(write_residuals_csv(Path(paths["urdf"]).parent / "residuals.csv",
                                                              report))
-        atomic_write_text(Path(args.output) / "identification.json", json.dumps(data, indent=2))
+        data["files"]["report"] = str(Path(args.output) / "identification.json")
+        atomic_write_text(data["files"]["report"], json.dumps(data, indent=2))
     if args.plot:
         from calib_oed.viz.plots import plot_residuals, save_figure
 
@@ -257,7 +259,7 @@ def cmd_identify(args) -> int:
             print(f"TCP error at {name} against the truth: before {b:.4f} mm, after {a:.4f} mm")
     if args.output:
         print(f"wrote {data['files']['urdf']}, {data['files']['sensor']}, "
-              f"{data['files']['residuals']} and identification.json; "
+              f"{data['files']['residuals']} and {data['files']['report']}; "
               f"round trip of the URDF: {_round_trip_text(data['round_trip_m'])}")
     if args.plot:
         print(f"wrote the residual plot {data['plot']}")
@@ -284,17 +286,42 @@ def cmd_validate(args) -> int:
     table = pose_table(mset.q, result.calibrated.position_mm, mset.lines, mset.joint_names,
                        (ident or {}).get("training_joint_ranges"),
                        None if pred is None else pred.rms_mm, None if pred is None else pred.inside)
+    shared, poses = _poses_in_training(mset.q, ident)
     if args.json:
         data = result.to_dict()
         data["compensated"] = bool(args.compensate)
         data["verdict"] = verdict.to_dict()
         data["poses"] = table
+        data["poses_in_training"] = shared
         print(json.dumps(data, indent=2))
     else:
         print(result.summary())
         print("\n".join(pose_lines(table)))
+        if shared:
+            print(f"warning: {shared} of {poses} validation poses are poses the identification was fitted "
+                  f"to (joint values within {TRAINING_POSE_TOL:g} rad): their errors are the fit's "
+                  "residuals, not an independent validation; measure separate poses")
         print("\n".join(verdict.lines()))
     return EXIT_VALIDATION_FAILED if verdict.passed is False else EXIT_OK
+
+
+#: Joint values [rad] within which a validation pose counts as a pose of the identification's data.
+TRAINING_POSE_TOL = 1e-6
+
+
+def _poses_in_training(q: np.ndarray, ident: dict | None) -> tuple[int, int]:
+    """How many of the distinct validation configurations ``q`` are configurations the
+    identification was fitted to (``prediction_data`` of ``identification.json``), and how many
+    there are; 0 when the identification records none."""
+    poses = np.unique(np.asarray(q, dtype=float), axis=0)
+    try:
+        train = np.asarray(ident["prediction_data"]["configurations_rad"], dtype=float)
+    except (TypeError, KeyError, ValueError):
+        return 0, len(poses)
+    if train.ndim != 2 or train.shape[1] != poses.shape[1]:
+        return 0, len(poses)
+    near = np.abs(poses[:, None, :] - train[None, :, :]).max(axis=2) <= TRAINING_POSE_TOL
+    return int(near.any(axis=1).sum()), len(poses)
 
 
 def cmd_montecarlo(args) -> int:
