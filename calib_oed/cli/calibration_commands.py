@@ -183,6 +183,7 @@ def cmd_identify(args) -> int:
         fit_dict,
         fit_report,
         format_fit,
+        per_row,
         write_residuals_csv,
     )
     from calib_oed.calibration.trust import assess
@@ -213,7 +214,8 @@ def cmd_identify(args) -> int:
     if args.cv:
         cv = cross_validate(s.problem.space, mset, s.problem.identifiability, args.cv,
                             error_model=s.scene.error_model(),
-                            model_error=robust.model_error.prior)
+                            model_error=robust.model_error.prior,
+                            gross=None if robust.dropped is None else per_row(mset, robust, robust.dropped))
     trust = assess(s.problem, robust)
     data = result.to_dict()
     data["fit"] = fit_dict(report, robust, sanity)
