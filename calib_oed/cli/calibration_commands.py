@@ -151,6 +151,7 @@ def _realistic_settings(args):
 def _identify_fit(s, mset, args):
     """Sanity registration, then the fit with the model error; nothing written.
     Returns (sanity, blocks, robust)."""
+    from calib_oed.calibration.model_error import start_prior
     from calib_oed.calibration.robust import identify_robust
     from calib_oed.calibration.sanity import check_measurements
 
@@ -160,7 +161,7 @@ def _identify_fit(s, mset, args):
     blocks = mset.blocks(error_model=s.scene.error_model())
     drop = "all" if args.drop_flagged else ("gross" if args.loss == "robust" else "none")
     return sanity, blocks, identify_robust(problem.space, blocks, problem.identifiability,
-                                           model_error=s.scene.discrepancy(), drop=drop)
+                                           model_error=start_prior(s.scene), drop=drop)
 
 
 def _scene_and_measurements(args):
@@ -183,6 +184,7 @@ def cmd_identify(args) -> int:
         fit_dict,
         fit_report,
         format_fit,
+        per_row,
         write_residuals_csv,
     )
     from calib_oed.calibration.trust import assess
@@ -213,7 +215,8 @@ def cmd_identify(args) -> int:
     if args.cv:
         cv = cross_validate(s.problem.space, mset, s.problem.identifiability, args.cv,
                             error_model=s.scene.error_model(),
-                            model_error=robust.model_error.prior)
+                            model_error=robust.model_error.prior,
+                            gross=None if robust.dropped is None else per_row(mset, robust, robust.dropped))
     trust = assess(s.problem, robust)
     data = result.to_dict()
     data["fit"] = fit_dict(report, robust, sanity)

@@ -78,6 +78,9 @@ def test_outlier_flagged_by_line_and_validation_verdict(files, capsys):
     cv = data["cross_validation"]
     assert cv["k"] == 4 and cv["rms_mm"] > 0 and cv["warnings"] == []
     assert "every one of the 60 rows" not in json.dumps(cv)  # (the text report says it)
+    # the dropped gross row is in the folds and in the held-out error, and counted
+    assert cv["rows"] == 60 and cv["gross_rows"] == 1
+    assert cv["rms_without_gross_mm"] < 0.5 * cv["rms_mm"]  # a 5 mm row among 0.05 mm ones
     # the predicted accuracy covers parameter uncertainty, model error and noise, in JSON too
     pred = data["predicted_accuracy"]["uncompensated"]
     assert "model error" in pred["covers"] and pred["new_pose_rms_mm"] > 0
