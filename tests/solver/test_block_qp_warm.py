@@ -94,3 +94,22 @@ def test_second_order_correction_shape_shifted_constants_keep_the_active_set():
     _same_point(shifted, warm, cold)
     primal, dual, comp = shifted.residuals(warm.d, warm.lam, warm.nu)
     assert max(primal, comp) <= TOL and dual <= TOL * max(1.0, float(np.max(np.abs(shifted.g))))
+
+
+def test_a_block_semidefinite_in_rounding_is_solved_as_proxqp_solves_it():
+    """A BFGS block with an eigenvalue of -1e-15 (rounding) made the Cholesky factor raise at n = 500."""
+    from calib_oed.solver.qp import DenseQPWorkspace
+
+    sub = _random_qp(6, r=0)
+    blocks = sub.H.blocks.copy()
+    lam, q = np.linalg.eigh(blocks[3])
+    lam[0] = -1e-15
+    blocks[3] = (q * lam) @ q.T
+    with pytest.raises(np.linalg.LinAlgError):
+        np.linalg.cholesky(blocks[3])
+    sub = sub._replace(H=StructuredHessian(blocks, None))
+    block = _solve(sub)
+    n = sub.g.size
+    reference = DenseQPWorkspace(n, 1e-11, 1000).solve(sub._replace(H=sub.H.dense(), C=sub.C.toarray()))
+    assert block.status == "solved"
+    assert np.max(np.abs(block.d - reference.d)) <= 1e-6
