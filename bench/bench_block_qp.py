@@ -13,7 +13,7 @@ Both solvers run in this process, one after the other, timed in process CPU
 seconds, solver iterations, the step's residuals, the largest difference of the
 steps, and whether the active rows and box sides (multiplier > 1e-7) agree.
 ``warm`` is the block QP warm-started by the active set of its own answer's duals on
-the QP with its rows moved by :math:`C e`, :math:`|e| \le 10^{-6}` (the shape of a
+the QP with its rows moved by :math:`C e`, |e| <= 1e-6 (the shape of a
 second-order correction's QP; compared with the cold block solve of that QP).
 The differences are against the first path run. Results: docs/benchmarks.md.
 """
