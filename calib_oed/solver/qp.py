@@ -67,8 +67,9 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-import proxsuite
 import scipy.sparse as sp
+
+from calib_oed.solver.proxqp_build import proxsuite
 
 _STATUS_NAMES = {
     "PROXQP_SOLVED": "solved",
