@@ -16,8 +16,8 @@ uses ProxQP imports it from here (``from calib_oed.solver.proxqp_build import
 proxsuite``), so the first import in a process decides. A process that
 imported ``proxsuite`` itself before ``calib_oed`` keeps its build (two builds
 cannot be loaded into one process): a :class:`RuntimeWarning` says so once.
-The SSE2 build took 1.0-1.4x the AVX2 build's CPU for dense QPs of 60-800 rows
-(``docs/benchmarks.md``, issue 31).
+The SSE2 build took 0.9-1.3x the AVX2 build's CPU on dense QPs of 96-720 variables
+(``bench/bench_proxqp_build.py``, ``docs/benchmarks.md``).
 """
 
 from __future__ import annotations
