@@ -15,7 +15,8 @@ This module imports ``proxsuite`` with the SSE2 build chosen. Every module that
 uses ProxQP imports it from here (``from calib_oed.solver.proxqp_build import
 proxsuite``), so the first import in a process decides. A process that
 imported ``proxsuite`` itself before ``calib_oed`` keeps its build (two builds
-cannot be loaded into one process): a :class:`RuntimeWarning` says so once.
+cannot be loaded into one process), and so does one without the SSE2 build: a
+:class:`RuntimeWarning` says so once.
 The SSE2 build took 0.9-1.3x the AVX2 build's CPU on dense QPs of 96-720 variables
 (``bench/bench_proxqp_build.py``, ``docs/benchmarks.md``).
 """
@@ -54,10 +55,13 @@ if "proxsuite" in sys.modules:
     import proxsuite
 else:
     proxsuite = _import_sse2()
+    if not getattr(proxsuite, "_submodule", None):  # no SSE2 build installed: proxsuite's own choice
+        del sys.modules["proxsuite"]
+        import proxsuite
 
 #: The build this process uses.
 BUILD = build_name(proxsuite)
 if BUILD != SSE2_BUILD:
-    warnings.warn(f"proxsuite was imported before calib_oed and loaded {BUILD!r}, not its SSE2 build "
-                  f"{SSE2_BUILD!r}: design results may differ in their last digits between processes "
-                  "(import calib_oed before proxsuite)", RuntimeWarning, stacklevel=2)
+    warnings.warn(f"proxsuite loaded {BUILD!r}, not its SSE2 build {SSE2_BUILD!r}: design results may "
+                  "differ in their last digits between processes (import calib_oed before proxsuite)",
+                  RuntimeWarning, stacklevel=2)
