@@ -248,9 +248,9 @@ def design(
             candidates themselves (N, nq) [rad]; infeasible ones are dropped
             and counted in the record.
         seed: Seed of the pool and the starts; start ``k`` of a multi-start
-            uses ``seed + k``. Same seed, same design up to rounding: ProxQP's
-            results are not bitwise reproducible, so designs of one seed agree to
-            about 1e-6 rad, not bit for bit.
+            uses ``seed + k``. Same seed, same design bit for bit on one machine
+            (issue 31: ``tests/cli/test_reproducible_design.py``); on another machine
+            or with other library builds, up to round-off.
         n_starts: Run from this many seeded starts and keep the best.
         refine: Refine the start with the SQP (default); ``False`` keeps the
             start (pure selection from the pool with ``start="exchange"``).
