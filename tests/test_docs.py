@@ -481,3 +481,24 @@ def test_design_figures_quoted_from_the_benchmark_tables():
     assert (f"ends at {today[col['KPI avg var [mm²]']]} mm² of KPI average variance, "
             f"**{today[col['efficiency']]}** of the certified bound, in {today[col['SQP iterations']]} SQP "
             f"iterations (2026-11-26); alone on the machine of 2026-11-24 the whole process took {cpu} s of CPU") in oed
+
+
+# --------------------------------------------------------------------------- the feasibility command's report
+
+
+def test_feasibility_md_shows_the_pairs_and_rows_fms_kr16_has_today():
+    """docs/feasibility.md's `calib-oed feasibility fms_kr16 -n 60` output: its pair report (the lines
+    before the design's) is the one the scene gives today, and the text's pair counts by kind add up."""
+    from calib_oed.feasibility.pairs import feasibility_from_scene
+    from calib_oed.scene.reader import load_scene
+
+    text = read("docs/feasibility.md")
+    block = text.split("$ .venv/bin/calib-oed feasibility fms_kr16 -n 60\n", 1)[1].split("\n\ndesign:", 1)[0]
+    model, report = feasibility_from_scene(load_scene("fms_kr16"))
+    assert block.splitlines()[1:] == report.summary().splitlines()
+    kinds = [label.split(":", 1)[0] for label in report.checked]
+    flat = " ".join(text.split())
+    rows = model.count_per_pose()
+    assert (f"The {len(kinds)} checked pairs are {kinds.count('self')} self, {kinds.count('obstacle')} "
+            f"obstacle and {kinds.count('beam')} beam pairs") in flat
+    assert f"they are {rows['self']} + {rows['obstacle']} + {rows['beam']} rows" in flat
