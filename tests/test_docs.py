@@ -502,3 +502,16 @@ def test_feasibility_md_shows_the_pairs_and_rows_fms_kr16_has_today():
     assert (f"The {len(kinds)} checked pairs are {kinds.count('self')} self, {kinds.count('obstacle')} "
             f"obstacle and {kinds.count('beam')} beam pairs") in flat
     assert f"they are {rows['self']} + {rows['obstacle']} + {rows['beam']} rows" in flat
+
+
+def test_concepts_quotes_the_monte_carlo_of_identification_md():
+    """docs/concepts.md's Monte Carlo figures are those of docs/identification.md's table."""
+    rows = table_after(read("docs/identification.md"), "| quantity (car_side, 1000 runs) | value |")
+    value = {r[0]: r[1] for r in rows[1:]}
+    before = value["TCP RMS error before calibration (3-D)"]
+    after = value["TCP RMS error after calibration (3-D)"]
+    ratio = value["ratio mean ‖e‖² / tr $C_s$"].split(" (")[0]
+    coverage = value["coverage of the 95 % ellipsoid"]
+    concepts = " ".join(read("docs/concepts.md").split())
+    assert (f"TCP RMS error {before} before and {after} after calibration, ratio {ratio}, "
+            f"coverage {coverage}") in concepts
