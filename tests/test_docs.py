@@ -486,15 +486,21 @@ def test_design_figures_quoted_from_the_benchmark_tables():
 # --------------------------------------------------------------------------- the feasibility command's report
 
 
-def test_feasibility_md_shows_the_pairs_and_rows_fms_kr16_has_today():
-    """docs/feasibility.md's `calib-oed feasibility fms_kr16 -n 60` output: its pair report (the lines
-    before the design's) is the one the scene gives today, and the text's pair counts by kind add up."""
+@functools.cache
+def feasibility_of(scene: str):
+    """``(FeasibilityModel, PairReport)`` of a shipped scene (built once per session)."""
     from calib_oed.feasibility.pairs import feasibility_from_scene
     from calib_oed.scene.reader import load_scene
 
+    return feasibility_from_scene(load_scene(scene))
+
+
+def test_feasibility_md_shows_the_pairs_and_rows_fms_kr16_has_today():
+    """docs/feasibility.md's `calib-oed feasibility fms_kr16 -n 60` output: its pair report (the lines
+    before the design's) is the one the scene gives today, and the text's pair counts by kind add up."""
     text = read("docs/feasibility.md")
     block = text.split("$ .venv/bin/calib-oed feasibility fms_kr16 -n 60\n", 1)[1].split("\n\ndesign:", 1)[0]
-    model, report = feasibility_from_scene(load_scene("fms_kr16"))
+    model, report = feasibility_of("fms_kr16")
     assert block.splitlines()[1:] == report.summary().splitlines()
     kinds = [label.split(":", 1)[0] for label in report.checked]
     flat = " ".join(text.split())
@@ -515,3 +521,19 @@ def test_concepts_quotes_the_monte_carlo_of_identification_md():
     concepts = " ".join(read("docs/concepts.md").split())
     assert (f"TCP RMS error {before} before and {after} after calibration, ratio {ratio}, "
             f"coverage {coverage}") in concepts
+
+
+def test_feasibility_md_rows_per_pose_of_the_shipped_scenes():
+    """docs/feasibility.md's rows per pose with the default link geometry, scene by scene."""
+    flat = " ".join(read("docs/feasibility.md").split())
+    quoted = []
+    for scene in ("fms_kr16", "fms_kr16_program", "fms_kr300", "fms_kr500", "ur5_table"):
+        model, _ = feasibility_of(scene)
+        rows = model.count_per_pose()
+        quoted.append((sum(rows.values()), rows["self"], len(model.hull_pairs.labels)))
+    (kr16, program, kr300, kr500, ur5) = quoted
+    assert kr16 == program
+    assert (f"`fms_kr16` and `fms_kr16_program` {kr16[0]} rows per pose (self {kr16[1]}, {kr16[2]} of them "
+            "on convex pieces") in flat
+    for name, (total, self_rows, pieces) in (("fms_kr300", kr300), ("fms_kr500", kr500), ("ur5_table", ur5)):
+        assert f"`{name}` {total} (self {self_rows}, {pieces} on pieces" in flat, name
