@@ -1,4 +1,4 @@
-"""The column generation's local maximisation: its end values, and the maximisations it reuses."""
+"""The column generation's local maximisation: its end values, its starts, and why a round may reuse one."""
 
 from __future__ import annotations
 
@@ -31,11 +31,6 @@ def search_start(kr16, objective):
     return pool, blocks, solve_approximate(blocks, objective.criterion)
 
 
-def _fresh(search_start):
-    pool, blocks, approx = search_start
-    return sm._Search(pool.copy(), blocks.copy(), approx, approx.iterations)
-
-
 def test_end_values_are_those_at_the_end_points(kr16, objective, search_start):
     """The values the SQP saw last are reused only at exactly its end point: recomputed, they agree."""
     pool, blocks, approx = search_start
@@ -56,88 +51,32 @@ def test_end_values_are_those_at_the_end_points(kr16, objective, search_start):
     np.testing.assert_allclose(loc.violation, viol, rtol=0, atol=1e-15)
 
 
-def _round(approx, n_cand, starts):
-    k = len(starts)
-    dummy = sm.LocalMaxima(np.zeros((k, 6)), np.zeros(k), np.zeros(k), np.zeros(k), "converged", 1, 0.0)
-    return sm._Round(approx, n_cand, np.asarray(starts, dtype=np.intp), dummy)
+def test_greedy_starts_are_separated_and_extend_each_other(search_start):
+    """``spread_starts``: the largest values, pairwise at least START_SEPARATION apart, each skipped candidate
+    too close to a chosen one of larger value; the 2k starts of a verification begin with the k of the
+    round before it (what lets that round reuse the maxima from them)."""
+    pool, _, approx = search_start
+    v = approx.sensitivities
+    k = 6
+    few, many = sm.spread_starts(pool, v, k), sm.spread_starts(pool, v, 2 * k)
+    assert few.size == k and many.size == 2 * k
+    np.testing.assert_array_equal(many[:k], few)
+    assert np.all(np.diff(v[many]) <= 0)
+    gaps = np.max(np.abs(pool[many][:, None] - pool[many][None]), axis=2)
+    assert np.all(gaps[~np.eye(2 * k, dtype=bool)] >= sm.START_SEPARATION)
+    for i in np.flatnonzero(v > v[many[-1]]):
+        if i not in many:  # skipped: a chosen start of larger value lies within the separation
+            near = many[v[many] >= v[i]]
+            assert np.min(np.max(np.abs(pool[near] - pool[i]), axis=1)) < sm.START_SEPARATION
 
 
-def test_reuse_only_for_the_same_design_candidates_and_leading_chunks(objective, search_start):
-    search = _fresh(search_start)
-    n = len(search.cand)
-    idx = np.array([5, 9, 2, 7, 11, 3])
-    assert sm._reusable(None, search, idx, 2) == 0
-    assert sm._reusable(_round(search.approx, n, [5, 9]), search, idx, 2) == 2
-    assert sm._reusable(_round(search.approx, n, [5, 9, 2, 7]), search, idx, 2) == 4
-    # another approximate design (a re-solve: new Γ and d̄), even with equal weights
-    other = solve_approximate(search.blocks, objective.criterion)
-    assert sm._reusable(_round(other, n, [5, 9]), search, idx, 2) == 0
-    assert sm._reusable(_round(search.approx, n + 1, [5, 9]), search, idx, 2) == 0  # candidates grew
-    assert sm._reusable(_round(search.approx, n, [9, 5]), search, idx, 2) == 0  # other starts
-    assert sm._reusable(_round(search.approx, n, [5]), search, idx, 2) == 0  # not a whole chunk
-    assert sm._reusable(_round(search.approx, n, [5, 9, 2, 7, 11, 3, 1, 0]), search, idx, 2) == 0
-
-
-def _counting(monkeypatch):
-    calls = []
-    real = sm.maximise_sensitivity
-
-    def counted(setup_, objective_, gamma, starts, scale, **kwargs):
-        calls.append(np.array(starts, copy=True))
-        return real(setup_, objective_, gamma, starts, scale, **kwargs)
-
-    monkeypatch.setattr(sm, "maximise_sensitivity", counted)
-    return calls
-
-
-def _search(kr16, objective, search, **kwargs):
-    args = dict(starts=2, verify_starts=4, rounds=2, iterations=15, collisions=True, tol=1e-4,
-                local_tol=1e-3, max_iterations=200)
-    args.update(kwargs)
-    return sm._local_search(kr16, objective, search, **args)
-
-
-def test_verification_reuses_the_round_before_it(kr16, objective, search_start, monkeypatch):
-    monkeypatch.setattr(sm, "LOCAL_CHUNK", 2)
-    calls = _counting(monkeypatch)
-    rounds = []
-    real_round = sm._Round
-
-    def recorded(*args):
-        rounds.append(real_round(*args))
-        return rounds[-1]
-
-    monkeypatch.setattr(sm, "_Round", recorded)
-    search = _search(kr16, objective, _fresh(search_start), rounds=30)
-    starts_run = sum(len(c) for c in calls)
-    starts_asked = sum(r.starts.size for r in rounds)
-    verifications = [i for i, r in enumerate(rounds) if r.starts.size == 4]
-    assert verifications, "the search should end with a verification round"
-    for i in verifications:  # a verification right after a round without additions reuses it
-        before = rounds[i - 1]
-        if before.approx is rounds[i].approx:
-            np.testing.assert_array_equal(rounds[i].starts[:2], before.starts)
-            np.testing.assert_array_equal(rounds[i].maxima.q[:2], before.maxima.q)
-    reused = sum(2 for i in verifications if rounds[i - 1].approx is rounds[i].approx)
-    assert reused > 0 and starts_run == starts_asked - reused
-    # the reused maxima are what a fresh maximisation from those starts finds
-    last = rounds[verifications[-1]]
-    gamma = objective.criterion.compute_gradient(information(search.blocks[:last.n_candidates],
-                                                             last.approx.weights))
-    again = sm._maximise_in_chunks(kr16, objective, gamma, search.cand[last.starts],
-                                   last.approx.mean_sensitivity, 2, max_iterations=15)
-    np.testing.assert_allclose(again.values, last.maxima.values, rtol=1e-6)
-    assert search.d_local == rounds[-1].maxima.max_value  # the search's value is its last round's
-
-
-def test_the_start_skips_the_maximisation_it_would_discard(kr16, objective, search_start, monkeypatch):
-    calls = _counting(monkeypatch)
-    full = _search(kr16, objective, _fresh(search_start), rounds=1, verify_starts=2)
-    n_full = len(calls)
-    calls.clear()
-    short = _search(kr16, objective, _fresh(search_start), rounds=1, verify_starts=2,
-                    final_maximisation=False)
-    assert full.rounds == short.rounds == 1  # the round found maxima and re-solved
-    assert n_full == 2 and len(calls) == 1  # ... and only the certificate needs the one after it
-    np.testing.assert_allclose(short.cand, full.cand, rtol=0, atol=1e-7)  # ProxQP: not bit for bit
-    assert short.approx.value == pytest.approx(full.approx.value, rel=1e-9)
+def test_maximising_again_from_the_same_starts_finds_the_same_maxima(kr16, objective, search_start):
+    """One approximate design, the same starts: the same maxima, so a round may reuse them."""
+    pool, blocks, approx = search_start
+    gamma = objective.criterion.compute_gradient(information(blocks, approx.weights))
+    starts = pool[sm.spread_starts(pool, approx.sensitivities, 2)]
+    first, again = (sm.maximise_sensitivity(kr16, objective, gamma, starts, approx.mean_sensitivity,
+                                            max_iterations=15) for _ in range(2))
+    np.testing.assert_allclose(again.q, first.q, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(again.values, first.values, rtol=1e-9)
+    assert np.all(first.values >= first.start_values)  # a maximisation: no pose got worse

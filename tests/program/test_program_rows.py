@@ -1,11 +1,9 @@
-"""The check's rows: the models' own values, the rows on convex pieces only where asked."""
+"""The check's rows: the models' own values; the screen and the lazy check agree with dense sampling."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
-
-from calib_oed.feasibility.bodies import compute_body_states
 
 
 @pytest.fixture(scope="module")
@@ -17,35 +15,40 @@ def ur5(ur5_checker):
 
 
 def test_the_rows_are_the_models_rows(ur5):
+    """The check's collision rows are the design's and the extra model's rows of the same label, its
+    line-of-sight rows the design's; the rows on convex pieces are among them."""
     checker, _ = ur5
-    rows = checker._rows
-    assert rows.n > rows.n_cheap > 0  # rows on convex pieces are deferred
     q = checker.robot.random_configurations(30, 2)
-    states = compute_body_states(checker.robot.model, q, jacobian=False)
-    g, s = rows.evaluate(q, states)
+    g, s = checker.rows(q)
+    labels = list(checker.collision_labels)
+    assert g.shape == (30, len(labels)) and s.shape == (30, len(checker.sight_labels))
+    matched = set()
     for model in (checker.feasibility, checker.extra):
-        values = model.compute_from_states(q, states, jacobian=False).values
-        for k, label in enumerate(rows.labels):
+        values = model.compute(q, jacobian=False).values
+        for k, label in enumerate(labels):
             if label in model.labels:
                 np.testing.assert_allclose(g[:, k], values[:, model.labels.index(label)], atol=1e-12)
-    design = checker.feasibility.compute_from_states(q, states, jacobian=False).values
-    for k, label in enumerate(rows.sight_labels):
+                matched.add(label)
+    assert matched == set(labels)
+    design = checker.feasibility.compute(q, jacobian=False).values
+    for k, label in enumerate(checker.sight_labels):
         np.testing.assert_allclose(s[:, k], design[:, checker.feasibility.labels.index(label)])
-    assert set(checker.feasibility.hull_pairs.labels) <= set(rows.labels[rows.n_cheap:])
+    assert checker.feasibility.hull_pairs.labels and set(checker.feasibility.hull_pairs.labels) <= set(labels)
 
 
-def test_deferred_rows_only_where_asked(ur5):
-    checker, _ = ur5
-    rows = checker._rows
-    q = checker.robot.random_configurations(20, 3)
-    states = compute_body_states(checker.robot.model, q, jacobian=False)
-    full, _ = rows.evaluate(q, states)
-    need = np.random.default_rng(0).random((20, rows.n - rows.n_cheap)) < 0.3
-    part, _ = rows.evaluate(q, states, need)
-    np.testing.assert_array_equal(part[:, :rows.n_cheap], full[:, :rows.n_cheap])
-    deferred = part[:, rows.n_cheap:]
-    np.testing.assert_array_equal(deferred[need], full[:, rows.n_cheap:][need])
-    assert np.all(np.isnan(deferred[~need]))
+def test_the_screen_never_contradicts_the_check(ur5):
+    """The screen (rows on convex pieces left out) says "collides" only for a move the check finds
+    colliding, and never for a move the check verifies; it does say so for some moves."""
+    checker, poses = ur5
+    q = np.vstack([poses[:3], checker.robot.random_configurations(4, 4)])
+    screened = 0
+    for i in range(len(q)):
+        for j in range(i + 1, len(q)):
+            res = checker.check(q[i], q[j])
+            if checker.screen(q[i], q[j]):
+                screened += 1
+                assert res.collision and not res.verified, (i, j)
+    assert screened > 0
 
 
 def test_lazy_check_holds_under_dense_sampling(ur5):

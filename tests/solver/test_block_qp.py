@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from calib_oed.solver.block_qp import BlockQPWorkspace, _Rows
+from calib_oed.solver.block_qp import BlockQPWorkspace
 from calib_oed.solver.lifted import LiftedQPWorkspace
 from calib_oed.solver.qp import DenseQPWorkspace, QPSubproblem
 from calib_oed.solver.result import StructuredHessian
 from calib_oed.solver.settings import SQPSettings
-from calib_oed.solver.subproblem import QPSolver
+from calib_oed.solver.sqp import SQPStatus, solve_sqp
 
 DATA = Path(__file__).parent / "data"
 
@@ -41,6 +41,20 @@ def _instance(rng, b=10, s=6, r=4, per_pose=4, cross=0):
     return sub, sub._replace(H=h.dense(), C=c)
 
 
+def _kkt(sub, step, tol):
+    r"""The QP's KKT conditions at ``step`` (module calib_oed.solver.qp): :math:`H d + g - C^\top\lambda - \nu = 0`,
+    :math:`C d \ge \ell`, :math:`\lambda \ge 0` with :math:`\lambda_i (C_i d - \ell_i) = 0`, the box
+    and :math:`\nu` of the side's sign, zero between the sides; all to ``tol``."""
+    d, lam, nu = step.d, step.lam, step.nu
+    np.testing.assert_allclose(sub.H @ d + sub.g - sub.C.T @ lam - nu, 0.0, atol=tol)
+    slack = sub.C @ d - sub.lower
+    assert slack.min() >= -tol and lam.min() >= -tol
+    assert np.max(np.abs(lam * slack)) <= tol
+    assert np.all(d >= sub.box_lower - tol) and np.all(d <= sub.box_upper + tol)
+    at_lo, at_hi = d <= sub.box_lower + tol, d >= sub.box_upper - tol
+    assert np.all(nu[~at_lo] <= tol) and np.all(nu[~at_hi] >= -tol)
+
+
 def _active(step, tol=1e-7):
     return np.flatnonzero(step.lam > tol), np.flatnonzero(np.abs(step.nu) > tol)
 
@@ -65,6 +79,7 @@ def test_block_qp_gives_proxqps_solution_and_active_set(b, r, cross):
     block = BlockQPWorkspace(n, 1e-9, 100).solve(sub)
     reference = DenseQPWorkspace(n, 1e-11, 1000).solve(dense_sub)
     _same_solution(block, reference)
+    _kkt(sub, block, 1e-9)
 
 
 def _design_qp():
@@ -110,32 +125,7 @@ def test_block_qp_on_a_design_qp_meets_the_sqp_tolerance():
     assert block.status == "solved"
     assert block.is_solved(1e-9, 1e-9)
     assert max(block.primal_residual, block.dual_residual, block.complementarity) <= 1e-12
-
-
-def test_polish_on_the_active_set_is_the_kkt_point():
-    """Held to ProxQP's active set, the polish returns ProxQP's solution and multipliers; held to a row
-    no point of its pose can meet together with the box sides held there, it returns None."""
-    rng = np.random.default_rng(11)
-    sub, dense_sub = _instance(rng, b=6, r=3)
-    n, k = sub.g.size, sub.lower.size
-    reference = DenseQPWorkspace(n, 1e-11, 1000).solve(dense_sub)
-    eye = sp.identity(n, format="csr")
-    G = sp.vstack([sub.C, eye, -eye], format="csr")
-    h = np.concatenate([sub.lower, sub.box_lower, -sub.box_upper])
-    act = np.concatenate([reference.lam > 1e-9, reference.nu > 1e-9, reference.nu < -1e-9])
-    rows = _Rows(G, 6, 6)
-    d, z = rows.polish(sub.H, sub.g, h, act, 1e-9, np.zeros(h.size))
-    np.testing.assert_allclose(d, reference.d, atol=1e-9)
-    np.testing.assert_allclose(z[:k], reference.lam, atol=1e-9)
-    np.testing.assert_allclose(z[k:k + n] - z[k + n:], reference.nu, atol=1e-9)
-    assert np.all(G @ d - h >= -1e-9)
-    # every variable of pose 0 on a box side, and one of its rows, not met there, held too
-    full = act.copy()
-    full[k:k + 6] = True
-    violated = np.flatnonzero((sub.C[:4] @ np.full(n, -0.1)) - sub.lower[:4] < -1e-3)
-    assert violated.size
-    full[violated[0]] = True
-    assert rows.polish(sub.H, sub.g, h, full, 1e-9, np.zeros(h.size)) is None
+    _kkt(sub, block, 1e-9)
 
 
 def test_infeasible_qp_is_not_solved_by_either():
@@ -154,31 +144,24 @@ def test_infeasible_qp_is_not_solved_by_either():
     assert block.status != "solved" and reference.status != "solved"
 
 
-def test_structured_qp_setting_selects_the_block_workspace():
-    rng = np.random.default_rng(3)
-    sub, _ = _instance(rng)
-    n = sub.g.size
-    for name in ("lifted", "block"):
-        solver = QPSolver(n, SQPSettings(structured_qp=name))
-        assert solver.solve(sub).is_solved(1e-8, 1e-8)
-        assert solver.last_backend == name
-
-
-@pytest.mark.parametrize(("min_size", "backend"), [(60, "block"), (61, "lifted")])
-def test_auto_takes_the_block_qp_from_its_size_on(min_size, backend):
-    """The default ``"auto"``: block QP from ``block_qp_min_size`` variables on (here n = 60), the same answer."""
+@pytest.mark.parametrize("settings", [
+    SQPSettings(structured_qp="lifted"), SQPSettings(structured_qp="block"),
+    SQPSettings(block_qp_min_size=60), SQPSettings(block_qp_min_size=61), SQPSettings(),
+], ids=["lifted", "block", "auto-block", "auto-lifted", "default"])
+def test_every_structured_qp_setting_gives_the_sqp_the_same_optimum(settings):
+    """The SQP on a QP (f = d^T H d / 2 + g^T d, rows C d >= l, the box; n = 60 variables) with its exact
+    structured Hessian: whichever QP ``structured_qp`` and ``block_qp_min_size`` choose, the SQP's point and
+    multipliers are the QP's KKT point, ProxQP's dense answer."""
     rng = np.random.default_rng(3)
     sub, dense_sub = _instance(rng)
-    n = sub.g.size
-    assert SQPSettings().structured_qp == "auto"
-    solver = QPSolver(n, SQPSettings(block_qp_min_size=min_size))
-    step = solver.solve(sub)
-    assert solver.last_backend == backend
-    _same_solution(step, DenseQPWorkspace(n, 1e-11, 1000).solve(dense_sub))
+    reference = DenseQPWorkspace(sub.g.size, 1e-11, 1000).solve(dense_sub)
+    C = sub.C.toarray()
 
-
-def test_default_keeps_sixty_poses_on_the_lifted_qp():
-    """The shipped scenes' default n = 60 (6 or 7 joints: 360 or 420 variables) stays on the lifted QP, so
-    their designs are those of before; 100 poses of 6 joints and more go to the block QP."""
-    settings = SQPSettings()
-    assert 60 * 7 < settings.block_qp_min_size <= 100 * 6
+    res = solve_sqp(lambda d: (0.5 * d @ (sub.H @ d) + sub.g @ d, sub.H @ d + sub.g), np.zeros(sub.g.size),
+                    bounds=(sub.box_lower, sub.box_upper),
+                    constraints=lambda d: (C @ d - sub.lower, C),
+                    lagrangian_hessian=lambda d, lam: sub.H, settings=settings)
+    assert res.status is SQPStatus.CONVERGED and res.check(), res.summary()
+    assert res.hessian_fallbacks == 0
+    np.testing.assert_allclose(res.x, reference.d, atol=1e-7)
+    np.testing.assert_allclose(res.multipliers, reference.lam, atol=1e-6)

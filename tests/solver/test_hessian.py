@@ -9,15 +9,13 @@ with a positive definite Hessian of the Lagrangian (a strict local minimum).
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
 
-from calib_oed.solver.hessian import (
-    check_structured,
-    modify_blocks,
-    positive_definite,
-)
+from calib_oed.solver.block_qp import BlockQPWorkspace
+from calib_oed.solver.hessian import modify_blocks
 from calib_oed.solver.lifted import LiftedQPWorkspace
 from calib_oed.solver.result import StructuredHessian
 from calib_oed.solver.sqp import SQPSettings, SQPSettingsError, SQPStatus, solve_sqp
@@ -46,29 +44,21 @@ def test_indefinite_block_is_made_positive_definite():
     assert np.linalg.eigvalsh(out).min() > 0
 
 
-def test_each_block_is_modified_on_its_own():
-    """D indefinite, D + U U^T definite: each block of D is still made definite, U kept factored."""
-    rng = np.random.default_rng(1)
-    blocks = np.stack([np.diag([1.0, -0.5]), np.diag([2.0, 1.0])])
-    u = np.array([[0.0], [2.0], [0.0], [0.0]])  # U U^T adds 4 to the (1, 1) entry
-    h = StructuredHessian(blocks, u)
-    assert np.linalg.eigvalsh(h.dense()).min() > 0
-    structured, n_block = positive_definite(h, 1e-8)
-    assert n_block == 1 and isinstance(structured, StructuredHessian)
-    np.testing.assert_allclose(structured.blocks[0], np.diag([1.0, 0.5]))
-    v = rng.standard_normal(4)
-    np.testing.assert_allclose(structured @ v, structured.dense() @ v, atol=1e-12)
-
-
 @pytest.mark.parametrize("bad, match", [
-    ("nope", "StructuredHessian"),
-    ((np.zeros((2, 3, 3)), None), "b \\* s = n"),
-    ((np.full((2, 2, 2), np.nan), None), "non-finite"),
-    ((np.zeros((2, 2, 2)), np.zeros((3, 1))), "low_rank"),
+    (lambda h: "nope", "StructuredHessian"),
+    (lambda h: (np.zeros((2, 5, 5)), None), "b \\* s = n"),
+    (lambda h: (h.blocks * np.nan, h.low_rank), "non-finite"),
+    (lambda h: (h.blocks, np.zeros((3, 1))), "low_rank"),
 ])
-def test_bad_structured_hessians_are_named(bad, match):
-    with pytest.raises(ValueError, match=match):
-        check_structured(bad, 4)
+def test_a_malformed_exact_hessian_is_named_and_bfgs_takes_over(bad, match):
+    """What the caller's ``lagrangian_hessian`` got wrong is in the result; the SQP still solves on BFGS."""
+    objective, constraints, hessian, x_star, _ = _double_well(b=4)
+    res = solve_sqp(objective, np.full(x_star.size, 0.5), constraints=constraints,
+                    lagrangian_hessian=lambda x, lam: bad(hessian(x, lam)))
+    assert res.status is SQPStatus.CONVERGED and res.check(), res.summary()
+    np.testing.assert_allclose(res.x, x_star, atol=1e-5)
+    assert res.hessian_fallbacks == res.iterations
+    assert re.search(match, res.hessian_message), res.hessian_message
 
 
 def test_hessian_settings_are_validated():
@@ -140,8 +130,7 @@ def test_exact_hessian_converges_in_far_fewer_iterations_than_bfgs():
     assert exact.iterations <= 10 and 2 * exact.iterations <= min(bfgs.iterations, blocks.iterations)
     assert exact.hessian == "exact" and exact.hessian_fallbacks == 0 and bfgs.hessian == "bfgs"
     assert all(r.hessian == "exact" for r in exact.history)
-    assert exact.history[0].hessian_modified > 0  # indefinite at the start
-    assert {r.qp_backend for r in exact.history} == {"lifted"}
+    assert np.linalg.eigvalsh(hessian(x0, seen[0]).dense()).min() < 0  # indefinite at the start
     assert np.all(seen[0] == 0) and all(lam.shape == (12,) and np.all(lam >= 0) for lam in seen)
     record = json.loads(json.dumps(exact.to_dict(), allow_nan=False))
     assert record["hessian"] == "exact" and record["history"][0]["hessian"] == "exact"
@@ -173,25 +162,31 @@ def test_exact_hessian_falls_back_to_bfgs(failure):
     assert "BFGS fallbacks" in res.summary()
 
 
-def test_a_failing_lifted_qp_falls_back_to_bfgs(monkeypatch):
+def test_a_failing_structured_qp_falls_back_to_bfgs(monkeypatch):
+    """A QP on the exact Hessian that raises (whichever structured QP runs it): every step on BFGS, same optimum."""
     def broken(self, sub, d0=None, lam0=None, nu0=None):
-        raise RuntimeError("lifted QP broke")
+        raise RuntimeError("structured QP broke")
 
     monkeypatch.setattr(LiftedQPWorkspace, "solve", broken)
+    monkeypatch.setattr(BlockQPWorkspace, "solve", broken)
     objective, constraints, hessian, x_star, _ = _double_well(b=4)
     res = solve_sqp(objective, np.full(x_star.size, 0.5), constraints=constraints, lagrangian_hessian=hessian)
     assert res.status is SQPStatus.CONVERGED and res.check(), res.summary()
-    assert res.hessian_fallbacks == res.iterations and "lifted QP broke" in res.hessian_message
-    assert all(r.qp_backend == "dense" for r in res.history)
+    np.testing.assert_allclose(res.x, x_star, atol=1e-5)
+    assert res.hessian_fallbacks == res.iterations and "structured QP broke" in res.hessian_message
 
 
-def test_a_coupling_of_many_columns_goes_to_the_dense_qp():
-    """r = 5 > n / 3 = 4: the lifted QP would be slower than the dense one; same optimum."""
-    objective, constraints, hessian, x_star, _ = _double_well(b=2, r=5)
-    res = solve_sqp(objective, np.full(x_star.size, 0.5), constraints=constraints, lagrangian_hessian=hessian)
+@pytest.mark.parametrize("r", [1, 5, 12])
+def test_a_coupling_of_any_rank_gives_the_optimum_with_the_exact_hessian(r):
+    """r from 1 to n (n = 12): the coupling U U^T is used exactly (no fallback), Newton-fast, same optimum."""
+    objective, constraints, hessian, x_star, lam_star = _double_well(b=2, r=r)
+    x0 = np.full(x_star.size, 0.5)
+    res = solve_sqp(objective, x0, constraints=constraints, lagrangian_hessian=hessian)
+    bfgs = solve_sqp(objective, x0, constraints=constraints)
     assert res.status is SQPStatus.CONVERGED and res.check(), res.summary()
     np.testing.assert_allclose(res.x, x_star, atol=1e-5)
-    assert {r.qp_backend for r in res.history} == {"dense"} and res.hessian_fallbacks == 0
+    np.testing.assert_allclose(res.multipliers[:2], lam_star, atol=1e-5)
+    assert res.hessian_fallbacks == 0 and res.iterations <= bfgs.iterations
 
 
 @pytest.mark.parametrize("bounds, x_star", [

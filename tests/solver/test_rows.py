@@ -1,4 +1,4 @@
-"""Row selection of the SQP (calib_oed.solver.rows) and the QP size bound inside solve_sqp."""
+"""The QP size bound of solve_sqp (row selection, calib_oed.solver.rows): bounded QPs, the same optimum."""
 
 from __future__ import annotations
 
@@ -6,41 +6,7 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from calib_oed.solver.rows import missed_rows, row_distance, select_rows
 from calib_oed.solver.sqp import SQPSettings, SQPSettingsError, SQPStatus, solve_sqp
-
-
-def test_select_rows_keeps_all_candidates_below_the_limit():
-    c = np.array([0.0, 0.1, 1.0, 5.0, -0.2])
-    l1 = np.array([1.0, 1.0, 1.0, 1.0, 1.0])
-    sel = select_rows(c, l1, 0.5, 0.05, 10)
-    assert sel.rows.tolist() == [0, 1, 4]  # c - 0.5 <= 0.05
-    assert sel.dropped.size == 0 and sel.n_candidates == 3
-
-
-def test_select_rows_keeps_the_nearest_and_the_forced_rows():
-    # distances c / ||A||_1: 0.5, 0.1, 0.05, 0.9, -1 (violated), 0.3 (active multiplier)
-    c = np.array([1.0, 0.1, 0.1, 0.9, -0.5, 0.6])
-    l1 = np.array([2.0, 1.0, 2.0, 1.0, 0.5, 2.0])
-    must = np.array([False, False, False, False, False, True])
-    sel = select_rows(c, l1, 1.0, 0.05, 3, must)
-    assert sel.n_candidates == 6
-    assert sel.rows.tolist() == [2, 4, 5]  # violated, active, then the nearest (0.05)
-    assert sel.dropped.tolist() == [0, 1, 3]
-    np.testing.assert_allclose(row_distance(c, l1), [0.5, 0.1, 0.05, 0.9, -1.0, 0.3])
-    # forced rows beyond the limit: the most violated first
-    sel = select_rows(np.array([-0.1, -1.0, -0.5]), np.ones(3), 1.0, 0.0, 2)
-    assert sel.rows.tolist() == [1, 2]
-    assert row_distance(np.array([1.0, -1.0]), np.zeros(2)).tolist() == [np.inf, -np.inf]
-
-
-def test_missed_rows_are_the_dropped_rows_the_step_violates():
-    a = sp.csr_matrix(np.array([[1.0, 0.0], [0.0, 1.0], [1.0, 1.0]]))
-    c = np.array([0.5, 0.5, 0.5])
-    d = np.array([-1.0, 0.0])
-    assert missed_rows(c, a, d, np.array([0, 1]), 1e-12).tolist() == [0]
-    assert missed_rows(c, a.toarray(), d, np.array([1, 2]), 1e-12).tolist() == [2]
-    assert missed_rows(c, a, d, np.array([], dtype=int), 0.0).size == 0
 
 
 def test_max_qp_rows_setting_is_validated():
@@ -109,13 +75,36 @@ def test_infeasible_start_with_many_rows_stays_bounded():
     assert all(r.n_rows_kept <= 60 for r in res.history)
 
 
-def test_dense_backend_is_not_used_above_its_size_bound():
+@pytest.mark.parametrize("size", [12 + 30, 12 + 10**4])
+def test_the_dense_qp_size_bound_leaves_the_optimum_unchanged(size):
+    """Below and above ``max_dense_qp_size`` (dense or sparse ProxQP): the same optimum and multipliers."""
     objective, constraints, x0 = _many_rows(m_lin=600, m_ball=50)
-    settings = SQPSettings(max_dense_qp_size=12 + 30)
-    res = solve_sqp(objective, x0, constraints=constraints, settings=settings)
-    assert res.status is SQPStatus.CONVERGED and res.check()
-    backends = {(r.qp_backend, r.n_rows_kept + 12 <= 42) for r in res.history}
-    assert ("sparse", False) in backends and ("dense", False) not in backends
+    res = solve_sqp(objective, x0, constraints=constraints, settings=SQPSettings(max_dense_qp_size=size))
+    ref = solve_sqp(objective, x0, constraints=constraints, settings=SQPSettings(max_qp_rows=10**6))
+    assert res.status is SQPStatus.CONVERGED and res.check(), res.summary()
+    assert ref.status is SQPStatus.CONVERGED and ref.check()
+    np.testing.assert_allclose(res.x, ref.x, atol=1e-6)
+    np.testing.assert_allclose(res.multipliers, ref.multipliers, atol=1e-5)
+
+
+def test_violated_rows_outnumbering_the_bound_are_all_restored():
+    """Eight rows violated at the start, four allowed per QP, two active at the optimum: none is lost.
+
+    min 1/2 |x - p|^2 s.t. x_i >= 1 + i/10 from x0 = 0, p = (0, 0, lo_2 + 1, ..., lo_7 + 1):
+    x* = (lo_0, lo_1, p_2, ..., p_7), lambda* = (lo_0, lo_1, 0, ..., 0).
+    """
+    lo = 1.0 + np.arange(8) / 10
+    p = np.concatenate([[0.0, 0.0], lo[2:] + 1.0])
+
+    def constraints(x):
+        return x - lo, np.eye(8)
+
+    res = solve_sqp(lambda x: (0.5 * (x - p) @ (x - p), x - p), np.zeros(8), constraints=constraints,
+                    settings=SQPSettings(max_qp_rows=4))
+    assert res.status is SQPStatus.CONVERGED and res.check(), res.summary()
+    np.testing.assert_allclose(res.x, np.concatenate([lo[:2], p[2:]]), atol=1e-8)
+    np.testing.assert_allclose(res.multipliers, np.concatenate([lo[:2], np.zeros(6)]), atol=1e-6)
+    assert all(r.n_rows_kept <= 4 for r in res.history)
 
 
 def test_dropped_row_violated_by_the_step_enters_the_qp():
