@@ -124,7 +124,7 @@ def design_settings(objective, settings):
 
 def scene_criterion(s, criterion):
     """``criterion``, with the name ``kpi_model`` made for the set-up ``s`` with its scene's
-    model-error prior (``robot.model_error``, else the default for the robot's reach);
+    model-error prior (``robot.model_error``, else :func:`default_prior`);
     None: :func:`default_criterion`."""
     if criterion is None:
         criterion = default_criterion(s.scene)
@@ -132,9 +132,16 @@ def scene_criterion(s, criterion):
         problem = s.problem
         free = problem.identifiability.free_indices
         g = problem.kpi_jacobian(None)[:, free] * problem.space.unit_scale[free] * _MM  # as the objective's
-        return make_model_error_criterion(problem, g, s.scene.discrepancy(),
-                                          getattr(problem.kpi, "weights", None), criterion)
+        prior = s.scene.model_error if s.scene.model_error is not None else default_prior(problem)
+        return make_model_error_criterion(problem, g, prior, getattr(problem.kpi, "weights", None), criterion)
     return criterion
+
+
+def default_prior(problem) -> JointErrorPrior:
+    """The model-error prior of a design without ``robot.model_error``: the joint-space prior
+    for the robot's size class (:meth:`JointErrorPrior.default_for`), the payload of the
+    problem's compliance model if it has one."""
+    return JointErrorPrior.default_for(problem.robot, getattr(problem.space, "compliance", None))
 
 
 def design_prior(problem, prior: DiscrepancyPrior) -> DiscrepancyPrior:

@@ -167,8 +167,8 @@ def test_joints_that_move_no_point_are_ignored_by_the_kernel(kr16):
 def test_it_is_registered_and_not_a_function_of_m(kr16):
     s, q = kr16
     assert MODEL_ERROR in CRITERIA and KRIGING in CRITERIA
-    obj = DesignObjective(s.problem, MODEL_ERROR)  # the default prior for the reach
-    assert obj.criterion.prior.sigma == pytest.approx(DiscrepancyPrior.default_for(s.problem.robot).sigma)
+    obj = DesignObjective(s.problem, MODEL_ERROR)  # the default prior: joint space (tests/oed/test_joint_prior.py)
+    assert obj.criterion.joint_space and "medium arm" in obj.criterion.prior.source
     with pytest.raises(CertificateError, match="not on the information matrix alone"):
         obj.criterion.compute_value(obj.compute_information(q))
 
