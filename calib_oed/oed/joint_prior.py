@@ -125,6 +125,13 @@ class JointErrorPrior:
                    np.full(nq, SMOOTH_LENGTH), np.full(nq, GAIN_SIGMA), 1.0 / stiffness, gravity,
                    f"default ({settings.size_class_of(mass)} arm, {mass:.0f} kg)")
 
+    def scaled(self, factor: float) -> JointErrorPrior:
+        """Every amplitude times ``factor`` (the length scales kept): a prior that misjudges the
+        size of the arm's errors."""
+        f = float(factor)
+        return JointErrorPrior(self.once * f, self.twice * f, self.smooth * f, self.length, self.gain * f,
+                               self.compliance * f, self.gravity, f"{self.source}, x{f:g}")
+
     def to_dict(self) -> dict:
         """Report units: arcsec, deg, µrad/rad, µrad/(N·m)."""
         return {"kind": "joint", "once_arcsec": (self.once / ARCSEC).tolist(),
