@@ -6,8 +6,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from conftest import central_difference
+from test_model_error_design import (
+    two_reflector_problem,  # ur5, two SMRs, weighted working configurations
+)
 
-from calib_oed import CalibrationProblem, ParameterSpace, TcpKpi, TrackerPosition, load_scene
+from calib_oed import load_scene
 from calib_oed.calibration.workflow import setup
 from calib_oed.exceptions import DesignError, ParameterError
 from calib_oed.feasibility.sampling import sample_feasible
@@ -21,15 +24,6 @@ from calib_oed.oed.objective import DesignObjective
 def kr16():
     s = setup(load_scene("fms_kr16"))
     return s, sample_feasible(s.feasibility, 24, 11)
-
-
-def two_reflector_problem():
-    """ur5 with two reflectors off the last axis, isotropic noise, two weighted working configurations."""
-    scene = load_scene("ur5_table")
-    robot = scene.robot
-    space = ParameterSpace(robot, scene.tracker.placement(), np.array([[0.03, -0.01, 0.05], [0.0, 0.04, 0.02]]))
-    kpi = TcpKpi(robot.random_configurations(2, 7), np.array([0.0, 0.0, 0.1]), "world", weights=[1.0, 3.0])
-    return CalibrationProblem(space, [TrackerPosition(0, 2e-5), TrackerPosition(1, 3e-5)], kpi)
 
 
 def strong_prior(problem) -> JointErrorPrior:
