@@ -70,7 +70,7 @@ PHASES = ("imports", "pool", "column generation", "exchange", "SQP", "certificat
 def run_once(scene: str, n: int, extra=()) -> dict:
     """One child process: phase times, its whole CPU, the efficiency and the SQP iterations."""
     with tempfile.TemporaryDirectory() as tmp:  # the child's cwd: not this checkout's package
-        argv = [sys.executable, "-c", _CHILD, "design", scene, "-n", str(n), "-o",
+        argv = [sys.executable, "-c", _CHILD, "design", scene, "-n", str(n), "--criterion", "kpi", "-o",
                 str(Path(tmp) / "design"), "--json", *extra]
         env = dict(os.environ, OPENBLAS_NUM_THREADS="1")
         out_path, err_path = Path(tmp) / "stdout.json", Path(tmp) / "stderr.txt"

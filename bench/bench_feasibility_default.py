@@ -67,7 +67,7 @@ def run_model_only(scene: str, n: int) -> dict:
     import subprocess
 
     with tempfile.TemporaryDirectory() as tmp:
-        argv = [sys.executable, "-c", MODEL_ONLY, "design", scene, "-n", str(n), "-o", tmp, "--json",
+        argv = [sys.executable, "-c", MODEL_ONLY, "design", scene, "-n", str(n), "--criterion", "kpi", "-o", tmp, "--json",
                 "--no-certificate"]
         out_path = Path(tmp) / "stdout.json"
         with open(out_path, "w") as out:

@@ -1,7 +1,8 @@
 """The KPI criterion under model error against today's noise-only design, on the realistic simulator.
 
 For each scene: the noise-only KPI design (criterion ``kpi``) and the model-error design
-(``kpi_model``, the scene's prior or the default) of n poses from the same seed; then the
+(``kpi_model``, the scene's prior or the default: the joint-space prior of
+:mod:`calib_oed.oed.joint_prior`) of n poses from the same seed; then the
 whole loop on the realistic simulator (:mod:`calib_oed.calibration.realistic`): for each of
 ``--truths`` true robots and ``--noise`` noise draws, simulated tracker data at each design's
 poses, an identification (``identify``, linear loss) and the TCP error at the working
@@ -22,6 +23,10 @@ design CPU time (``solver.cpu_seconds``, one BLAS thread).
 
     nice -n 10 python bench/bench_model_error_design.py [--scenes fms_kr16 ur5_table bench/scenes/ur10_cell.yaml]
         [--model rigid|extended] [-n 60] [--truths 40] [--noise 1] [--seed 0] [--compensate] [--out DIR]
+        [--prior-scale F]
+
+``--prior-scale F`` designs ``kpi_model`` with every amplitude of its prior times F (the
+length scales kept): how much a misjudged prior costs.
 
 ``--out DIR`` also writes ``DIR/<scene>_<model>_designs.npz`` (both designs and the working
 configurations) for the figure of docs/oed.md (``--figure SCENE`` draws it from there).
@@ -48,7 +53,7 @@ from calib_oed.calibration.workflow import setup
 from calib_oed.model.compliance import Compliance
 from calib_oed.model.joint_map import JointGains
 from calib_oed.oed.design import design
-from calib_oed.oed.model_error import design_prior
+from calib_oed.oed.model_error import default_prior, design_prior, scene_criterion
 from calib_oed.oed.positions import reflector_positions
 from calib_oed.scene.records import ComplianceSpec
 
@@ -114,14 +119,17 @@ def rms_with_error(mse: np.ndarray) -> tuple[float, float]:
 
 
 def run_scene(scene_ref: str, model: str, n: int, truths: int, noise: int, seed: int, compensate: bool,
-              out: Path | None) -> dict:
+              out: Path | None, prior_scale: float = 1.0) -> dict:
     scene = load_scene(scene_ref)
     s = setup(extended_scene(scene) if model == "extended" else scene)
+    prior = s.scene.model_error if s.scene.model_error is not None else default_prior(s.problem)
+    if prior_scale != 1.0:
+        prior = prior.scaled(prior_scale)
     row = {"scene": s.scene.name, "model": model, "n": n, "truths": truths, "noise_draws": noise,
-           "prior": s.scene.discrepancy().describe()}
+           "prior": prior.describe()}
     designs, errors = {}, {}
     for crit in ("kpi", "kpi_model"):
-        d = design(s, n, crit, seed=seed, certificate=False)
+        d = design(s, n, scene_criterion(s, crit, prior), seed=seed, certificate=False)
         designs[crit] = d
         errors[crit] = achieved_errors(s, d.q, truths, noise, seed, compensate)
         row[crit] = {
@@ -186,6 +194,8 @@ def main() -> None:
     ap.add_argument("--noise", type=int, default=1)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--compensate", action="store_true")
+    ap.add_argument("--prior-scale", type=float, default=1.0,
+                    help="the kpi_model design's prior with every amplitude times this (a misjudged prior)")
     ap.add_argument("--out", type=Path)
     ap.add_argument("--figure", metavar="SCENE", help="only draw the figure of SCENE from --out")
     args = ap.parse_args()
@@ -195,7 +205,7 @@ def main() -> None:
     with threadpool_limits(limits=1, user_api="blas"):
         for scene in args.scenes:
             print(json.dumps(run_scene(scene, args.model, args.n, args.truths, args.noise, args.seed,
-                                       args.compensate, args.out)), flush=True)
+                                       args.compensate, args.out, args.prior_scale)), flush=True)
 
 
 if __name__ == "__main__":

@@ -37,7 +37,7 @@ from calib_oed.scene.reader import load_scene
 def _design(scene, n: int) -> np.ndarray:
     """`calib-oed design SCENE -n N --no-certificate -o DIR`, read back."""
     with tempfile.TemporaryDirectory() as folder:
-        argv = ["design", scene.name, "-n", str(n), "--no-certificate", "-o", folder, "--quiet"]
+        argv = ["design", scene.name, "-n", str(n), "--criterion", "kpi", "--no-certificate", "-o", folder, "--quiet"]
         if calib_oed(argv) != 0:
             raise SystemExit(f"calib-oed {' '.join(argv)} failed")
         return read_design_file(f"{folder}/design.csv", scene.robot)

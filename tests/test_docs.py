@@ -467,7 +467,7 @@ def test_design_figures_quoted_from_the_benchmark_tables():
     efficiency = {k: [number(r[col["efficiency"]]) for r in rows[1:] if r[col["K"]] == k] for k in ("1", "3")}
     k1 = f"{min(efficiency['1']):.1f}–{max(efficiency['1']):.1f} %"
     k3 = f"{min(efficiency['3']):.1f}–{max(efficiency['3']):.1f} %"
-    calls = table_after(bench, "    OPENBLAS_NUM_THREADS=1 /usr/bin/time .venv/bin/calib-oed design fms_kr16 -n 60 -o DIR")
+    calls = table_after(bench, "    OPENBLAS_NUM_THREADS=1 /usr/bin/time .venv/bin/calib-oed design fms_kr16 -n 60 --criterion kpi -o DIR")
     col = {name: i for i, name in enumerate(calls[0])}
     today, then = calls[1], calls[2]  # what it prints today; the timed runs on the machine of 2026-11-24
     assert today[col["measured"]].startswith("2026-11-26") and then[col["measured"]].startswith("2026-11-24")

@@ -245,8 +245,9 @@ def make_criterion(name: str, *, kpi_jacobian=None, n_params: int | None = None,
             None: all 1.
         problem: The calibration problem; needed by ``"kpi_model"``, the KPI
             criterion under model error (:mod:`calib_oed.oed.model_error`).
-        model_error: Its :class:`~calib_oed.measurement.discrepancy.DiscrepancyPrior`
-            (None: the default for the robot's reach).
+        model_error: Its prior, a :class:`~calib_oed.measurement.discrepancy.DiscrepancyPrior`
+            or a :class:`~calib_oed.oed.joint_prior.JointErrorPrior` (None: the joint-space
+            default, :func:`calib_oed.oed.model_error.default_prior`).
 
     Raises:
         UnknownCriterionError: ``name`` is not in :data:`CRITERIA`.
@@ -269,12 +270,11 @@ def make_criterion(name: str, *, kpi_jacobian=None, n_params: int | None = None,
             raise ValueError("criterion 'params' needs n_params, the number of parameters")
         return ACriterion.parameters(n_params)
     if name in ("kpi_model", "kpi_kriging"):
-        from calib_oed.measurement.discrepancy import DiscrepancyPrior
-        from calib_oed.oed.model_error import make_model_error_criterion
+        from calib_oed.oed.model_error import default_prior, make_model_error_criterion
 
         if problem is None or kpi_jacobian is None:
             raise ValueError(f"criterion {name!r} needs problem= and kpi_jacobian=")
-        prior = model_error if model_error is not None else DiscrepancyPrior.default_for(problem.robot)
+        prior = model_error if model_error is not None else default_prior(problem)
         return make_model_error_criterion(problem, kpi_jacobian, prior, kpi_weights, name)
     if name == "D":
         return DCriterion()

@@ -151,7 +151,7 @@ def evaluate_design(
         criterion=KPI_MAX if aggregate == "max" else objective.criterion.name,
         value=value,
         start_value=value if start_value is None else float(start_value),
-        criteria=criterion_values(objective, q, s.scene.discrepancy()),
+        criteria=criterion_values(objective, q, s.scene.model_error),
         kpi_sigma_mm=problem.kpi_sigma(q) * 1e3,
         kpi_names=tuple(problem.kpi.names),
         margins=tuple(margin_report(s.feasibility, res.values)),
@@ -239,8 +239,8 @@ def design(
         scene: A scene, or a :class:`~calib_oed.calibration.workflow.Setup` (reuses its
             feasibility model).
         n: Number of measurements (poses).
-        criterion: A name of :data:`calib_oed.oed.criteria.CRITERIA` or a criterion; None: ``kpi``,
-            or ``kpi_model`` with ``robot.model_error`` (:mod:`calib_oed.oed.model_error`).
+        criterion: A name of :data:`calib_oed.oed.criteria.CRITERIA` or a criterion; None: ``kpi_model``
+            where it applies, else ``kpi`` (:func:`calib_oed.oed.model_error.default_criterion`).
         start: ``"exchange"`` (default: the exchange algorithm on the pool, the
             good basin), ``"heuristic"`` (random feasible poses from ``seed``,
             the paper's start) or a design (n, nq) [rad].
@@ -345,6 +345,8 @@ def design(
     record["start"] = start if isinstance(start, str) else "given"
     record["pool"] = None if cands is None else cands.to_dict()
     record["approximate"] = approx_record
+    if objective.needs_design:  # the model-error prior the design was made for (report units)
+        record["model_error"] = objective.criterion.prior.to_dict()
     record["replicates"] = int(replicates)
     record["cpu_seconds"] = design_cpu
     named = start if isinstance(start, str) else "given"

@@ -53,7 +53,17 @@ and :math:`dS`, :math:`dk_w` follow the kernel's gradient, :math:`d\tilde F` the
 rows' configuration derivatives (``docs/oed.md``; checked against central
 differences in ``tests/oed/test_model_error_design.py``).
 
-**Joints that move no point.** A joint whose axis passes through every
+**The joint-space prior** (:mod:`calib_oed.oed.joint_prior`, the default without
+``robot.model_error``): each joint's angle error a GP moved to the points by their Jacobian
+columns, so with :math:`B_j = Z_j\,\partial y_j/\partial q` (tracker frame)
+:math:`S_{jl} = \delta_{jl}I + \sum_k k_k(q_j, q_l)\,B_{jk}B_{lk}^\top`,
+:math:`k_{w,ji} = \sum_k k_k(q_j, q^w_i)\,B_{jk}J^{w\top}_{ik}` and
+:math:`K_{ww,ii} = \sum_k k_k(q^w_i, q^w_i)\,J^w_{ik}J^{w\top}_{ik}` (:meth:`ModelErrorCriterion._covariances`);
+the gradient adds the terms through :math:`B_j` (:meth:`ModelErrorCriterion._joint_gradient`).
+Checked against central differences and a Monte Carlo of joint-angle draws in
+``tests/oed/test_joint_prior.py``.
+
+**Joints that move no point** (the isotropic prior). A joint whose axis passes through every
 reflector and the KPI point (the A6 axis with the shipped one-SMR scenes) moves
 none of them, so it cannot change their model error: the criterion's kernel
 ignores it (length scale :math:`\infty`, :func:`design_prior`), else turning
@@ -71,6 +81,7 @@ from calib_oed.exceptions import CertificateError, DesignError
 from calib_oed.measurement.discrepancy import DiscrepancyPrior
 from calib_oed.measurement.position import TrackerPosition
 from calib_oed.oed.criterion_base import Criterion, _not_identifiable
+from calib_oed.oed.joint_prior import JointErrorPrior, PointJacobians, point_jacobians
 
 #: Names of the criteria in :data:`calib_oed.oed.criteria.CRITERIA`: the KPI error of the
 #: parametric fit (the default design criterion), and of GLS plus kriging compensation.
@@ -95,20 +106,18 @@ MODEL_ERROR_NO_CERTIFICATE = (
 
 def default_criterion(scene) -> str:
     """The default design criterion: ``kpi_model`` when it applies (reflector positions, the
-    mean KPI aggregate) and either the scene gives a model-error prior (``robot.model_error``:
-    its own numbers or an earlier identification's) or it identifies joint compliance and
-    joint gains (``robot.compliance`` enabled and ``robot.joint_gains``); else the paper's ``kpi``.
+    mean KPI aggregate), with the scene's ``robot.model_error`` or else the joint-space prior
+    (:func:`default_prior`); else the paper's ``kpi``.
 
     Measured on the realistic simulator (``docs/oed.md``, ``bench/bench_model_error_design.py``,
-    40 truths, paired): with compliance and gains identified, the ``kpi_model`` design of
-    ``fms_kr16`` (60 poses, default prior) missed the working configuration by 0.63x the
-    ``kpi`` design's error; with the rigid model the two were equal within the Monte Carlo
-    error, so the rigid model keeps ``kpi``.
+    60 poses, 40 truths, paired with the ``kpi`` design of the same seed): the ``kpi_model``
+    design with the default joint-space prior missed the working configurations by 0.20x
+    (``fms_kr16`` rigid), 0.23x (with compliance and gains identified) and 0.34x (``ur5_table``
+    with compliance and gains) the ``kpi`` design's error; 0.82x (rigid ``ur5_table``) and 0.93x
+    (UR10 cell with compliance and gains) where its SQP stalled after 9 and 4 iterations.
     """
     applies = scene.measurement == "position" and scene.kpi.aggregate == "mean"
-    compliance = getattr(scene, "compliance", None)
-    extended = compliance is not None and compliance.enabled and getattr(scene, "joint_gains", None) is not None
-    return MODEL_ERROR if applies and (scene.model_error is not None or extended) else "kpi"
+    return MODEL_ERROR if applies else "kpi"
 
 
 def design_settings(objective, settings):
@@ -121,9 +130,9 @@ def design_settings(objective, settings):
     return SQPSettings(max_iterations=MODEL_ERROR_ITERATIONS)  # DESIGN_SQP, capped
 
 
-def scene_criterion(s, criterion):
-    """``criterion``, with the name ``kpi_model`` made for the set-up ``s`` with its scene's
-    model-error prior (``robot.model_error``, else the default for the robot's reach);
+def scene_criterion(s, criterion, prior=None):
+    """``criterion``, with the name ``kpi_model`` made for the set-up ``s`` with ``prior``, else its
+    scene's model-error prior (``robot.model_error``), else :func:`default_prior`;
     None: :func:`default_criterion`."""
     if criterion is None:
         criterion = default_criterion(s.scene)
@@ -131,9 +140,17 @@ def scene_criterion(s, criterion):
         problem = s.problem
         free = problem.identifiability.free_indices
         g = problem.kpi_jacobian(None)[:, free] * problem.space.unit_scale[free] * _MM  # as the objective's
-        return make_model_error_criterion(problem, g, s.scene.discrepancy(),
-                                          getattr(problem.kpi, "weights", None), criterion)
+        if prior is None:
+            prior = s.scene.model_error if s.scene.model_error is not None else default_prior(problem)
+        return make_model_error_criterion(problem, g, prior, getattr(problem.kpi, "weights", None), criterion)
     return criterion
+
+
+def default_prior(problem) -> JointErrorPrior:
+    """The model-error prior of a design without ``robot.model_error``: the joint-space prior
+    for the robot's size class (:meth:`JointErrorPrior.default_for`), the payload of the
+    problem's compliance model if it has one."""
+    return JointErrorPrior.default_for(problem.robot, getattr(problem.space, "compliance", None))
 
 
 def design_prior(problem, prior: DiscrepancyPrior) -> DiscrepancyPrior:
@@ -179,7 +196,7 @@ class ModelErrorCriterion(Criterion):
             ``kpi_kriging``); :data:`PREDICTORS`.
     """
 
-    prior: DiscrepancyPrior
+    prior: DiscrepancyPrior | JointErrorPrior
     kpi_jacobian: np.ndarray
     working: np.ndarray
     weights: np.ndarray | None = None
@@ -187,6 +204,8 @@ class ModelErrorCriterion(Criterion):
     name: str = MODEL_ERROR
     label: str = ("predicted KPI error after calibration under model error, "
                   "sum_i w_i tr C_ii / (3 sum_i w_i) [mm^2]")
+    points: PointJacobians | None = None
+    kpi_points: PointJacobians | None = None
     omega: np.ndarray = field(init=False, repr=False)
 
     #: Evaluated from the design (rows and configurations), not from M.
@@ -198,6 +217,19 @@ class ModelErrorCriterion(Criterion):
         t = self.working.shape[0]
         w = np.ones(t) if self.weights is None else np.asarray(self.weights, dtype=float).reshape(t)
         object.__setattr__(self, "omega", np.repeat(w / (3.0 * w.sum()), 3))
+        if self.joint_space:
+            if self.points is None or self.kpi_points is None:
+                raise DesignError("criterion", self.name, "needs the point Jacobians with a joint-space prior")
+            jw = self.kpi_points.compute(self.working)[0][:, 0]  # (t, 3, nv) [m/rad], tracker frame
+            tau = None if self.prior.gravity is None else (self.prior.gravity.torques(self.working),) * 2
+            kww = self.prior.compute_kernels(self.working, self.working, tau)  # (nv, t, t)
+            k_ww = np.einsum("kii,ick,ick->ic", kww, jw, jw).ravel() * _MM**2  # (3t,) [mm^2]
+            object.__setattr__(self, "_joint_work", (jw, tau, k_ww))
+
+    @property
+    def joint_space(self) -> bool:
+        """The prior is the joint-space one (:mod:`calib_oed.oed.joint_prior`)."""
+        return isinstance(self.prior, JointErrorPrior)
 
     # ------------------------------------------------------------- not of M
     def compute_value(self, info):
@@ -207,27 +239,42 @@ class ModelErrorCriterion(Criterion):
     compute_gradient = compute_value
 
     # ------------------------------------------------------------- pieces
-    def _covariances(self, rows, q, z):
-        r""":math:`S` (m, m), :math:`k_w` (m, 3t) [mm] in whitened rows, and the kernels.
+    def _covariances(self, rows, q, z, gradient: bool = False):
+        r""":math:`S` (m, m), :math:`k_w` (m, 3t) [mm] in whitened rows, :math:`\mathrm{diag}\,K_{ww}`
+        [mm²] and the kernels (what the gradient needs).
 
         ``z`` (n, d, 3): :math:`Z_j = W_j U`, the whitening of pose j's rows applied to the
         shared point error (one 3x3 block per reflector), so :math:`S_{jl} = \delta_{jl}I
-        + k(q_j, q_l)\,Z_j Z_l^\top` and :math:`k_{w,ji} = k(q_j, q^w_i)\,Z_j`.
+        + k(q_j, q_l)\,Z_j Z_l^\top` and :math:`k_{w,ji} = k(q_j, q^w_i)\,Z_j`. With the
+        joint-space prior :math:`B_j = Z_j\,\partial y_j/\partial q` (d, nv), so
+        :math:`S_{jl} = \delta_{jl}I + \sum_k k_k(q_j, q_l)\,B_{jk}B_{lk}^\top` and
+        :math:`k_{w,ji} = \sum_k k_k(q_j, q^w_i)\,B_{jk}J^{w\top}_{ik}`.
         """
         n, d = rows.shape[:2]
-        kq = self.prior.kernel(q, q)
-        kw = self.prior.kernel(q, self.working) * _MM
-        s = np.einsum("jl,jac,lbc->jalb", kq, z, z).reshape(n * d, n * d)
+        if not self.joint_space:
+            kq = self.prior.kernel(q, q)
+            kw = self.prior.kernel(q, self.working) * _MM
+            s = np.einsum("jl,jac,lbc->jalb", kq, z, z).reshape(n * d, n * d)
+            s[np.diag_indices_from(s)] += 1.0
+            k_w = np.einsum("ji,jac->jaic", kw, z).reshape(n * d, -1)
+            return s, k_w, self.prior.sigma**2 * _MM**2, (kq, kw)
+        jw, tau_w, k_ww = self._joint_work
+        jac, d_jac = self.points.compute(q, gradient)  # (n, r, 3, nv), (n, r, 3, nv, nv)
+        b = np.einsum("jrxy,jryk->jrxk", z.reshape(n, -1, 3, 3), jac).reshape(n, d, -1)
+        grav = self.prior.gravity
+        tau = None if grav is None else grav.torques(q)
+        kk = self.prior.compute_kernels(q, q, None if grav is None else (tau, tau))
+        kwk = self.prior.compute_kernels(q, self.working, None if grav is None else (tau, tau_w[0]))
+        s = np.einsum("kjl,jak,lbk->jalb", kk, b, b).reshape(n * d, n * d)
         s[np.diag_indices_from(s)] += 1.0
-        k_w = np.einsum("ji,jac->jaic", kw, z).reshape(n * d, -1)
-        return s, k_w, kq, kw
+        k_w = np.einsum("kji,jak,ick->jaic", kwk, b, jw).reshape(n * d, -1) * _MM
+        return s, k_w, k_ww, (kk, kwk, b, jac, d_jac, tau)
 
     def _solve(self, rows, q, z, gradient: bool):
         r""":math:`C_{cc}` [mm²] (3t,), and with ``gradient`` the kernels, :math:`V` (m, 3t) and
         :math:`\partial\phi/\partial\tilde F` (m, n_f) (module docstring, per predictor)."""
         flat = rows.reshape(-1, rows.shape[-1])
-        s, k_w, kq, kw = self._covariances(rows, q, z)
-        k_ww = self.prior.sigma**2 * _MM**2
+        s, k_w, k_ww, kernels = self._covariances(rows, q, z, gradient)
         om = self.omega
         if self.predictor == "fit":  # the parametric fit alone: X = F M^-1 G^T, M = F^T F
             factor = _cho(flat.T @ flat)
@@ -240,7 +287,7 @@ class ModelErrorCriterion(Criterion):
             r = sv - k_w
             qq = scipy.linalg.cho_solve(factor, flat.T @ r, check_finite=False)
             d_f = 2.0 * (r * om) @ y.T - 2.0 * flat @ ((qq * om) @ y.T + (y * om) @ qq.T)
-            return diag, (kq, kw, v, d_f)
+            return diag, (kernels, v, d_f)
         factor = scipy.linalg.cho_factor(s, lower=True, check_finite=False)
         a = scipy.linalg.cho_solve(factor, flat, check_finite=False)   # S^-1 F
         b = scipy.linalg.cho_solve(factor, k_w, check_finite=False)    # S^-1 k_w
@@ -250,7 +297,7 @@ class ModelErrorCriterion(Criterion):
         if not gradient:
             return diag, None
         v = b + a @ y                                          # V = S^-1 (k_w + F Y)
-        return diag, (kq, kw, v, -2.0 * (v * om) @ y.T)
+        return diag, (kernels, v, -2.0 * (v * om) @ y.T)
 
     def compute_point_errors(self, rows: np.ndarray, q: np.ndarray, z: np.ndarray) -> np.ndarray:
         r""":math:`\mathrm{tr}\,C_{ii}/3` per working configuration [mm²], (t,)."""
@@ -271,12 +318,15 @@ class ModelErrorCriterion(Criterion):
         value = float(self.omega @ diag)
         if pieces is None:
             return value, None
-        kq, kw, v, d_f = pieces
+        kernels, v, d_f = pieces
         n, d = rows.shape[:2]
         vo = v * self.omega
         grad = np.einsum("jdf,jdfk->jk", d_f.reshape(n, d, -1), d_rows)
         u = (vo @ v.T).reshape(n, d, n, d)                     # dphi/dS = V Omega V^T
         x_w = -2.0 * vo.reshape(n, d, -1, 3)                    # dphi/dk_w = -2 V Omega
+        if self.joint_space:
+            return value, grad + self._joint_gradient(q, z, d_z, u, x_w, kernels)
+        kq, kw = kernels
         t_s = np.einsum("jalb,jac,lbc->jl", u, z, z)
         t_w = np.einsum("jaic,jac->ji", x_w, z) * _MM
         grad += 2.0 * np.einsum("jl,jlk->jk", t_s, self.prior.kernel_gradient(q, q))
@@ -285,6 +335,33 @@ class ModelErrorCriterion(Criterion):
             g_z = 2.0 * np.einsum("jl,jalb,lbc->jac", kq, u, z) + np.einsum("ji,jaic->jac", kw, x_w)
             grad += np.einsum("jac,jack->jk", g_z, d_z)
         return value, grad
+
+    def _joint_gradient(self, q, z, d_z, u, x_w, kernels) -> np.ndarray:
+        r"""The part of :math:`\partial\phi/\partial q` (n, nv) through :math:`S` and :math:`k_w`
+        with the joint-space prior: through the kernels and through :math:`B_j` (its point
+        Jacobians and whitening), given :math:`\partial\phi/\partial S` ``u`` (n, d, n, d) and
+        :math:`\partial\phi/\partial k_w` ``x_w`` (n, d, t, 3)."""
+        kk, kwk, b, jac, d_jac, tau = kernels
+        n, d = b.shape[:2]
+        jw = self._joint_work[0]
+        grav = self.prior.gravity
+        d_tau = None if grav is None else grav.torque_derivatives(q)
+        ub = np.einsum("jalb,lbk->jalk", u, b)                   # (n, d, n, nv)
+        t_s = np.einsum("jalk,jak->kjl", ub, b)
+        grad = 2.0 * np.einsum("kjl,kjlm->jm", t_s, self.prior.compute_kernel_gradients(
+            q, q, None if grav is None else (tau, tau, d_tau)))
+        g_b = 2.0 * np.einsum("jalk,kjl->jak", ub, kk)            # dphi/dB through S
+        xw = np.einsum("jaic,ick->jaik", x_w, jw) * _MM          # (n, d, t, nv)
+        t_w = np.einsum("jaik,jak->kji", xw, b)
+        tau_w = self._joint_work[1]
+        grad += np.einsum("kji,kjim->jm", t_w, self.prior.compute_kernel_gradients(
+            q, self.working, None if grav is None else (tau, tau_w[0], d_tau)))
+        g_b += np.einsum("jaik,kji->jak", xw, kwk)                # dphi/dB through k_w
+        zr = z.reshape(n, -1, 3, 3)
+        d_b = np.einsum("jrxy,jrykm->jrxkm", zr, d_jac)
+        if d_z is not None:
+            d_b += np.einsum("jrxym,jryk->jrxkm", d_z.reshape(n, -1, 3, 3, d_z.shape[-1]), jac)
+        return grad + np.einsum("jak,jakm->jm", g_b, d_b.reshape(n, d, b.shape[2], -1))
 
 
 def _cho(m: np.ndarray):
@@ -295,7 +372,7 @@ def _cho(m: np.ndarray):
         raise _not_identifiable(m) from None
 
 
-def make_model_error_criterion(problem, kpi_jacobian: np.ndarray, prior: DiscrepancyPrior,
+def make_model_error_criterion(problem, kpi_jacobian: np.ndarray, prior: DiscrepancyPrior | JointErrorPrior,
                                weights=None, name: str = MODEL_ERROR) -> ModelErrorCriterion:
     """The criterion ``name`` (``kpi_model`` or ``kpi_kriging``) of ``problem`` with its KPI
     Jacobian (unit-scaled, KPI frame) and a prior.
@@ -309,4 +386,13 @@ def make_model_error_criterion(problem, kpi_jacobian: np.ndarray, prior: Discrep
     g = problem.kpi.rows_in_tracker_frame(problem.space, kpi_jacobian)
     working = np.asarray(problem.kpi.configurations, dtype=float)
     predictor = PREDICTORS[(MODEL_ERROR, KRIGING).index(name)]
+    if isinstance(prior, JointErrorPrior):  # the points' Jacobians carry the joints' errors
+        if prior.nq != problem.robot.nq:
+            raise DesignError("model error", f"{prior.nq} joints", f"one value per joint ({problem.robot.nq})")
+        offsets = problem.space.reflector_offsets(None)
+        kpi = problem.kpi
+        point = kpi.point if getattr(kpi, "reflector", None) is None else offsets[kpi.reflector]
+        return ModelErrorCriterion(prior, g, working, weights, predictor, name,
+                                   points=point_jacobians(problem, offsets[[m.reflector for m in problem.models]]),
+                                   kpi_points=point_jacobians(problem, point))
     return ModelErrorCriterion(design_prior(problem, prior), g, working, weights, predictor, name)

@@ -157,7 +157,7 @@ def test_design_command_writes_both_files(capsys, tmp_path):
     out = capsys.readouterr().out
     assert "sqp design of 12 poses" in out and "feasible: True" in out
     data = yaml.safe_load((tmp_path / "design.yaml").read_text())
-    assert data["criterion"] == "kpi" and len(data["configurations_rad"]) == 12
+    assert data["criterion"] == "kpi_model" and len(data["configurations_rad"]) == 12  # the default
     assert data["value"] < data["start_value"]
     header = (tmp_path / "design.csv").read_text().splitlines()
     assert "joint_a1" in [h for h in header if not h.startswith("#")][0]

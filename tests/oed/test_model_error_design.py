@@ -167,8 +167,8 @@ def test_joints_that_move_no_point_are_ignored_by_the_kernel(kr16):
 def test_it_is_registered_and_not_a_function_of_m(kr16):
     s, q = kr16
     assert MODEL_ERROR in CRITERIA and KRIGING in CRITERIA
-    obj = DesignObjective(s.problem, MODEL_ERROR)  # the default prior for the reach
-    assert obj.criterion.prior.sigma == pytest.approx(DiscrepancyPrior.default_for(s.problem.robot).sigma)
+    obj = DesignObjective(s.problem, MODEL_ERROR)  # the default prior: joint space (tests/oed/test_joint_prior.py)
+    assert obj.criterion.joint_space and "medium arm" in obj.criterion.prior.source
     with pytest.raises(CertificateError, match="not on the information matrix alone"):
         obj.criterion.compute_value(obj.compute_information(q))
 
@@ -182,6 +182,7 @@ def test_a_kpi_model_design_has_no_certificate(kr16):
     assert d.criteria[MODEL_ERROR] == pytest.approx(d.value, rel=1e-9)
     assert d.criteria[MODEL_ERROR] >= d.criteria["kpi"]  # never below the noise-only criterion
     assert d.certificate["skipped"].startswith("no certificate for the model-error criteria")
+    assert d.solver["model_error"]["kind"] == "joint"  # the record names the prior it was made for
 
 
 def scene_with(tmp_path, old: str, new: str):
@@ -193,26 +194,16 @@ def scene_with(tmp_path, old: str, new: str):
     return load_scene(path)
 
 
-def test_the_default_criterion_is_kpi_model_with_a_scene_prior(kr16, tmp_path):
-    """A scene's own prior (or an identification's) makes kpi_model the default; the documented
-    default prior alone does not, and neither does a worst-case KPI."""
+def test_the_default_criterion_is_kpi_model_where_it_applies(kr16, tmp_path):
+    """kpi_model is the default for reflector positions and the mean KPI (with the joint-space
+    prior, or the scene's own); a worst-case KPI keeps kpi."""
     s, _ = kr16
-    assert default_criterion(s.scene) == "kpi"
+    assert default_criterion(s.scene) == MODEL_ERROR
     prior = "robot:\n  model_error: {sigma: 0.15, length_scales: 45}\n"
     assert default_criterion(scene_with(tmp_path, "robot:\n", prior)) == MODEL_ERROR
     assert default_criterion(scene_with(tmp_path, "kpi:\n", "kpi:\n  aggregate: max\n")) == "kpi"
-
-
-@pytest.mark.parametrize(("keys", "expected"), [
-    ("  compliance: {payload: {mass: 0.3}}\n  joint_gains: {joints: all}\n", MODEL_ERROR),
-    ("  compliance: {payload: {mass: 0.3}}\n", "kpi"),
-    ("  joint_gains: {joints: all}\n", "kpi"),
-    ("  compliance: {enabled: false}\n  joint_gains: {joints: all}\n", "kpi"),
-])
-def test_the_default_criterion_is_kpi_model_with_compliance_and_gains(tmp_path, keys, expected):
-    """Identifying joint compliance and joint gains makes kpi_model the default (the case the
-    realistic simulator measured better, docs/oed.md); either alone keeps kpi."""
-    assert default_criterion(scene_with(tmp_path, "robot:\n", "robot:\n" + keys)) == expected
+    keys = "robot:\n  compliance: {payload: {mass: 0.3}}\n  joint_gains: {joints: all}\n"
+    assert default_criterion(scene_with(tmp_path, "robot:\n", keys)) == MODEL_ERROR
 
 
 def test_a_pose_measurement_has_no_model_error_value():
@@ -231,16 +222,15 @@ def test_a_pose_measurement_has_no_model_error_value():
 
 
 @pytest.mark.slow
-def test_with_compliance_and_gains_the_default_design_meets_the_issue_target(tmp_path):
-    """docs/oed.md's claim on the realistic simulator: fms_kr16 with joint compliance (the nest
-    as payload) and joint gains identified, 60 poses: the default design (kpi_model) misses the
-    working configuration by less than 0.85x the kpi design's error, paired over 40 truths."""
+def test_the_default_design_meets_the_issue_target():
+    """docs/oed.md's claim on the realistic simulator: fms_kr16 as shipped, 60 poses: the default
+    design (kpi_model, joint-space prior) holds >= 45 distinct arm positions and misses the working
+    configuration by less than 0.5x the kpi design's error (measured 0.20), paired over 40 truths."""
     from calib_oed.calibration.identification import identify
     from calib_oed.calibration.realistic import sample_truth
     from calib_oed.calibration.realistic_measure import measure
 
-    keys = "robot:\n  compliance: {payload: {mass: 0.3, com: [0, 0, 50]}}\n  joint_gains: {joints: all}\n"
-    s = setup(scene_with(tmp_path, "robot:\n", keys))
+    s = setup(load_scene("fms_kr16"))
     problem = s.problem
     free = problem.identifiability.free_indices
     designs = {"default": design(s, 60, seed=0, certificate=False), "kpi": design(s, 60, "kpi", seed=0, certificate=False)}
@@ -253,4 +243,4 @@ def test_with_compliance_and_gains_the_default_design_meets_the_issue_target(tmp
             data = measure(truth, problem.models, d.q, np.random.default_rng([0, k, 0, 1]))
             fitted = problem.kpi.compute_values(problem.space, identify(problem.space, data.blocks, free).p)
             sq[name][k] = np.mean((fitted - target) ** 2)
-    assert np.sqrt(sq["default"].mean() / sq["kpi"].mean()) < 0.85
+    assert np.sqrt(sq["default"].mean() / sq["kpi"].mean()) < 0.5

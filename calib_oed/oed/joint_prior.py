@@ -1,0 +1,220 @@
+r"""A joint-space model-error prior for the design criterion: each joint's angle error a Gaussian
+process, mapped to the measured points and the TCP by that joint's column of the Jacobian.
+
+**Model** (``docs/oed.md``, "The joint-space prior"). What a calibrated arm keeps after the
+geometric fit is mostly *joint-angle* error (reducer transmission errors, gravity compliance,
+the J2 balancer, joint gain errors): an error :math:`\varepsilon_k(q)` of joint k's angle moves a
+point :math:`c` fixed on the tool by :math:`J_k(q; c)\,\varepsilon_k(q)`, :math:`J_k` the point's
+Jacobian column of joint k (tracker frame, [m/rad]). With the joints' errors independent zero-mean
+Gaussian processes,
+
+.. math::
+    e(q; c) = \sum_k J_k(q; c)\,\varepsilon_k(q), \qquad
+    \mathrm{Cov}\big(e(q; c), e(q'; c')\big) = \sum_k k_k(q, q')\,J_k(q; c)\,J_k(q'; c')^\top
+    \quad [\mathrm{m}^2],
+
+and per joint, with :math:`\Delta = q_k - q'_k` [rad] and :math:`\tau_k` the gravity torque on
+joint k of the nominal arm with the scene's payload (:class:`~calib_oed.model.compliance.GravityLoad`) [N·m],
+
+.. math::
+    k_k(q, q') = a_{1k}^2\cos\Delta + a_{2k}^2\cos 2\Delta
+      + s_k^2\,m_{5/2}\!\big(|2\sin(\Delta/2)|/\ell_k\big)
+      + \nu_k^2\,q_k q'_k + \gamma_k^2\,\tau_k(q)\,\tau_k(q') \quad [\mathrm{rad}^2]:
+
+once and twice per revolution of the joint (a sinusoid of RMS :math:`a` with a uniformly random
+phase has the covariance :math:`a^2\cos\Delta`), a smooth error of the joint's own angle
+(Matérn 5/2 of the chordal distance, Rasmussen & Williams 2006, eq. 4.17), a gain (scale) error
+of standard deviation :math:`\nu_k` [rad/rad], and a compliance :math:`c_k` of standard deviation
+:math:`\gamma_k` [rad/(N·m)] under the arm's own gravity load. Several reflectors at one pose share
+the joints' errors (their columns differ); a joint whose axis passes through a point moves it by
+zero, so turning A6 with the shipped one-SMR scenes measures the same error again. The parts of
+:math:`\varepsilon` a scene identifies (joint offsets, gains, compliance) are absorbed by the
+fit the criterion models; the rest is what the design must average at the working configurations.
+
+**Derivatives** in :math:`q` (first argument), for the criterion's exact gradient:
+:math:`\partial_{q_k}` of the own-angle parts is :math:`-a_1^2\sin\Delta - 2a_2^2\sin 2\Delta
++ s^2 g(r)\sin\Delta/\ell^2 + \nu^2 q'_k` (:math:`g = k'(r)/r` of the Matérn kernel,
+:mod:`calib_oed.measurement.discrepancy`), the compliance part
+:math:`\gamma^2\,\partial\tau_k/\partial q\;\tau_k(q')` over every joint
+(``pin.computeGeneralizedGravityDerivatives``), and the point's Jacobian columns
+:math:`\partial_l J_k = \omega_{\min(k,l)}\times J_{\max(k,l)}` (serial chain, revolute joints,
+:math:`\omega` the joint axes in the tracker frame). Checked against central differences in
+``tests/oed/test_joint_prior.py``.
+
+**Defaults per robot size** (:meth:`JointErrorPrior.default_for`, ``docs/scenes.md``): the size
+class of the arm's URDF mass and the published magnitudes of
+:mod:`calib_oed.calibration.realistic_defaults` (the same sources as the realistic simulator):
+transmission error RMS 21 and 11 arcsec (30 and 15 arcsec amplitude), a smooth part of 10 arcsec
+with :data:`SMOOTH_LENGTH`, gain errors 5e-5, compliance :math:`\gamma_k = 1/k_k` (the class's
+typical stiffness) with the scene's payload.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from calib_oed.exceptions import ParameterError
+from calib_oed.model.compliance import Compliance, GravityLoad
+from calib_oed.model.kinematics import compute_tool_kinematics
+
+ARCSEC = np.pi / (180.0 * 3600.0)
+#: Default RMS of the once- and twice-per-revolution transmission errors [rad] (amplitude / sqrt 2).
+PERIODIC_RMS = (30.0 * ARCSEC / np.sqrt(2.0), 15.0 * ARCSEC / np.sqrt(2.0))
+#: Default amplitude of the smooth part of a joint's own-angle error [rad] (10 arcsec).
+SMOOTH_SIGMA = 10.0 * ARCSEC
+#: Default length scale of the smooth part [rad] (60 deg).
+SMOOTH_LENGTH = float(np.radians(60.0))
+#: Default standard deviation of the joint gain errors [rad/rad].
+GAIN_SIGMA = 5e-5
+_A = np.sqrt(5.0)
+_FIELDS = ("once", "twice", "smooth", "length", "gain", "compliance")
+
+
+@dataclass(frozen=True, eq=False)
+class JointErrorPrior:
+    r"""Per-joint angle-error processes (module docstring); arrays (nq,).
+
+    Attributes:
+        once, twice: RMS :math:`a_1, a_2` of the once/twice-per-revolution errors [rad].
+        smooth: Amplitude :math:`s` of the smooth own-angle part [rad]; ``length`` :math:`\ell` [rad].
+        gain: :math:`\nu` [rad/rad].
+        compliance: :math:`\gamma` [rad/(N·m)]; needs ``gravity`` when any is > 0.
+        gravity: The nominal arm's gravity load (None: no compliance part).
+        source: Where the numbers come from.
+    """
+
+    once: np.ndarray
+    twice: np.ndarray
+    smooth: np.ndarray
+    length: np.ndarray
+    gain: np.ndarray
+    compliance: np.ndarray
+    gravity: GravityLoad | None = field(default=None, repr=False)
+    source: str = "given"
+
+    def __post_init__(self):
+        nq = np.atleast_1d(np.asarray(self.once)).size
+        for name in _FIELDS:
+            arr = np.broadcast_to(np.asarray(getattr(self, name), dtype=float), (nq,)).copy()
+            if not np.all(np.isfinite(arr)) or np.any(arr < 0) or (name == "length" and np.any(arr <= 0)):
+                raise ParameterError(f"joint model error {name}: one finite value >= 0 per joint "
+                                     f"({'> 0 ' if name == 'length' else ''}{nq} joints), got {arr.tolist()}")
+            arr.setflags(write=False)
+            object.__setattr__(self, name, arr)
+        if np.any(self.compliance > 0) and self.gravity is None:
+            raise ParameterError("joint model error compliance > 0 needs the arm's gravity load")
+
+    @property
+    def nq(self) -> int:
+        return self.once.size
+
+    @classmethod
+    def default_for(cls, robot, payload: Compliance | None = None) -> JointErrorPrior:
+        """The documented default for ``robot`` (module docstring), the payload on its tool."""
+        from calib_oed.calibration.realistic_defaults import RealisticSettings
+
+        model = robot.model
+        mass = float(sum(model.inertias[i].mass for i in range(1, model.njoints)))
+        settings = RealisticSettings()
+        stiffness = settings.table(settings.size_class_of(mass), model.nv).stiffness
+        gravity = GravityLoad(model, robot.tool_frame_id, payload if payload is not None else Compliance())
+        nq = model.nq
+        return cls(np.full(nq, PERIODIC_RMS[0]), np.full(nq, PERIODIC_RMS[1]), np.full(nq, SMOOTH_SIGMA),
+                   np.full(nq, SMOOTH_LENGTH), np.full(nq, GAIN_SIGMA), 1.0 / stiffness, gravity,
+                   f"default ({settings.size_class_of(mass)} arm, {mass:.0f} kg)")
+
+    def scaled(self, factor: float) -> JointErrorPrior:
+        """Every amplitude times ``factor`` (the length scales kept): a prior that misjudges the
+        size of the arm's errors."""
+        f = float(factor)
+        return JointErrorPrior(self.once * f, self.twice * f, self.smooth * f, self.length, self.gain * f,
+                               self.compliance * f, self.gravity, f"{self.source}, x{f:g}")
+
+    def to_dict(self) -> dict:
+        """Report units: arcsec, deg, µrad/rad, µrad/(N·m)."""
+        return {"kind": "joint", "once_arcsec": (self.once / ARCSEC).tolist(),
+                "twice_arcsec": (self.twice / ARCSEC).tolist(), "smooth_arcsec": (self.smooth / ARCSEC).tolist(),
+                "length_deg": np.degrees(self.length).tolist(), "gain_urad_per_rad": (self.gain * 1e6).tolist(),
+                "compliance_urad_per_nm": (self.compliance * 1e6).tolist(), "source": self.source}
+
+    def describe(self) -> str:
+        """One line in report units."""
+        def fmt(a, s):
+            return "/".join(f"{x:.3g}" for x in a * s)
+        return (f"joint model error: RMS once {fmt(self.once, 1 / ARCSEC)} arcsec, twice "
+                f"{fmt(self.twice, 1 / ARCSEC)} arcsec, smooth {fmt(self.smooth, 1 / ARCSEC)} arcsec, "
+                f"gain {fmt(self.gain, 1e6)} urad/rad, compliance {fmt(self.compliance, 1e6)} urad/(N m) "
+                f"({self.source})")
+
+    # ------------------------------------------------------------ kernels
+    def _own(self, q1, q2, gradient: bool):
+        d = q1[:, None, :] - q2[None, :, :]  # (n1, n2, nq)
+        a1, a2, s2, inv = self.once**2, self.twice**2, self.smooth**2, 1.0 / self.length**2
+        r = np.abs(2.0 * np.sin(0.5 * d)) * np.sqrt(inv)
+        e = np.exp(-_A * r)
+        if not gradient:
+            k = a1 * np.cos(d) + a2 * np.cos(2 * d) + s2 * (1 + _A * r + 5.0 * r**2 / 3) * e
+            return k + self.gain**2 * q1[:, None, :] * q2[None, :, :]
+        g = -s2 * (5.0 / 3) * (1 + _A * r) * e
+        dk = -a1 * np.sin(d) - 2 * a2 * np.sin(2 * d) + g * np.sin(d) * inv
+        return dk + self.gain**2 * q2[None, :, :]
+
+    def compute_kernels(self, q1: np.ndarray, q2: np.ndarray, tau=None) -> np.ndarray:
+        r""":math:`k_k(q_{1,a}, q_{2,b})` (nq, n1, n2) [rad²]; ``tau`` the torques at (q1, q2) if known."""
+        k = np.moveaxis(self._own(q1, q2, False), 2, 0)
+        if self.gravity is not None and np.any(self.compliance > 0):
+            t1, t2 = tau if tau is not None else (self.gravity.torques(q1), self.gravity.torques(q2))
+            k = k + (self.compliance**2)[:, None, None] * t1.T[:, :, None] * t2.T[:, None, :]
+        return k
+
+    def compute_kernel_gradients(self, q1: np.ndarray, q2: np.ndarray, tau=None) -> np.ndarray:
+        r""":math:`\partial k_k(q_{1,a}, q_{2,b})/\partial q_{1,a}` (nq, n1, n2, nv) [rad]; ``tau``:
+        (torques at q1, at q2, torque derivatives at q1) if known."""
+        n1, n2, nq = q1.shape[0], q2.shape[0], self.nq
+        out = np.zeros((nq, n1, n2, nq))
+        own = self._own(q1, q2, True)  # (n1, n2, nq)
+        idx = np.arange(nq)
+        out[idx, :, :, idx] = np.moveaxis(own, 2, 0)
+        if self.gravity is not None and np.any(self.compliance > 0):
+            if tau is None:
+                tau = (None, self.gravity.torques(q2), self.gravity.torque_derivatives(q1))
+            _, t2, dt1 = tau  # dt1 (n1, nv, nv): [a, k, m] = d tau_k / d q_m
+            out += (self.compliance**2)[:, None, None, None] * np.einsum("akm,bk->kabm", dt1, t2)
+        return out
+
+
+@dataclass(frozen=True, eq=False)
+class PointJacobians:
+    """The nominal arm's point Jacobians in the tracker frame, for the joint-space prior.
+
+    Attributes:
+        model, frame_id: Pinocchio model and tool frame.
+        offsets: Points on the tool (r, 3) [m, tool frame].
+        rotation: :math:`R_{W,T}` of the nominal tracker (3, 3).
+    """
+
+    model: object
+    frame_id: int
+    offsets: np.ndarray
+    rotation: np.ndarray
+
+    def compute(self, q: np.ndarray, derivative: bool = False):
+        r""":math:`\partial y_r/\partial q` (n, r, 3, nv) [m/rad], tracker frame, and with
+        ``derivative`` :math:`\partial^2 y_r/\partial q_k\partial q_l` (n, r, 3, nv, nv) (module docstring)."""
+        kin = compute_tool_kinematics(self.model, self.frame_id, q, regressor=False, jacobian=True)
+        rt = self.rotation.T
+        jac = np.stack([rt @ kin.point_sensitivity(c, "jacobian") for c in self.offsets], axis=1)
+        if not derivative:
+            return jac, None
+        axes = rt @ kin.rotation @ kin.jacobian[:, 3:, :]  # (n, 3, nv)
+        cross = np.cross(axes[:, None, :, :, None], jac[:, :, :, None, :], axis=2)  # [j, r, :, k, l]
+        return jac, np.triu(cross) + np.swapaxes(np.triu(cross, 1), 3, 4)
+
+
+def point_jacobians(problem, offsets: np.ndarray) -> PointJacobians:
+    """:class:`PointJacobians` of ``problem``'s nominal robot and tracker at ``offsets`` (r, 3) [m]."""
+    robot = problem.space.robot
+    return PointJacobians(robot.model, robot.tool_frame_id, np.atleast_2d(np.asarray(offsets, dtype=float)),
+                          np.asarray(problem.space.tracker_placement(None).rotation))
