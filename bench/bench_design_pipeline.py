@@ -4,7 +4,7 @@ Run from the repository root:
 
     .venv/bin/python bench/bench_design_pipeline.py [--scenes all] [--poses 60]
         [--growth 30,60,120,250,500] [--no-certificate] [--replicates 1,2,3,5]
-        [--structured-qp lifted,block]
+        [--structured-qp lifted,block] [--criterion kpi]
 
 Each case runs in its own process (``python -m calib_oed design SCENE -n N -o DIR
 --json``), as a user would run it: from the scene file to the written design.
@@ -142,6 +142,9 @@ def main(argv=None) -> int:
     ap.add_argument("--poses", type=int, default=60)
     ap.add_argument("--growth", default="", help="fms_kr16 at these n, e.g. 30,60,120,250,500")
     ap.add_argument("--no-certificate", action="store_true")
+    ap.add_argument("--criterion", default="",
+                    help="pass --criterion to every design (e.g. kpi, the noise-only criterion the figures "
+                         "before kpi_model became the default were measured with); default: the default call")
     ap.add_argument("--replicates", default="1",
                     help="comma-separated K of --replicates K, each scene run once per K, e.g. 1,2,3,5")
     ap.add_argument("--feasibility", default="",
@@ -150,6 +153,7 @@ def main(argv=None) -> int:
                     help="run every case once per QP path, e.g. lifted,block (SQPSettings.structured_qp)")
     args = ap.parse_args(argv)
     qps = [q for q in args.structured_qp.split(",") if q] or [""]
+    crit = ("--criterion", args.criterion) if args.criterion else ()
     reps = [int(k) for k in args.replicates.split(",") if k]
     overrides = dict(kv.split("=", 1) for kv in args.feasibility.split(",") if kv)
     print(f"# {platform.node()} {platform.processor() or platform.machine()}, "
@@ -163,13 +167,13 @@ def main(argv=None) -> int:
         for k in reps:
             for qp in qps:
                 row = run_case(scene, args.poses, not args.no_certificate,
-                               () if k == 1 else ("--replicates", str(k)), qp)
+                               crit + (() if k == 1 else ("--replicates", str(k))), qp)
                 row["replicates"] = k
                 rows.append(row)
                 print(json.dumps(row), flush=True)
     for n in [int(k) for k in args.growth.split(",") if k]:
         for qp in qps:
-            row = run_case("fms_kr16", n, n <= 120 and not args.no_certificate, (), qp)
+            row = run_case("fms_kr16", n, n <= 120 and not args.no_certificate, crit, qp)
             row["growth"] = True
             rows.append(row)
             print(json.dumps(row), flush=True)
