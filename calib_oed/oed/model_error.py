@@ -257,7 +257,7 @@ class ModelErrorCriterion(Criterion):
             s = np.einsum("jl,jac,lbc->jalb", kq, z, z).reshape(n * d, n * d)
             s[np.diag_indices_from(s)] += 1.0
             k_w = np.einsum("ji,jac->jaic", kw, z).reshape(n * d, -1)
-            return s, k_w, self.prior.sigma**2 * _MM**2, (kq, kw)
+            return s, k_w, self.prior.smooth_variance * _MM**2, (kq, kw)
         jw, tau_w, k_ww = self._joint_work
         jac, d_jac = self.points.compute(q, gradient)  # (n, r, 3, nv), (n, r, 3, nv, nv)
         b = np.einsum("jrxy,jryk->jrxk", z.reshape(n, -1, 3, 3), jac).reshape(n, d, -1)

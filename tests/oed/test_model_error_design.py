@@ -102,6 +102,19 @@ def test_the_criterion_is_the_monte_carlo_error_of_its_predictor(kr16, name):
 
 
 @pytest.mark.parametrize("name", [MODEL_ERROR, KRIGING])
+def test_a_harmonic_prior_from_an_identification_against_monte_carlo(name):
+    """The kernel `identify` fits (ARD Matern plus once/twice-per-revolution terms per joint), as
+    `robot.model_error: {from: identification.json}` brings it: its whole smooth variance is the
+    error at the working configurations (the harmonic share included)."""
+    problem = two_reflector_problem()
+    prior = DiscrepancyPrior(1e-4, (0.8, 0.8, 0.8, 1.5, 1.5, 1.5), "matern52_harmonic")
+    assert prior.smooth_variance > 1.4 * prior.sigma**2
+    obj = DesignObjective(problem, name, model_error=prior)
+    q = problem.robot.random_configurations(14, 3)
+    assert obj.compute_value(q) == pytest.approx(monte_carlo(obj, q, 4000, 1), rel=0.05)
+
+
+@pytest.mark.parametrize("name", [MODEL_ERROR, KRIGING])
 def test_monte_carlo_with_two_reflectors_and_weighted_points(name):
     problem = two_reflector_problem()
     prior = DiscrepancyPrior(1e-4, (0.8, 0.8, 0.8, 1.5, 1.5, 1.5))
