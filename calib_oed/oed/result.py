@@ -295,9 +295,19 @@ def format_criteria_table(designs: dict[str, Design]) -> str:
     names = list(designs)
     keys = list(designs[names[0]].criteria)
     width = max(12, *(len(n) for n in names))
-    lines = [f"{'criterion':10s} " + " ".join(f"{n:>{width}s}" for n in names)]
+    lines = [f"{'criterion':10s} " + " ".join(f"{n:>{width}s}" for n in names) + "  unit"]
     for key in keys:
         lines.append(f"{key:10s} " + " ".join(f"{designs[n].criteria.get(key, float('nan')):>{width}.5g}"
-                                              for n in names))
+                                              for n in names) + f"  {_CRITERION_UNITS.get(key, '')}")
     lines.append(f"{'n poses':10s} " + " ".join(f"{designs[n].n:>{width}d}" for n in names))
     return "\n".join(lines)
+
+
+#: What each criterion value of :func:`format_criteria_table` is measured in.
+_CRITERION_UNITS = {
+    "kpi": "mm² (mean KPI variance, noise only)", "params": "mm², mrad² (mean parameter variance)",
+    "D": "log det C (mm, mrad)", "E": "mm² (largest eigenvalue of C)",
+    "kpi_model": "mm² (mean squared KPI error per axis, with model error)",
+    "kpi_kriging": "mm² (the same, with the fitted model error compensated)",
+    **{f"O{k}": "(larger is better)" for k in range(1, 6)},
+}

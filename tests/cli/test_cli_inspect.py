@@ -66,6 +66,9 @@ def test_compare_puts_designs_side_by_side(capsys, designs):
     assert "seed0" in out and "seed7" in out  # labelled by their folders
     assert f"{ratio:.1%}" in out and "100.0%" in out
     assert "O5" in out and "n poses" in out
+    rows = {line.split()[0]: line for line in out.splitlines() if line.strip()}
+    assert rows["kpi"].endswith("mm² (mean KPI variance, noise only)")      # every value says its unit
+    assert rows["D"].endswith("log det C (mm, mrad)") and rows["O5"].endswith("(larger is better)")
     assert main(["compare", "fms_kr16", str(designs["yaml"]), str(designs["csv"]), "--json"]) == EXIT_OK
     data = json.loads(capsys.readouterr().out)
     assert data["designs"]["seed7"]["criteria"]["kpi"] == pytest.approx(designs["b"].kpi_variance, rel=1e-12)
