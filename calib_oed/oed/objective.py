@@ -286,7 +286,7 @@ class DesignObjective:
             raise NotIdentifiableError(
                 self.free_names,
                 f"a design of {n} poses gives {n * per_pose} measured values for {self.n_free} "
-                f"free parameters; measure at least {-(-self.n_free // per_pose)} configurations")
+                f"free parameters; measure more configurations (at least {-(-self.n_free // per_pose)})")
 
     def information(self, blocks: np.ndarray) -> np.ndarray:
         """:math:`M = M_0 + \\sum_j \\tilde F_j^\\top \\tilde F_j` from per-pose blocks (n, d, n_f).

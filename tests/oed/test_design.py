@@ -130,5 +130,5 @@ def test_too_few_poses_are_refused_before_the_pool_is_drawn(kr16, monkeypatch):
     monkeypatch.setattr(design_module, "candidate_pool", no_pool)
     n_free = DesignObjective(kr16.problem, "kpi").n_free
     with pytest.raises(NotIdentifiableError, match=rf"5 poses gives 15 measured values for {n_free} free "
-                                                   rf"parameters; measure at least {-(-n_free // 3)} "):
+                                                   rf"parameters; measure more configurations \(at least {-(-n_free // 3)}\)"):
         design(kr16, 5)
