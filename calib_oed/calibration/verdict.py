@@ -76,6 +76,17 @@ def predicted_rms_mm(identification: dict | None, compensated: bool) -> float | 
     return value if np.isfinite(value) and value > 0 else None
 
 
+def validation_prediction(predicted, identification: dict | None,
+                          compensated: bool) -> tuple[float | None, str]:
+    """The prediction a validation is judged against [mm] and where it is for: the per-row
+    prediction at the validation measurements (``predicted``, a
+    :class:`~calib_oed.calibration.pose_prediction.RowPrediction`), or, when the identification
+    did not record what that needs (None), its headline on new poses."""
+    if predicted is not None:
+        return predicted.total_rms_mm, AT_MEASUREMENTS
+    return predicted_rms_mm(identification, compensated), ON_NEW_POSES
+
+
 @dataclass(frozen=True)
 class Verdict:
     """Pass or fail against the user's tolerances, and the achieved error against the prediction.

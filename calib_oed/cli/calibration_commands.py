@@ -270,23 +270,19 @@ def cmd_validate(args) -> int:
     from calib_oed.calibration.sanity import check_measurements
     from calib_oed.calibration.validation import validate_calibration
     from calib_oed.calibration.verdict import (
-        ON_NEW_POSES,
         judge,
         pose_lines,
         pose_table,
-        predicted_rms_mm,
         read_identification,
+        validation_prediction,
     )
     s, mset = _scene_and_measurements(args)
     check_measurements(s.problem.space, mset, args.max_registration_rms * 1e-3, s.reflector_names)
     result = validate_calibration(s.scene, args.calibrated, mset, compensated=args.compensate)
     ident = read_identification(result.files)
     pred = result.predicted
-    # against the prediction at these very rows; the headline on new poses only for old records
-    verdict = (judge(result.calibrated.position_mm, args.max_rms, args.max_error, pred.total_rms_mm)
-               if pred is not None else
-               judge(result.calibrated.position_mm, args.max_rms, args.max_error,
-                     predicted_rms_mm(ident, args.compensate), ON_NEW_POSES))
+    verdict = judge(result.calibrated.position_mm, args.max_rms, args.max_error,
+                    *validation_prediction(pred, ident, args.compensate))
     table = pose_table(mset.q, result.calibrated.position_mm, mset.lines, mset.joint_names,
                        (ident or {}).get("training_joint_ranges"),
                        None if pred is None else pred.rms_mm, None if pred is None else pred.inside)
