@@ -3,6 +3,7 @@
 Run from the repository root:
 
     .venv/bin/python bench/bench_block_qp.py [--poses 60,250,500] [--rank 75] [--rows-per-pose 6]
+        [--paths lifted,block,warm]
 
 A seeded random QP per pose count b: n = 6 b variables, positive definite 6 x 6
 blocks plus a coupling U U^T of ``--rank`` columns, ``--rows-per-pose`` rows on
@@ -11,7 +12,10 @@ Both solvers run in this process, one after the other, timed in process CPU
 (``time.process_time``), so the ratio holds on a shared machine. Reported: CPU
 seconds, solver iterations, the step's residuals, the largest difference of the
 steps, and whether the active rows and box sides (multiplier > 1e-7) agree.
-Results: docs/benchmarks.md.
+``warm`` is the block QP warm-started by the active set of its own answer's duals on
+the QP with its rows moved by :math:`C e`, |e| <= 1e-6 (the shape of a
+second-order correction's QP; compared with the cold block solve of that QP).
+The differences are against the first path run. Results: docs/benchmarks.md.
 """
 
 from __future__ import annotations
@@ -47,17 +51,29 @@ def main(argv=None) -> int:
     ap.add_argument("--poses", default="60,250,500")
     ap.add_argument("--rank", type=int, default=75)
     ap.add_argument("--rows-per-pose", type=int, default=6)
+    ap.add_argument("--paths", default="lifted,block,warm", help="of lifted, block, warm")
     args = ap.parse_args(argv)
+    paths = [p for p in args.paths.split(",") if p]
     print(f"{'poses':>5s} {'path':>6s} {'cpu s':>7s} {'its':>4s} {'primal':>8s} {'dual':>8s} {'compl':>8s} "
           f"{'max|dd|':>8s} {'same active':>11s}")
     for b in [int(v) for v in args.poses.split(",") if v]:
         sub = instance(b, args.rank, args.rows_per_pose)
+        shifted = sub._replace(lower=sub.lower + sub.C @ (1e-6 * np.random.default_rng(1).uniform(-1, 1, 6 * b)))
         steps = {}
-        for name, ws in (("lifted", LiftedQPWorkspace(6 * b, 1e-9, 1000)), ("block", BlockQPWorkspace(6 * b, 1e-9, 100))):
+        for name in paths:
             t = time.process_time()
-            steps[name] = step = ws.solve(sub)
+            if name == "lifted":
+                step = LiftedQPWorkspace(6 * b, 1e-9, 1000).solve(sub)
+            elif name == "block":
+                step = BlockQPWorkspace(6 * b, 1e-9, 100).solve(sub)
+            else:  # the answer's duals on the moved QP, against its cold solve (not timed)
+                answer = steps.get("block") or BlockQPWorkspace(6 * b, 1e-9, 100).solve(sub)
+                t = time.process_time()
+                step = BlockQPWorkspace(6 * b, 1e-9, 100).solve(shifted, None, answer.lam, answer.nu)
             cpu = time.process_time() - t
-            ref = steps["lifted"]
+            ref = (BlockQPWorkspace(6 * b, 1e-9, 100).solve(shifted) if name == "warm"
+                   else steps.get(paths[0], step))
+            steps[name] = step
             same = all(np.array_equal(np.flatnonzero(np.abs(a) > 1e-7), np.flatnonzero(np.abs(c) > 1e-7))
                        for a, c in ((step.lam, ref.lam), (step.nu, ref.nu)))
             print(f"{b:5d} {name:>6s} {cpu:7.2f} {step.iterations:4d} {step.primal_residual:8.1e} "

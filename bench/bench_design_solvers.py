@@ -4,7 +4,8 @@ Run from the repository root (IPOPT needs the bench extra and Debian's
 ``coinor-libipopt-dev liblapack-dev libblas-dev pkg-config`` to build cyipopt):
 
     OPENBLAS_NUM_THREADS=1 .venv/bin/python bench/bench_design_solvers.py [--scene fms_kr16]
-        [--poses 60] [--seed 0] [--pool 3000] [--solvers sqp-exact,sqp-bfgs,ipopt-exact,ipopt-lbfgs,trust-constr,slsqp]
+        [--poses 60] [--seed 0] [--pool 3000]
+        [--solvers sqp-exact,sqp-bfgs,ipopt-exact,ipopt-exact-active,ipopt-lbfgs,trust-constr,slsqp]
         [--time-limit 300]
 
 Every solver gets the same NLP (:class:`calib_oed.oed.problem.DesignProblem`:
@@ -13,7 +14,9 @@ with their sparse block-diagonal Jacobian, joint limits as bounds) from the
 same start, the exchange algorithm's design of the default pipeline. Each is
 given its best shot: IPOPT the sparse Jacobian structure and the exact
 Lagrangian Hessian (per-pose blocks plus the dense low-rank coupling, lower
-triangle), or its L-BFGS; trust-constr the sparse Jacobian and the exact
+triangle; ``ipopt-exact-active`` with the constraints' curvature only for rows whose multiplier is
+at least ``ACTIVE_CURVATURE`` times the largest, as the SQP computes it for its active rows only),
+or its L-BFGS; our SQP as the design runs it (per-pose BFGS blocks, kinked rows' pieces); trust-constr the sparse Jacobian and the exact
 Hessians of the objective and of the constraints as separate callbacks; SLSQP
 (which takes no Hessian) dense Jacobians. Reported per solver: the final
 objective, whether the last iterate is feasible (1e-6), its status, the CPU
@@ -73,12 +76,19 @@ def run_sqp(nlp, x0, exact: bool, time_limit: float):
     trace = Trace(nlp)
     settings = replace(DESIGN_SQP, time_limit=time_limit)
     kwargs = {"lagrangian_hessian": nlp.compute_lagrangian_hessian} if exact else {}
+    # as the design runs it (calib_oed.oed.refine.optimise_from): per-pose blocks, kinked rows' pieces
     res = solve_sqp(trace.objective, x0, constraints=nlp.compute_constraints, bounds=nlp.bounds,
-                    settings=settings, **kwargs)
+                    settings=settings, block_size=nlp.nq, row_pieces=nlp.compute_row_pieces, **kwargs)
     return res.x, trace, f"{res.status.value}, {res.iterations} it"
 
 
-def run_ipopt(nlp, x0, exact: bool, time_limit: float):
+ACTIVE_CURVATURE = 1e-6
+"""``ipopt-exact-active``: rows whose IPOPT multiplier is below this times the largest get no curvature
+(an interior point's multipliers are never 0, so without it every row's curvature is computed, where
+the SQP computes those of its QP's active rows only)."""
+
+
+def run_ipopt(nlp, x0, exact: bool, time_limit: float, active_only: bool = False):
     try:
         import cyipopt
     except ImportError:
@@ -116,8 +126,10 @@ def run_ipopt(nlp, x0, exact: bool, time_limit: float):
             # IPOPT's Lagrangian is obj_factor f + sum lagrange_i c_i; ours is f - lam^T c
             hf = nlp.compute_lagrangian_hessian(x, np.zeros_like(lagrange)).dense()
             q = nlp.configurations(x)
-            hc = nlp.feasibility.compute_lagrangian_hessian(q, np.asarray(lagrange).reshape(nlp.n, -1),
-                                                            kinds=nlp.kinds)
+            lam = np.asarray(lagrange, dtype=float).reshape(nlp.n, -1)
+            if active_only:  # the SQP's shortcut: curvature of the rows that hold the design only
+                lam = np.where(np.abs(lam) >= ACTIVE_CURVATURE * np.max(np.abs(lam), initial=0.0), lam, 0.0)
+            hc = nlp.feasibility.compute_lagrangian_hessian(q, lam, kinds=nlp.kinds)
             h = obj_factor * hf
             for j in range(nlp.n):
                 sl = slice(j * nlp.nq, (j + 1) * nlp.nq)
@@ -199,7 +211,8 @@ def main(argv=None) -> int:
             if name.startswith("sqp"):
                 x, trace, status = run_sqp(nlp, x0, name == "sqp-exact", args.time_limit)
             elif name.startswith("ipopt"):
-                x, trace, status = run_ipopt(nlp, x0, name == "ipopt-exact", args.time_limit)
+                x, trace, status = run_ipopt(nlp, x0, name.startswith("ipopt-exact"), args.time_limit,
+                                             active_only=name == "ipopt-exact-active")
             else:
                 x, trace, status = run_scipy(nlp, x0, {"trust-constr": "trust-constr", "slsqp": "SLSQP"}[name],
                                              args.time_limit)

@@ -23,7 +23,6 @@ import argparse
 import time
 
 import numpy as np
-import proxsuite
 from threadpoolctl import threadpool_limits
 
 import calib_oed.oed.approximate as approximate
@@ -31,6 +30,7 @@ from calib_oed.calibration.workflow import setup
 from calib_oed.oed.objective import DesignObjective
 from calib_oed.oed.starts import candidate_pool
 from calib_oed.scene.reader import load_scene
+from calib_oed.solver.proxqp_build import proxsuite
 
 _DETERMINISTIC = approximate._newton_direction
 

@@ -33,11 +33,11 @@ import shlex
 import sys
 
 import numpy as np
-import proxsuite
 import scipy.sparse as sp
 from _timing import timed  # bench/ is the script folder, first on sys.path
 
 from calib_oed.solver.bfgs import damped_bfgs_update
+from calib_oed.solver.proxqp_build import proxsuite
 from calib_oed.solver.qp import DenseQPWorkspace, QPSubproblem, SparseQPWorkspace
 
 

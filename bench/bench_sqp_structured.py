@@ -40,10 +40,10 @@ import sys
 import time
 
 import numpy as np
-import proxsuite
 import scipy.sparse as sp
 from threadpoolctl import threadpool_limits
 
+from calib_oed.solver.proxqp_build import proxsuite
 from calib_oed.solver.result import StructuredHessian
 from calib_oed.solver.sqp import SQPSettings, solve_sqp
 

@@ -70,6 +70,8 @@ class LoadedCalibration:
         deflection: Joint compliance (with the working payload) and gains, or None (rigid joints).
         payload: Where the payload of the deflection comes from (one line), or "" without compliance.
         space: The calibration's parameter space (the scene's, with the identified compliance and gains).
+        joint_range: ``(lower, upper)`` (nq,) each [rad or m], the joint ranges the calibration was
+            measured in (``training_joint_ranges`` of ``identification.json``), or None (not recorded).
     """
 
     robot: Robot
@@ -78,6 +80,7 @@ class LoadedCalibration:
     deflection: JointDeflection | None
     payload: str
     space: ParameterSpace
+    joint_range: tuple[np.ndarray, np.ndarray] | None = None
 
 
 def load_calibration(space: ParameterSpace, folder: str | os.PathLike) -> tuple[Robot, CalibrationUncertainty | None, dict]:
@@ -99,7 +102,7 @@ def load_calibration(space: ParameterSpace, folder: str | os.PathLike) -> tuple[
         if read(files["sensor"], space.robot.joint_names) is not None:
             raise CompensationError(f"{files['sensor']}: the calibration has {what}, which a URDF or a parameter "
                                     "table cannot hold (`calib-oed compensate` models it): identify without it")
-    return _read(space, files)
+    return _read(space, files)[:3]
 
 
 def load_compensation(space: ParameterSpace, folder: str | os.PathLike,
@@ -135,7 +138,7 @@ def load_compensation(space: ParameterSpace, folder: str | os.PathLike,
         compliance = dataclasses.replace(identified, payload_mass=load.payload_mass, payload_com=load.payload_com)
     own = ParameterSpace(robot, space.tracker_placement0, space.reflector_offsets0, compliance=compliance,
                          joint_gains=None if gains is None else gains[0])
-    calibrated, uncertainty, out = _read(own, files)
+    calibrated, uncertainty, out, joint_range = _read(own, files)
     sensor = own.zeros()                    # the sensor file's values (no identification.json: these)
     if found is not None:
         sensor[own.compliance_slice] = found[1]
@@ -147,11 +150,12 @@ def load_compensation(space: ParameterSpace, folder: str | os.PathLike,
                                 f"{files['sensor']}: the two files are not from one identification")
     deflection = JointDeflection.from_space(own, sensor if uncertainty is None else uncertainty.p)
     text = f"payload {deflection.payload}: {source}" if found is not None else ""
-    return LoadedCalibration(calibrated, uncertainty, out, deflection, text, own)
+    return LoadedCalibration(calibrated, uncertainty, out, deflection, text, own, joint_range)
 
 
-def _read(space: ParameterSpace, files: dict) -> tuple[Robot, CalibrationUncertainty | None, dict]:
-    """The calibrated robot and its uncertainty of ``files``, parameters read into ``space``."""
+def _read(space: ParameterSpace, files: dict) -> tuple[Robot, CalibrationUncertainty | None, dict, tuple | None]:
+    """The calibrated robot and its uncertainty of ``files``, parameters read into ``space``, the
+    files used and the training joint ranges (None if not recorded)."""
     robot = space.robot
     calibrated = load_robot(str(files["urdf"]), tool_frame=robot.tool_frame,
                             lock_joints=robot.locked_joints or None, package_dirs=robot.package_dirs)
@@ -167,7 +171,7 @@ def _read(space: ParameterSpace, files: dict) -> tuple[Robot, CalibrationUncerta
     path = Path(files["urdf"]).parent / "identification.json"
     out = {k: str(v) for k, v in files.items()}
     if not path.exists():
-        return calibrated, None, out
+        return calibrated, None, out, None
     out["identification"] = str(path)
     text = read_text_file(path, "identification", MAX_TEXT_BYTES)     # bounded; a folder or pipe refused
     try:
@@ -180,6 +184,9 @@ def _read(space: ParameterSpace, files: dict) -> tuple[Robot, CalibrationUncerta
         fitted = (data.get("model_error") or {}).get("fitted")
         prior = None if fitted is None else DiscrepancyPrior.from_dict(fitted, space.robot.nq, str(path))
         factor = 1.0 if prior is not None else max(1.0, float(data.get("noise_factor") or 1.0))
+        ranges = data.get("training_joint_ranges")
+        joint_range = None if ranges is None else tuple(
+            np.array([float(ranges[name][k]) for name in robot.joint_names]) for k in (0, 1))
     except UnknownParameterError as exc:
         raise CompensationError(f"{path}: not a calibration of this scene ({exc})") from exc
     except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
@@ -192,7 +199,7 @@ def _read(space: ParameterSpace, files: dict) -> tuple[Robot, CalibrationUncerta
         raise CompensationError(f"{path}: its estimate does not give {files['urdf']} (joint placements differ "
                                 f"by {mismatch:.3g} m or rad): the two files are not from one identification")
     extra = None if prior is None else marginal_model_error(prior)
-    return calibrated, CalibrationUncertainty(space, p, free, cov * factor, extra), out
+    return calibrated, CalibrationUncertainty(space, p, free, cov * factor, extra), out, joint_range
 
 
 __all__ = ["LoadedCalibration", "load_calibration", "load_compensation"]

@@ -116,18 +116,23 @@ def _position_residuals(space, mset, blocks, p) -> np.ndarray:
     return out
 
 
-def fit_report(space: ParameterSpace, mset: MeasurementSet, blocks, sanity: SanityReport,
-               robust: RobustIdentification, reflector_names) -> FitReport:
-    """The per-measurement table of an identification of ``mset`` (``blocks = mset.blocks(...)``)."""
+def per_row(mset: MeasurementSet, robust: RobustIdentification, values) -> np.ndarray:
+    """``values`` per measurement of ``robust`` (block-then-row order) as per row of ``mset``."""
     rows = np.empty(robust.block.size, dtype=int)  # measurement k (block order) -> file row
     for k, j in enumerate(mset.reflectors):
         in_block = np.flatnonzero(robust.block == k)
         rows[in_block] = np.flatnonzero(mset.reflector == j)[robust.row[in_block]]
+    out = np.empty(mset.n, dtype=np.asarray(values).dtype)
+    out[rows] = values
+    return out
+
+
+def fit_report(space: ParameterSpace, mset: MeasurementSet, blocks, sanity: SanityReport,
+               robust: RobustIdentification, reflector_names) -> FitReport:
+    """The per-measurement table of an identification of ``mset`` (``blocks = mset.blocks(...)``)."""
 
     def by_row(values):
-        out = np.empty(mset.n, dtype=np.asarray(values).dtype)
-        out[rows] = values
-        return out
+        return per_row(mset, robust, values)
 
     after = _position_residuals(space, mset, blocks, robust.result.p) * MM_PER_M
     nominal = _position_residuals(space, mset, blocks, None) * MM_PER_M

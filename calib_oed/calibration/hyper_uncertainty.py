@@ -47,6 +47,7 @@ import scipy.optimize
 from scipy.stats import chi2
 
 from calib_oed.calibration.model_error import (
+    HARMONIC_BOUNDS,
     LENGTH_BOUNDS,
     SIGMA_BOUNDS,
     WHITE_BOUNDS,
@@ -66,22 +67,33 @@ TAU_MAX = 0.5
 
 
 def theta_of(prior: DiscrepancyPrior) -> np.ndarray:
-    """:math:`\\theta` (2 + nq,): log sigma, log length scales, log white part (at least its bound)."""
-    return np.log([prior.sigma, *prior.length_scales, max(prior.sigma_white, WHITE_BOUNDS[0])])
+    """:math:`\\theta` (``prior.n_kernel_hyperparameters`` + 1,): log sigma, log length scales,
+    log harmonic amplitudes (harmonic kernels), log white part (each at least its lower bound)."""
+    amp = np.maximum(prior.harmonic, HARMONIC_BOUNDS[0]) if prior.harmonic else []
+    return np.log([prior.sigma, *prior.length_scales, *amp, max(prior.sigma_white, WHITE_BOUNDS[0])])
 
 
 def prior_of(prior: DiscrepancyPrior, theta: np.ndarray) -> DiscrepancyPrior:
     """``prior`` with the hyperparameters :math:`\\theta`."""
-    return prior.with_values(float(np.exp(theta[0])), np.exp(theta[1:-1]), prior.source,
-                             float(np.exp(theta[-1])))
+    nq = prior.nq
+    amp = np.exp(theta[1 + nq:-1]) if prior.harmonic else None
+    return prior.with_values(float(np.exp(theta[0])), np.exp(theta[1:1 + nq]), prior.source,
+                             float(np.exp(theta[-1])), amp)
+
+
+def _bounds(prior: DiscrepancyPrior) -> tuple[np.ndarray, np.ndarray]:
+    """Lower and upper bounds of :func:`theta_of` (log)."""
+    n_h = len(prior.harmonic)
+    lo = [SIGMA_BOUNDS[0]] + [LENGTH_BOUNDS[0]] * prior.nq + [HARMONIC_BOUNDS[0]] * n_h + [WHITE_BOUNDS[0]]
+    hi = [SIGMA_BOUNDS[1]] + [LENGTH_BOUNDS[1]] * prior.nq + [HARMONIC_BOUNDS[1]] * n_h + [WHITE_BOUNDS[1]]
+    return np.log(lo), np.log(hi)
 
 
 def laplace_covariance(lin: Linearisation, prior: DiscrepancyPrior) -> tuple[np.ndarray, np.ndarray]:
     """Indices of the hyperparameters not at a bound and :math:`H^{-1}` over them (module
     docstring); ``prior`` the restricted-likelihood fit of ``lin``."""
     theta = theta_of(prior)
-    lo = np.log([SIGMA_BOUNDS[0]] + [LENGTH_BOUNDS[0]] * prior.nq + [WHITE_BOUNDS[0]])
-    hi = np.log([SIGMA_BOUNDS[1]] + [LENGTH_BOUNDS[1]] * prior.nq + [WHITE_BOUNDS[1]])
+    lo, hi = _bounds(prior)
     active = np.flatnonzero((theta > lo + AT_BOUND) & (theta < hi - AT_BOUND))
     hess = np.zeros((active.size, active.size))
     for a, k in enumerate(active):

@@ -188,8 +188,9 @@ class IdentificationResult:
         return [self.estimate(n) for n in self.free_names]
 
     def summary(self, top: int = 10, outliers: bool = True) -> str:
-        """Human-readable report in mm and mrad (``outliers=False``: without the a-priori outlier list,
-        for callers that judge outliers against an estimated scale, :mod:`calib_oed.calibration.robust`)."""
+        """Human-readable report in mm and mrad (``outliers=False``: without the a-priori outlier list
+        and the sigma0 without them, for callers that judge outliers against an estimated scale,
+        :mod:`calib_oed.calibration.robust`)."""
         n_meas = sum(len(x) for x in self.point_residuals_mm)
         lines = [
             f"Identification: {self.status.value} ({self.method}): {self.nfev} residual and "
@@ -208,7 +209,7 @@ class IdentificationResult:
             f"  a-posteriori noise factor sigma0 = {self.sigma0:.3f} (sigma0^2 = "
             f"{self.noise_factor:.3f}; 1 = residuals as large as the stated sigma)"
             + (f"; without the outliers sigma0^2 = {self.noise_factor_inliers:.3f}"
-               if self.outliers else ""),
+               if self.outliers and outliers else ""),
             f"  condition number of the weighted Jacobian (columns in mm, mrad): "
             f"{self.condition_number:.4g}",
         ]

@@ -338,3 +338,16 @@ def _length_mm(text: str) -> float:
     if not (np.isfinite(value) and value > 0):
         raise argparse.ArgumentTypeError(f"expected a length > 0, got {text!r}")
     return value
+
+
+def _model_error_warning(result) -> str:
+    r"""What ``sequential --measured`` says when the fit's residuals show model error: the KPI sigma
+    then covers only part of the error. Model error is shown when :math:`\hat\sigma_0^2` exceeds 1 by
+    more than 3 of its standard deviations under the noise model, :math:`\sqrt{2/(m - n_f)}`
+    (docs/identification.md, the noise factor); "" otherwise."""
+    if not result.dof > 0 or result.noise_factor <= 1.0 + 3.0 * np.sqrt(2.0 / result.dof):
+        return ""
+    return (f"sigma0 = {result.sigma0:.2f}: the residuals are {result.sigma0:.1f} times the stated noise, "
+            "so these data show model error (gravity, gears, temperature), which the KPI sigma does not "
+            "cover and more poses do not remove; `calib-oed identify` predicts the accuracy with it "
+            "(docs/identification.md#model-error-and-predicted-accuracy)")

@@ -44,6 +44,18 @@ class OneLineParser(argparse.ArgumentParser):
     def error(self, message: str):  # noqa: D401 - argparse's hook
         self.exit(2, f"calib-oed: error: {self.prog}: {message} (see `{self.prog} -h`)\n")
 
+    def parse_args(self, args=None, namespace=None):
+        """argparse's, but arguments left over are named by the command's own parser (its prog
+        and help), not the top level's."""
+        namespace, extras = self.parse_known_args(args, namespace)
+        if extras:
+            parser = self
+            for action in self._actions:
+                if isinstance(action, argparse._SubParsersAction):
+                    parser = action.choices.get(getattr(namespace, action.dest, None), self)
+            parser.error(f"unrecognized arguments: {' '.join(extras)}")
+        return namespace
+
 
 def _probe_writable(folder: Path) -> bool:
     """Whether a file can be created in ``folder`` (tried, not guessed from mode bits)."""

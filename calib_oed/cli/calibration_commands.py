@@ -152,6 +152,7 @@ def _realistic_settings(args):
 def _identify_fit(s, mset, args):
     """Sanity registration, then the fit with the model error; nothing written.
     Returns (sanity, blocks, robust)."""
+    from calib_oed.calibration.model_error import start_prior
     from calib_oed.calibration.robust import identify_robust
     from calib_oed.calibration.sanity import check_measurements
 
@@ -161,7 +162,7 @@ def _identify_fit(s, mset, args):
     blocks = mset.blocks(error_model=s.scene.error_model())
     drop = "all" if args.drop_flagged else ("gross" if args.loss == "robust" else "none")
     return sanity, blocks, identify_robust(problem.space, blocks, problem.identifiability,
-                                           model_error=s.scene.discrepancy(), drop=drop)
+                                           model_error=start_prior(s.scene), drop=drop)
 
 
 def _scene_and_measurements(args):
@@ -184,6 +185,7 @@ def cmd_identify(args) -> int:
         fit_dict,
         fit_report,
         format_fit,
+        per_row,
         write_residuals_csv,
     )
     from calib_oed.calibration.trust import assess
@@ -214,13 +216,15 @@ def cmd_identify(args) -> int:
     if args.cv:
         cv = cross_validate(s.problem.space, mset, s.problem.identifiability, args.cv,
                             error_model=s.scene.error_model(),
-                            model_error=robust.model_error.prior)
+                            model_error=robust.model_error.prior,
+                            gross=None if robust.dropped is None else per_row(mset, robust, robust.dropped))
     trust = assess(s.problem, robust, s.feasibility)
     data = result.to_dict()
     data["fit"] = fit_dict(report, robust, sanity)
     data["model_error"] = robust.model_error.to_dict()
     data.update(trust.to_dict())
     data["outliers"] = data["fit"]["outliers"]  # by file line; the fit's own a-priori list is not used
+    del data["noise_factor_inliers"]  # nor its sigma0 without that list (one rule: fit.flag_rule)
     if cv is not None:
         data["cross_validation"] = cv.to_dict()
     if args.truth:
@@ -236,7 +240,8 @@ def cmd_identify(args) -> int:
 
         data["files"]["residuals"] = str(write_residuals_csv(Path(paths["urdf"]).parent / "residuals.csv",
                                                              report))
-        atomic_write_text(Path(args.output) / "identification.json", json.dumps(data, indent=2))
+        data["files"]["report"] = str(Path(args.output) / "identification.json")
+        atomic_write_text(data["files"]["report"], json.dumps(data, indent=2))
     if args.plot:
         from calib_oed.viz.plots import plot_residuals, save_figure
 
@@ -259,7 +264,7 @@ def cmd_identify(args) -> int:
                   f"after {a:.4f} mm")
     if args.output:
         print(f"wrote {data['files']['urdf']}, {data['files']['sensor']}, "
-              f"{data['files']['residuals']} and identification.json; "
+              f"{data['files']['residuals']} and {data['files']['report']}; "
               f"round trip of the URDF: {_round_trip_text(data['round_trip_m'])}")
     if args.plot:
         print(f"wrote the residual plot {data['plot']}")
@@ -286,17 +291,42 @@ def cmd_validate(args) -> int:
     table = pose_table(mset.q, result.calibrated.position_mm, mset.lines, mset.joint_names,
                        (ident or {}).get("training_joint_ranges"),
                        None if pred is None else pred.rms_mm, None if pred is None else pred.inside)
+    shared, poses = _poses_in_training(mset.q, ident)
     if args.json:
         data = result.to_dict()
         data["compensated"] = bool(args.compensate)
         data["verdict"] = verdict.to_dict()
         data["poses"] = table
+        data["poses_in_training"] = shared
         print(json.dumps(data, indent=2))
     else:
         print(result.summary())
         print("\n".join(pose_lines(table)))
+        if shared:
+            print(f"warning: {shared} of {poses} validation poses are poses the identification was fitted "
+                  f"to (joint values within {TRAINING_POSE_TOL:g} rad): their errors are the fit's "
+                  "residuals, not an independent validation; measure separate poses")
         print("\n".join(verdict.lines()))
     return EXIT_VALIDATION_FAILED if verdict.passed is False else EXIT_OK
+
+
+#: Joint values [rad] within which a validation pose counts as a pose of the identification's data.
+TRAINING_POSE_TOL = 1e-6
+
+
+def _poses_in_training(q: np.ndarray, ident: dict | None) -> tuple[int, int]:
+    """How many of the distinct validation configurations ``q`` are configurations the
+    identification was fitted to (``prediction_data`` of ``identification.json``), and how many
+    there are; 0 when the identification records none."""
+    poses = np.unique(np.asarray(q, dtype=float), axis=0)
+    try:
+        train = np.asarray(ident["prediction_data"]["configurations_rad"], dtype=float)
+    except (TypeError, KeyError, ValueError):
+        return 0, len(poses)
+    if train.ndim != 2 or train.shape[1] != poses.shape[1]:
+        return 0, len(poses)
+    near = np.abs(poses[:, None, :] - train[None, :, :]).max(axis=2) <= TRAINING_POSE_TOL
+    return int(near.any(axis=1).sum()), len(poses)
 
 
 def cmd_montecarlo(args) -> int:

@@ -105,7 +105,8 @@ def cmd_compensate(args) -> int:
     result = compensate_program(parsed, scene.robot, loaded.robot, uncertainty=loaded.uncertainty,
                                 controller=scene.controller, tool=_frame(args.tool, "--tool"),
                                 base=_frame(args.base, "--base"), home=problem.kpi.configurations[0],
-                                singular_threshold=threshold, deflection=loaded.deflection)
+                                singular_threshold=threshold, deflection=loaded.deflection,
+                                joint_range=loaded.joint_range)
     out.mkdir(parents=True, exist_ok=True)
     written = [str(p) for p in atomic_write_files({out / name: text.encode(encodings[name])  # .src/.dat as a pair
                                                    for name, text in result.texts.items()})]

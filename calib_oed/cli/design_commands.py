@@ -15,6 +15,7 @@ from calib_oed.cli._common import (
     _design,
     _iterate,
     _mesh_check,
+    _model_error_warning,
     _optimise,
     _problem,
     _say,
@@ -57,6 +58,7 @@ def cmd_design(args) -> int:
         args.n = len(start)
     elif args.n is None:
         args.n = 60
+    from calib_oed.calibration.report import KPI_SIGMA_COVERS
     from calib_oed.oed.model_error import default_criterion
 
     # the criterion: --criterion, else kpi_model if the scene gives robot.model_error, else kpi
@@ -89,6 +91,7 @@ def cmd_design(args) -> int:
         print(json.dumps(data, indent=2))
         return code
     print(result.summary())
+    print(KPI_SIGMA_COVERS)  # what the KPI sigma above covers (the measurement noise only)
     print("  " + s.pairs.window)
     if winding:
         print(f"warning: {winding}", file=sys.stderr)
@@ -165,7 +168,9 @@ def cmd_evaluate(args) -> int:
             print(f"  note: {e.label} is NOT estimable: it depends on "
                   f"{', '.join(n for n in e.gauge if n in unseen)}, which no measurement sees")
     print("criterion values (kpi, params: average variance [mm², params in mm and mrad]; D: log det C; "
-          "E: largest eigenvalue [mm²]; O1..O5: observability indices, larger is better):")
+          "E: largest eigenvalue [mm²]; O1..O5: observability indices, larger is better; kpi_model, "
+          "kpi_kriging: mean squared KPI error per axis with the scene's model-error prior [mm²], of the "
+          "fit and of the best linear predictor, docs/oed.md):")
     print("  " + ", ".join(f"{k} {v:.5g}" for k, v in result.criteria.items()))
     print(f"feasible (every constraint of the capsule model, margins included): {result.feasible}")
     from calib_oed.feasibility.margins import format_margins
@@ -197,6 +202,7 @@ def _evaluate_plots(s, q, args) -> dict[str, Path]:
 
 
 def cmd_compare(args) -> int:
+    from calib_oed.calibration.report import KPI_SIGMA_COVERS
     from calib_oed.io.design_file import read_design_file
     from calib_oed.oed.design import evaluate_design
     from calib_oed.oed.result import design_label, format_criteria_table, format_design_table
@@ -221,6 +227,7 @@ def cmd_compare(args) -> int:
         return EXIT_OK
     print(f"scene {s.scene.name!r}: {len(designs)} designs (ratios relative to the first)")
     print(format_design_table(designs))
+    print(KPI_SIGMA_COVERS)
     print()
     print(format_criteria_table(designs))
     if args.plot:
@@ -339,10 +346,13 @@ def _sequential_step(s, args, settings) -> int:
                                   settings=settings, seed=args.seed + len(q))
     sigma = designer.predicted_sigma_mm(q, p_hat)
     done = bool(sigma.max() <= args.target_sigma)
+    warning = _model_error_warning(result)
     data = {"scene": s.scene.name, "measurements": str(args.measured), "rows": int(mset.n),
             "configurations": len(q), "identification_converged": bool(result.converged),
             "target_sigma_mm": args.target_sigma, "kpi_names": list(s.problem.kpi.names),
-            "sigma_mm": sigma.tolist(), "done": done, "next_q_rad": None, "files": {}}
+            "sigma_mm": sigma.tolist(), "sigma_covers": "measurement noise only, the model taken as exact",
+            "sigma0": result.sigma0, "model_error_warning": warning,
+            "done": done, "next_q_rad": None, "files": {}}
     if not done:
         prop = designer.plan(q, p_hat, current_pose=q[-1] if args.follow_pose else None)
         after = designer.predicted_sigma_mm(np.vstack([q, prop.q]), p_hat)
@@ -364,9 +374,12 @@ def _sequential_step(s, args, settings) -> int:
     print(f"scene {s.scene.name!r}: {len(q)} configurations measured ({mset.n} rows of {args.measured}); "
           f"identification {'converged' if result.converged else 'NOT converged'}")
     for name, sg in zip(s.problem.kpi.names, sigma, strict=True):
-        print(f"  predicted KPI sigma at {name}: {sg:.5f} mm")
+        print(f"  predicted KPI sigma at {name}: {sg:.5f} mm (measurement noise only, the model taken as exact)")
+    if warning:
+        print(f"warning: {warning}")
     if done:
-        print(f"target {args.target_sigma:g} mm reached: stop measuring")
+        print(f"target {args.target_sigma:g} mm reached: stop measuring"
+              + (" (by the noise-only sigma; the model error above is not in it)" if warning else ""))
         return EXIT_OK
     print(f"target {args.target_sigma:g} mm not reached: measure {len(prop.q)} more poses "
           f"(predicted sigma after them: {after.max():.5f} mm)")

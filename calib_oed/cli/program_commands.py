@@ -75,6 +75,10 @@ def cmd_program(args) -> int:
     if not args.name.isidentifier():
         raise ProgramError("--name", args.name, "a program name must be an identifier "
                            "(letters, digits, _)")
+    if args.format == "krl":  # the controller's rules for a module name, before the work
+        from calib_oed.program.krl import check_module_name
+
+        check_module_name(args.name)
     q = read_design_file(args.design, scene.robot, controller=scene.controller)
     settings = program_settings_from_scene(scene, home=_home(args.home, scene.robot),
                                            planner_iterations=args.planner_iterations,

@@ -100,6 +100,23 @@ def _residual_note(dp: float, dr: float, what: str) -> str | None:
             "use --convention hayati")
 
 
+def _far_rows(table, robot) -> tuple[list[str], str | None]:
+    """Rows whose a or d exceed the arm's stretched length, and the note that names them (None:
+    none): nearly parallel axes put DH's common normal far away, so such a table can reproduce the
+    model in floating point only through huge lengths that cancel."""
+    from calib_oed.model.inverse_kinematics import characteristic_length
+
+    length = characteristic_length(robot)
+    far = [r for r in table.rows if max(abs(r.a), abs(r.d)) > length]
+    if not far:
+        return [], None
+    worst = max(max(abs(r.a), abs(r.d)) for r in far)
+    return [r.joint for r in far], (
+        f"NAMED: {', '.join(r.joint for r in far)}: a or d beyond the arm's stretched length "
+        f"({length:.3g} m; up to {worst:.3g} m): nearly parallel axes put DH's common normal far away, "
+        "and lengths like these cancel only in floating point, not on a controller; use --convention hayati")
+
+
 def _export(args) -> int:
     from calib_oed.calibration.compensation_files import load_calibration
     from calib_oed.calibration.problem import CalibrationProblem
@@ -117,12 +134,13 @@ def _export(args) -> int:
     angle = PARALLEL_ANGLE if args.parallel_angle is None else float(np.radians(args.parallel_angle))
     table = compute_table(robot, convention, parallel_angle=angle, check=CHECK_CONFIGURATIONS, seed=0)
     note = _residual_note(table.residual_m, table.residual_rad, f"the {convention} table")
+    far, far_note = _far_rows(table, robot)
     written = str(write_parameter_table(args.output, table)) if args.output else None
     if args.json:
         import yaml
 
         print(json.dumps({"scene": scene.name, "robot": source, "table": yaml.safe_load(table_yaml_text(table)),
-                          "exact": note is None, "written": written}, indent=2))
+                          "exact": note is None, "far_rows": far, "written": written}, indent=2))
         return EXIT_OK
     _say(args, f"{convention} table of {robot.name} ({source}), tool frame {table.tool_frame}; "
                "T_W,F(q) = base * prod A_i(q_i) * tool, theta_i = q_i + theta")
@@ -130,8 +148,9 @@ def _export(args) -> int:
         _say(args, line)
     _say(args, f"  round trip: the table reproduces the model to {table.residual_m:.2g} m and "
                f"{table.residual_rad:.2g} rad ({CHECK_CONFIGURATIONS} random configurations, seed 0)")
-    if note:
-        _say(args, f"  {note}")
+    for n in (note, far_note):
+        if n:
+            _say(args, f"  {n}")
     if written:
         _say(args, f"wrote {written}")
     return EXIT_OK

@@ -25,7 +25,22 @@ with :math:`\ell_k = \infty` is ignored), :math:`u_k = \sin\Delta_k/\ell_k^2`,
 
 - ``"matern52"`` (the default, Rasmussen & Williams 2006, eq. 4.17), :math:`a = \sqrt5`:
   :math:`k = \sigma^2(1 + ar + a^2r^2/3)\,e^{-ar}`;
-- ``"squared_exponential"``: :math:`k = \sigma^2 e^{-r^2/2}`.
+- ``"squared_exponential"``: :math:`k = \sigma^2 e^{-r^2/2}`;
+- ``"matern52_harmonic"``: the Matérn 5/2 plus an **additive harmonic part per joint**,
+  each revolute joint's own error as a function of its own angle, once and twice per
+  revolution, whatever the other joints do:
+
+  .. math::
+      k_H(q_1, q_2) = \sum_k \sum_{h=1,2} s_{kh}^2 \cos(h\Delta_k) \quad [\mathrm{m}^2],
+
+  the covariance of :math:`\sum_h a_{kh}\cos(hq_k) + b_{kh}\sin(hq_k)` with independent
+  :math:`a, b \sim N(0, s_{kh}^2)`: a joint-side transmission error
+  (:math:`e_k = \sum_h A\sin(hq_k + \alpha)`) of a reducer, carried to the point by
+  the arm. The ARD part couples configurations close in all joints, the harmonic part
+  those with one joint at the same angle. No harmonic part for a joint in
+  ``linear_joints`` or with :math:`\ell_k = \infty`. Amplitudes ``harmonic``
+  :math:`(s_{k1}, s_{k2})` per joint; when not given, :data:`HARMONIC_SHARE` of
+  :math:`\sigma^2` spread evenly over the harmonics of the revolute joints considered.
 
 **White part** (``sigma_white``, default 0): an error independent between distinct
 configurations but shared by every reflector measured at one (the motor-side
@@ -47,7 +62,9 @@ squared exponential :math:`g = -k`, :math:`h = k`), the derivatives in :math:`q_
     \frac{\partial^2 k}{\partial q_{1,k}\partial q_{1,l}} = g\,c_k\,[k = l] + h\,u_k u_l,
     \qquad \frac{\partial^2 k}{\partial q_{1,k}\partial q_{2,l}} = -\frac{\partial^2 k}{\partial q_{1,k}\partial q_{1,l}}
 
-(a function of :math:`\Delta` only). Checked by central finite differences in
+(a function of :math:`\Delta` only). The harmonic part adds
+:math:`\partial k_H/\partial q_{1,k} = -\sum_h h\,s_{kh}^2\sin(h\Delta_k)` and, on the
+diagonal only, :math:`\partial^2 k_H/\partial q_{1,k}^2 = -\sum_h h^2 s_{kh}^2\cos(h\Delta_k)`. Checked by central finite differences in
 ``tests/measurement/test_discrepancy.py``.
 
 **Defaults for design time** (:meth:`DiscrepancyPrior.default_for`), when no data
@@ -66,11 +83,17 @@ import numpy as np
 
 from calib_oed.exceptions import ParameterError, ShapeError
 
-__all__ = ["ARM_LENGTH_SCALE", "KERNELS", "MIN_SIGMA", "SIGMA_PER_REACH", "WRIST_LENGTH_SCALE",
+__all__ = ["ARM_LENGTH_SCALE", "HARMONIC_KERNELS", "HARMONIC_SHARE", "KERNELS", "MIN_SIGMA", "SIGMA_PER_REACH", "WRIST_LENGTH_SCALE",
            "DiscrepancyPrior", "robot_reach"]
 
 #: Kernel families of :class:`DiscrepancyPrior`.
-KERNELS = ("matern52", "squared_exponential")
+KERNELS = ("matern52", "squared_exponential", "matern52_harmonic")
+#: Kernels with the additive harmonic part per joint (module docstring).
+HARMONIC_KERNELS = ("matern52_harmonic",)
+#: Default share of sigma^2 given to the harmonic part when its amplitudes are not given.
+HARMONIC_SHARE = 0.5
+#: Harmonics per revolution of the harmonic part (once, twice).
+HARMONICS = (1, 2)
 #: Default model-error amplitude per Cartesian axis per metre of reach [m/m] (0.1 mm per m).
 SIGMA_PER_REACH = 1e-4
 #: Smallest default amplitude [m] (0.02 mm).
@@ -127,6 +150,9 @@ class DiscrepancyPrior:
         sigma_white: Amplitude of the white part per Cartesian axis [m] (module docstring).
         linear_joints: Indices of joints measured by plain differences (prismatic); the
             others by the chordal distance of their angles.
+        harmonic: Amplitudes :math:`s_{kh}` of the harmonic part [m], joint by joint, once
+            then twice per revolution (2 nq,); only for :data:`HARMONIC_KERNELS` (empty:
+            the default share, module docstring); 0 for a linear or ignored joint.
     """
 
     sigma: float
@@ -135,6 +161,7 @@ class DiscrepancyPrior:
     source: str = "given"
     sigma_white: float = 0.0
     linear_joints: tuple[int, ...] = ()
+    harmonic: tuple[float, ...] = ()
 
     def __post_init__(self):
         for name in ("sigma", "sigma_white"):
@@ -151,6 +178,34 @@ class DiscrepancyPrior:
         if self.kernel_name not in KERNELS:
             raise ParameterError(f"unknown model_error.kernel {self.kernel_name!r}; valid kernels "
                                  f"are: {', '.join(KERNELS)}")
+        object.__setattr__(self, "harmonic", self._harmonic_amplitudes(self.harmonic))
+
+    def _harmonic_amplitudes(self, given) -> tuple[float, ...]:
+        """The checked amplitudes (2 nq,), zero where there is no harmonic part."""
+        if self.kernel_name not in HARMONIC_KERNELS:
+            if any(float(x) != 0.0 for x in given):
+                raise ParameterError(f"model_error.harmonic: the kernel {self.kernel_name!r} has no "
+                                     f"harmonic part (use one of {', '.join(HARMONIC_KERNELS)})")
+            return ()
+        mask = np.repeat(self.harmonic_joints, len(HARMONICS))
+        if len(given) == 0:
+            share = HARMONIC_SHARE * self.sigma**2 / max(int(mask.sum()), 1)
+            arr = np.where(mask, np.sqrt(share), 0.0)
+        else:
+            arr = np.asarray(given, dtype=float).ravel()
+            if arr.size != mask.size:
+                raise ShapeError("model_error.harmonic", f"({mask.size},)", arr.shape)
+            if not np.all(np.isfinite(arr)) or np.any(arr < 0):
+                raise ParameterError("model_error.harmonic: amplitudes must be finite and >= 0 [m], "
+                                     f"got {arr.tolist()}")
+        return tuple(float(x) for x in np.where(mask, arr, 0.0))
+
+    @property
+    def harmonic_joints(self) -> np.ndarray:
+        """Joints with a harmonic part (nq,) bool: revolute, finite length scale, harmonic kernel."""
+        ok = np.isfinite(self.length_scales)
+        ok[list(self.linear_joints)] = False
+        return ok & (self.kernel_name in HARMONIC_KERNELS)
 
     # ------------------------------------------------------------ builders
     @classmethod
@@ -176,22 +231,34 @@ class DiscrepancyPrior:
         return cls(float(data["sigma_mm"]) * 1e-3, _length_scales(np.radians(ell), nq),
                    str(data.get("kernel", "matern52")), source,
                    float(data.get("sigma_white_mm", 0.0)) * 1e-3,
-                   tuple(int(j) for j in data.get("linear_joints", ())))
+                   tuple(int(j) for j in data.get("linear_joints", ())),
+                   tuple(1e-3 * np.ravel(np.asarray(data.get("harmonic_mm", ()), dtype=float))))
 
     def to_dict(self) -> dict:
         """JSON form in report units: ``sigma_mm``, ``length_scales_deg`` (None = ignored joint)."""
-        return {"sigma_mm": self.sigma * 1e3, "sigma_white_mm": self.sigma_white * 1e3,
+        out = {"sigma_mm": self.sigma * 1e3, "sigma_white_mm": self.sigma_white * 1e3,
                 "kernel": self.kernel_name, "linear_joints": list(self.linear_joints),
                 "length_scales_deg": [None if np.isinf(x) else float(np.degrees(x))
                                       for x in self.length_scales],
                 "source": self.source}
+        if self.harmonic:
+            out["harmonic_mm"] = (1e3 * np.reshape(self.harmonic, (-1, len(HARMONICS)))).tolist()
+        return out
 
     def with_values(self, sigma: float, length_scales, source: str,
-                    sigma_white: float | None = None) -> DiscrepancyPrior:
-        """The same kernel with new hyperparameters (``sigma_white`` None: unchanged)."""
+                    sigma_white: float | None = None, harmonic=None) -> DiscrepancyPrior:
+        """The same kernel with new hyperparameters (``sigma_white``, ``harmonic`` None: unchanged;
+        the harmonic part of a joint whose length scale became infinite is dropped)."""
         white = self.sigma_white if sigma_white is None else sigma_white
+        harm = self.harmonic if harmonic is None else tuple(np.ravel(harmonic))
         return DiscrepancyPrior(sigma, tuple(length_scales), self.kernel_name, source, white,
-                                self.linear_joints)
+                                self.linear_joints, harm)
+
+    @property
+    def n_kernel_hyperparameters(self) -> int:
+        """Length of :meth:`kernel_log_gradient`'s last axis: sigma, nq length scales and, for a
+        harmonic kernel, the 2 nq amplitudes."""
+        return 1 + self.nq + len(self.harmonic)
 
     @property
     def nq(self) -> int:
@@ -200,8 +267,14 @@ class DiscrepancyPrior:
     def describe(self) -> str:
         """One line in report units."""
         ell = ", ".join("-" if np.isinf(x) else f"{np.degrees(x):.0f}" for x in self.length_scales)
+        harm = ""
+        if self.harmonic:
+            per = np.reshape(self.harmonic, (-1, len(HARMONICS))) * 1e3
+            harm = ", harmonic [" + ", ".join("-" if not ok else "/".join(f"{x:.4f}" for x in row)
+                                               for ok, row in zip(self.harmonic_joints, per, strict=True)) \
+                + "] mm (once/twice per revolution)"
         return (f"model error {self.kernel_name}: sigma {self.sigma * 1e3:.4f} mm per axis, "
-                f"length scales [{ell}] deg, white part {self.sigma_white * 1e3:.4f} mm "
+                f"length scales [{ell}] deg{harm}, white part {self.sigma_white * 1e3:.4f} mm "
                 f"({self.source})")
 
     # ------------------------------------------------------------- kernel
@@ -217,7 +290,7 @@ class DiscrepancyPrior:
             delta[..., j], u[..., j], c[..., j] = diff[..., j], diff[..., j] * inv[j], inv[j]
         r = np.sqrt(np.maximum(np.einsum("abk,k->ab", delta * delta, inv), 0.0))
         s2 = self.sigma**2
-        if self.kernel_name == "matern52":
+        if self.kernel_name.startswith("matern52"):
             e = np.exp(-_A * r)
             k = s2 * (1 + _A * r + 5.0 * r**2 / 3) * e
             g = -s2 * (5.0 / 3) * (1 + _A * r) * e
@@ -233,20 +306,38 @@ class DiscrepancyPrior:
             raise ShapeError(what, f"(n, {self.nq})", q.shape)
         return q
 
+    def _harmonic_terms(self, q1, q2, order: int) -> np.ndarray:
+        r"""Per joint and harmonic, :math:`s_{kh}^2 h^o f(h\Delta_k)` (n1, n2, nq, 2), f = cos for
+        ``order`` 0 and 2 (with the sign of the derivative), -sin for 1 (module docstring)."""
+        diff = self._check(q1, "Q1")[:, None, :] - self._check(q2, "Q2")[None, :, :]
+        s2 = np.reshape(self.harmonic, (self.nq, len(HARMONICS))) ** 2
+        h = np.asarray(HARMONICS, dtype=float)
+        arg = diff[..., None] * h
+        f = {0: np.cos(arg), 1: -np.sin(arg), 2: -np.cos(arg)}[order]
+        return s2 * h**order * f
+
     def kernel(self, q1, q2) -> np.ndarray:
         r""":math:`k(q_{1,a}, q_{2,b})` (n1, n2) [m²] for configurations ``q1`` (n1, nq), ``q2`` (n2, nq)."""
-        return self._pieces(q1, q2)[2]
+        k = self._pieces(q1, q2)[2]
+        if self.harmonic:
+            k = k + self._harmonic_terms(q1, q2, 0).sum(axis=(2, 3))
+        return k
 
     def kernel_gradient(self, q1, q2) -> np.ndarray:
         r""":math:`\partial k/\partial q_1` (n1, n2, nq) [m²/rad]."""
         u, _, _, g, _, _ = self._pieces(q1, q2)
-        return g[:, :, None] * u
+        grad = g[:, :, None] * u
+        if self.harmonic:
+            grad = grad + self._harmonic_terms(q1, q2, 1).sum(axis=3)
+        return grad
 
     def kernel_hessian(self, q1, q2) -> np.ndarray:
         r""":math:`\partial^2 k/\partial q_1^2` (n1, n2, nq, nq) [m²/rad²], per pair."""
         u, c, _, g, h, _ = self._pieces(q1, q2)
-        diag = (g[:, :, None] * c)[..., None] * np.eye(self.nq)
-        return diag + h[:, :, None, None] * u[..., :, None] * u[..., None, :]
+        diag = g[:, :, None] * c
+        if self.harmonic:
+            diag = diag + self._harmonic_terms(q1, q2, 2).sum(axis=3)
+        return diag[..., None] * np.eye(self.nq) + h[:, :, None, None] * u[..., :, None] * u[..., None, :]
 
     def kernel_cross_hessian(self, q1, q2) -> np.ndarray:
         r""":math:`\partial^2 k/\partial q_1\partial q_2` (n1, n2, nq, nq) [m²/rad²]: minus
@@ -254,12 +345,17 @@ class DiscrepancyPrior:
         return -self.kernel_hessian(q1, q2)
 
     def kernel_log_gradient(self, q1, q2) -> np.ndarray:
-        r"""Derivatives of :math:`k` in the log-hyperparameters, (n1, n2, 1 + nq) [m²]:
-        :math:`\partial k/\partial\log\sigma = 2k` and
-        :math:`\partial k/\partial\log\ell_j = -g\,\delta_j^2/\ell_j^2` (0 for an ignored joint),
-        for the marginal likelihood's gradient."""
+        r"""Derivatives of :math:`k` in the log-hyperparameters, (n1, n2,
+        :attr:`n_kernel_hyperparameters`) [m²]: :math:`\partial k/\partial\log\sigma = 2k_{ARD}`,
+        :math:`\partial k/\partial\log\ell_j = -g\,\delta_j^2/\ell_j^2` (0 for an ignored joint)
+        and, harmonic kernels, :math:`\partial k/\partial\log s_{kh} = 2 s_{kh}^2\cos(h\Delta_k)`
+        (joint by joint), for the marginal likelihood's gradient."""
         _, _, k, g, _, scaled = self._pieces(q1, q2)
-        return np.concatenate([2.0 * k[..., None], -g[..., None] * scaled], axis=-1)
+        parts = [2.0 * k[..., None], -g[..., None] * scaled]
+        if self.harmonic:
+            terms = self._harmonic_terms(q1, q2, 0)
+            parts.append(2.0 * terms.reshape(*terms.shape[:2], -1))
+        return np.concatenate(parts, axis=-1)
 
     def white_kernel(self, q1, q2) -> np.ndarray:
         r""":math:`\sigma_w^2\,[q_{1,a} = q_{2,b}]` (n1, n2) [m²] (module docstring)."""
@@ -272,9 +368,14 @@ class DiscrepancyPrior:
         return self.kernel(q1, q2) + self.white_kernel(q1, q2)
 
     @property
+    def smooth_variance(self) -> float:
+        """:math:`k(q, q)` of one component, the smooth part (ARD and harmonic) [m²]."""
+        return self.sigma**2 + float(np.sum(np.square(self.harmonic)))
+
+    @property
     def variance(self) -> float:
-        """:math:`k(q, q)` of one component, both parts [m²]."""
-        return self.sigma**2 + self.sigma_white**2
+        """:math:`k(q, q)` of one component, the smooth and the white part [m²]."""
+        return self.smooth_variance + self.sigma_white**2
 
     def point_covariance(self, q) -> np.ndarray:
         r""":math:`K = k(Q, Q) + k_w(Q, Q)` (n, n) [m²]: the covariance of one Cartesian component

@@ -249,8 +249,9 @@ def design(
             and counted in the record.
         seed: Seed of the pool and the starts; start ``k`` of a multi-start
             uses ``seed + k``. Same seed, same design bit for bit on one machine,
-            under any load (every thread pool is held to one thread; checked by
-            ``tests/cli/test_reproducible_design.py`` with two processes).
+            under any load (thread pools held to one thread, ProxQP's SSE2 build;
+            ``tests/cli/test_reproducible_design.py`` runs two processes); on another
+            machine or with other library builds, up to round-off.
         n_starts: Run from this many seeded starts and keep the best.
         refine: Refine the start with the SQP (default); ``False`` keeps the
             start (pure selection from the pool with ``start="exchange"``).

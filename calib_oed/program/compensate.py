@@ -175,12 +175,15 @@ def compensate_program(parsed: ParsedProgram, nominal: Robot, calibrated: Robot,
                        base: pin.SE3 | None = None, home: np.ndarray | None = None,
                        settings: IkSettings | None = None,
                        singular_threshold: float = SINGULAR_THRESHOLD,
-                       deflection: JointDeflection | None = None) -> CompensatedProgram:
+                       deflection: JointDeflection | None = None,
+                       joint_range: tuple[np.ndarray, np.ndarray] | None = None) -> CompensatedProgram:
     """Compensate every target of ``parsed`` (module docstring).
 
     Args:
         tool, base: :math:`T_{F,E}`, :math:`T_{W,B}` unless the program declares them.
         home: Seed of the first Cartesian target (nq,) [rad]; None: the joint-range middle.
+        joint_range: ``(lower, upper)`` (nq,) each, the calibrated range (the training joint
+            ranges): targets outside it are named; None: the joint limits.
         deflection: The calibration's joint compliance (with the scene's payload) and gains,
             or None (:func:`~calib_oed.calibration.compensation.compensate_joints`).
     """
@@ -208,7 +211,8 @@ def compensate_program(parsed: ParsedProgram, nominal: Robot, calibrated: Robot,
         if ok[i]:       # a failed solve's end point is no branch to follow
             seed = q0[i]
     comp = compensate_joints(nominal, calibrated, q0, tool=tool, base=base, uncertainty=uncertainty,
-                             settings=settings, singular_threshold=singular_threshold, deflection=deflection)
+                             settings=settings, singular_threshold=singular_threshold, deflection=deflection,
+                             joint_range=joint_range)
     comp = Compensation(**{**comp.__dict__, "converged": comp.converged & ok})
     cal = calibrated_kinematics(calibrated, deflection, tool, nom.length)
     shift = np.array([1e3 * np.linalg.norm(cal.compute_pose(q).translation - nom.compute_pose(q).translation)

@@ -28,9 +28,9 @@ a QP is too large for the dense backend.
 from __future__ import annotations
 
 import numpy as np
-import proxsuite
 import scipy.sparse as sp
 
+from calib_oed.solver.proxqp_build import proxsuite
 from calib_oed.solver.qp import (
     QPSizeError,
     QPStep,

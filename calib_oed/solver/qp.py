@@ -43,7 +43,10 @@ Traps of ProxQP (proxsuite 0.8.0) handled here:
 * it allocates with a library that calls ``std::terminate`` when memory runs
   out: a dense QP of 420 variables and 31,616 rows aborted the whole process
   ("terminate called without an active exception"). Sizes are therefore
-  checked *before* a QP object is built (:class:`QPSizeError`).
+  checked *before* a QP object is built (:class:`QPSizeError`);
+* its AVX2 build answers one QP with other last bits depending on where the allocator put
+  its buffers: ProxQP is imported from :mod:`calib_oed.solver.proxqp_build`, which loads the
+  SSE2 build.
 
 Two backends: :class:`DenseQPWorkspace` (ProxQP dense, native box constraints,
 one QP object reused across iterations with a fixed row capacity, at most
@@ -67,8 +70,9 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-import proxsuite
 import scipy.sparse as sp
+
+from calib_oed.solver.proxqp_build import proxsuite
 
 _STATUS_NAMES = {
     "PROXQP_SOLVED": "solved",

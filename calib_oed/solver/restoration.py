@@ -13,9 +13,9 @@ from __future__ import annotations
 import time
 
 import numpy as np
-import proxsuite
 import scipy.sparse as sp
 
+from calib_oed.solver.proxqp_build import proxsuite
 from calib_oed.solver.qp import QPStep, QPSubproblem, _configure, _finish
 from calib_oed.solver.result import SQPStatus
 

@@ -73,8 +73,8 @@ class SQPSettings:
             of poses) or ``"auto"`` (default): block from ``block_qp_min_size``
             variables on, lifted below. Both solve the same QP to the same
             residual test; the lifted one grows faster than linearly (0.11 s per
-            QP at 60 poses, 5.9 s at 250, 43 s at 500; block: 0.05, 0.18, 0.43 s,
-            ``bench/bench_block_qp.py``).
+            QP at 60 poses, 5.9 s at 250, 43 s at 500; block: 0.03, 0.10, 0.24 s cold,
+            0.01-0.04 s warm-started from a right active set, ``bench/bench_block_qp.py``).
         block_qp_min_size: Number of variables from which ``structured_qp="auto"``
             uses the block QP (600: 100 poses of 6 joints; the shipped scenes' 60
             poses stay on the lifted QP).

@@ -6,8 +6,9 @@ and never lets it raise:
 * a :class:`~calib_oed.solver.result.StructuredHessian` goes to the lifted
   sparse QP (:mod:`calib_oed.solver.lifted`), or with ``structured_qp="block"``
   (``"auto"``, the default: from ``block_qp_min_size`` variables on) to the
-  interior point method of :mod:`calib_oed.solver.block_qp` (no warm start, so
-  no cold retry; no dense polish: it polishes its own active set in O(n));
+  interior point method of :mod:`calib_oed.solver.block_qp` (warm-started by the
+  active set the duals name, verified, else its own cold start, so no cold retry
+  here; no dense polish: it polishes its own active set in O(n));
 * a dense Hessian goes to the dense backend (``qp_backend="dense"``) only
   while :math:`n + K \le` ``max_dense_qp_size`` (:math:`K` its row capacity,
   at most that bound minus :math:`n`); otherwise to the sparse backend;

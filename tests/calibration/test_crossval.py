@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -66,6 +68,35 @@ def test_cross_validation_predicts_the_validation_error():
     assert 1.0 < cv.rms_mm / cv.noise_floor_mm < 1.3 and cv.warnings == ()
     assert np.all(cv.fold >= 0) and np.isfinite(cv.errors_mm).all() and len(cv.fold_rms_mm) == 5
     assert "cross-validation, 5 folds" in cv.summary() and "every one of the 60 rows" in cv.summary()
+
+
+def test_a_gross_row_is_held_out_and_counted_but_not_trained_on():
+    """A 5 mm misreading the identification drops: every other row's held-out error is that of
+    the clean data (the folds do not train on it; trained on, it spoils them), its own is ~5 mm
+    and counts in the RMS."""
+    s = setup(load_scene("fms_kr16"))
+    problem = s.problem
+    errors = s.scene.error_model()
+    clean, _ = simulated_measurements(s, problem.robot.random_configurations(40, 5), 6)
+    positions = clean.positions.copy()
+    positions[7, 0] += 5e-3
+    bad = dataclasses.replace(clean, positions=positions)
+    gross = np.zeros(clean.n, bool)
+    gross[7] = True
+    args = (problem.space, clean, problem.identifiability, 4)
+    ref = cross_validate(*args, error_model=errors, gross=gross)
+    cv = cross_validate(problem.space, bad, problem.identifiability, 4, error_model=errors, gross=gross)
+    assert np.allclose(np.delete(cv.errors_mm, 7), np.delete(ref.errors_mm, 7), rtol=1e-9)
+    assert abs(cv.errors_mm[7] - 5.0) < 0.5 and cv.n_gross == 1
+    trained = cross_validate(problem.space, bad, problem.identifiability, 4, error_model=errors)
+    assert np.median(np.delete(trained.errors_mm, 7)) > 2 * np.median(np.delete(ref.errors_mm, 7))
+    assert cv.rms_mm > 3 * cv.rms_without_gross_mm
+    assert cv.rms_without_gross_mm == pytest.approx(np.sqrt(np.mean(np.delete(ref.errors_mm, 7) ** 2)))
+    assert "1 row(s) the identification drops as gross errors" in cv.summary()
+    none = cross_validate(*args, error_model=errors, gross=np.zeros(clean.n, bool))
+    assert "no gross error" in none.summary() and cv.to_dict()["gross_rows"] == 1
+    with pytest.raises(ParameterError, match="gross"):
+        cross_validate(*args, error_model=errors, gross=gross[:5])
 
 
 def test_noise_floor_is_the_rms_error_of_a_perfect_model_against_monte_carlo():

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 import scipy.linalg
 
+from calib_oed.calibration.hyper_uncertainty import prior_of, theta_of
 from calib_oed.calibration.identification import identify
 from calib_oed.calibration.model_error import (
     fit_model_error,
@@ -47,6 +48,19 @@ def test_restricted_likelihood_gradient_matches_central_differences(fms):
     theta = np.log(np.r_[1.3e-4, ell * 1.2, 3e-5])  # with a white part
     _, grad = restricted_log_likelihood(lin, prior(theta), gradient=True)
     num = central_difference(lambda t: restricted_log_likelihood(lin, prior(t)), theta, 1e-5)
+    assert relative_error(grad, num) < 1e-5
+
+
+def test_restricted_likelihood_gradient_of_the_harmonic_kernel(fms):
+    """The harmonic amplitudes' part of the gradient (``hyper_uncertainty.theta_of`` order)."""
+    _, _, lin = _data(fms, 1, 30)
+    harm = TRUE.with_values(1.3e-4, np.array(TRUE.length_scales) * 1.2, "t", 3e-5)
+    harm = DiscrepancyPrior(harm.sigma, harm.length_scales, "matern52_harmonic", "t", 3e-5,
+                            harmonic=np.linspace(2e-5, 6e-5, 12))
+    theta = theta_of(harm)
+    assert theta.size == 1 + 6 + 12 + 1
+    _, grad = restricted_log_likelihood(lin, harm, gradient=True)
+    num = central_difference(lambda t: restricted_log_likelihood(lin, prior_of(harm, t)), theta, 1e-5)
     assert relative_error(grad, num) < 1e-5
 
 

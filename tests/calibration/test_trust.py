@@ -7,10 +7,12 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
+from calib_oed.calibration.model_error import start_prior
 from calib_oed.calibration.prediction import compensation, error_covariances, new_poses
 from calib_oed.calibration.realistic import sample_truth
 from calib_oed.calibration.realistic_measure import measure
 from calib_oed.calibration.robust import identify_robust
+from calib_oed.calibration.simulation import draw_true_parameters, simulate_observations
 from calib_oed.calibration.trust import assess, compensate
 from calib_oed.calibration.workflow import setup
 from calib_oed.measurement.base import evaluate_setup
@@ -27,7 +29,7 @@ def _case(s, truth, n_train=60, n_new=200):
     blocks = measure(sample_truth(s, rng), pr.models, np.vstack([q, q_new]), rng).blocks
     train = [ObservationBlock(b.model, b.q[:n_train], b.values[:n_train]) for b in blocks]
     test = [ObservationBlock(b.model, b.q[n_train:], b.values[n_train:]) for b in blocks]
-    rob = identify_robust(pr.space, train, pr.identifiability, model_error=s.scene.discrepancy())
+    rob = identify_robust(pr.space, train, pr.identifiability, model_error=start_prior(s.scene))
     return rob, test, q_new
 
 
@@ -84,3 +86,42 @@ def test_realistic_targets_over_three_truths(scene):
         assert 0.8 < ratio < 1.25 and not rob.dropped.any(), (truth, ratio)
         covers.append(cover)
     assert 0.9 <= np.mean(covers) <= 0.98, covers
+
+
+def _gp_case(s, truth, n_train=60, n_new=200):
+    """As :func:`_case`, the truth under the model's own assumptions: the geometry of
+    ``draw_true_parameters`` and a Gaussian-process model error of the scene's prior."""
+    pr = s.problem
+    q = pr.robot.random_configurations(n_train, 1000 + truth)
+    q_new = new_poses(q, n_new, 2000 + truth)
+    rng = np.random.default_rng(truth)
+    p = draw_true_parameters(pr.space, pr.identifiability.free_indices, rng)
+    blocks = simulate_observations(pr.space, pr.models, np.vstack([q, q_new]), p, rng,
+                                   model_error=s.scene.discrepancy())
+    train = [ObservationBlock(b.model, b.q[:n_train], b.values[:n_train]) for b in blocks]
+    test = [ObservationBlock(b.model, b.q[n_train:], b.values[n_train:]) for b in blocks]
+    rob = identify_robust(pr.space, train, pr.identifiability, model_error=start_prior(s.scene))
+    return rob, test, q_new
+
+
+@pytest.mark.slow
+def test_coverage_pooled_on_target_and_per_case_spread_as_under_the_models_own_assumptions():
+    """The coverage claim (docs/benchmarks.md, issue 29), 6 truths x 2 robots, 60 training and
+    200 new poses each, the 95 % regions identify reports (threshold widened for the fitted
+    model error's uncertainty): pooled over the realistic truths 0.93-0.97. Per case the
+    coverage is not held to 0.93-0.97: under the model's own assumptions (GP truths of the
+    scene's prior, where every assumption holds) it spreads as far, since 60 poses size the
+    model error to about +-15 %; the realistic spread is no wider than 1.5x the GP one."""
+    covers = {"realistic": [], "gp": []}
+    for scene in ("fms_kr16", "ur5_table"):
+        s = setup(load_scene(scene))
+        for truth in range(6):
+            for source, make in (("realistic", _case), ("gp", _gp_case)):
+                rob, test, q_new = make(s, truth)
+                threshold = assess(s.problem, rob).predicted.region_threshold
+                covers[source].append(_score(s, rob, test, q_new, threshold)[1])
+    real, gp = np.array(covers["realistic"]), np.array(covers["gp"])
+    assert 0.93 <= real.mean() <= 0.97, real
+    assert 0.93 <= gp.mean() <= 0.97, gp  # the model's own assumptions: on target pooled too
+    assert gp.min() < 0.93 or gp.max() > 0.97, gp  # ... and per case off target as well
+    assert real.std() <= 1.5 * gp.std(), (real, gp)

@@ -142,6 +142,10 @@ def test_check_output_accepts_what_can_be_written(tmp_path):
         (["sequential", "fms_kr16", "--target-sigma", "-0.005mm"], "expected a length > 0, got '-0.005mm'"),
         (["design", "fms_kr16", "--criterion", "Z"], "invalid choice: 'Z'"),
         (["nonsense"], "invalid choice"),
+        # an option another command has: named with the command and its help (review finding:
+        # it was "calib-oed: calib-oed: unrecognized arguments: ... (see `calib-oed -h`)")
+        (["validate", "fms_kr16", "cal", "v.csv", "--compliance"],
+         "calib-oed validate: unrecognized arguments: --compliance (see `calib-oed validate -h`)"),
     ],
 )
 def test_argument_mistakes_are_one_line_exit_2(capsys, argv, fragment):

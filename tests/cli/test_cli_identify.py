@@ -78,6 +78,9 @@ def test_outlier_flagged_by_line_and_validation_verdict(files, capsys):
     cv = data["cross_validation"]
     assert cv["k"] == 4 and cv["rms_mm"] > 0 and cv["warnings"] == []
     assert "every one of the 60 rows" not in json.dumps(cv)  # (the text report says it)
+    # the dropped gross row is in the folds and in the held-out error, and counted
+    assert cv["rows"] == 60 and cv["gross_rows"] == 1
+    assert cv["rms_without_gross_mm"] < 0.5 * cv["rms_mm"]  # a 5 mm row among 0.05 mm ones
     # the predicted accuracy covers parameter uncertainty, model error and noise, in JSON too
     pred = data["predicted_accuracy"]["uncompensated"]
     assert "model error" in pred["covers"] and pred["new_pose_rms_mm"] > 0
@@ -115,3 +118,45 @@ def test_validate_stops_on_a_unit_mistake(files, capsys):
     bad = _variant(folder, val, "val_units.csv", lambda t: t.replace("length=mm", "length=m"))
     assert main(["validate", "fms_kr16", str(out), str(bad)]) == EXIT_BAD_INPUT
     assert "1000 times too large" in capsys.readouterr().err
+
+
+def test_identify_report_names_one_set_of_outliers(tmp_path, capsys):
+    """Review finding: on data with model error (realistic truth) the plain 3-sigma rule of the
+    fit counts rows the robust rule (noise + model error) keeps; the report said "without the
+    outliers sigma0^2 = ..." on the sigma0 line and "outliers ...: none" below it, and the JSON
+    carried that rule's ``noise_factor_inliers`` beside an empty ``outliers``. One rule only."""
+    from calib_oed.calibration.workflow import realistic_measurements
+
+    s = setup(load_scene("fms_kr16"))
+    q = s.problem.robot.random_configurations(40, 3)
+    mset, _, _ = realistic_measurements(s, q, 3)
+    meas = tmp_path / "meas.csv"
+    write_measurement_file(s, meas, mset, "realistic truth seed 3")
+    out = tmp_path / "cal"
+    assert main(["identify", "fms_kr16", str(meas), "-o", str(out)]) == EXIT_OK
+    text = capsys.readouterr().out
+    data = json.loads((out / "identification.json").read_text())
+    assert data["sigma0"] > 3  # model error: the plain 3-sigma rule has rows to count
+    assert data["outliers"] == [] and "outliers (leave-one-out" in text
+    assert "without the outliers" not in text
+    assert "noise_factor_inliers" not in data
+    # the report's path as written (it said "and identification.json", without the folder)
+    assert f"and {out / 'identification.json'};" in text
+    assert data["files"]["report"] == str(out / "identification.json")
+
+
+def test_validate_names_poses_of_the_identification_itself(files, capsys):
+    """Review finding: ``validate`` on the identification's own measurement file passed without a
+    word (its errors are the fit's residuals, not an independent validation). Validation poses
+    that are training poses are now counted and warned about; separate poses get no warning."""
+    folder, cal, val = files
+    out = folder / "cal_self"
+    assert main(["identify", "fms_kr16", str(cal), "-o", str(out), "--quiet"]) == EXIT_OK
+    capsys.readouterr()
+    for path, shared in ((cal, 60), (val, 0)):
+        assert main(["validate", "fms_kr16", str(out), str(path)]) == EXIT_OK
+        text = capsys.readouterr().out
+        assert ("warning: 60 of 60 validation poses are poses the identification was fitted to"
+                in text) is (shared > 0)
+        assert main(["validate", "fms_kr16", str(out), str(path), "--json"]) == EXIT_OK
+        assert json.loads(capsys.readouterr().out)["poses_in_training"] == shared

@@ -206,3 +206,20 @@ def test_the_scenes_payload_is_the_working_one_even_with_compliance_disabled(tmp
                  str(tmp_path / "out"), "--json"]) == 0
     text = json.loads(capsys.readouterr().out)["joint_deflection"]
     assert "payload 300 kg at [0.0, 0.0, 200.0] mm" in text and "the scene's robot.compliance.payload" in text
+
+
+def test_targets_outside_the_measured_joint_ranges_are_named(tmp_path, capsys):
+    """The calibrated range is the range the measurements spanned (identification.json's
+    training_joint_ranges), not the robot's limits: a joint target with A1 beyond it is named."""
+    folder = tmp_path / "cal"
+    folder.mkdir()
+    write_calibration(folder)
+    ident = json.loads((folder / "identification.json").read_text())
+    names = ["joint_a1", "joint_a2", "joint_a3", "joint_a4", "joint_a5", "joint_a6"]
+    ident["training_joint_ranges"] = {n: [-1.0, 1.0] if n == "joint_a1" else [-3.0, 3.0] for n in names}
+    (folder / "identification.json").write_text(json.dumps(ident))
+    (tmp_path / "t.csv").write_text(",".join(f"{n}_rad" for n in names) + "\n0.5,-1.4,1.6,0.0,0.5,0.0\n1.2,-1.4,1.6,0.0,0.5,0.0\n")
+    assert main(["compensate", "fms_kr16", str(folder), str(tmp_path / "t.csv"), "-o", str(tmp_path / "o"),
+                 "--json"]) == 0
+    data = json.loads(capsys.readouterr().out)
+    assert [t["in_range"] for t in data["targets"]] == [True, False]

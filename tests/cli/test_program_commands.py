@@ -43,6 +43,7 @@ def test_program_text_output_and_home(design, capsys):
     (["--home", "1,2"], "--home"),
     (["--home", "0,0,0,0,0,400"], "outside the joint limits"),
     (["--name", "9bad"], "--name"),
+    (["--format", "krl", "--name", "end"], "KRL keyword"),
 ])
 def test_bad_input_is_one_line(design, capsys, argv, message):
     assert main(["program", "fms_kr16", str(design), *argv]) == EXIT_BAD_INPUT

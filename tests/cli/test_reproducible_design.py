@@ -1,6 +1,8 @@
 """Same seed, same design files: two `calib-oed design` processes at once write the same bytes
-(issue 31). Before the fix ProxQP's last bits, which depend on where its buffers lie, made
-three runs of the cheap call below end at three different designs."""
+(issue 31). Before the fixes ProxQP's last bits, which depend on where its buffers lie, made
+three runs of the cheap call below end at three different designs (the approximate design's QP
+is now solved by `solver/simplex_qp.py`), and two ur5_table designs at different certificates
+(ProxQP's AVX2 build: `solver/proxqp_build.py` loads its SSE2 build)."""
 
 from __future__ import annotations
 
@@ -46,10 +48,7 @@ def test_two_processes_same_seed_same_bytes(tmp_path):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("scene", ["fms_kr16", pytest.param("ur5_table", marks=pytest.mark.xfail(
-    strict=False, reason="issue 31 open: a local maximisation of the column generation (an SQP on "
-    "ProxQP, oed/sensitivity_maxima.py) differs between processes on ur5_table; the approximate "
-    "design's QPs agree (docs/benchmarks.md)"))])
+@pytest.mark.parametrize("scene", ["fms_kr16", "ur5_table"])
 def test_two_default_designs_same_bytes(tmp_path, scene):
     """The issue's target: `calib-oed design SCENE -n 60`, two processes at once (~5 min each on 2 busy cores)."""
     _assert_same_bytes(_designs_in_parallel(tmp_path, [scene, "-n", "60"]))

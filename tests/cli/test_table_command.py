@@ -35,16 +35,20 @@ def test_nominal_table_is_the_models_and_exact(tmp_path, capsys, convention, nam
     assert "joint_a3" in text and f"wrote {out}" in text
 
 
+def _table_json(folder, convention, tmp_path, capsys):
+    """``table ur5_table FOLDER --convention C -o C.yaml --json``: its JSON and the table written."""
+    out = tmp_path / f"{convention}.yaml"
+    assert main(["table", "ur5_table", str(folder), "--convention", convention, "-o", str(out),
+                 "--json"]) == 0
+    return json.loads(capsys.readouterr().out), read_parameter_table(out)
+
+
 def test_calibrated_table_names_what_classic_dh_cannot_hold(calibration, tmp_path, capsys):
     folder, robot = calibration
     nominal = load_scene("ur5_table").robot
     q = robot.random_configurations(20, 5)
     for convention, exact in (("hayati", True), ("dh", False)):
-        out = tmp_path / f"{convention}.yaml"
-        assert main(["table", "ur5_table", str(folder), "--convention", convention, "-o", str(out),
-                     "--json"]) == 0
-        data = json.loads(capsys.readouterr().out)
-        table = read_parameter_table(out)
+        data, table = _table_json(folder, convention, tmp_path, capsys)
         dp, dr = table.compute_difference(robot, q)
         assert data["exact"] is exact and data["table"]["convention"] == table.convention
         assert (max(dp, dr) <= 1e-9) is exact                  # the calibrated robot's table
@@ -91,3 +95,25 @@ def test_bad_input_is_one_line_and_writes_nothing(tmp_path, capsys, args, messag
     err = capsys.readouterr().err.strip()
     assert message in err and len(err.splitlines()) == 1
     assert sorted(tmp_path.iterdir()) == before
+
+
+def test_a_table_exact_only_through_huge_lengths_is_named(tmp_path, capsys):
+    """Review finding: on a calibrated UR5 (nearly parallel A2-A4) the default modified DH table
+    reproduced the model to 2e-11 m, so nothing was named, through d of hundreds of metres (the
+    common normal of nearly parallel axes is far away): a table no controller can use. Rows with
+    a or d beyond the arm's stretched length are now named, with the advice to use hayati."""
+    from calib_oed.model.inverse_kinematics import characteristic_length
+
+    folder = tmp_path / "cal"
+    folder.mkdir()
+    problem, _, _ = write_calibration(folder, scene="ur5_table", seed=2)
+    robot, _, _ = load_calibration(problem.space, folder)
+    length = characteristic_length(robot)
+    for convention, far in (("mdh", True), ("hayati", False)):
+        data, table = _table_json(folder, convention, tmp_path, capsys)
+        assert data["exact"]  # the round trip alone names nothing
+        big = [r.joint for r in table.rows if max(abs(r.a), abs(r.d)) > length]
+        assert bool(big) is far and data["far_rows"] == big
+    assert main(["table", "ur5_table", str(folder)]) == 0
+    text = capsys.readouterr().out
+    assert "NAMED: " in text and "beyond the arm's stretched length" in text and "hayati" in text

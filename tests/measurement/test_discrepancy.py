@@ -5,7 +5,12 @@ import pytest
 
 from calib_oed import load_robot
 from calib_oed.exceptions import ParameterError, ShapeError
-from calib_oed.measurement.discrepancy import KERNELS, DiscrepancyPrior, robot_reach
+from calib_oed.measurement.discrepancy import (
+    HARMONIC_KERNELS,
+    KERNELS,
+    DiscrepancyPrior,
+    robot_reach,
+)
 from tests.conftest import central_difference, relative_error
 
 ELL = (0.7, 0.9, np.inf, 1.3, 0.5, 2.0)
@@ -97,6 +102,31 @@ def test_defaults_scale_with_reach_and_json_round_trip():
     assert np.isinf(ignored.length_scales[1])
 
 
+def test_harmonic_part_couples_one_joint_at_the_same_angle_and_round_trips():
+    ell = (0.5, 0.5, 0.5, 0.5, 0.5, np.inf)
+    prior = DiscrepancyPrior(1e-4, ell, "matern52_harmonic", linear_joints=(4,))
+    amp = np.reshape(prior.harmonic, (6, 2))
+    assert np.all(amp[[4, 5]] == 0) and np.all(amp[:4] > 0)  # none for a linear or ignored joint
+    assert prior.smooth_variance == pytest.approx(1e-8 * (1 + 0.5))  # the default share
+    rng = np.random.default_rng(3)
+    q1 = rng.uniform(-3, 3, (1, 6))
+    q2 = q1 + rng.uniform(2, 3, (1, 6)) * rng.choice([-1, 1], 6)  # far in every joint (ARD ~ 0) ...
+    q2[0, 2] = q1[0, 2]  # ... but joint 3
+    plain = DiscrepancyPrior(1e-4, ell, "matern52", linear_joints=(4,))
+    assert plain.kernel(q1, q2)[0, 0] < 0.01 * plain.sigma**2
+    d = (q1 - q2)[0]
+    expected = plain.kernel(q1, q2)[0, 0] + np.sum(amp[:, 0] ** 2 * np.cos(d) + amp[:, 1] ** 2 * np.cos(2 * d))
+    assert prior.kernel(q1, q2)[0, 0] == pytest.approx(expected, rel=1e-9)
+    assert np.allclose(np.diag(prior.point_covariance(q1)), prior.variance)
+    back = DiscrepancyPrior.from_dict(prior.to_dict(), 6)
+    assert back.kernel_name == prior.kernel_name and np.allclose(back.harmonic, prior.harmonic)
+    assert "harmonic" in prior.describe()
+    with pytest.raises(ParameterError, match="harmonic"):
+        DiscrepancyPrior(1e-4, ell, "matern52", harmonic=(1e-5,) * 12)
+    with pytest.raises(ShapeError):
+        DiscrepancyPrior(1e-4, ell, "matern52_harmonic", harmonic=(1e-5,) * 3)
+
+
 def test_bad_values_name_the_problem():
     with pytest.raises(ParameterError, match="kernel"):
         DiscrepancyPrior(1e-4, (1.0,), "cubic")
@@ -144,16 +174,22 @@ def test_scene_key_in_file_units_and_from_an_identification(tmp_path):
 def test_kernel_log_gradient_matches_central_differences(prior):
     q1, q2 = _points(4)
     finite = [j for j, x in enumerate(ELL) if np.isfinite(x)]
+    harm = np.flatnonzero(np.asarray(prior.harmonic) > 0)  # the harmonic amplitudes it has
+    if prior.kernel_name in HARMONIC_KERNELS:
+        assert harm.size == 2 * int(prior.harmonic_joints.sum()) > 0
 
     def k_of(theta):
         ell = list(ELL)
-        for j, t in zip(finite, theta[1:], strict=True):
+        for j, t in zip(finite, theta[1:1 + len(finite)], strict=True):
             ell[j] = np.exp(t)
-        return DiscrepancyPrior(np.exp(theta[0]), tuple(ell), prior.kernel_name,
-                                linear_joints=prior.linear_joints).kernel(q1, q2)
+        amp = np.array(prior.harmonic)
+        amp[harm] = np.exp(theta[1 + len(finite):])
+        return prior.with_values(np.exp(theta[0]), tuple(ell), "fd", harmonic=amp).kernel(q1, q2)
 
-    theta = np.log([prior.sigma] + [ELL[j] for j in finite])
+    theta = np.log([prior.sigma] + [ELL[j] for j in finite] + [prior.harmonic[i] for i in harm])
     num = central_difference(k_of, theta, 1e-6)
     ana = prior.kernel_log_gradient(q1, q2)
-    assert relative_error(ana[..., [0] + [1 + j for j in finite]], num) < 1e-6
+    assert ana.shape[-1] == prior.n_kernel_hyperparameters
+    assert relative_error(ana[..., [0] + [1 + j for j in finite] + [1 + prior.nq + i for i in harm]],
+                          num) < 1e-6
     assert np.all(ana[..., 1 + 2] == 0)  # the ignored joint

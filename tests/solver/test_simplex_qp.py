@@ -4,10 +4,10 @@ the same bits on every call."""
 from __future__ import annotations
 
 import numpy as np
-import proxsuite
 import pytest
 
 from calib_oed.solver import simplex_qp
+from calib_oed.solver.proxqp_build import proxsuite
 from calib_oed.solver.simplex_qp import solve_simplex_qp
 
 
