@@ -82,8 +82,9 @@ with tempfile.TemporaryDirectory(prefix="calib_oed_example02_") as tmp:
         raise SystemExit(f"the estimate is too far from the truth for its covariance: {d2:.1f} > {limit:.1f}")
 
     # --- the KPI: TCP error at the working configuration -----------------------------------
-    before = tcp_errors(s, p_true, None)             # nominal model against the truth, (1, 3) [m]
-    after = tcp_errors(s, p_true, result.p)          # calibrated model against the truth
+    # in the KPI's own frame, as C_s (a simulated truth keeps the gauge parameters nominal)
+    before = tcp_errors(s, p_true, None, problem.kpi.frame)      # nominal model against the truth, (1, 3) [m]
+    after = tcp_errors(s, p_true, result.p, problem.kpi.frame)   # calibrated model against the truth
     c_s = problem.kpi_covariance(q)                  # predicted C_s (3, 3) [m^2]
     for name, b, a in zip(problem.kpi.names, before, after, strict=True):
         print(f"TCP error at {name}: before {np.linalg.norm(b) * 1e3:.4f} mm, after "

@@ -72,7 +72,7 @@ def main() -> None:
         raise SystemExit(f"the loop did not stop at the target: {sigmas}")
     if any(b > a for a, b in zip(sigmas[:-1], sigmas[1:], strict=True)):
         raise SystemExit(f"the predicted sigma rose: {sigmas}")
-    error_mm = float(np.linalg.norm(tcp_errors(s, p_true, p_hat), axis=1).max() * 1e3)
+    error_mm = float(np.linalg.norm(tcp_errors(s, p_true, p_hat, s.problem.kpi.frame), axis=1).max() * 1e3)
     # |e|^2 / sigma^2 is about chi-square with 3 degrees of freedom (sigma per axis): 4 sigma is generous
     if error_mm > 4 * np.sqrt(3) * sigmas[-1]:
         raise SystemExit(f"TCP error {error_mm:.4f} mm is not consistent with sigma {sigmas[-1]:.4f} mm")

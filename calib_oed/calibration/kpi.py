@@ -82,6 +82,10 @@ class TcpKpi:
         w.setflags(write=False)
         self.weights = w
 
+    def in_frame(self, frame: str) -> TcpKpi:
+        """The same KPI (configurations, point, names, weights) in ``frame``."""
+        return TcpKpi(self.configurations, self.point, frame, self.names, self.reflector, self.weights)
+
     @property
     def dim(self) -> int:
         """Number of KPI components :math:`n_s = 3t`."""

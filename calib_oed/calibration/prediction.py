@@ -21,7 +21,14 @@ Gaussian errors, so exactly (for the linearised model)
 
 :math:`N_\ast` the noise of a measured point (tracker and repeatability), or
 the robot's repeatability alone for a TCP at a working configuration (no
-tracker there). :math:`\sqrt{\mathrm{tr}\,V_\ast}` is the expected RMS of the
+tracker there). The TCP is predicted **in the tracker frame** (each model with its own tracker
+placement): that is what the tracker data determine. In the world (robot base) frame a
+calibrated model and the true robot differ by a rigid move no tracker data fix (the base
+gauge, docs/conventions.md "Estimability of KPIs"): a real arm's unmodelled errors move it by
+their part along the gauge directions (0.3-0.5 mm on ``ur5_table``'s realistic truths), which no
+prediction can include. The new poses of the expected RMS are feasible poses in the training
+joint ranges (:func:`feasible_new_poses`), where the calibrated robot will be used.
+:math:`\sqrt{\mathrm{tr}\,V_\ast}` is the expected RMS of the
 3-D error; the 95 % prediction region is :math:`e^\top V_\ast^{-1}e \le \chi^2_3(0.95)`.
 With no model error (:math:`K = 0`) this is the noise-only :math:`G C_p G^\top + N_\ast`.
 Checked against Monte Carlo of Gaussian-process model errors in
@@ -38,11 +45,14 @@ from scipy.stats import chi2
 
 from calib_oed.calibration.hyper_uncertainty import TAU_MAX, log_spread, region_threshold
 from calib_oed.calibration.model_error import Linearisation
+from calib_oed.exceptions import SamplingError
+from calib_oed.feasibility.constraints import FeasibilityModel
+from calib_oed.feasibility.sampling import sample_feasible
 from calib_oed.measurement.base import evaluate_setup
 from calib_oed.measurement.discrepancy import DiscrepancyPrior
 
 MM_PER_M = 1e3
-#: New poses for the expected RMS: this many, uniform in the training joint ranges, this seed.
+#: New poses for the expected RMS: this many, feasible in the training joint ranges, this seed.
 N_NEW_POSES, NEW_POSE_SEED = 200, 0
 #: New poses (the first of them) for the derivative of the expected RMS in the hyperparameters.
 N_SPREAD = 50
@@ -108,16 +118,38 @@ def new_poses(q_train: np.ndarray, n: int = N_NEW_POSES, seed: int = NEW_POSE_SE
     return np.random.default_rng(seed).uniform(lo, hi, size=(n, q_train.shape[1]))
 
 
+#: What the new poses of the expected RMS are, in words (:func:`feasible_new_poses`).
+FEASIBLE_POSES = "feasible poses in the training joint ranges"
+UNIFORM_POSES = "poses uniform in the training joint ranges (feasibility not checked)"
+
+
+def feasible_new_poses(feasibility: FeasibilityModel | None, q_train: np.ndarray,
+                       n: int = N_NEW_POSES, seed: int = NEW_POSE_SEED) -> tuple[np.ndarray, str]:
+    """``n`` new poses for the expected RMS and what they are: feasible (uniform on the scene's
+    feasible set, :func:`~calib_oed.feasibility.sampling.sample_feasible`) within the training
+    joint ranges; uniform in those ranges when there is no feasibility model or it finds too
+    few. Poses uniform in the ranges reach far outside what a robot can do there (arm folded
+    into itself, reflector turned away) and overstate the error where it is used."""
+    if feasibility is not None:
+        try:
+            return sample_feasible(feasibility, n, seed, bounds=(q_train.min(axis=0), q_train.max(axis=0)),
+                                   max_draws=100_000), FEASIBLE_POSES
+        except SamplingError:
+            pass
+    return new_poses(q_train, n, seed), UNIFORM_POSES
+
+
 @dataclass(frozen=True)
 class PredictedAccuracy:
     r"""Predicted error of the calibrated model, per working configuration and on new poses [mm].
 
     Attributes:
         names: Working configurations.
-        tcp_sigma_mm: Per working configuration, :math:`\sqrt{\mathrm{tr} V/3}` (per axis) [mm].
-        tcp_rms_mm: Per working configuration, :math:`\sqrt{\mathrm{tr} V}` (3-D RMS) [mm].
+        tcp_sigma_mm: Per working configuration, :math:`\sqrt{\mathrm{tr} V/3}` (per axis) of the
+            TCP in the tracker frame [mm].
+        tcp_rms_mm: Per working configuration, :math:`\sqrt{\mathrm{tr} V}` (3-D RMS) [mm], same frame.
         new_pose_rms_mm: Expected RMS of the measured position error (3-D) on new poses
-            uniform in the training joint ranges, noise included [mm].
+            (``poses``), noise included [mm].
         noise_only_new_pose_rms_mm: The same if the model were exact (noise only) [mm].
         compensated: Whether the predictions add the fitted model error's mean.
         covers: What the numbers cover, in words.
@@ -127,6 +159,7 @@ class PredictedAccuracy:
             widened for that uncertainty (:math:`\chi^2_3(0.95)` = 7.81 without it).
         log_variance_sd: :math:`\tau`, the sd of the log predicted variance, or None when not
             computed; above ``TAU_MAX`` the range is None (not determined).
+        poses: What the new poses are (:func:`feasible_new_poses`).
     """
 
     names: tuple[str, ...]
@@ -139,9 +172,11 @@ class PredictedAccuracy:
     new_pose_rms_range_mm: tuple[float, float] | None = None
     region_threshold: float = float(chi2.ppf(0.95, 3))
     log_variance_sd: float | None = None
+    poses: str = FEASIBLE_POSES
 
     def to_dict(self) -> dict:
         return {"compensated": self.compensated, "covers": self.covers,
+                "new_poses": self.poses, "tcp_frame": "tracker",
                 "new_pose_rms_mm": self.new_pose_rms_mm,
                 "new_pose_rms_range_mm": None if self.new_pose_rms_range_mm is None
                 else list(self.new_pose_rms_range_mm),
@@ -154,7 +189,7 @@ class PredictedAccuracy:
     def lines(self) -> list[str]:
         head = "with the model error's mean compensated" if self.compensated else "uncompensated"
         out = [f"predicted accuracy ({head}; {self.covers}):",
-               f"  new poses in the training joint ranges: expected RMS position error "
+               f"  new {self.poses}: expected RMS position error "
                f"{self.new_pose_rms_mm:.4f} mm (3-D; noise alone would give "
                f"{self.noise_only_new_pose_rms_mm:.4f} mm)"]
         if self.new_pose_rms_range_mm is not None:
@@ -164,8 +199,10 @@ class PredictedAccuracy:
         elif self.log_variance_sd is not None:
             out.append("    95 % range not determined: these poses do not determine the model error's "
                        "size (small against the noise, or too few poses)")
-        out += [f"  TCP at {n}: {s:.4f} mm per axis, {r:.4f} mm RMS (3-D)"
+        out += [f"  TCP at {n} (tracker frame): {s:.4f} mm per axis, {r:.4f} mm RMS (3-D)"
                 for n, s, r in zip(self.names, self.tcp_sigma_mm, self.tcp_rms_mm, strict=True)]
+        out.append("    (the TCP in the tracker frame, where the tracker data place it; in the robot's "
+                   "base frame a calibration is known only up to a rigid move no tracker data fix)")
         return out
 
 
@@ -177,14 +214,16 @@ def _repeatability(models) -> float:
 def predict_accuracy(problem, lin: Linearisation, prior: DiscrepancyPrior | None, p: np.ndarray,
                      free: np.ndarray, q_train: np.ndarray, compensate: bool = False,
                      n_new: int = N_NEW_POSES, seed: int = NEW_POSE_SEED,
-                     spread: tuple | None = None) -> PredictedAccuracy:
+                     spread: tuple | None = None,
+                     feasibility: FeasibilityModel | None = None) -> PredictedAccuracy:
     """:class:`PredictedAccuracy` of the calibration ``p`` of ``problem`` (a
     :class:`~calib_oed.calibration.problem.CalibrationProblem`) identified from ``lin``;
     ``spread``: the Laplace approximation ``(active, cov)`` of ``prior``'s fit
     (:func:`~calib_oed.calibration.hyper_uncertainty.laplace_covariance`), for the range of the
-    new-pose RMS and the widened regions (its derivative on the first :data:`N_SPREAD` new poses)."""
+    new-pose RMS and the widened regions (its derivative on the first :data:`N_SPREAD` new poses);
+    ``feasibility``: the scene's constraints, for feasible new poses (:func:`feasible_new_poses`)."""
     space = problem.space
-    q_new = new_poses(q_train, n_new, seed)
+    q_new, poses = feasible_new_poses(feasibility, q_train, n_new, seed)
     state = evaluate_setup(space, p, q_new, regressor=True, jacobian=False)
     tr, tr_noise, parts = [], [], []
     for mdl in problem.models:
@@ -205,11 +244,9 @@ def predict_accuracy(problem, lin: Linearisation, prior: DiscrepancyPrior | None
         if tau <= TAU_MAX:
             rms_range = (rms_new * float(np.exp(-0.98 * tau)), rms_new * float(np.exp(0.98 * tau)))
             threshold = region_threshold(tau)
-    kpi = problem.kpi
-    # the model error is a process of tracker-frame positions: its cross-covariance with the
-    # TCP's holds component by component in that frame (the trace is the same in any frame)
-    g = kpi.rows_in_tracker_frame(space, kpi.compute_param_jacobian(space, p)[:, free], p)
-    g = g.reshape(-1, 3, free.size)
+    # the TCP in the tracker frame (module docstring), the frame of the model error's components
+    kpi = problem.kpi.in_frame("tracker")
+    g = kpi.compute_param_jacobian(space, p)[:, free].reshape(-1, 3, free.size)
     rho = _repeatability(problem.models)
     v = error_covariances(lin, prior, g, kpi.configurations,
                           np.broadcast_to(rho**2 * np.eye(3), (g.shape[0], 3, 3)), compensate)
@@ -220,4 +257,4 @@ def predict_accuracy(problem, lin: Linearisation, prior: DiscrepancyPrior | None
         tuple(kpi.names), tuple(float(x) for x in np.sqrt(t / 3) * MM_PER_M),
         tuple(float(x) for x in np.sqrt(t) * MM_PER_M),
         rms_new, float(np.sqrt(np.mean(np.concatenate(tr_noise))) * MM_PER_M), bool(compensate),
-        ", ".join(words), rms_range, threshold, tau)
+        ", ".join(words), rms_range, threshold, tau, poses)

@@ -108,8 +108,10 @@ class Trust:
         return out
 
 
-def assess(problem, robust: RobustIdentification) -> Trust:
-    """:class:`Trust` of ``robust`` (identified with a model-error prior) for ``problem``."""
+def assess(problem, robust: RobustIdentification, feasibility=None) -> Trust:
+    """:class:`Trust` of ``robust`` (identified with a model-error prior) for ``problem``;
+    ``feasibility``: the scene's constraints, so that the expected RMS on new poses is over
+    feasible poses in the training joint ranges (None: uniform in those ranges)."""
     if robust.model_error is None or robust.linearisation is None:
         raise ValueError("assess needs identify_robust(..., model_error=prior)")
     lin, prior, res = robust.linearisation, robust.model_error.prior, robust.result
@@ -118,8 +120,8 @@ def assess(problem, robust: RobustIdentification) -> Trust:
     args = (problem, lin, prior, res.p, free, q_train)
     configs, weights = compensation_weights(lin, prior)
     spread = laplace_covariance(lin, prior)
-    return Trust(prior, predict_accuracy(*args, spread=spread),
-                 predict_accuracy(*args, compensate=True, spread=spread),
+    return Trust(prior, predict_accuracy(*args, spread=spread, feasibility=feasibility),
+                 predict_accuracy(*args, compensate=True, spread=spread, feasibility=feasibility),
                  configs, weights, np.stack([q_train.min(axis=0), q_train.max(axis=0)], axis=1),
                  tuple(problem.robot.joint_names),
                  tuple(check_plausibility(problem.space, res.free_names, res.p[free],

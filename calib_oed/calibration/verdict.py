@@ -7,12 +7,15 @@ r"""The verdict of a validation: the user's tolerance, the prediction, the poses
   achieved error: of two calibrations judged against the same tolerance, the
   less accurate one never passes while the more accurate one fails. Without a
   tolerance there is no verdict (exit 0).
-- **Against the prediction**: the identification predicted an RMS on new poses
-  in its training joint ranges (``predicted_accuracy`` of ``identification.json``,
-  parameter uncertainty + model error + noise); the achieved RMS over it is
-  reported, and a ratio above :data:`WORSE_THAN_PREDICTED` is called out with its
-  likely causes. This is a statement about the calibration's self-knowledge, not
-  a pass or fail.
+- **Against the prediction**: the identification's predicted RMS at the validation
+  measurements themselves (:mod:`calib_oed.calibration.pose_prediction`: parameter
+  uncertainty + model error + noise at each row's pose), or, for an identification
+  that did not record what this needs, its expected RMS on new poses
+  (``predicted_accuracy`` of ``identification.json``, an average over other poses: a
+  validation set in a smaller part of the workspace shows a lower error without the
+  calibration being better than predicted); the achieved RMS over it is reported, and
+  a ratio above :data:`WORSE_THAN_PREDICTED` is called out with its likely causes. This
+  is a statement about the calibration's self-knowledge, not a pass or fail.
 - **Per pose**: RMS and largest error of each validation pose, beside its predicted
   RMS and the rows inside their 95 % prediction regions
   (:mod:`calib_oed.calibration.pose_prediction`), and the joints
@@ -34,6 +37,9 @@ from calib_oed.scene.yaml_file import read_text_file
 
 #: Achieved over predicted RMS above which a validation is "worse than predicted".
 WORSE_THAN_PREDICTED = 1.25
+#: Where the prediction a validation is judged against is for: its own measurements (the
+#: per-row prediction), or new poses (the identification's headline, older records only).
+AT_MEASUREMENTS, ON_NEW_POSES = "at these validation measurements", "on new poses"
 #: A validation joint value farther than this fraction of the training range outside it is warned about.
 RANGE_SLACK = 0.02
 
@@ -70,6 +76,17 @@ def predicted_rms_mm(identification: dict | None, compensated: bool) -> float | 
     return value if np.isfinite(value) and value > 0 else None
 
 
+def validation_prediction(predicted, identification: dict | None,
+                          compensated: bool) -> tuple[float | None, str]:
+    """The prediction a validation is judged against [mm] and where it is for: the per-row
+    prediction at the validation measurements (``predicted``, a
+    :class:`~calib_oed.calibration.pose_prediction.RowPrediction`), or, when the identification
+    did not record what that needs (None), its headline on new poses."""
+    if predicted is not None:
+        return predicted.total_rms_mm, AT_MEASUREMENTS
+    return predicted_rms_mm(identification, compensated), ON_NEW_POSES
+
+
 @dataclass(frozen=True)
 class Verdict:
     """Pass or fail against the user's tolerances, and the achieved error against the prediction.
@@ -78,7 +95,8 @@ class Verdict:
         passed: None without a tolerance; else whether every given tolerance holds.
         rms_mm, max_mm: Achieved calibrated errors [mm].
         max_rms_mm, max_error_mm: The tolerances [mm] (None: not given).
-        predicted_rms_mm: The identification's expected RMS on new poses [mm], or None.
+        predicted_rms_mm: The identification's predicted RMS [mm], or None.
+        predicted_where: Where that prediction is for, in words.
     """
 
     passed: bool | None
@@ -87,6 +105,7 @@ class Verdict:
     max_rms_mm: float | None
     max_error_mm: float | None
     predicted_rms_mm: float | None
+    predicted_where: str = AT_MEASUREMENTS
 
     @property
     def ratio(self) -> float | None:
@@ -105,7 +124,7 @@ class Verdict:
                     "robot moved, another tool), the validation poses reach where the training "
                     "data did not, or model error the identification data did not show")
             out.append(f"prediction: the identification expected {self.predicted_rms_mm:.4f} mm RMS "
-                       f"on new poses (parameter uncertainty + model error + noise); achieved "
+                       f"{self.predicted_where} (parameter uncertainty + model error + noise); achieved "
                        f"{self.rms_mm:.4f} mm, ratio {r:.2f}: {what}")
         if self.passed is None:
             out.append("verdict: none (give --max-rms and/or --max-error, in mm, to judge against "
@@ -125,7 +144,8 @@ class Verdict:
     def to_dict(self) -> dict:
         return {"passed": self.passed, "rms_mm": self.rms_mm, "max_mm": self.max_mm,
                 "max_rms_mm": self.max_rms_mm, "max_error_mm": self.max_error_mm,
-                "predicted_rms_mm": self.predicted_rms_mm, "achieved_over_predicted": self.ratio}
+                "predicted_rms_mm": self.predicted_rms_mm, "predicted_where": self.predicted_where,
+                "achieved_over_predicted": self.ratio}
 
 
 def _tolerance(value, option) -> float | None:
@@ -137,8 +157,10 @@ def _tolerance(value, option) -> float | None:
 
 
 def judge(position_mm: np.ndarray, max_rms_mm: float | None = None, max_error_mm: float | None = None,
-          predicted: float | None = None) -> Verdict:
-    """The :class:`Verdict` of calibrated errors ``position_mm`` (n,) [mm].
+          predicted: float | None = None, predicted_where: str = AT_MEASUREMENTS) -> Verdict:
+    """The :class:`Verdict` of calibrated errors ``position_mm`` (n,) [mm]; ``predicted`` the
+    RMS the identification predicted [mm] ``predicted_where`` (:data:`AT_MEASUREMENTS` or
+    :data:`ON_NEW_POSES`).
 
     Raises:
         ParameterError: a tolerance that is not a positive length.
@@ -148,7 +170,7 @@ def judge(position_mm: np.ndarray, max_rms_mm: float | None = None, max_error_mm
     passed = None
     if tol_rms is not None or tol_max is not None:
         passed = (tol_rms is None or rms <= tol_rms) and (tol_max is None or worst <= tol_max)
-    return Verdict(passed, rms, worst, tol_rms, tol_max, predicted)
+    return Verdict(passed, rms, worst, tol_rms, tol_max, predicted, predicted_where)
 
 
 def pose_table(q: np.ndarray, position_mm: np.ndarray, lines: np.ndarray, joint_names,

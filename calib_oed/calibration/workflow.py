@@ -245,10 +245,16 @@ def round_trip_error(s: Setup, p: np.ndarray, urdf_path: str | os.PathLike, n: i
     return worst
 
 
-def tcp_errors(s: Setup, p_true: np.ndarray | RealisticTruth, p_est: np.ndarray | None) -> np.ndarray:
+def tcp_errors(s: Setup, p_true: np.ndarray | RealisticTruth, p_est: np.ndarray | None,
+               frame: str = "tracker") -> np.ndarray:
     """KPI error of the model ``p_est`` (None: nominal) against the truth (true parameters
-    or a realistic truth), (t, 3) [m]."""
-    kpi, space = s.problem.kpi, s.problem.space
+    or a realistic truth), (t, 3) [m], in ``frame``: by default the tracker frame, each model
+    with its own tracker placement, the frame of ``identify``'s predicted TCP accuracy
+    (:mod:`calib_oed.calibration.prediction`). In the world frame the error also holds the
+    rigid move between the model's base frame and the truth's that no tracker data fix (the
+    base gauge): zero for a parametric truth (its gauge parameters are nominal), 0.3-0.5 mm for
+    a realistic one, whose unmodelled errors move the base gauge."""
+    kpi, space = s.problem.kpi.in_frame(frame), s.problem.space
     if isinstance(p_true, RealisticTruth):
         return kpi.compute_values(space, p_est) - p_true.compute_kpi_values(kpi)
     return kpi.compute_values(space, p_est) - kpi.compute_values(space, p_true)

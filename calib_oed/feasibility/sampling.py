@@ -81,6 +81,7 @@ def sample_feasible(
     *,
     batch: int = 4096,
     max_draws: int = 500_000,
+    bounds: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> np.ndarray:
     """``n`` feasible configurations, uniform on the feasible set, (n, nq).
 
@@ -90,6 +91,9 @@ def sample_feasible(
         rng: Seed or generator (same seed, same configurations).
         batch: Draws evaluated together.
         max_draws: Give up after this many draws.
+        bounds: Draw in these joint ranges ``(lower, upper)``, each (nq,) [rad or m],
+            instead of the robot's (e.g. the ranges of a calibration's training poses);
+            None: the robot's joint limits.
 
     Raises:
         SamplingError: fewer than ``n`` feasible configurations in ``max_draws``
@@ -104,6 +108,8 @@ def sample_feasible(
         raise ValueError(f"n must be >= 0, got {n}")
     rng = np.random.default_rng(rng)
     robot = model.robot
+    lower, upper = (robot.lower, robot.upper) if bounds is None else (
+        np.asarray(bounds[0], dtype=float), np.asarray(bounds[1], dtype=float))
     found: list[np.ndarray] = []
     count, draws = 0, 0
     stats = RowStatistics.empty(model.n_constraints)
@@ -113,7 +119,7 @@ def sample_feasible(
     while count < n:
         if draws >= max_draws:
             raise SamplingError(_failure_message(model, n, count, draws, rejected, stats))
-        q = rng.uniform(robot.lower, robot.upper, size=(batch, robot.nq))
+        q = rng.uniform(lower, upper, size=(batch, robot.nq))
         draws += batch
         states = batch_body_states(robot.model, q)
         cheap = model.compute_from_states(q, states, jacobian=False, kinds=("joint", "incidence"))

@@ -261,7 +261,7 @@ def run_sequential(setup: Setup, target_sigma_mm: float, *, batch: int = 5, init
     while True:
         p_hat = np.asarray(identify(space, blocks, problem.identifiability).p)
         sigma = designer.predicted_sigma_mm(q_all, p_hat)
-        error = np.linalg.norm(tcp_errors(setup, p_true, p_hat), axis=1) * 1e3
+        error = np.linalg.norm(tcp_errors(setup, p_true, p_hat, problem.kpi.frame), axis=1) * 1e3
         steps.append(SequentialStep(len(q_all), sigma, error, added, method, feasible, seconds))
         if callback is not None:
             callback(steps[-1])

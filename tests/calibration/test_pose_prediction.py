@@ -83,3 +83,28 @@ def test_validate_predicts_each_pose_as_the_identification_does(calibrated, comp
     assert [r["predicted_rms_mm"] for r in table] == pytest.approx(pred.rms_mm.tolist(), rel=1e-12)
     assert sum(r["inside_95"] for r in table) == pred.inside.sum()
     assert "predicted RMS" in pose_lines(table)[1]
+
+
+def test_validate_judges_against_the_prediction_at_its_own_measurements(calibrated):
+    """The realistic truth, validated on the half of the 150 rows where the identification predicts
+    the smallest error (a validation set in the easier part of the workspace): validate's ratio
+    is the achieved RMS over the prediction at those very rows, within 0.8-1.25; an
+    identification.json without prediction_data falls back to the headline on new poses."""
+    from calib_oed.calibration.crossval import subset
+    from calib_oed.calibration.verdict import (
+        AT_MEASUREMENTS,
+        ON_NEW_POSES,
+        judge,
+        validation_prediction,
+    )
+
+    s, _, folder, val, data = calibrated
+    rows = np.argsort(validate_calibration(s.scene, folder, val).predicted.rms_mm)[:75]
+    part = validate_calibration(s.scene, folder, subset(val, np.sort(rows)))
+    predicted, where = validation_prediction(part.predicted, data, False)
+    assert where == AT_MEASUREMENTS and predicted == part.predicted.total_rms_mm
+    ratio = judge(part.calibrated.position_mm, predicted=predicted, predicted_where=where).ratio
+    assert 0.8 < ratio < 1.25, ratio
+    headline, fallback = validation_prediction(None, data, False)
+    assert fallback == ON_NEW_POSES
+    assert headline == data["predicted_accuracy"]["uncompensated"]["new_pose_rms_mm"]

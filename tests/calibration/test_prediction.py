@@ -8,9 +8,17 @@ from scipy.stats import chi2
 
 from calib_oed.calibration.identification import identify
 from calib_oed.calibration.model_error import fit_model_error, linearise
-from calib_oed.calibration.prediction import compensation, error_covariances, new_poses
+from calib_oed.calibration.prediction import (
+    FEASIBLE_POSES,
+    UNIFORM_POSES,
+    compensation,
+    error_covariances,
+    feasible_new_poses,
+    new_poses,
+    predict_accuracy,
+)
 from calib_oed.calibration.simulation import draw_true_parameters, simulate_observations
-from calib_oed.calibration.workflow import setup
+from calib_oed.calibration.workflow import setup, tcp_errors
 from calib_oed.measurement.base import evaluate_setup
 from calib_oed.measurement.discrepancy import DiscrepancyPrior
 from calib_oed.measurement.observations import ObservationBlock
@@ -145,3 +153,105 @@ def test_tcp_prediction_in_the_world_frame_against_monte_carlo(fms):
     for compensate, (predicted, achieved) in sums.items():
         tol = 0.08 if compensate else 0.15
         assert abs(np.sqrt(predicted / achieved) - 1) < tol, (compensate, np.sqrt(predicted / achieved))
+
+
+def test_tcp_prediction_in_the_tracker_frame_against_monte_carlo(fms):
+    """What identify reports (predict_accuracy) is the TCP's error in the tracker frame, the frame of
+    tcp_errors: over 60 parametric truths with GP model error and repeatability (the model's own
+    assumptions), the predicted mean squared TCP error is the Monte Carlo one within 8 % with the
+    model error's mean compensated, within 15 % uncompensated."""
+    pr = fms.problem
+    sums = {False: [0.0, 0.0], True: [0.0, 0.0]}
+    for seed in range(60):
+        rng = np.random.default_rng(700 + seed)
+        work = np.asarray(pr.kpi.configurations, dtype=float)
+        near = np.repeat(work, 2, axis=0) + rng.uniform(-0.1, 0.1, (2 * work.shape[0], work.shape[1]))
+        q = np.vstack([pr.robot.random_configurations(50, rng), near])
+        p_true = draw_true_parameters(pr.space, pr.identifiability.free_indices, rng)
+        offset = TRUE.sample(np.vstack([q, work]), rng)  # tracker frame
+        blocks = [ObservationBlock(b.model, b.q, b.values + np.pad(offset[:len(q)], ((0, 0), (0, b.values.shape[1] - 3))))
+                  for b in simulate_observations(pr.space, pr.models, q, p_true, rng)]
+        res = identify(pr.space, blocks, pr.identifiability)
+        lin = linearise(pr.space, blocks, res.p, res.free_indices)
+        rho = max(float(m.noise.repeatability) for m in pr.models)
+        # model minus truth, the truth with its model error and repeatability at the TCP
+        error = tcp_errors(fms, p_true, res.p) - offset[len(q):] - rho * rng.standard_normal((work.shape[0], 3))
+        for compensate in (False, True):
+            acc = predict_accuracy(pr, lin, TRUE, res.p, np.asarray(res.free_indices), q, compensate, n_new=4)
+            e = error + compensation(lin, TRUE, work) if compensate else error
+            sums[compensate][0] += np.sum(np.square(acc.tcp_rms_mm))
+            sums[compensate][1] += np.sum(e**2) * 1e6
+    for compensate, (predicted, achieved) in sums.items():
+        tol = 0.08 if compensate else 0.15
+        assert abs(np.sqrt(predicted / achieved) - 1) < tol, (compensate, np.sqrt(predicted / achieved))
+
+
+def test_new_poses_are_feasible_and_in_the_training_ranges(fms):
+    """The headline's new poses: feasible (the scene's constraints) within the training joint
+    ranges, seeded; uniform in the ranges, and said so, without a feasibility model."""
+    q_train = fms.problem.robot.random_configurations(30, 5)
+    lo, hi = q_train.min(axis=0), q_train.max(axis=0)
+    q, words = feasible_new_poses(fms.feasibility, q_train, 50, 1)
+    assert words == FEASIBLE_POSES and q.shape == (50, 6)
+    assert np.all((q >= lo) & (q <= hi)) and fms.feasibility.compute(q, jacobian=False).feasible.all()
+    assert np.array_equal(q, feasible_new_poses(fms.feasibility, q_train, 50, 1)[0])
+    u, words = feasible_new_poses(None, q_train, 50, 1)
+    assert words == UNIFORM_POSES and np.all((u >= lo) & (u <= hi))
+    assert not fms.feasibility.compute(u, jacobian=False).feasible.all()
+
+
+def _realistic_ratios(scene: str, truths: range, n_work: int = 10, n_val: int = 40,
+                      settings=None) -> tuple[float, float]:
+    """identify's predictions against a realistic truth (what real arms have and the model does
+    not), pooled over ``truths``: predicted over achieved RMS of (1) the TCP at ``n_work`` feasible
+    working configurations in the tracker frame (tcp_errors' frame), (2) the measured position on
+    ``n_val`` feasible validation poses, against the headline over feasible poses."""
+    from calib_oed.calibration.kpi import TcpKpi
+    from calib_oed.calibration.problem import CalibrationProblem
+    from calib_oed.calibration.realistic import sample_truth
+    from calib_oed.calibration.realistic_measure import measure
+    from calib_oed.calibration.robust import identify_robust
+    from calib_oed.calibration.trust import assess
+    from calib_oed.calibration.workflow import heuristic_design
+
+    s = setup(load_scene(scene))
+    pr = s.problem
+    kpi = TcpKpi(heuristic_design(s, n_work, 3), pr.kpi.point, pr.kpi.frame)
+    work = CalibrationProblem(pr.space, pr.models, kpi)
+    q, q_val = heuristic_design(s, 60, 0), heuristic_design(s, n_val, 7)
+    sums = np.zeros(4)  # predicted and achieved sums of squares: TCP, validation
+    for k in truths:
+        truth = sample_truth(s, np.random.default_rng([29, k]), settings)
+        data = measure(truth, pr.models, np.vstack([q, q_val]), np.random.default_rng([29, k, 1]))
+        train = [ObservationBlock(b.model, q, b.values[:60]) for b in data.blocks]
+        rob = identify_robust(pr.space, train, pr.identifiability, model_error=s.scene.discrepancy())
+        acc = assess(work, rob, s.feasibility).predicted
+        p = rob.result.p
+        tcp = kpi.in_frame("tracker")
+        sums[0] += np.sum(np.square(acc.tcp_rms_mm))
+        sums[1] += np.sum((tcp.compute_values(pr.space, p) - truth.compute_kpi_values(tcp)) ** 2) * 1e6
+        state = evaluate_setup(pr.space, p, q_val, regressor=False, jacobian=False)
+        for b in data.blocks:
+            sums[2] += acc.new_pose_rms_mm**2 * n_val
+            sums[3] += np.sum((b.values[60:] - b.model.compute_values(state)) ** 2) * 1e6
+    return float(np.sqrt(sums[0] / sums[1])), float(np.sqrt(sums[2] / sums[3]))
+
+
+def test_realistic_tcp_and_new_pose_predictions_hold():
+    """fms_kr16, 3 realistic truths: the predicted RMS on feasible new poses is the achieved one
+    within 0.8-1.25 and the predicted TCP error in the tracker frame within 0.8-1.4, pooled (per
+    truth the TCP's ratio spreads 0.9-1.5: three truths are too few for the target band, which the
+    slow variant checks over eight truths per robot)."""
+    tcp, val = _realistic_ratios("fms_kr16", range(3))
+    assert 0.8 < tcp < 1.4 and 0.8 < val < 1.25, (tcp, val)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("scene", ["fms_kr16", "ur5_table"])
+def test_realistic_tcp_and_new_pose_predictions_over_eight_truths(scene):
+    """The issue's target on the realistic simulator, pooled over 8 truths: predicted over achieved
+    RMS within 0.8-1.25 for the TCP at ten feasible working configurations (tracker frame) and for
+    the measured position on 40 feasible validation poses (measured: fms_kr16 1.21 and 1.06,
+    ur5_table 1.21 and 1.11)."""
+    tcp, val = _realistic_ratios(scene, range(8))
+    assert 0.8 < tcp < 1.25 and 0.8 < val < 1.25, (tcp, val)

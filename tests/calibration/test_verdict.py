@@ -8,7 +8,7 @@ import pytest
 
 from calib_oed.calibration.crossval import held_out_errors, subset
 from calib_oed.calibration.identification import identify
-from calib_oed.calibration.verdict import judge, pose_lines, pose_table
+from calib_oed.calibration.verdict import ON_NEW_POSES, judge, pose_lines, pose_table
 from calib_oed.calibration.workflow import setup, simulated_measurements
 from calib_oed.exceptions import ParameterError
 from calib_oed.scene.reader import load_scene
@@ -45,6 +45,8 @@ def test_no_tolerance_no_verdict_and_the_prediction():
     v = judge(e, predicted=0.1)
     assert v.passed is None and "verdict: none" in v.lines()[-1]
     assert v.ratio == pytest.approx(np.sqrt(np.mean(e**2)) / 0.1) and "WORSE THAN PREDICTED" in v.lines()[0]
+    assert "0.1000 mm RMS at these validation measurements" in v.lines()[0]
+    assert "mm RMS on new poses" in judge(e, predicted=0.1, predicted_where=ON_NEW_POSES).lines()[0]
     assert judge(e, max_rms_mm=0.25, max_error_mm=0.25).passed is False  # the largest error fails
     assert judge(e, max_rms_mm=0.25).passed is True
     with pytest.raises(ParameterError, match="--max-rms"):

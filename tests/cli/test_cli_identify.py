@@ -91,6 +91,10 @@ def test_outlier_flagged_by_line_and_validation_verdict(files, capsys):
     report = json.loads(capsys.readouterr().out)
     verdict = report["verdict"]
     assert verdict["passed"] is None and 0.6 < verdict["achieved_over_predicted"] < 1.25
+    # judged against the prediction at these very measurements, not the headline on new poses
+    assert verdict["predicted_rms_mm"] == report["predicted_rms_mm"]
+    assert verdict["predicted_where"] == "at these validation measurements"
+    assert pred["new_poses"] == "feasible poses in the training joint ranges" and pred["tcp_frame"] == "tracker"
     # the floor of the scene's tracker error model and repeatability (sqrt(mean tr Sigma_i))
     floor = report["noise_floor_mm"]
     assert floor > 1.5 * 0.01 * np.sqrt(3)
