@@ -71,13 +71,14 @@ def extended_scene(scene):
 
 
 def achieved_errors(s, q: np.ndarray, truths: int, noise: int, seed: int, compensate: bool,
-                    frame: str = "tracker") -> dict[str, np.ndarray]:
+                    frame: str | None = None) -> dict[str, np.ndarray]:
     """Weighted mean squared KPI error per (truth, noise draw) [mm²], (truths, noise), per predictor,
-    in ``frame``: the tracker frame (default; each model with its own tracker pose, as ``identify``
-    predicts and ``tcp_errors`` measures), or the world frame, where a realistic truth's error also
-    holds the base gauge no tracker data fix (``calibration/workflow.tcp_errors``)."""
+    in ``frame``: None (default) the KPI's own frame, the one the design criterion predicts (the
+    world frame on the shipped scenes, where a realistic truth's error also holds what the fit puts
+    into the base gauge), or ``"tracker"``, each model with its own tracker pose, as ``identify``
+    predicts and ``tcp_errors`` measures by default (``calibration/workflow.tcp_errors``)."""
     problem, space = s.problem, s.problem.space
-    kpi = problem.kpi.in_frame(frame)
+    kpi = problem.kpi if frame is None else problem.kpi.in_frame(frame)
     free = problem.identifiability.free_indices
     w = problem.kpi.weights
     w = np.ones(len(problem.kpi.configurations)) if w is None else np.asarray(w, dtype=float)
@@ -123,14 +124,14 @@ def rms_with_error(mse: np.ndarray) -> tuple[float, float]:
 
 
 def run_scene(scene_ref: str, model: str, n: int, truths: int, noise: int, seed: int, compensate: bool,
-              out: Path | None, prior_scale: float = 1.0, frame: str = "tracker") -> dict:
+              out: Path | None, prior_scale: float = 1.0, frame: str | None = None) -> dict:
     scene = load_scene(scene_ref)
     s = setup(extended_scene(scene) if model == "extended" else scene)
     prior = s.scene.model_error if s.scene.model_error is not None else default_prior(s.problem)
     if prior_scale != 1.0:
         prior = prior.scaled(prior_scale)
     row = {"scene": s.scene.name, "model": model, "n": n, "truths": truths, "noise_draws": noise,
-           "prior": prior.describe(), "frame": frame}
+           "prior": prior.describe(), "frame": frame or s.problem.kpi.frame}
     designs, errors = {}, {}
     for crit in ("kpi", "kpi_model"):
         d = design(s, n, scene_criterion(s, crit, prior), seed=seed, certificate=False)
@@ -200,8 +201,9 @@ def main() -> None:
     ap.add_argument("--compensate", action="store_true")
     ap.add_argument("--prior-scale", type=float, default=1.0,
                     help="the kpi_model design's prior with every amplitude times this (a misjudged prior)")
-    ap.add_argument("--frame", choices=("tracker", "world"), default="tracker",
-                    help="where the achieved KPI error is taken (tracker: as identify predicts it)")
+    ap.add_argument("--frame", choices=("tracker", "world"), default=None,
+                    help="where the achieved KPI error is taken (default: the KPI's own frame, the one "
+                         "the design criterion predicts; tracker: as identify predicts it)")
     ap.add_argument("--out", type=Path)
     ap.add_argument("--figure", metavar="SCENE", help="only draw the figure of SCENE from --out")
     args = ap.parse_args()
