@@ -191,10 +191,14 @@ def _say(args, text: str = "") -> None:
 
 
 def _sqp_settings(args):
+    """The SQP settings ``--iterations``/``--time-limit`` ask for, or None: the design's own
+    defaults (``DESIGN_SQP``, capped for the model-error criteria, ``oed.model_error.design_settings``)."""
     from dataclasses import replace
 
     from calib_oed.oed.design import DESIGN_SQP
 
+    if not (getattr(args, "iterations", None) or getattr(args, "time_limit", None)):
+        return None
     settings = DESIGN_SQP
     if getattr(args, "iterations", None):
         settings = replace(settings, max_iterations=args.iterations)

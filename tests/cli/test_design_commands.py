@@ -116,3 +116,18 @@ def test_evaluate_names_the_unit_of_every_criterion(capsys, tmp_path):
     for name in names:  # every criterion printed is explained in the header
         assert name in header or (name.startswith("O") and "O1..O5" in header), name
     assert "kpi_kriging: mean squared KPI error per axis with the scene's model-error prior [mm²]" in header
+
+
+def test_the_default_call_keeps_the_model_error_criterion_s_iteration_cap(capsys, monkeypatch):
+    """Without --iterations/--time-limit the command gives the design its own defaults: for
+    kpi_model (damped BFGS) the capped SQP, not the 300 iterations of the exact-Hessian criteria
+    (the default fms_kr16 call stalled after 259 iterations in 73 s where the cap ends in 20 s)."""
+    import calib_oed.oed.model_error as model_error
+
+    monkeypatch.setattr(model_error, "MODEL_ERROR_ITERATIONS", 2)
+    assert main(["design", "fms_kr16", "-n", "12", "--pool", "200", "--no-collisions", "--json"]) == 0
+    data = json.loads(capsys.readouterr().out)
+    assert data["criterion"] == "kpi_model" and data["solver"]["iterations"] <= 2
+    assert main(["design", "fms_kr16", "-n", "12", "--pool", "200", "--no-collisions", "--iterations", "4",
+                 "--json"]) == 0
+    assert 2 < json.loads(capsys.readouterr().out)["solver"]["iterations"] <= 4
