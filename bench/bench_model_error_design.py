@@ -2,7 +2,7 @@
 
 For each scene: the noise-only KPI design (criterion ``kpi``) and the model-error design
 (``kpi_model``, the scene's prior or the default: the joint-space prior of
-:mod:`calib_oed.oed.joint_prior`) of n poses from the same seed; then the
+:mod:`calib_oed.measurement.joint_prior`) of n poses from the same seed; then the
 whole loop on the realistic simulator (:mod:`calib_oed.calibration.realistic`): for each of
 ``--truths`` true robots and ``--noise`` noise draws, simulated tracker data at each design's
 poses, an identification (``identify``, linear loss) and the TCP error at the working

@@ -59,6 +59,7 @@ from calib_oed.model.compliance import Compliance, GravityLoad
 from calib_oed.model.joint_map import effective_configurations
 from calib_oed.model.kinematics import compute_tool_kinematics
 from calib_oed.model.parameters import ParameterSpace
+from calib_oed.model.size_class import arm_mass
 
 
 @dataclass(frozen=True, eq=False)
@@ -288,7 +289,7 @@ def _arm_mass(model: pin.Model, scene) -> float:
     spec = getattr(scene, "compliance", None)
     if spec is not None and spec.payload.link_masses is not None:
         return float(np.sum(spec.payload.link_masses))
-    return float(sum(model.inertias[i].mass for i in range(1, model.njoints)))
+    return arm_mass(model)
 
 
 def _balancer_zero(gravity: GravityLoad, joint: int, nq: int) -> tuple[float, float]:

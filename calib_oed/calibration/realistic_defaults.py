@@ -46,39 +46,11 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from calib_oed.exceptions import ParameterError
+from calib_oed.model.size_class import TYPICAL, SizeDefaults, per_joint, size_class_of
 from calib_oed.scene.fields import FieldReader
 from calib_oed.units import ANGLE_UNITS, LENGTH_UNITS
 
 ARCSEC = np.pi / (180.0 * 3600.0)
-
-#: Size classes by the arm's URDF mass [kg]: (name, lower bound).
-SIZE_CLASSES = (("small", 0.0), ("medium", 50.0), ("large", 300.0))
-
-
-@dataclass(frozen=True)
-class SizeDefaults:
-    """Typical values of one size class (J1..J6; extra joints repeat the last).
-
-    Attributes:
-        stiffness: Joint stiffness (6,) [N·m/rad].
-        gear_ratios: Motor turns per joint turn (6,).
-        balancer_fraction: Share of the J2 gravity torque the balancer carries [1].
-    """
-
-    stiffness: np.ndarray
-    gear_ratios: np.ndarray
-    balancer_fraction: float
-
-
-_TABLE = {
-    "small": SizeDefaults(np.array([1.5e5, 1.5e5, 1.0e5, 3e4, 3e4, 2e4]),
-                          np.array([100.0, 100, 100, 100, 100, 100]), 0.0),
-    "medium": SizeDefaults(np.array([6e5, 1.0e6, 6e5, 1.5e5, 1.2e5, 8e4]),
-                           np.array([150.0, 150, 120, 90, 80, 50]), 0.5),
-    "large": SizeDefaults(np.array([2e6, 4e6, 2e6, 5e5, 4e5, 2.5e5]),
-                          np.array([180.0, 200, 160, 100, 90, 60]), 0.5),
-}
-
 
 @dataclass(frozen=True)
 class RealisticSettings:
@@ -159,28 +131,24 @@ class RealisticSettings:
 
     @staticmethod
     def size_class_of(arm_mass: float) -> str:
-        """The size class of an arm of ``arm_mass`` [kg] (:data:`SIZE_CLASSES`)."""
-        name = SIZE_CLASSES[0][0]
-        for cls, lower in SIZE_CLASSES:
-            if arm_mass >= lower:
-                name = cls
-        return name
+        """The size class of an arm of ``arm_mass`` [kg] (:mod:`calib_oed.model.size_class`)."""
+        return size_class_of(arm_mass)
 
     def table(self, size: str, nv: int) -> SizeDefaults:
         """The typical values for ``nv`` joints, with this record's overrides."""
-        d = _TABLE[size]
+        d = TYPICAL[size]
 
-        def per_joint(given, typical, what):
+        def given_or_typical(given, typical, what):
             if given is not None:
                 arr = np.asarray(given, dtype=float)
                 if arr.shape != (nv,):
                     raise ParameterError(f"realistic.{what}: one value per joint ({nv}), got {len(arr)}")
                 return arr
-            return np.resize(np.concatenate([typical, np.repeat(typical[-1:], max(0, nv - 6))]), nv)
+            return per_joint(typical, nv)
 
         frac = d.balancer_fraction if self.balancer_fraction is None else float(self.balancer_fraction)
-        return SizeDefaults(per_joint(self.stiffness, d.stiffness, "stiffness"),
-                            per_joint(self.gear_ratios, d.gear_ratios, "gear_ratios"), frac)
+        return SizeDefaults(given_or_typical(self.stiffness, d.stiffness, "stiffness"),
+                            given_or_typical(self.gear_ratios, d.gear_ratios, "gear_ratios"), frac)
 
     def payload_of(self, scene) -> tuple[float, np.ndarray]:
         """Payload mass [kg] and centre of mass (3,) [m]: this record's, else the scene's, else 0."""

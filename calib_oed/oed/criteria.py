@@ -246,7 +246,7 @@ def make_criterion(name: str, *, kpi_jacobian=None, n_params: int | None = None,
         problem: The calibration problem; needed by ``"kpi_model"``, the KPI
             criterion under model error (:mod:`calib_oed.oed.model_error`).
         model_error: Its prior, a :class:`~calib_oed.measurement.discrepancy.DiscrepancyPrior`
-            or a :class:`~calib_oed.oed.joint_prior.JointErrorPrior` (None: the joint-space
+            or a :class:`~calib_oed.measurement.joint_prior.JointErrorPrior` (None: the joint-space
             default, :func:`calib_oed.oed.model_error.default_prior`).
 
     Raises:

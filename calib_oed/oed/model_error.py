@@ -53,7 +53,7 @@ and :math:`dS`, :math:`dk_w` follow the kernel's gradient, :math:`d\tilde F` the
 rows' configuration derivatives (``docs/oed.md``; checked against central
 differences in ``tests/oed/test_model_error_design.py``).
 
-**The joint-space prior** (:mod:`calib_oed.oed.joint_prior`, the default without
+**The joint-space prior** (:mod:`calib_oed.measurement.joint_prior`, the default without
 ``robot.model_error``): each joint's angle error a GP moved to the points by their Jacobian
 columns, so with :math:`B_j = Z_j\,\partial y_j/\partial q` (tracker frame)
 :math:`S_{jl} = \delta_{jl}I + \sum_k k_k(q_j, q_l)\,B_{jk}B_{lk}^\top`,
@@ -79,9 +79,9 @@ import scipy.linalg
 
 from calib_oed.exceptions import CertificateError, DesignError
 from calib_oed.measurement.discrepancy import DiscrepancyPrior
+from calib_oed.measurement.joint_prior import JointErrorPrior, PointJacobians, point_jacobians
 from calib_oed.measurement.position import TrackerPosition
 from calib_oed.oed.criterion_base import Criterion, _not_identifiable
-from calib_oed.oed.joint_prior import JointErrorPrior, PointJacobians, point_jacobians
 
 #: Names of the criteria in :data:`calib_oed.oed.criteria.CRITERIA`: the KPI error of the
 #: parametric fit (the default design criterion), and of GLS plus kriging compensation.
@@ -228,7 +228,7 @@ class ModelErrorCriterion(Criterion):
 
     @property
     def joint_space(self) -> bool:
-        """The prior is the joint-space one (:mod:`calib_oed.oed.joint_prior`)."""
+        """The prior is the joint-space one (:mod:`calib_oed.measurement.joint_prior`)."""
         return isinstance(self.prior, JointErrorPrior)
 
     # ------------------------------------------------------------- not of M

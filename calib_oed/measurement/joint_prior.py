@@ -43,7 +43,7 @@ fit the criterion models; the rest is what the design must average at the workin
 
 **Defaults per robot size** (:meth:`JointErrorPrior.default_for`, ``docs/scenes.md``): the size
 class of the arm's URDF mass and the published magnitudes of
-:mod:`calib_oed.calibration.realistic_defaults` (the same sources as the realistic simulator):
+:mod:`calib_oed.model.size_class` (the same sources as the realistic simulator):
 transmission error RMS 21 and 11 arcsec (30 and 15 arcsec amplitude), a smooth part of 10 arcsec
 with :data:`SMOOTH_LENGTH`, gain errors 5e-5, compliance :math:`\gamma_k = 1/k_k` (the class's
 typical stiffness) with the scene's payload.
@@ -58,6 +58,7 @@ import numpy as np
 from calib_oed.exceptions import ParameterError
 from calib_oed.model.compliance import Compliance, GravityLoad
 from calib_oed.model.kinematics import compute_tool_kinematics
+from calib_oed.model.size_class import TYPICAL, arm_mass, per_joint, size_class_of
 
 ARCSEC = np.pi / (180.0 * 3600.0)
 #: Default RMS of the once- and twice-per-revolution transmission errors [rad] (amplitude / sqrt 2).
@@ -113,17 +114,15 @@ class JointErrorPrior:
     @classmethod
     def default_for(cls, robot, payload: Compliance | None = None) -> JointErrorPrior:
         """The documented default for ``robot`` (module docstring), the payload on its tool."""
-        from calib_oed.calibration.realistic_defaults import RealisticSettings
-
         model = robot.model
-        mass = float(sum(model.inertias[i].mass for i in range(1, model.njoints)))
-        settings = RealisticSettings()
-        stiffness = settings.table(settings.size_class_of(mass), model.nv).stiffness
+        mass = arm_mass(model)
+        size = size_class_of(mass)
+        stiffness = per_joint(TYPICAL[size].stiffness, model.nv)
         gravity = GravityLoad(model, robot.tool_frame_id, payload if payload is not None else Compliance())
         nq = model.nq
         return cls(np.full(nq, PERIODIC_RMS[0]), np.full(nq, PERIODIC_RMS[1]), np.full(nq, SMOOTH_SIGMA),
                    np.full(nq, SMOOTH_LENGTH), np.full(nq, GAIN_SIGMA), 1.0 / stiffness, gravity,
-                   f"default ({settings.size_class_of(mass)} arm, {mass:.0f} kg)")
+                   f"default ({size} arm, {mass:.0f} kg)")
 
     def scaled(self, factor: float) -> JointErrorPrior:
         """Every amplitude times ``factor`` (the length scales kept): a prior that misjudges the
