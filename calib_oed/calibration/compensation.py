@@ -97,12 +97,6 @@ class CalibrationUncertainty:
             raise ShapeError("covariance", f"({k}, {k})", np.shape(self.covariance))
 
     @classmethod
-    def from_identification(cls, space: ParameterSpace, result, model_error: ModelErrorTerm | None = None):
-        """From an :class:`~calib_oed.calibration.identification_result.IdentificationResult`."""
-        return cls(space, np.asarray(result.p, float), np.asarray(result.free_indices, int),
-                   np.asarray(result.covariance, float), model_error)
-
-    @classmethod
     def from_robust(cls, space: ParameterSpace, robust) -> CalibrationUncertainty:
         r"""From an identification with a fitted model error
         (:func:`~calib_oed.calibration.robust.identify_robust` with ``model_error=``): :math:`C_p`

@@ -97,7 +97,6 @@ class RobustIdentification:
     alpha: float
     iterations: int
     rounds: int
-    excluded: bool = True
     #: With a model-error prior (:func:`identify_robust` ``model_error=``): the fitted
     #: hyperparameters, which flags look like model error, the measurements left out of the
     #: final estimate, and the parameter std under noise + model error (n_f,) [SI].
@@ -109,11 +108,10 @@ class RobustIdentification:
 
     @property
     def weight(self) -> np.ndarray:
-        """Weight in the final estimate: 0 for a measurement left out, 1 otherwise (all 1 when
-        ``excluded`` is False: a fit of :func:`as_robust` keeps its outliers)."""
+        """Weight in the final estimate: 0 for a measurement left out, 1 otherwise."""
         if self.dropped is not None:
             return (~self.dropped).astype(float)
-        return (~self.flagged).astype(float) if self.excluded else np.ones(self.flagged.size)
+        return (~self.flagged).astype(float)
 
     @property
     def parameter_std(self) -> np.ndarray:
@@ -247,24 +245,6 @@ def identify_robust(space: ParameterSpace, blocks: Sequence[ObservationBlock], f
         normalised=np.sqrt(t) / scale, robust_weight=w, flagged=flagged, scale=scale,
         robust_scale=huber_scale, alpha=float(alpha), iterations=iterations, rounds=rounds,
     )
-
-
-def as_robust(result: IdentificationResult, blocks: Sequence[ObservationBlock]) -> RobustIdentification:
-    """A plain :func:`identify` fit in the record of :func:`identify_robust`, for the same reports.
-
-    No measurement is left out; ``flagged`` marks the fit's own outliers (judged
-    against the stated sigma, ``result.outlier_threshold``), the scale is its sigma0.
-    """
-    block, row, dim = _layout(list(blocks))
-    flagged = np.zeros(block.size, bool)
-    for o in result.outliers:
-        flagged[(block == o.block) & (row == o.row)] = True
-    norms = np.concatenate(result.measurement_norms) * np.sqrt(dim)
-    scale = result.sigma0
-    return RobustIdentification(result=result, linear=result, block=block, row=row, dim=dim,
-                                normalised=norms / scale, robust_weight=np.ones(block.size),
-                                flagged=flagged, scale=scale, robust_scale=scale, alpha=float("nan"),
-                                iterations=0, rounds=0, excluded=False)
 
 
 def _with_model_error(space, blocks, free, prior, alpha, drop, options) -> RobustIdentification:

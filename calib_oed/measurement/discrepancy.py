@@ -76,7 +76,7 @@ identification: :meth:`DiscrepancyPrior.from_dict` of its JSON's ``model_error``
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -339,11 +339,6 @@ class DiscrepancyPrior:
             diag = diag + self._harmonic_terms(q1, q2, 2).sum(axis=3)
         return diag[..., None] * np.eye(self.nq) + h[:, :, None, None] * u[..., :, None] * u[..., None, :]
 
-    def kernel_cross_hessian(self, q1, q2) -> np.ndarray:
-        r""":math:`\partial^2 k/\partial q_1\partial q_2` (n1, n2, nq, nq) [m²/rad²]: minus
-        :meth:`kernel_hessian` (the kernel depends on :math:`q_1 - q_2` only)."""
-        return -self.kernel_hessian(q1, q2)
-
     def kernel_log_gradient(self, q1, q2) -> np.ndarray:
         r"""Derivatives of :math:`k` in the log-hyperparameters, (n1, n2,
         :attr:`n_kernel_hyperparameters`) [m²]: :math:`\partial k/\partial\log\sigma = 2k_{ARD}`,
@@ -394,8 +389,3 @@ class DiscrepancyPrior:
 def linear_joints_of(robot) -> tuple[int, ...]:
     """Indices of the robot's prismatic joints (measured by plain differences)."""
     return tuple(i for i, j in enumerate(robot.model.joints[1:]) if j.shortname().startswith("JointModelP"))
-
-
-def length_scale_list(value: float | Sequence[float], nq: int) -> tuple[float, ...]:
-    """A scalar or per-joint length scale [rad] as nq checked values."""
-    return _length_scales(value, nq)

@@ -72,10 +72,6 @@ class ErrorModel:
             raise ParameterError("noise: the tracker error model applies to position rows only; "
                                  "this set-up measures poses (give noise=None)")
 
-    def with_discrepancy(self, prior: DiscrepancyPrior | None) -> ErrorModel:
-        """The same noise with another model-error prior (None: exact model)."""
-        return replace(self, discrepancy=prior)
-
     def for_rows(self, pose_rows: bool) -> ErrorModel:
         """This model for data with (``True``) or without pose rows: the kind follows the data."""
         kind = "pose" if pose_rows else "position"

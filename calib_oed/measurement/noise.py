@@ -187,33 +187,6 @@ class TrackerNoise:
         iso = (st**2 + self.repeatability**2)[:, None, None] * np.eye(3)
         return (sr**2 - st**2)[:, None, None] * uu + iso
 
-    def covariance_derivative(self, y) -> np.ndarray:
-        r""":math:`\partial\Sigma/\partial y_k`, (n, 3, 3, 3) indexed [i, a, b, k] [m]."""
-        _, d, u = self._geometry(y)
-        r1, t1 = self.radial[1], self.lateral[1]
-        sr = self.radial[0] + r1 * d
-        st = self.lateral[0] + t1 * d
-        uu = u[:, :, None] * u[:, None, :]
-        proj = (np.eye(3) - uu) / d[:, None, None]  # P[:, a, k] = du_a/dy_k
-        out = (2 * (sr * r1 - st * t1))[:, None, None, None] * uu[:, :, :, None] * u[:, None, None, :]
-        duu = proj[:, :, None, :] * u[:, None, :, None] + u[:, :, None, None] * proj[:, None, :, :]
-        out += (sr**2 - st**2)[:, None, None, None] * duu
-        out += (2 * st * t1)[:, None, None, None] * np.eye(3)[None, :, :, None] * u[:, None, None, :]
-        return out
-
-    def covariance_second_derivative(self, y) -> np.ndarray:
-        r""":math:`\partial^2\Sigma/\partial y_k\partial y_l`, (n, 3, 3, 3, 3) indexed [i, a, b, k, l] [1].
-
-        :math:`\Sigma = b(d)\,I + g(d)\,yy^\top` with :math:`b = \sigma_t^2 + \rho^2`,
-        :math:`g = (\sigma_r^2 - \sigma_t^2)/d^2` (:func:`_radial_field`).
-        """
-        y, d, u = self._geometry(y)
-        (r0, r1), (t0, t1) = self.radial, self.lateral
-        sr, st = r0 + r1 * d, t0 + t1 * d
-        b = (st**2 + self.repeatability**2, 2 * st * t1, np.full_like(d, 2 * t1**2))
-        a = (sr**2 - st**2, 2 * (sr * r1 - st * t1), np.full_like(d, 2 * (r1**2 - t1**2)))
-        return _radial_field(y, d, u, b, _over_d2(a, d), 2)[2]
-
     def symmetric_whitening(self, y, order: int = 0):
         r""":math:`W = \Sigma^{-1/2}` (n, 3, 3) [1/m], symmetric, and its derivatives in ``y``.
 

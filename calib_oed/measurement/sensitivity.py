@@ -32,11 +32,6 @@ def stacked_values(models: Sequence[MeasurementModel], state: SetupState) -> np.
     return np.concatenate([mdl.compute_values(state).ravel() for mdl in models])
 
 
-def stacked_sigma(models: Sequence[MeasurementModel], n: int) -> np.ndarray:
-    """Noise standard deviations of the stacked rows (m,)."""
-    return np.concatenate([np.tile(mdl.sigma, n) for mdl in models])
-
-
 def weighted_jacobian_from_state(
     models: Sequence[MeasurementModel], state: SetupState
 ) -> np.ndarray:

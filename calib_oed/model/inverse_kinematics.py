@@ -119,22 +119,12 @@ class TcpKinematics:
         pin.framesForwardKinematics(self.model, self.data, q)
         return self.data.oMf[self.frame] * self.tool
 
-    def compute_poses(self, q: np.ndarray) -> list[pin.SE3]:
-        """:math:`T_{W,E}(q_i)` of every row of ``q`` (n, nq)."""
-        q = self.robot.check_configurations(q)
-        return [self.compute_pose(row) for row in q]
-
     def compute_jacobian(self, q: np.ndarray) -> tuple[pin.SE3, np.ndarray]:
         """:math:`T_{W,E}(q)` and :math:`{}^{E}J_E(q)` (6, nq), twists (linear, angular)."""
         pin.computeJointJacobians(self.model, self.data, q)
         pin.updateFramePlacement(self.model, self.data, self.frame)
         jac = pin.getFrameJacobian(self.model, self.data, self.frame, pin.LOCAL)
         return self.data.oMf[self.frame] * self.tool, self._ad_tool_inv @ jac
-
-    def compute_sigma_min(self, q: np.ndarray) -> float:
-        """Smallest singular value of :math:`D\\,{}^{E}J_E(q)` [1]."""
-        _, jac = self.compute_jacobian(q)
-        return float(np.linalg.svd(self.scale[:, None] * jac, compute_uv=False)[-1])
 
     def compute_error(self, q: np.ndarray, target: pin.SE3) -> np.ndarray:
         """:math:`e = \\log_6(T_{W,E}(q)^{-1} T^\\star)` (6,)."""

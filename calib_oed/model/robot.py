@@ -143,11 +143,6 @@ class Robot:
         rng = np.random.default_rng(rng)
         return rng.uniform(self.lower, self.upper, size=(int(n), self.nq))
 
-    def within_limits(self, q: np.ndarray, margin: float = 0.0) -> np.ndarray:
-        """Boolean mask of configurations within ``[lower + margin, upper - margin]``."""
-        arr = self.check_configurations(q)
-        return np.all((arr >= self.lower + margin) & (arr <= self.upper - margin), axis=1)
-
 
 def load_robot(
     source: str | os.PathLike,

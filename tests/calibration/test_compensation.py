@@ -48,7 +48,7 @@ def _truth_errors(scene_name, n_design: int = 60, n_targets: int = 120):
         p_true = draw_true_parameters(space, problem.identifiability.free_indices, rng)
         result = identify(space, simulate_observations(space, problem.models, q_design, p_true, rng),
                           problem.identifiability)
-        unc = CalibrationUncertainty.from_identification(space, result)
+        unc = CalibrationUncertainty(space, result.p, result.free_indices, result.covariance)
         targets = robot.random_configurations(n_targets, 100 + seed)
         deflection = JointDeflection.from_space(space, result.p)
         comp = compensate_joints(robot, calibrated_robot(space, result.p), targets, uncertainty=unc,

@@ -79,7 +79,7 @@ def test_shipped_scenes_load(name):
     np.testing.assert_allclose(scene.tracker.sigma_angle, [1e-5] * 3)  # default 0.01 mrad
     assert 2.0 < np.linalg.norm(scene.tracker.position) < 3.0
     assert scene.measurement == "position" and scene.kpi.frame == "world"
-    assert np.all(scene.robot.within_limits(scene.kpi.q))
+    assert np.all((scene.kpi.q >= scene.robot.lower) & (scene.kpi.q <= scene.robot.upper))
     assert load_scene(scene.source).name == name  # by path too
 
 
