@@ -218,7 +218,7 @@ def cmd_identify(args) -> int:
                             error_model=s.scene.error_model(),
                             model_error=robust.model_error.prior,
                             gross=None if robust.dropped is None else per_row(mset, robust, robust.dropped))
-    trust = assess(s.problem, robust, s.feasibility)
+    trust = assess(s.problem, robust, s.feasibility, blocks)
     data = result.to_dict()
     data["fit"] = fit_dict(report, robust, sanity)
     data["model_error"] = robust.model_error.to_dict()
