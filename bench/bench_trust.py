@@ -223,7 +223,8 @@ def world_case(s, truth, source, n_train, n_new):
             "tcp_world_ach_mm2": float(sq["world"].sum()),
             "tcp_tracker_pred_mm2": float(np.sum(np.square(pred.tcp_rms_mm))),
             "tcp_tracker_ach_mm2": float(sq["tracker"].sum()), "n_work": int(q_work.shape[0]),
-            "gauge_share_mm2": float(np.sum(pred.gauge_share_mm2)), "cpu_seconds": seconds}
+            "gauge_share_mm2": float(np.sum(pred.gauge_share_mm2)), "prior_scale": pred.world_prior_scale,
+            "new_gauge_share_mm2": pred.world_new_gauge_share_mm2, "cpu_seconds": seconds}
 
 
 def world_main(args):
@@ -231,7 +232,7 @@ def world_main(args):
     rows = []
     print(f"source {args.source}, frame world: {args.n_train} training poses, {args.n_new} new poses per truth")
     print(f"{'scene':10s} {'truth':>5s} {'new: pred':>9s} {'ach':>6s} {'ratio':>5s} {'tracker pred':>12s} {'ach':>6s} "
-          f"{'TCP world pred':>14s} {'ach':>6s} {'TCP tracker pred':>16s} {'ach':>6s} {'share mm2':>9s} {'cpu s':>5s}")
+          f"{'TCP world pred':>14s} {'ach':>6s} {'TCP tracker pred':>16s} {'ach':>6s} {'share mm2':>9s} {'scale':>5s} {'cpu s':>5s}")
     for name in args.scenes:
         s = setup(load_scene(name))
         for truth in range(args.first_truth, args.first_truth + args.truths):
@@ -241,7 +242,7 @@ def world_main(args):
                   f"{r['world_new_ratio']:5.2f} {r['tracker_new_pred_mm']:12.4f} {r['tracker_new_ach_mm']:6.4f} "
                   f"{np.sqrt(r['tcp_world_pred_mm2']):14.4f} {np.sqrt(r['tcp_world_ach_mm2']):6.4f} "
                   f"{np.sqrt(r['tcp_tracker_pred_mm2']):16.4f} {np.sqrt(r['tcp_tracker_ach_mm2']):6.4f} "
-                  f"{r['gauge_share_mm2']:+9.4f} {r['cpu_seconds']:5.1f}", flush=True)
+                  f"{r['gauge_share_mm2']:+9.4f} {r['prior_scale']:5.2f} {r['cpu_seconds']:5.1f}", flush=True)
         mine = [r for r in rows if r["scene"] == s.scene.name]
 
         def pooled(key, mine=mine):

@@ -172,6 +172,9 @@ class PredictedAccuracy:
         gauge_share_mm2: Per working configuration, the joint-space prior's gauge share
             :math:`\Delta` [mm²] (world minus tracker frame), or None.
         world_prior: Where the joint-space prior behind the world-frame numbers comes from.
+        world_prior_scale: The factor on the prior's variances: the fitted model error's mean
+            tracker-frame trace on the new poses over the prior's (uncompensated).
+        world_new_gauge_share_mm2: The mean gauge share on the new poses [mm²], scaled.
     """
 
     names: tuple[str, ...]
@@ -189,12 +192,15 @@ class PredictedAccuracy:
     world_new_pose_rms_mm: float | None = None
     gauge_share_mm2: tuple[float, ...] | None = None
     world_prior: str | None = None
+    world_prior_scale: float | None = None
+    world_new_gauge_share_mm2: float | None = None
 
     def world_dict(self) -> dict | None:
         """The world-frame numbers (JSON), or None when not predicted."""
         if self.world_tcp_rms_mm is None:
             return None
         return {"frame": "world", "covers": WORLD_COVERS, "prior": self.world_prior, "prior_kind": "joint-space (measurement/joint_prior.py)",
+                "prior_scale": self.world_prior_scale, "new_pose_gauge_share_mm2": self.world_new_gauge_share_mm2,
                 "new_pose_rms_mm": self.world_new_pose_rms_mm,
                 "working_configurations": [
                     {"name": n, "rms_mm": r, "sigma_mm": r / np.sqrt(3.0), "gauge_share_mm2": d}
@@ -235,7 +241,7 @@ class PredictedAccuracy:
         if self.world_tcp_rms_mm is not None:
             out.append(f"  world frame: {WORLD_COVERS} [{self.world_prior}]")
         else:
-            out.append("  world frame: not predicted (measurements other than reflector positions); a "
+            out.append("  world frame: not predicted (it needs the reflector-position data); a "
                        "calibration fixes the base only up to a rigid move no tracker data see")
         out.append(f"  tracker frame: {TRACKER_COVERS}")
         return out
@@ -263,7 +269,7 @@ def predict_accuracy(problem, lin: Linearisation, prior: DiscrepancyPrior | None
     space = problem.space
     q_new, poses = feasible_new_poses(feasibility, q_train, n_new, seed)
     state = evaluate_setup(space, p, q_new, regressor=True, jacobian=False)
-    tr, tr_noise, parts, tr_world = [], [], [], []
+    tr, tr_noise, parts, points = [], [], [], []
     for mdl in problem.models:
         h = mdl.compute_values(state)
         jac = mdl.compute_param_jacobian(state)[:, :3][:, :, free]
@@ -271,9 +277,10 @@ def predict_accuracy(problem, lin: Linearisation, prior: DiscrepancyPrior | None
         parts.append((jac[:N_SPREAD], noise[:N_SPREAD]))
         tr.append(np.trace(error_covariances(lin, prior, jac, q_new, noise, compensate), axis1=1, axis2=2))
         tr_noise.append(np.trace(error_covariances(lin, None, jac, q_new, noise), axis1=1, axis2=2))
-        if joint is not None:
-            tr_world.append(_world_traces(joint, lin, space, p, free, q_new, tr[-1], noise,
-                                          state.reflector_offset(mdl.reflector), mdl.reflector)[0])
+        if joint is not None:  # the uncompensated traces scale the prior (world_frame docstring)
+            fitted = tr[-1] if not compensate else np.trace(error_covariances(lin, prior, jac, q_new, noise),
+                                                            axis1=1, axis2=2)
+            points.append((state.reflector_offset(mdl.reflector), mdl.reflector, noise, tr[-1], fitted))
     rms_new = float(np.sqrt(np.mean(np.concatenate(tr))) * MM_PER_M)
     rms_range, threshold, tau = None, float(chi2.ppf(0.95, 3)), None
     if spread is not None and prior is not None:
@@ -295,13 +302,9 @@ def predict_accuracy(problem, lin: Linearisation, prior: DiscrepancyPrior | None
     world = {}
     if joint is not None:
         point = kpi.point if kpi.reflector is None else space.reflector_offsets(p)[kpi.reflector]
-        t_world, share = _world_traces(joint, lin, space, p, free, kpi.configurations, t,
-                                       np.broadcast_to(rho**2 * np.eye(3), (g.shape[0], 3, 3)), point,
-                                       kpi.reflector)
-        world = {"world_tcp_rms_mm": tuple(float(x) for x in np.sqrt(t_world) * MM_PER_M),
-                 "world_new_pose_rms_mm": float(np.sqrt(np.mean(np.concatenate(tr_world))) * MM_PER_M),
-                 "gauge_share_mm2": tuple(float(x) for x in share * MM_PER_M**2),
-                 "world_prior": joint.prior.source}
+        world = _world_numbers(joint, lin, space, p, free, q_new, points,
+                               (point, kpi.reflector, np.broadcast_to(rho**2 * np.eye(3), (g.shape[0], 3, 3)), t),
+                               kpi.configurations)
     words = ["parameter uncertainty"] + (["model error"] if prior is not None else []) \
         + ["tracker noise and robot repeatability on measured points; repeatability at the TCP"]
     return PredictedAccuracy(
@@ -311,13 +314,25 @@ def predict_accuracy(problem, lin: Linearisation, prior: DiscrepancyPrior | None
         ", ".join(words), rms_range, threshold, tau, poses, **world)
 
 
-def _world_traces(joint: JointErrorModel, lin: Linearisation, space, p, free, q, t_tracker, noise, offset,
-                  reflector):
-    r"""World-frame :math:`\sigma^2_W` per point (n,) [m²] and the gauge share :math:`\Delta` (n,) [m²]
-    of the tool point ``offset`` at ``q`` (the reflector ``reflector``'s centre when given), from
-    the tracker-frame traces ``t_tracker`` (n,) and the points' noise (n, 3, 3)
-    (:mod:`calib_oed.calibration.world_frame`)."""
-    gt, gw, jq = point_jacobians(space, p, free, q, offset, reflector)
-    share = joint.gauge_share(gt, gw, q, jq[:, :, :joint.prior.nq])
-    floor = np.trace(error_covariances(lin, None, gw.reshape(-1, 3, free.size), q, noise), axis1=1, axis2=2)
-    return np.maximum(t_tracker + share, floor), share
+def _world_numbers(joint: JointErrorModel, lin: Linearisation, space, p, free, q_new, points, tcp, q_work) -> dict:
+    r"""The world-frame fields of :class:`PredictedAccuracy` (:mod:`calib_oed.calibration.world_frame`):
+    ``points`` per measurement model (offset, reflector, noise (n, 3, 3), tracker-frame traces,
+    uncompensated ones) at the new poses ``q_new``, ``tcp`` the same (offset, reflector, noise,
+    traces) at the working configurations ``q_work``. The prior's gauge share is scaled by the
+    fitted over the prior's tracker-frame mean trace on the new poses."""
+    def share_of(offset, reflector, noise, q):
+        gt, gw, jq = point_jacobians(space, p, free, q, offset, reflector)
+        prior_t, share = joint.compute_frames(gt, gw, q, jq[:, :, :joint.prior.nq])
+        floor = np.trace(error_covariances(lin, None, gw.reshape(-1, 3, free.size), q, noise), axis1=1, axis2=2)
+        return prior_t + np.trace(noise, axis1=1, axis2=2), share, floor
+
+    new = [share_of(c, r, n, q_new) + (t, fitted) for c, r, n, t, fitted in points]
+    scale = sum(x[4].sum() for x in new) / sum(x[0].sum() for x in new)
+    world_new = np.concatenate([np.maximum(t + scale * share, floor) for _, share, floor, t, _ in new])
+    _, share, floor = share_of(*tcp[:3], q_work)
+    world_tcp = np.maximum(tcp[3] + scale * share, floor)
+    return {"world_tcp_rms_mm": tuple(float(x) for x in np.sqrt(world_tcp) * MM_PER_M),
+            "world_new_pose_rms_mm": float(np.sqrt(np.mean(world_new)) * MM_PER_M),
+            "gauge_share_mm2": tuple(float(x) for x in scale * share * MM_PER_M**2),
+            "world_prior": joint.prior.source, "world_prior_scale": float(scale),
+            "world_new_gauge_share_mm2": float(scale * np.mean(np.concatenate([x[1] for x in new])) * MM_PER_M**2)}

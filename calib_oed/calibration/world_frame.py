@@ -36,11 +36,15 @@ The world-frame prediction is the tracker-frame one (fitted model error) plus th
 gauge share, never below the world-frame prediction of the exact model (noise only):
 
 .. math::
-    \sigma^2_W = \max\big(\mathrm{tr}\,V_T^{\mathrm{fit}} + \Delta^{\mathrm{prior}},\;
-    \mathrm{tr}\,V_W^{\mathrm{noise}}\big).
+    \sigma^2_W = \max\big(\mathrm{tr}\,V_T^{\mathrm{fit}} + \lambda\,\Delta^{\mathrm{prior}},\;
+    \mathrm{tr}\,V_W^{\mathrm{noise}}\big), \qquad
+    \lambda = \frac{\overline{\mathrm{tr}\,V_T^{\mathrm{fit}}}}{\overline{\mathrm{tr}\,V_T^{\mathrm{prior}}}}
+    \text{ (means over the new poses)}.
 
-The prior is not fitted to the data (the residuals do not see the part it adds): its
-amplitudes are the size class's published values (:meth:`JointErrorPrior.default_for`). Checked by
+The prior's amplitudes are the size class's published values
+(:meth:`JointErrorPrior.default_for`), not fitted to the data (the residuals do not see the part
+the fit absorbs); :math:`\lambda` scales its variances to the size of this robot's model error as
+the fitted model error sees it in the tracker frame, where both predict the same thing. Checked by
 Monte Carlo of joint-angle draws of the prior through the nonlinear identification in
 ``tests/calibration/test_world_frame.py`` and on the realistic simulator in
 ``bench/bench_trust.py --frame world`` (``docs/benchmarks.md``, issue 29).
@@ -61,7 +65,8 @@ MM_PER_M = 1e3
 #: What the world-frame numbers cover, in one sentence (report and JSON).
 WORLD_COVERS = ("where the controller works and the KPI is declared; the tracker-frame error plus the "
                 "rigid move of the base that the fit's tracker pose takes from the unmodelled joint errors, "
-                "from the joint-space prior of the robot's size class (not fitted to these data)")
+                "which the residuals cannot show: from the joint-space prior of the robot's size class, "
+                "scaled to the model error fitted here")
 #: What the tracker-frame numbers cover, in one sentence.
 TRACKER_COVERS = ("where the tracker data place the TCP; for targets registered with the tracker, "
                   "and what validate measures")
@@ -138,19 +143,15 @@ class JointErrorModel:
         per = -2.0 * np.sum(b * cross.T, axis=1) + np.sum((b @ self.covariance) * b, axis=1)
         return per.reshape(-1, 3).sum(axis=1)
 
-    def compute_traces(self, g: np.ndarray, q: np.ndarray, jac: np.ndarray) -> np.ndarray:
-        r""":math:`\mathrm{tr}\,V` per point (n,) [m²] under the prior, without the point's own noise:
-        the prior's whole prediction in the frame of ``g`` (module docstring)."""
-        own = self.prior.compute_kernels(q, q)  # (nq, n, n)
-        k_own = np.einsum("knn,nck,nck->n", own, jac, jac)
-        return k_own + self.traces(g, self.cross(q, jac))
-
-    def gauge_share(self, g_tracker: np.ndarray, g_world: np.ndarray, q: np.ndarray,
-                    jac: np.ndarray) -> np.ndarray:
-        r""":math:`\Delta = \mathrm{tr}\,V_W - \mathrm{tr}\,V_T` per point (n,) [m²] (module
+    def compute_frames(self, g_tracker: np.ndarray, g_world: np.ndarray, q: np.ndarray,
+                       jac: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        r""":math:`\mathrm{tr}\,V_T` without the point's noise and the gauge share
+        :math:`\Delta = \mathrm{tr}\,V_W - \mathrm{tr}\,V_T` per point, each (n,) [m²] (module
         docstring); ``g_world`` already turned into the tracker's axes."""
         c = self.cross(q, jac)
-        return self.traces(g_world, c) - self.traces(g_tracker, c)
+        own = np.einsum("knn,nck,nck->n", self.prior.compute_kernels(q, q), jac, jac)
+        tracker = self.traces(g_tracker, c)
+        return own + tracker, self.traces(g_world, c) - tracker
 
 
 def point_jacobians(space, p: np.ndarray, free: np.ndarray, q: np.ndarray, offset: np.ndarray,

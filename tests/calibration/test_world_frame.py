@@ -68,11 +68,39 @@ def test_prior_prediction_in_both_frames_is_the_monte_carlo_of_its_own_truths(kr
                                 axis=0)
             joint = JointErrorModel.build(pr.space, lin, prior, res.p, offsets)
             gt, gw, jq = point_jacobians(pr.space, res.p, free, q_t, point)
-            predicted = {"world": joint.compute_traces(gw, q_t, jq).sum(),
-                         "tracker": joint.compute_traces(gt, q_t, jq).sum()}
+            tracker, share = joint.compute_frames(gt, gw, q_t, jq)
+            predicted = {"world": (tracker + share).sum(), "tracker": tracker.sum()}
         for f, e2 in frame_errors(pr.space, res.p, p_true, q_t, q_true, point).items():
             sums[f] += e2.sum()
     ratio = {f: np.sqrt(predicted[f] / (sums[f] / draws)) for f in sums}
     share = (predicted["world"] - predicted["tracker"]) / ((sums["world"] - sums["tracker"]) / draws)
-    print(ratio, share)
     assert 0.85 < ratio["world"] < 1.18 and 0.85 < ratio["tracker"] < 1.18, ratio
+
+
+def test_assess_reports_both_frames_in_text_and_json(kr16):
+    """identify's assessment with the data's blocks: the world-frame TCP and new-pose RMS, each the
+    tracker-frame figure plus the scaled gauge share (or the noise-only floor), said in both."""
+    from calib_oed.calibration.model_error import start_prior
+    from calib_oed.calibration.robust import identify_robust
+    from calib_oed.calibration.trust import assess
+
+    s = kr16
+    pr = s.problem
+    q = pr.robot.random_configurations(30, 3)
+    blocks, _, _ = prior_truth_blocks(s, q, pr.kpi.configurations, default_joint_prior(pr), np.random.default_rng(5))
+    rob = identify_robust(pr.space, blocks, pr.identifiability, model_error=start_prior(s.scene))
+    acc = assess(pr, rob, blocks=blocks).predicted
+    assert acc.world_prior_scale > 0
+    world2, tracker2 = np.square(acc.world_tcp_rms_mm), np.square(acc.tcp_rms_mm)
+    assert np.all(world2 >= tracker2 + np.array(acc.gauge_share_mm2) - 1e-12)
+    data = acc.to_dict()
+    assert data["headline_frame"] == "world" and data["tcp_frame"] == "tracker"
+    world = data["world_frame"]
+    assert world["new_pose_rms_mm"] == acc.world_new_pose_rms_mm and world["covers"].startswith("where the controller")
+    assert [w["name"] for w in world["working_configurations"]] == ["car_side"]
+    text = "\n".join(acc.lines())
+    assert "world (robot base) frame, the KPI's: TCP at car_side" in text and "tracker frame: TCP at car_side" in text
+    # without the blocks (or with 6-D poses) the tracker frame only, and the report says why
+    plain = assess(pr, rob).predicted
+    assert plain.world_tcp_rms_mm is None and plain.to_dict()["world_frame"] is None
+    assert "world frame: not predicted" in "\n".join(plain.lines())
