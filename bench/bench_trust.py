@@ -32,6 +32,14 @@ scene's default prior on top of the scene's noise). The calibration is
     nice -n 5 python bench/bench_trust.py --source realistic
     nice -n 5 python bench/bench_trust.py --source gp
     nice -n 5 python bench/bench_trust.py --cost   # CPU of the fit and assessment, both kernels
+    nice -n 5 python bench/bench_trust.py --frame world --source realistic   # the world frame
+    nice -n 5 python bench/bench_trust.py --frame world --source joint       # the joint prior's own truths
+
+``--frame world``: per truth, the expected RMS on the new poses in the world (robot base) frame
+(``identify``'s assessment with the data's blocks, ``calibration/world_frame.py``) against the
+achieved RMS of the true reflector positions; pooled over the truths, the TCP at the scene's
+working configurations in both frames, predicted and achieved, and the gauge share (world minus
+tracker) predicted and achieved.
 
 ``--cost``: on 60 realistic poses of truth 0 per scene, the CPU time of the process
 (``time.process_time``, so a shared machine's load counts little) of ``identify_robust`` and
@@ -54,6 +62,7 @@ from calib_oed.calibration.robust import identify_robust
 from calib_oed.calibration.simulation import draw_true_parameters, simulate_observations
 from calib_oed.calibration.trust import assess
 from calib_oed.calibration.workflow import setup
+from calib_oed.calibration.world_frame import default_joint_prior, draw_joint_errors
 from calib_oed.measurement.base import evaluate_setup
 from calib_oed.measurement.dataset import MeasurementSet
 from calib_oed.measurement.discrepancy import KERNELS, DiscrepancyPrior
@@ -157,6 +166,108 @@ def case(s, truth, source, n_train, n_new, kernel):
     }
 
 
+def world_case(s, truth, source, n_train, n_new):
+    """The TCP accuracy in both frames (``--frame world``): predicted (``identify``'s assessment,
+    :mod:`calib_oed.calibration.world_frame`) and achieved, at the scene's working configurations
+    and on the new poses (true reflector positions, no tracker noise in the achieved error)."""
+    pr = s.problem
+    q = pr.robot.random_configurations(n_train, 1000 + truth)
+    q_new = new_poses(q, n_new, 2000 + truth)
+    q_work = pr.kpi.configurations
+    kpi_point = pr.kpi.point
+    if source == "joint":  # the prior's own truths: joint-angle errors drawn from the joint-space prior
+        rng = np.random.default_rng(truth)
+        p_true = draw_true_parameters(pr.space, pr.identifiability.free_indices, rng)
+        eps = draw_joint_errors(default_joint_prior(pr), np.vstack([q, q_new, q_work]), rng)
+        blocks = simulate_observations(pr.space, pr.models, q + eps[:n_train], p_true, rng)
+        train = [ObservationBlock(b.model, q, b.values) for b in blocks]
+        true_new = evaluate_setup(pr.space, p_true, q_new + eps[n_train:n_train + n_new])
+        true_work = evaluate_setup(pr.space, p_true, q_work + eps[n_train + n_new:])
+
+        def achieved(p_hat):
+            est_new, est_work = evaluate_setup(pr.space, p_hat, q_new), evaluate_setup(pr.space, p_hat, q_work)
+            new = {f: np.concatenate([est_new.tool_point(c, f) - true_new.tool_point(c, f)
+                                      for c in pr.space.reflector_offsets(p_hat)]) for f in ("world", "tracker")}
+            return new, {f: est_work.tool_point(kpi_point, f) - true_work.tool_point(kpi_point, f)
+                         for f in ("world", "tracker")}
+    else:
+        from calib_oed.calibration.realistic import sample_truth
+        from calib_oed.calibration.realistic_measure import measure
+        from calib_oed.calibration.workflow import tcp_errors
+
+        rng = np.random.default_rng(truth)
+        true = sample_truth(s, rng)
+        train = list(measure(true, pr.models, q, rng).blocks)
+
+        def achieved(p_hat):
+            world = true.compute_model_errors(p_hat, q_new)  # (n, k, 3) predicted - true
+            est = evaluate_setup(pr.space, p_hat, q_new)
+            tracker = pr.space.tracker_placement(true.p)
+            true_t = (true.compute_reflector_points(q_new) - tracker.translation) @ tracker.rotation
+            est_t = np.stack([est.tool_point(c, "tracker") for c in pr.space.reflector_offsets(p_hat)], axis=1)
+            return ({"world": world.reshape(-1, 3), "tracker": (est_t - true_t).reshape(-1, 3)},
+                    {f: tcp_errors(s, true, p_hat, f) for f in ("world", "tracker")})
+    t0 = time.process_time()
+    rob = identify_robust(pr.space, train, pr.identifiability, model_error=start_prior(s.scene))
+    pred = assess(pr, rob, blocks=train).predicted
+    seconds = time.process_time() - t0
+    new, work = achieved(rob.result.p)
+    rms_new = float(np.sqrt(np.mean(np.sum(new["world"] ** 2, axis=1))) * 1e3)
+    rms_new_t = float(np.sqrt(np.mean(np.sum(new["tracker"] ** 2, axis=1))) * 1e3)
+    sq = {f: np.sum(e**2, axis=1) * 1e6 for f, e in work.items()}
+    return {"scene": s.scene.name, "truth": truth, "source": source,
+            "world_new_pred_mm": pred.world_new_pose_rms_mm, "world_new_ach_mm": rms_new,
+            "world_new_ratio": pred.world_new_pose_rms_mm / rms_new,
+            "tracker_new_pred_mm": pred.new_pose_rms_mm, "tracker_new_ach_mm": rms_new_t,
+            "tcp_world_pred_mm2": float(np.sum(np.square(pred.world_tcp_rms_mm))),
+            "tcp_world_ach_mm2": float(sq["world"].sum()),
+            "tcp_tracker_pred_mm2": float(np.sum(np.square(pred.tcp_rms_mm))),
+            "tcp_tracker_ach_mm2": float(sq["tracker"].sum()), "n_work": int(q_work.shape[0]),
+            "gauge_share_mm2": float(np.sum(pred.gauge_share_mm2)), "prior_scale": pred.world_prior_scale,
+            "new_gauge_share_mm2": pred.world_new_gauge_share_mm2, "cpu_seconds": seconds}
+
+
+def world_main(args):
+    """``--frame world``: per truth the new poses, pooled over truths the TCP (module docstring)."""
+    rows = []
+    print(f"source {args.source}, frame world: {args.n_train} training poses, {args.n_new} new poses per truth")
+    print(f"{'scene':10s} {'truth':>5s} {'new: pred':>9s} {'ach':>6s} {'ratio':>5s} {'tracker pred':>12s} {'ach':>6s} "
+          f"{'TCP world pred':>14s} {'ach':>6s} {'TCP tracker pred':>16s} {'ach':>6s} {'share mm2':>9s} {'scale':>5s} {'cpu s':>5s}")
+    for name in args.scenes:
+        s = setup(load_scene(name))
+        for truth in range(args.first_truth, args.first_truth + args.truths):
+            r = world_case(s, truth, args.source, args.n_train, args.n_new)
+            rows.append(r)
+            print(f"{name:10s} {truth:5d} {r['world_new_pred_mm']:9.4f} {r['world_new_ach_mm']:6.4f} "
+                  f"{r['world_new_ratio']:5.2f} {r['tracker_new_pred_mm']:12.4f} {r['tracker_new_ach_mm']:6.4f} "
+                  f"{np.sqrt(r['tcp_world_pred_mm2']):14.4f} {np.sqrt(r['tcp_world_ach_mm2']):6.4f} "
+                  f"{np.sqrt(r['tcp_tracker_pred_mm2']):16.4f} {np.sqrt(r['tcp_tracker_ach_mm2']):6.4f} "
+                  f"{r['gauge_share_mm2']:+9.4f} {r['prior_scale']:5.2f} {r['cpu_seconds']:5.1f}", flush=True)
+        mine = [r for r in rows if r["scene"] == s.scene.name]
+
+        def pooled(key, mine=mine):
+            return float(np.sqrt(sum(r[key] for r in mine) / sum(r["n_work"] for r in mine)))
+
+        share_ach = (sum(r["tcp_world_ach_mm2"] - r["tcp_tracker_ach_mm2"] for r in mine)
+                     / sum(r["n_work"] for r in mine))
+        share_pred = sum(r["gauge_share_mm2"] for r in mine) / sum(r["n_work"] for r in mine)
+        print(f"{name}: TCP pooled over {len(mine)} truths: world predicted {pooled('tcp_world_pred_mm2'):.4f} mm, "
+              f"achieved {pooled('tcp_world_ach_mm2'):.4f} mm (ratio "
+              f"{pooled('tcp_world_pred_mm2') / pooled('tcp_world_ach_mm2'):.2f}); tracker predicted "
+              f"{pooled('tcp_tracker_pred_mm2'):.4f} mm, achieved {pooled('tcp_tracker_ach_mm2'):.4f} mm "
+              f"(ratio {pooled('tcp_tracker_pred_mm2') / pooled('tcp_tracker_ach_mm2'):.2f}); gauge share "
+              f"predicted {share_pred:+.4f} mm2, achieved (world - tracker) {share_ach:+.4f} mm2")
+        print(f"{name}: new poses pooled over {len(mine)} truths: world predicted/achieved "
+              f"{np.sqrt(sum(r['world_new_pred_mm'] ** 2 for r in mine) / sum(r['world_new_ach_mm'] ** 2 for r in mine)):.2f}, "
+              f"tracker {np.sqrt(sum(r['tracker_new_pred_mm'] ** 2 for r in mine) / sum(r['tracker_new_ach_mm'] ** 2 for r in mine)):.2f}")
+    ratio = [r["world_new_ratio"] for r in rows]
+    print(f"world frame, new poses: predicted/achieved per truth {min(ratio):.2f}..{max(ratio):.2f}, "
+          f"sd of the log ratio {np.std(np.log(ratio)):.2f}")
+    if args.json:
+        with open(args.json, "w") as fh:
+            json.dump(rows, fh, indent=2)
+
+
 def cost(scenes):
     """CPU seconds of the fit and the assessment per kernel (module docstring, ``--cost``)."""
     for name in scenes:
@@ -179,7 +290,10 @@ def cost(scenes):
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--source", choices=("realistic", "gp"), default="realistic")
+    ap.add_argument("--source", choices=("realistic", "gp", "joint"), default="realistic",
+                    help="joint: the joint-space prior's own truths (with --frame world only)")
+    ap.add_argument("--frame", choices=("tracker", "world"), default="tracker",
+                    help="world: the TCP and new poses in both frames (the world-frame prediction)")
     ap.add_argument("--scenes", nargs="+", default=["fms_kr16", "ur5_table"])
     ap.add_argument("--truths", type=int, default=3)
     ap.add_argument("--first-truth", type=int, default=0, help="truths first..first+truths-1")
@@ -192,6 +306,11 @@ def main():
     args = ap.parse_args()
     if args.cost:
         cost(args.scenes)
+        return
+    if args.frame == "world" or args.source == "joint":
+        if args.source == "gp" or args.frame != "world":
+            ap.error("--frame world takes --source realistic or joint; --source joint needs --frame world")
+        world_main(args)
         return
     rows = []
     print(f"source {args.source}: {args.n_train} training poses, {args.n_new} new poses per truth, "

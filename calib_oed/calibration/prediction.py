@@ -45,6 +45,12 @@ from scipy.stats import chi2
 
 from calib_oed.calibration.hyper_uncertainty import TAU_MAX, log_spread, region_threshold
 from calib_oed.calibration.model_error import Linearisation
+from calib_oed.calibration.world_frame import (
+    TRACKER_COVERS,
+    WORLD_COVERS,
+    JointErrorModel,
+    point_jacobians,
+)
 from calib_oed.exceptions import SamplingError
 from calib_oed.feasibility.constraints import FeasibilityModel
 from calib_oed.feasibility.sampling import sample_feasible
@@ -160,6 +166,15 @@ class PredictedAccuracy:
         log_variance_sd: :math:`\tau`, the sd of the log predicted variance, or None when not
             computed; above ``TAU_MAX`` the range is None (not determined).
         poses: What the new poses are (:func:`feasible_new_poses`).
+        world_tcp_rms_mm: Per working configuration, the 3-D RMS of the TCP in the world (robot
+            base) frame [mm] (:mod:`calib_oed.calibration.world_frame`), or None when not predicted.
+        world_new_pose_rms_mm: The expected RMS on new poses in the world frame [mm], or None.
+        gauge_share_mm2: Per working configuration, the joint-space prior's gauge share
+            :math:`\Delta` [mm²] (world minus tracker frame), or None.
+        world_prior: Where the joint-space prior behind the world-frame numbers comes from.
+        world_prior_scale: The factor on the prior's variances: the fitted model error's mean
+            tracker-frame trace on the new poses over the prior's (uncompensated).
+        world_new_gauge_share_mm2: The mean gauge share on the new poses [mm²], scaled.
     """
 
     names: tuple[str, ...]
@@ -173,10 +188,29 @@ class PredictedAccuracy:
     region_threshold: float = float(chi2.ppf(0.95, 3))
     log_variance_sd: float | None = None
     poses: str = FEASIBLE_POSES
+    world_tcp_rms_mm: tuple[float, ...] | None = None
+    world_new_pose_rms_mm: float | None = None
+    gauge_share_mm2: tuple[float, ...] | None = None
+    world_prior: str | None = None
+    world_prior_scale: float | None = None
+    world_new_gauge_share_mm2: float | None = None
+
+    def world_dict(self) -> dict | None:
+        """The world-frame numbers (JSON), or None when not predicted."""
+        if self.world_tcp_rms_mm is None:
+            return None
+        return {"frame": "world", "covers": WORLD_COVERS, "prior": self.world_prior, "prior_kind": "joint-space (measurement/joint_prior.py)",
+                "prior_scale": self.world_prior_scale, "new_pose_gauge_share_mm2": self.world_new_gauge_share_mm2,
+                "new_pose_rms_mm": self.world_new_pose_rms_mm,
+                "working_configurations": [
+                    {"name": n, "rms_mm": r, "sigma_mm": r / np.sqrt(3.0), "gauge_share_mm2": d}
+                    for n, r, d in zip(self.names, self.world_tcp_rms_mm, self.gauge_share_mm2, strict=True)]}
 
     def to_dict(self) -> dict:
         return {"compensated": self.compensated, "covers": self.covers,
-                "new_poses": self.poses, "tcp_frame": "tracker",
+                "new_poses": self.poses, "tcp_frame": "tracker", "tracker_frame_covers": TRACKER_COVERS,
+                "headline_frame": "tracker" if self.world_tcp_rms_mm is None else "world",
+                "world_frame": self.world_dict(),
                 "new_pose_rms_mm": self.new_pose_rms_mm,
                 "new_pose_rms_range_mm": None if self.new_pose_rms_range_mm is None
                 else list(self.new_pose_rms_range_mm),
@@ -188,10 +222,15 @@ class PredictedAccuracy:
 
     def lines(self) -> list[str]:
         head = "with the model error's mean compensated" if self.compensated else "uncompensated"
-        out = [f"predicted accuracy ({head}; {self.covers}):",
-               f"  new {self.poses}: expected RMS position error "
-               f"{self.new_pose_rms_mm:.4f} mm (3-D; noise alone would give "
-               f"{self.noise_only_new_pose_rms_mm:.4f} mm)"]
+        out = [f"predicted accuracy ({head}; {self.covers}):"]
+        if self.world_tcp_rms_mm is not None:
+            out += [f"  world (robot base) frame, the KPI's: TCP at {n} {r:.4f} mm RMS (3-D, "
+                    f"{r / np.sqrt(3.0):.4f} mm per axis)" for n, r in zip(self.names, self.world_tcp_rms_mm, strict=True)]
+            out.append(f"    new {self.poses}: {self.world_new_pose_rms_mm:.4f} mm RMS (3-D)")
+        out += [f"  tracker frame: TCP at {n} {r:.4f} mm RMS (3-D, {s:.4f} mm per axis)"
+                for n, s, r in zip(self.names, self.tcp_sigma_mm, self.tcp_rms_mm, strict=True)]
+        out.append(f"    new {self.poses}: {self.new_pose_rms_mm:.4f} mm RMS (3-D; noise alone would give "
+                   f"{self.noise_only_new_pose_rms_mm:.4f} mm)")
         if self.new_pose_rms_range_mm is not None:
             lo, hi = self.new_pose_rms_range_mm
             out.append(f"    95 % range {lo:.4f}..{hi:.4f} mm: how well the model error's size is known "
@@ -199,10 +238,12 @@ class PredictedAccuracy:
         elif self.log_variance_sd is not None:
             out.append("    95 % range not determined: these poses do not determine the model error's "
                        "size (small against the noise, or too few poses)")
-        out += [f"  TCP at {n} (tracker frame): {s:.4f} mm per axis, {r:.4f} mm RMS (3-D)"
-                for n, s, r in zip(self.names, self.tcp_sigma_mm, self.tcp_rms_mm, strict=True)]
-        out.append("    (the TCP in the tracker frame, where the tracker data place it; in the robot's "
-                   "base frame a calibration is known only up to a rigid move no tracker data fix)")
+        if self.world_tcp_rms_mm is not None:
+            out.append(f"  world frame: {WORLD_COVERS} [{self.world_prior}]")
+        else:
+            out.append("  world frame: not predicted (it needs the reflector-position data); a "
+                       "calibration fixes the base only up to a rigid move no tracker data see")
+        out.append(f"  tracker frame: {TRACKER_COVERS}")
         return out
 
 
@@ -215,17 +256,20 @@ def predict_accuracy(problem, lin: Linearisation, prior: DiscrepancyPrior | None
                      free: np.ndarray, q_train: np.ndarray, compensate: bool = False,
                      n_new: int = N_NEW_POSES, seed: int = NEW_POSE_SEED,
                      spread: tuple | None = None,
-                     feasibility: FeasibilityModel | None = None) -> PredictedAccuracy:
+                     feasibility: FeasibilityModel | None = None,
+                     joint: JointErrorModel | None = None) -> PredictedAccuracy:
     """:class:`PredictedAccuracy` of the calibration ``p`` of ``problem`` (a
     :class:`~calib_oed.calibration.problem.CalibrationProblem`) identified from ``lin``;
     ``spread``: the Laplace approximation ``(active, cov)`` of ``prior``'s fit
     (:func:`~calib_oed.calibration.hyper_uncertainty.laplace_covariance`), for the range of the
     new-pose RMS and the widened regions (its derivative on the first :data:`N_SPREAD` new poses);
-    ``feasibility``: the scene's constraints, for feasible new poses (:func:`feasible_new_poses`)."""
+    ``feasibility``: the scene's constraints, for feasible new poses (:func:`feasible_new_poses`);
+    ``joint``: the joint-space prior at the training values, for the world-frame numbers
+    (:mod:`calib_oed.calibration.world_frame`; None: tracker frame only)."""
     space = problem.space
     q_new, poses = feasible_new_poses(feasibility, q_train, n_new, seed)
     state = evaluate_setup(space, p, q_new, regressor=True, jacobian=False)
-    tr, tr_noise, parts = [], [], []
+    tr, tr_noise, parts, points = [], [], [], []
     for mdl in problem.models:
         h = mdl.compute_values(state)
         jac = mdl.compute_param_jacobian(state)[:, :3][:, :, free]
@@ -233,6 +277,10 @@ def predict_accuracy(problem, lin: Linearisation, prior: DiscrepancyPrior | None
         parts.append((jac[:N_SPREAD], noise[:N_SPREAD]))
         tr.append(np.trace(error_covariances(lin, prior, jac, q_new, noise, compensate), axis1=1, axis2=2))
         tr_noise.append(np.trace(error_covariances(lin, None, jac, q_new, noise), axis1=1, axis2=2))
+        if joint is not None:  # the uncompensated traces scale the prior (world_frame docstring)
+            fitted = tr[-1] if not compensate else np.trace(error_covariances(lin, prior, jac, q_new, noise),
+                                                            axis1=1, axis2=2)
+            points.append((state.reflector_offset(mdl.reflector), mdl.reflector, noise, tr[-1], fitted))
     rms_new = float(np.sqrt(np.mean(np.concatenate(tr))) * MM_PER_M)
     rms_range, threshold, tau = None, float(chi2.ppf(0.95, 3)), None
     if spread is not None and prior is not None:
@@ -251,10 +299,40 @@ def predict_accuracy(problem, lin: Linearisation, prior: DiscrepancyPrior | None
     v = error_covariances(lin, prior, g, kpi.configurations,
                           np.broadcast_to(rho**2 * np.eye(3), (g.shape[0], 3, 3)), compensate)
     t = np.trace(v, axis1=1, axis2=2)
+    world = {}
+    if joint is not None:
+        point = kpi.point if kpi.reflector is None else space.reflector_offsets(p)[kpi.reflector]
+        world = _world_numbers(joint, lin, space, p, free, q_new, points,
+                               (point, kpi.reflector, np.broadcast_to(rho**2 * np.eye(3), (g.shape[0], 3, 3)), t),
+                               kpi.configurations)
     words = ["parameter uncertainty"] + (["model error"] if prior is not None else []) \
         + ["tracker noise and robot repeatability on measured points; repeatability at the TCP"]
     return PredictedAccuracy(
         tuple(kpi.names), tuple(float(x) for x in np.sqrt(t / 3) * MM_PER_M),
         tuple(float(x) for x in np.sqrt(t) * MM_PER_M),
         rms_new, float(np.sqrt(np.mean(np.concatenate(tr_noise))) * MM_PER_M), bool(compensate),
-        ", ".join(words), rms_range, threshold, tau, poses)
+        ", ".join(words), rms_range, threshold, tau, poses, **world)
+
+
+def _world_numbers(joint: JointErrorModel, lin: Linearisation, space, p, free, q_new, points, tcp, q_work) -> dict:
+    r"""The world-frame fields of :class:`PredictedAccuracy` (:mod:`calib_oed.calibration.world_frame`):
+    ``points`` per measurement model (offset, reflector, noise (n, 3, 3), tracker-frame traces,
+    uncompensated ones) at the new poses ``q_new``, ``tcp`` the same (offset, reflector, noise,
+    traces) at the working configurations ``q_work``. The prior's gauge share is scaled by the
+    fitted over the prior's tracker-frame mean trace on the new poses."""
+    def share_of(offset, reflector, noise, q):
+        gt, gw, jq = point_jacobians(space, p, free, q, offset, reflector)
+        prior_t, share = joint.compute_frames(gt, gw, q, jq[:, :, :joint.prior.nq])
+        floor = np.trace(error_covariances(lin, None, gw.reshape(-1, 3, free.size), q, noise), axis1=1, axis2=2)
+        return prior_t + np.trace(noise, axis1=1, axis2=2), share, floor
+
+    new = [share_of(c, r, n, q_new) + (t, fitted) for c, r, n, t, fitted in points]
+    scale = sum(x[4].sum() for x in new) / sum(x[0].sum() for x in new)
+    world_new = np.concatenate([np.maximum(t + scale * share, floor) for _, share, floor, t, _ in new])
+    _, share, floor = share_of(*tcp[:3], q_work)
+    world_tcp = np.maximum(tcp[3] + scale * share, floor)
+    return {"world_tcp_rms_mm": tuple(float(x) for x in np.sqrt(world_tcp) * MM_PER_M),
+            "world_new_pose_rms_mm": float(np.sqrt(np.mean(world_new)) * MM_PER_M),
+            "gauge_share_mm2": tuple(float(x) for x in scale * share * MM_PER_M**2),
+            "world_prior": joint.prior.source, "world_prior_scale": float(scale),
+            "world_new_gauge_share_mm2": float(scale * np.mean(np.concatenate([x[1] for x in new])) * MM_PER_M**2)}

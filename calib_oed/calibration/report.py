@@ -191,6 +191,7 @@ def format_kpi_sigma(problem: CalibrationProblem, sigma: np.ndarray, design: str
 #: What the design-time KPI sigma covers, in words an engineer reads once.
 KPI_SIGMA_COVERS = (
     "  this sigma covers the measurement noise only (tracker and robot repeatability), the model "
-    "taken as exact;\n  on a real arm the error the model does not describe adds to it (often "
-    "0.1-0.5 mm after a geometric calibration):\n  `calib-oed identify` reports the predicted "
-    "accuracy with it, from the measured data")
+    "taken as exact;\n  on a real arm the error the model does not describe adds to it (gravity, "
+    "gear errors: often 0.1-0.5 mm after a geometric calibration):\n  `calib-oed identify` predicts "
+    "the accuracy with it from the measured data, in the robot's base frame (where the controller "
+    "works) and in the tracker frame")

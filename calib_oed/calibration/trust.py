@@ -34,7 +34,10 @@ from calib_oed.calibration.model_error import Linearisation
 from calib_oed.calibration.plausibility import Implausible, check_plausibility
 from calib_oed.calibration.prediction import PredictedAccuracy, predict_accuracy
 from calib_oed.calibration.robust import RobustIdentification
+from calib_oed.calibration.world_frame import JointErrorModel, default_joint_prior, row_offsets
 from calib_oed.measurement.discrepancy import DiscrepancyPrior
+from calib_oed.measurement.joint_prior import JointErrorPrior
+from calib_oed.measurement.position import TrackerPosition
 
 
 def compensation_weights(lin: Linearisation, prior: DiscrepancyPrior) -> tuple[np.ndarray, np.ndarray]:
@@ -100,7 +103,7 @@ class Trust:
         out = [self.prior.describe()]
         out += self.predicted.lines()
         comp = self.predicted_compensated
-        out.append(f"  with the fitted model error's mean compensated (validate --compensate): "
+        out.append(f"  with the fitted model error's mean compensated (validate --compensate), tracker frame: "
                    f"new poses {comp.new_pose_rms_mm:.4f} mm RMS; TCP "
                    + ", ".join(f"{n} {r:.4f}" for n, r in zip(comp.names, comp.tcp_rms_mm, strict=True))
                    + " mm RMS")
@@ -108,20 +111,29 @@ class Trust:
         return out
 
 
-def assess(problem, robust: RobustIdentification, feasibility=None) -> Trust:
+def assess(problem, robust: RobustIdentification, feasibility=None, blocks=None,
+           joint_prior: JointErrorPrior | None = None) -> Trust:
     """:class:`Trust` of ``robust`` (identified with a model-error prior) for ``problem``;
     ``feasibility``: the scene's constraints, so that the expected RMS on new poses is over
-    feasible poses in the training joint ranges (None: uniform in those ranges)."""
+    feasible poses in the training joint ranges (None: uniform in those ranges); ``blocks``: the
+    data ``robust`` was identified from, for the world-frame numbers with ``joint_prior``
+    (None: :func:`~calib_oed.calibration.world_frame.default_joint_prior`;
+    :mod:`calib_oed.calibration.world_frame`). Without ``blocks``, or with measurements other than
+    reflector positions, the prediction is in the tracker frame only."""
     if robust.model_error is None or robust.linearisation is None:
         raise ValueError("assess needs identify_robust(..., model_error=prior)")
     lin, prior, res = robust.linearisation, robust.model_error.prior, robust.result
     free = np.asarray(res.free_indices)
     q_train = np.unique(lin.q, axis=0)
+    joint = None
+    if blocks is not None and all(isinstance(b.model, TrackerPosition) for b in blocks):
+        joint = JointErrorModel.build(problem.space, lin, joint_prior or default_joint_prior(problem), res.p,
+                                      row_offsets(problem.space, blocks, robust))
     args = (problem, lin, prior, res.p, free, q_train)
     configs, weights = compensation_weights(lin, prior)
     spread = laplace_covariance(lin, prior)
-    return Trust(prior, predict_accuracy(*args, spread=spread, feasibility=feasibility),
-                 predict_accuracy(*args, compensate=True, spread=spread, feasibility=feasibility),
+    return Trust(prior, predict_accuracy(*args, spread=spread, feasibility=feasibility, joint=joint),
+                 predict_accuracy(*args, compensate=True, spread=spread, feasibility=feasibility, joint=joint),
                  configs, weights, np.stack([q_train.min(axis=0), q_train.max(axis=0)], axis=1),
                  tuple(problem.robot.joint_names),
                  tuple(check_plausibility(problem.space, res.free_names, res.p[free],

@@ -218,7 +218,7 @@ def cmd_identify(args) -> int:
                             error_model=s.scene.error_model(),
                             model_error=robust.model_error.prior,
                             gross=None if robust.dropped is None else per_row(mset, robust, robust.dropped))
-    trust = assess(s.problem, robust, s.feasibility)
+    trust = assess(s.problem, robust, s.feasibility, blocks)
     data = result.to_dict()
     data["fit"] = fit_dict(report, robust, sanity)
     data["model_error"] = robust.model_error.to_dict()
@@ -231,6 +231,9 @@ def cmd_identify(args) -> int:
         data["tcp_error_mm"] = {
             "before": (np.linalg.norm(tcp_errors(s, p_true, None), axis=1) * 1e3).tolist(),
             "after": (np.linalg.norm(tcp_errors(s, p_true, result.p), axis=1) * 1e3).tolist(),
+            "frame": "tracker",
+            "world": {"before": (np.linalg.norm(tcp_errors(s, p_true, None, "world"), axis=1) * 1e3).tolist(),
+                      "after": (np.linalg.norm(tcp_errors(s, p_true, result.p, "world"), axis=1) * 1e3).tolist()},
         }
     if args.output:
         paths = export_result(s, result, args.output)
@@ -258,10 +261,13 @@ def cmd_identify(args) -> int:
     if cv is not None:
         print(cv.summary())
     if args.truth:
-        for name, b, a in zip(s.problem.kpi.names, data["tcp_error_mm"]["before"],
-                              data["tcp_error_mm"]["after"], strict=True):
+        err = data["tcp_error_mm"]
+        for name, b, a, wb, wa in zip(s.problem.kpi.names, err["before"], err["after"], err["world"]["before"],
+                                      err["world"]["after"], strict=True):
             print(f"TCP error at {name} against the truth (tracker frame): before {b:.4f} mm, "
                   f"after {a:.4f} mm")
+            print(f"TCP error at {name} against the truth (world frame, the robot base): before {wb:.4f} mm, "
+                  f"after {wa:.4f} mm")
     if args.output:
         print(f"wrote {data['files']['urdf']}, {data['files']['sensor']}, "
               f"{data['files']['residuals']} and {data['files']['report']}; "
