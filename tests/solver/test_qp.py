@@ -3,8 +3,8 @@
 The data are two QPs of the ``ur5_table`` ``kpi_model`` design (issue 30; 60 poses, damped BFGS
 blocks): the one the dense object was built on (1235 rows, the slots above it padding) and the QP
 of a later iteration with 1442 rows. With the equilibration of the first kept, ProxQP stopped at
-its iteration limit on the second, every retry too, and the SQP stalled after 9 iterations ("the
-linearised constraints are inconsistent at a point feasible to tolerance").
+its iteration limit on the second, every retry too, and the SQP stalled after 9 iterations (then
+reported as "the linearised constraints are inconsistent at a point feasible to tolerance").
 """
 
 from __future__ import annotations
