@@ -151,7 +151,7 @@ def evaluate_design(
         criterion=KPI_MAX if aggregate == "max" else objective.criterion.name,
         value=value,
         start_value=value if start_value is None else float(start_value),
-        criteria=criterion_values(objective, q, s.scene.model_error),
+        criteria=criterion_values(objective, q, model_error.scene_prior(s)),
         kpi_sigma_mm=problem.kpi_sigma(q) * 1e3,
         kpi_names=tuple(problem.kpi.names),
         margins=tuple(margin_report(s.feasibility, res.values)),
