@@ -160,6 +160,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--aggregate", choices=("mean", "max"),
                    help="KPI of several points (criterion kpi): weighted mean variance, or the "
                    "worst-case variance max_i (epigraph SQP); default: the scene's kpi.aggregate")
+    p.add_argument("--prior-from", metavar="JSON", help="kpi_model's joint-space model-error prior "
+                   "from an earlier identification (the identification.json of `calib-oed identify`: "
+                   "its fitted model error, compliances and gains; docs/scenes.md)")
     p.add_argument("-o", "--output", metavar="DIR", help="write DIR/design.yaml, DIR/design.csv and DIR/timing.yaml (the run's times)")
     p.add_argument("--controller", action="store_true", help="also write DIR/design_controller.csv "
                    "in the controller's joint values and angle unit (the scene's controller: block)")

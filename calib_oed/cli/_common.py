@@ -139,8 +139,9 @@ def _apply_joint_gains(args) -> None:
 
 def _apply_compliance(args) -> None:
     """``--compliance`` / ``--payload-kg``: replace ``args.scene`` by the scene with compliance on;
-    then ``--joint-gains`` (:func:`_apply_joint_gains`)."""
+    then ``--joint-gains`` (:func:`_apply_joint_gains`) and ``--prior-from`` (:func:`_apply_prior_from`)."""
     _apply_joint_gains(args)
+    _apply_prior_from(args)
     if not (getattr(args, "compliance", False) or getattr(args, "payload_kg", None) is not None):
         return
     import dataclasses
@@ -155,6 +156,33 @@ def _apply_compliance(args) -> None:
             raise CalibOedError(f"--payload-kg: expected a mass >= 0 kg, got {args.payload_kg:g}")
         payload = dataclasses.replace(payload, payload_mass=args.payload_kg)  # keeps the scene's link masses
     args.scene = dataclasses.replace(scene, compliance=ComplianceSpec(True, payload))
+
+
+def _apply_prior_from(args) -> None:
+    """``design --prior-from JSON``: replace ``args.scene`` by the scene whose joint-space prior
+    comes from an earlier identification (:func:`calib_oed.scene.joint_error.spec_from_identification`).
+
+    Raises:
+        SceneError: the file cannot be read or holds no fitted model error (naming ``--prior-from``).
+    """
+    path = getattr(args, "prior_from", None)
+    if path is None:
+        return
+    import dataclasses
+
+    from calib_oed.exceptions import SceneError
+    from calib_oed.scene.joint_error import (
+        IdentificationFileError,
+        load_identification,
+        spec_from_identification,
+    )
+
+    scene = _scene(args.scene)
+    try:
+        spec = spec_from_identification(load_identification(path), scene.robot.model.nq, str(path))
+    except IdentificationFileError as exc:
+        raise SceneError(f"--prior-from {path}: {exc}") from None
+    args.scene = dataclasses.replace(scene, joint_error=spec)
 
 
 def _adopt(s, mset, args):

@@ -304,3 +304,29 @@ def certify(
         efficiency=efficiency(kind, bound, design_value, p), iterations=search.iterations,
         local_iterations=search.local_iterations, local_status=search.status,
         seconds=time.perf_counter() - t0, converged=approx.converged, tol=float(tol), scope=scope)
+
+
+def multistart_gap(runs, why: str) -> dict:
+    r"""The certificate record of a criterion without a bound (``kpi_model``, ``kpi_kriging``):
+    ``why`` there is none, and the gap of every refined start to the best of them.
+
+    ``runs``: ``(seed, start value, value)`` per start (:func:`calib_oed.oed.refine.optimise_starts`).
+    The gap of start k is :math:`\phi_k/\min_l\phi_l - 1` [1]; ``first_start_gap`` is what a
+    one-start design (the default, ``--starts 1``) would have left to the best found. With one
+    start there is nothing to compare: the record says to run ``--starts K``.
+    """
+    out = {"skipped": why}
+    if not runs:
+        return out
+    values = np.array([r[2] for r in runs], dtype=float)
+    best = float(values.min())
+    gaps = values / best - 1.0 if best > 0 else np.zeros_like(values)
+    out["multistart"] = {
+        "starts": [{"seed": r[0], "start_value": float(r[1]), "value": float(r[2]), "gap": float(g)}
+                   for r, g in zip(runs, gaps, strict=True)],
+        "best_value": best, "first_start_gap": float(gaps[0]), "max_gap": float(gaps.max()),
+        "note": ("the gap of each start's refined design to the best of the starts (no lower bound)"
+                 if len(runs) > 1 else "one start: run --starts K (K >= 2) for the gap to the best of K starts"),
+    }
+    return out
+

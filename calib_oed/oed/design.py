@@ -36,6 +36,7 @@ from calib_oed.oed.approximate_pool import (
     approximate_pool,
     approximate_start,
 )
+from calib_oed.oed.certificate import multistart_gap
 from calib_oed.oed.criteria import CRITERIA, make_criterion
 from calib_oed.oed.criterion_base import Criterion
 from calib_oed.oed.hessian import has_exact_hessian
@@ -151,7 +152,7 @@ def evaluate_design(
         criterion=KPI_MAX if aggregate == "max" else objective.criterion.name,
         value=value,
         start_value=value if start_value is None else float(start_value),
-        criteria=criterion_values(objective, q, s.scene.model_error),
+        criteria=criterion_values(objective, q, model_error.scene_prior(s)),
         kpi_sigma_mm=problem.kpi_sigma(q) * 1e3,
         kpi_names=tuple(problem.kpi.names),
         margins=tuple(margin_report(s.feasibility, res.values)),
@@ -301,7 +302,7 @@ def design(
              and (criterion in EXACT_CRITERIA if isinstance(criterion, str)
                   else has_exact_hessian(criterion)))
     check_memory(n, s.problem.robot.nq, int(len(s.feasibility.labels)), dense=not exact)
-    t0, cpu0 = time.perf_counter(), time.process_time()
+    t0, cpu0, runs = time.perf_counter(), time.process_time(), []  # runs: (seed, start value, value)
     with threadpool_limits(limits=1):
         objective = DesignObjective(s.problem, criterion)
         start_objective = DesignObjective(s.problem, "kpi") if objective.needs_design else objective  # kpi's start
@@ -319,14 +320,14 @@ def design(
             sqp = model_error.design_settings(objective, settings)
             best = (optimise_worst_case(s, starts, criterion, collisions, sqp, callback)
                     if aggregate == "max"
-                    else optimise_starts(s, starts, criterion, collisions, sqp, callback, hessian))
+                    else optimise_starts(s, starts, criterion, collisions, sqp, callback, hessian, runs))
         design_seconds, design_cpu = time.perf_counter() - t0, time.process_time() - cpu0
         value, q, phi0, result, start_seed = best
         interrupted = result is not None and result.status is SQPStatus.INTERRUPTED
         if interrupted:
             cert = {"skipped": "interrupted before the certificate"}
-        elif certificate and objective.needs_design:
-            cert = {"skipped": model_error.MODEL_ERROR_NO_CERTIFICATE}
+        elif certificate and objective.needs_design:  # no bound: the gap to the best of the starts
+            cert = multistart_gap(runs, model_error.MODEL_ERROR_NO_CERTIFICATE)
         elif certificate:
             try:
                 cert = _certificate(s, q, criterion, aggregate, cands, seed, collisions, approx)

@@ -82,6 +82,7 @@ from calib_oed.measurement.discrepancy import DiscrepancyPrior
 from calib_oed.measurement.joint_prior import JointErrorPrior, PointJacobians, point_jacobians
 from calib_oed.measurement.position import TrackerPosition
 from calib_oed.oed.criterion_base import Criterion, _not_identifiable
+from calib_oed.oed.joint_prior_choice import joint_prior
 
 #: Names of the criteria in :data:`calib_oed.oed.criteria.CRITERIA`: the KPI error of the
 #: parametric fit (the default design criterion), and of GLS plus kriging compensation.
@@ -132,8 +133,9 @@ def design_settings(objective, settings):
 
 def scene_criterion(s, criterion, prior=None):
     """``criterion``, with the name ``kpi_model`` made for the set-up ``s`` with ``prior``, else its
-    scene's model-error prior (``robot.model_error``), else :func:`default_prior`;
-    None: :func:`default_criterion`."""
+    scene's joint-space prior (``robot.model_error`` with ``kind: joint``, or ``--prior-from``:
+    :func:`calib_oed.oed.joint_prior_choice.joint_prior`), else its isotropic ``robot.model_error``,
+    else :func:`default_prior`; None: :func:`default_criterion`."""
     if criterion is None:
         criterion = default_criterion(s.scene)
     if isinstance(criterion, str) and criterion in (MODEL_ERROR, KRIGING):
@@ -141,9 +143,19 @@ def scene_criterion(s, criterion, prior=None):
         free = problem.identifiability.free_indices
         g = problem.kpi_jacobian(None)[:, free] * problem.space.unit_scale[free] * _MM  # as the objective's
         if prior is None:
-            prior = s.scene.model_error if s.scene.model_error is not None else default_prior(problem)
+            prior = scene_prior(s)
+            prior = default_prior(problem) if prior is None else prior
         return make_model_error_criterion(problem, g, prior, getattr(problem.kpi, "weights", None), criterion)
     return criterion
+
+
+def scene_prior(s):
+    """The model-error prior the set-up ``s``'s scene gives the design criterion: its joint-space
+    prior (``robot.model_error`` with ``kind: joint``, or ``--prior-from``), else its isotropic
+    ``robot.model_error``, else None (the default, :func:`default_prior`)."""
+    if getattr(s.scene, "joint_error", None) is not None:
+        return joint_prior(s.problem, s.scene.joint_error)
+    return s.scene.model_error
 
 
 def default_prior(problem) -> JointErrorPrior:

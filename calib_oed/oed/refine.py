@@ -68,13 +68,16 @@ def optimise_worst_case(s, starts, criterion, collisions, settings, callback):
     return best
 
 
-def optimise_starts(s, starts, criterion, collisions, settings, callback, hessian):
-    """Run the SQP from every start; the best ``(value, q, phi0, result, seed)``."""
+def optimise_starts(s, starts, criterion, collisions, settings, callback, hessian, runs=None):
+    """Run the SQP from every start; the best ``(value, q, phi0, result, seed)``. ``runs``, a list,
+    gains ``(seed, start value, value)`` of every start (:func:`calib_oed.oed.certificate.multistart_gap`)."""
     best = None
     for start_seed, q0 in starts:
         objective = DesignObjective(s.problem, criterion)
         value, q, phi0, result = optimise_from(objective, s.feasibility, q0, collisions=collisions,
                                                settings=settings, callback=callback, hessian=hessian)
+        if runs is not None:
+            runs.append((start_seed, phi0, value))
         if best is None or value < best[0]:
             best = (value, q, phi0, result, start_seed)
         if result.status is SQPStatus.INTERRUPTED:  # no further starts: the best so far, and

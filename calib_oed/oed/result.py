@@ -179,6 +179,11 @@ class Design:
                     + ("" if cert.get("search_complete", True) else
                        "; its search for better poses hit its round limit, so the bound is only "
                        "as good as the poses it found") + ")")
+        gap = cert.get("multistart")
+        if gap and len(gap["starts"]) > 1:  # a criterion without a bound: the best of several starts
+            return (f"  efficiency: not certified (no lower bound for {self.criterion!r}); the best of "
+                    f"{len(gap['starts'])} starts, the first start {100 * gap['first_start_gap']:.1f} % above "
+                    f"it, the worst {100 * gap['max_gap']:.1f} %")
         if cert.get("skipped"):
             return f"  efficiency: not certified ({cert['skipped']})"
         return "  efficiency: not certified"

@@ -32,6 +32,7 @@ from calib_oed.scene.cell import read_cell, read_feasibility, reflector_normal
 from calib_oed.scene.checks import check_scene
 from calib_oed.scene.fields import FieldReader
 from calib_oed.scene.include import resolve_includes
+from calib_oed.scene.joint_error import read_joint_error
 from calib_oed.scene.joint_keys import read_compliance, read_joint_gains, read_model_error
 from calib_oed.scene.records import (
     DEFAULT_SIGMA_ANGLE,
@@ -135,6 +136,8 @@ class SceneReader(FieldReader):
         joint_gains = (read_joint_gains(self, top["robot"]["joint_gains"], robot.model.nq, controller)
                        if "joint_gains" in top["robot"] else None)
         gd = self.mapping(top.get("generic_design", {}), "generic_design", (), ("n", "seed"))
+        error = top["robot"].get("model_error")
+        joint_error = isinstance(error, dict) and "kind" in error  # the joint-space prior
         return Scene(
             name=self.string(top["name"], "name"),
             description=description,
@@ -166,8 +169,9 @@ class SceneReader(FieldReader):
             controller=controller,
             joint_gains=joint_gains,
             repeatability=self.repeatability(top),
-            model_error=(read_model_error(self, top["robot"]["model_error"], robot)
-                         if "model_error" in top["robot"] else None),
+            model_error=(read_model_error(self, error, robot)
+                         if error is not None and not joint_error else None),
+            joint_error=read_joint_error(self, error, robot.nq) if joint_error else None,
         )
 
     def repeatability(self, top) -> float:

@@ -244,6 +244,9 @@ class Scene:
     #: ``robot.model_error``: the model-error prior as the scene gives it
     #: (:mod:`calib_oed.measurement.discrepancy`); None: the documented default (:meth:`discrepancy`).
     model_error: DiscrepancyPrior | None = None
+    #: ``robot.model_error`` with ``kind: joint`` (or ``calib-oed design --prior-from``): the
+    #: joint-space prior of ``kpi_model`` as given (:class:`JointErrorSpec`); None: its defaults.
+    joint_error: JointErrorSpec | None = None
 
     def error_model(self) -> ErrorModel:
         """The covariance contract of this scene's measurements (noise, repeatability, model error)."""
@@ -275,3 +278,26 @@ class ComplianceSpec:
         return self.payload if self.enabled else None
 
 
+
+
+@dataclass(frozen=True, eq=False)
+class JointErrorSpec:
+    r"""``robot.model_error: {kind: joint, ...}``: what a scene (or an earlier identification)
+    sets of the joint-space model-error prior (:class:`~calib_oed.measurement.joint_prior.JointErrorPrior`);
+    every other part keeps its default for the robot's size class.
+
+    Attributes:
+        values: Part name (``once``, ``twice``, ``smooth``, ``length``, ``gain``, ``compliance``)
+            -> one value per joint, SI (rad, rad, rad, rad, rad/rad, rad/(N·m)); NaN keeps
+            that joint's default.
+        at_point: ``once``, ``twice``, ``smooth`` given as an RMS per Cartesian axis at the
+            measured points [m] (an identification's fitted kernel), turned into joint angles by
+            each joint's lever arm when the criterion is made (:mod:`calib_oed.oed.joint_prior_choice`).
+        scale: Every amplitude times this (> 0).
+        source: Where the numbers come from (the scene, or the identification file).
+    """
+
+    values: dict = field(default_factory=dict)
+    at_point: dict = field(default_factory=dict)
+    scale: float = 1.0
+    source: str = "scene"

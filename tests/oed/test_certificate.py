@@ -106,3 +106,19 @@ def test_approximate_design_names_are_re_exported():
     assert set(approximate_design.__all__) <= set(cert.__all__)
     for name in approximate_design.__all__:
         assert getattr(cert, name) is getattr(approximate_design, name)
+
+
+def test_multistart_gap_of_a_criterion_without_a_bound(kr16):
+    """kpi_model has no certificate: the record gives the gap of each refined start to the best of
+    them, and the design kept is that best (``docs/oed.md``, "No certificate")."""
+    d = design(kr16, 30, "kpi_model", pool=300, n_starts=2, enrich=False,
+               settings=SQPSettings(max_iterations=3))
+    gap = d.certificate["multistart"]
+    values = [run["value"] for run in gap["starts"]]
+    assert "not a convex function" in d.certificate["skipped"] and [r["seed"] for r in gap["starts"]] == [0, 1]
+    assert d.value == pytest.approx(min(values), rel=1e-12) == pytest.approx(gap["best_value"], rel=1e-12)
+    assert min(r["gap"] for r in gap["starts"]) == 0.0 and gap["max_gap"] == pytest.approx(max(values) / min(values) - 1)
+    assert "2 starts" in d.efficiency_line()
+    one = cert.multistart_gap([(0, 2.0, 1.5)], "why")
+    assert one["skipped"] == "why" and one["multistart"]["first_start_gap"] == 0.0 and "--starts K" in one["multistart"]["note"]
+    assert cert.multistart_gap([], "why") == {"skipped": "why"}

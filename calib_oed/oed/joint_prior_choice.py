@@ -1,0 +1,63 @@
+r"""The joint-space model-error prior of a design: the defaults for the robot's size class, with
+what the scene (``robot.model_error: {kind: joint, ...}``) or an earlier identification
+(``calib-oed design --prior-from``) sets (:class:`~calib_oed.scene.records.JointErrorSpec`).
+
+**Amplitudes given at the points** (an identification's fitted kernel: an RMS :math:`s` per
+Cartesian axis [m]) become joint angles through each joint's lever arm
+:math:`\ell_k = \big(\mathrm{mean}_{j,r}\,\lVert J_k(q_j; c_r)\rVert^2\big)^{1/2}` [m/rad], the RMS
+of the point Jacobian column of joint k over the problem's generic configurations and the
+reflectors: a joint-angle error of RMS :math:`a_k` moves the points by the trace
+:math:`a_k^2\ell_k^2` where the isotropic fit has :math:`3 s^2`. A harmonic amplitude of joint k is
+its own, :math:`a_k = \sqrt3\,s_k/\ell_k`; the smooth part is shared by the joints it varies
+with (finite length scale, set :math:`\mathcal K`), equally:
+:math:`a = s\,\sqrt{3/\sum_{k\in\mathcal K}\ell_k^2}`. A joint that moves no point
+(:math:`\ell_k \le 10^{-9}\max_l \ell_l`) gets zero.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from calib_oed.measurement.joint_prior import JointErrorPrior, point_jacobians
+
+#: Relative lever arm [1] below which a joint moves no point (as :data:`calib_oed.oed.model_error.STILL_TOL`).
+STILL_TOL = 1e-9
+#: Configurations of the generic design the lever arms are averaged over.
+LEVER_CONFIGURATIONS = 20
+
+
+def lever_arms(problem) -> np.ndarray:
+    r""":math:`\ell_k` per joint [m/rad] (module docstring), (nv,)."""
+    offsets = problem.space.reflector_offsets(None)
+    q = problem.generic_configurations()[:LEVER_CONFIGURATIONS]
+    jac = point_jacobians(problem, offsets).compute(q)[0]  # (n, r, 3, nv)
+    return np.sqrt(np.mean(np.sum(jac**2, axis=2), axis=(0, 1)))
+
+
+def joint_prior(problem, spec=None) -> JointErrorPrior:
+    """The joint-space prior of ``problem``: the size-class default (its compliance model's
+    payload) with what ``spec`` (a :class:`~calib_oed.scene.records.JointErrorSpec` or None) sets."""
+    base = JointErrorPrior.default_for(problem.robot, getattr(problem.space, "compliance", None))
+    if spec is None:
+        return base
+    parts = {name: np.array(getattr(base, name), dtype=float)
+             for name in ("once", "twice", "smooth", "length", "gain", "compliance")}
+    for name, values in spec.values.items():
+        given = np.asarray(values, dtype=float)
+        parts[name] = np.where(np.isnan(given), parts[name], given)
+    if spec.at_point:
+        lever = lever_arms(problem)
+        moves = lever > STILL_TOL * lever.max()
+        for name in ("once", "twice"):
+            if name in spec.at_point:
+                s = np.asarray(spec.at_point[name], dtype=float)
+                parts[name] = np.where(moves, np.sqrt(3.0) * s / np.where(moves, lever, 1.0), 0.0)
+        if "smooth" in spec.at_point:
+            s = np.asarray(spec.at_point["smooth"], dtype=float)
+            shared = (s > 0) & moves
+            total = float(np.sum(lever[shared] ** 2))
+            parts["smooth"] = np.where(shared, s * np.sqrt(3.0 / total) if total > 0 else 0.0, 0.0)
+    f = spec.scale
+    for name in ("once", "twice", "smooth", "gain", "compliance"):
+        parts[name] = parts[name] * f
+    return JointErrorPrior(**parts, gravity=base.gravity, source=f"{spec.source} ({base.source})")

@@ -1,0 +1,64 @@
+"""Tests of calib_oed.oed.joint_prior_choice: the scene's or an identification's joint-space prior,
+and the lever-arm conversion of amplitudes at the points checked by a seeded Monte Carlo."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from calib_oed.calibration.workflow import setup
+from calib_oed.measurement.joint_prior import JointErrorPrior, point_jacobians
+from calib_oed.oed.joint_prior_choice import LEVER_CONFIGURATIONS, joint_prior, lever_arms
+from calib_oed.oed.model_error import scene_criterion
+from calib_oed.scene.reader import load_scene
+from calib_oed.scene.records import JointErrorSpec
+
+
+@pytest.fixture(scope="module")
+def kr16():
+    return setup(load_scene("fms_kr16"))
+
+
+def test_without_a_spec_the_size_class_default(kr16):
+    got, want = joint_prior(kr16.problem), JointErrorPrior.default_for(kr16.problem.robot)
+    for name in ("once", "twice", "smooth", "length", "gain", "compliance"):
+        np.testing.assert_array_equal(getattr(got, name), getattr(want, name))
+
+
+def test_values_nan_keeps_the_default_and_scale_multiplies_amplitudes(kr16):
+    base = joint_prior(kr16.problem)
+    spec = JointErrorSpec({"gain": np.array([np.nan, 1e-4, np.nan, np.nan, np.nan, np.nan]),
+                           "length": np.full(6, 0.5)}, {}, 3.0, "test")
+    got = joint_prior(kr16.problem, spec)
+    np.testing.assert_allclose(got.gain, 3.0 * np.where(np.arange(6) == 1, 1e-4, base.gain))
+    np.testing.assert_allclose(got.length, 0.5)  # a length scale is not an amplitude
+    np.testing.assert_allclose(got.once, 3.0 * base.once)
+    assert got.source.startswith("test")
+
+
+def test_amplitudes_at_the_points_monte_carlo(kr16):
+    """The converted joint prior moves the reflector by the isotropic fit's mean squared error,
+    3 s^2, on the configurations it was averaged over (20 000 seeded joint-angle draws)."""
+    problem = kr16.problem
+    s_smooth, s_once = 4e-5, np.array([0.0, 2e-5, 0.0, 0.0, 0.0, 0.0])
+    spec = JointErrorSpec({}, {"smooth": np.array([s_smooth] * 5 + [0.0]), "once": s_once}, 1.0, "test")
+    prior = joint_prior(problem, spec)
+    lever = lever_arms(problem)
+    assert lever[5] < 1e-9 * lever.max() and prior.smooth[5] == 0 and prior.once[5] == 0  # A6 moves no point
+    q = problem.generic_configurations()[:LEVER_CONFIGURATIONS]
+    jac = point_jacobians(problem, problem.space.reflector_offsets(None)).compute(q)[0][:, 0]  # (n, 3, nv)
+    rng = np.random.default_rng(7)
+    for amp, want in ((prior.smooth, 3 * s_smooth**2), (prior.once, 3 * s_once[1] ** 2)):
+        eps = rng.standard_normal((20000, 6)) * amp  # joint-angle errors [rad], independent per joint
+        err = np.einsum("nxk,dk->dnx", jac, eps)  # (draws, configurations, 3) [m]
+        assert np.mean(np.sum(err**2, axis=2)) == pytest.approx(want, rel=0.03)
+
+
+def test_the_scene_key_reaches_the_design_criterion(kr16):
+    import dataclasses
+
+    spec = JointErrorSpec({"once": np.full(6, 1e-5)}, {}, 1.0, "scene")
+    s = setup(dataclasses.replace(kr16.scene, joint_error=spec))
+    prior = scene_criterion(s, None).prior
+    np.testing.assert_allclose(prior.once, 1e-5)
+    assert prior.source.startswith("scene")
