@@ -69,6 +69,7 @@ from calib_oed.feasibility.bodies import BodyStates
 from calib_oed.feasibility.capsules import _local_balls, fit_capsule, link_names
 from calib_oed.feasibility.curvature import body_points, point_hessian_along
 from calib_oed.feasibility.hull_curvature import _vertices, feature_hessian, support_feature
+from calib_oed.feasibility.hull_witness import HullWitness, WitnessMemo
 from calib_oed.feasibility.link_fit import (
     LinkFitSettings,
     geometry_key,
@@ -214,27 +215,6 @@ def link_pieces(robot, geometry_model: pin.GeometryModel, slabs: int | None = No
     return out
 
 
-@dataclass(frozen=True, eq=False)
-class HullWitness:
-    """Closest points of the link pairs' pieces, per pose.
-
-    Attributes:
-        dist: Signed distance :math:`\\min d(P, Q)` [m], (n, H).
-        wa, wb: Witness points on the first and second link, world [m], (n, H, 3).
-        u: Unit normal from ``wb`` towards ``wa``, (n, H, 3).
-        calls: coal distance calls made (the broad phase's cost).
-        piece_a, piece_b: The closest pair's pieces (indices into the model's pieces), (n, H).
-    """
-
-    dist: np.ndarray
-    wa: np.ndarray
-    wb: np.ndarray
-    u: np.ndarray
-    calls: int
-    piece_a: np.ndarray | None = None
-    piece_b: np.ndarray | None = None
-
-
 class HullPairs:
     """The convex-piece rows of a feasibility model (module docstring).
 
@@ -295,6 +275,9 @@ class HullPairs:
         self.fallbacks = 0
         #: Rows whose curvature was exact (closest features) or the tangent-plane model.
         self.curvature = {"exact": 0, "model": 0}
+        #: Every row's witnesses of the poses evaluated last (hull_witness.py): the same placements
+        #: are not sent to coal twice (a trial point, then its curvature and pieces).
+        self.memo = WitnessMemo(self._body)
 
     def __len__(self) -> int:
         return len(self.link_pairs)
@@ -305,8 +288,31 @@ class HullPairs:
         return tuple(f"self:{a}|{b}" for a, b in self.link_pairs)
 
     def closest(self, states: BodyStates, rows: np.ndarray | None = None) -> HullWitness:
-        """Witnesses of every pose of ``states`` and link pairs ``rows`` (default all)."""
-        rows = np.arange(len(self)) if rows is None else np.asarray(rows, dtype=int)
+        """Witnesses of every pose of ``states`` and link pairs ``rows`` (default all): those of
+        poses whose placements the memo holds from it, the others from coal (kept in the memo when
+        every row is asked for)."""
+        every = np.arange(len(self))
+        rows = every if rows is None else np.asarray(rows, dtype=int)
+        if not len(self) or not len(rows):
+            return self._closest(states, rows)
+        keys = self.memo.keys(states.rotation, states.translation)
+        found, packed = self.memo.find(keys)
+        if found.size == len(keys):
+            return HullWitness.unpack(np.array(packed)).take(rows)
+        full = rows.size == every.size and np.array_equal(rows, every)
+        missing = np.setdiff1d(np.arange(len(keys)), found)
+        fresh = self._closest(states if found.size == 0 else states.take(missing), rows)
+        if full:
+            self.memo.store([keys[k] for k in missing], fresh)
+        if found.size == 0:
+            return fresh
+        old = HullWitness.unpack(np.array(packed)).take(rows).pack()
+        out = np.empty((len(keys), old.shape[1]))
+        out[found], out[missing] = old, fresh.pack()
+        return HullWitness.unpack(out, fresh.calls)
+
+    def _closest(self, states: BodyStates, rows: np.ndarray) -> HullWitness:
+        """Witnesses of every pose of ``states`` and link pairs ``rows`` by coal (module docstring)."""
         n = states.rotation.shape[0]
         H = len(rows)
         dist, wa, wb, u = np.zeros((n, H)), np.zeros((n, H, 3)), np.zeros((n, H, 3)), np.zeros((n, H, 3))
