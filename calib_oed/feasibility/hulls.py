@@ -68,7 +68,7 @@ from calib_oed.feasibility import fit_cache
 from calib_oed.feasibility.bodies import BodyStates
 from calib_oed.feasibility.capsules import _local_balls, fit_capsule, link_names
 from calib_oed.feasibility.curvature import body_points, point_hessian_along
-from calib_oed.feasibility.hull_curvature import _vertices, feature_hessian, support_feature
+from calib_oed.feasibility.hull_curvature import _vertices, feature_hessians, support_feature
 from calib_oed.feasibility.hull_witness import HullWitness, WitnessMemo
 from calib_oed.feasibility.link_fit import (
     LinkFitSettings,
@@ -402,36 +402,43 @@ class HullPairs:
     def hessians(self, states: BodyStates, pose: np.ndarray, rows: np.ndarray, exact: bool = True) -> np.ndarray:
         r"""Second derivatives (K, nv, nv) of link pairs ``rows`` (K,) at poses ``pose`` (K,) of
         ``states`` (with Jacobians): exact for the closest features
-        (:func:`calib_oed.feasibility.hull_curvature.feature_hessian`), else (or with
-        ``exact=False``) the tangent-plane model :math:`u^\top(\partial^2 w_a - \partial^2 w_b)`.
+        (:func:`calib_oed.feasibility.hull_curvature.feature_hessians`, every row at once), else
+        (or with ``exact=False``) the tangent-plane model :math:`u^\top(\partial^2 w_a - \partial^2 w_b)`.
         ``self.curvature`` counts both."""
         pose, rows = np.asarray(pose, dtype=int), np.asarray(rows, dtype=int)
         nv = states.jacobian.shape[-1]
-        out = np.zeros((len(pose), nv, nv))
-        for k in range(len(pose)):
-            w = self.closest(states.take(pose[k:k + 1]), rows[k:k + 1])
-            hess = self._exact(states, int(pose[k]), int(rows[k]), w) if exact else None
-            self.curvature["exact" if hess is not None else "model"] += 1
-            if hess is not None:
-                out[k] = hess
-                continue
-            for body, x, sign in ((self.body_a, w.wa, 1.0), (self.body_b, w.wb, -1.0)):
-                bk = body[rows[k:k + 1]]
-                rot, trans = states.rotation[pose[k], bk[0]], states.translation[pose[k], bk[0]]
-                local = (x[0] - trans) @ rot  # R^T (x - t)
-                _, jx, omega = body_points(states, pose[k:k + 1], bk, local)
-                out[k] += sign * point_hessian_along(omega, jx, w.u[0])[0]
+        out, ok = np.zeros((len(pose), nv, nv)), np.zeros(len(pose), dtype=bool)
+        if not pose.size:
+            return out
+        used, at = np.unique(pose, return_inverse=True)
+        w = self.closest(states.take(used))  # every row of those poses (the memo: no coal call)
+        dist, wa, wb, u = w.dist[at, rows], w.wa[at, rows], w.wb[at, rows], w.u[at, rows]
+        ba, bb = self.body_a[rows], self.body_b[rows]
+        if exact:
+            found, fa, fb = [], [], []
+            for k, (i, j) in enumerate(zip(w.piece_a[at, rows].tolist(), w.piece_b[at, rows].tolist(), strict=True)):
+                if i < 0 or dist[k] <= 0.0:
+                    continue
+                f_a = support_feature(self._shapes[i], self._rot[i], self._trans[i],
+                                      -states.rotation[pose[k], ba[k]].T @ u[k])
+                f_b = support_feature(self._shapes[j], self._rot[j], self._trans[j],
+                                      states.rotation[pose[k], bb[k]].T @ u[k])
+                if f_a is not None and f_b is not None:
+                    found.append(k)
+                    fa.append(f_a)
+                    fb.append(f_b)
+            if found:
+                sel = np.array(found)
+                hess, good = feature_hessians(states, pose[sel], ba[sel], fa, bb[sel], fb, dist[sel],
+                                              np.stack([wa[sel], wb[sel]], axis=1))
+                out[sel[good]], ok[sel[good]] = hess[good], True
+        self.curvature["exact"] += int(ok.sum())
+        self.curvature["model"] += int((~ok).sum())
+        model = np.flatnonzero(~ok)
+        for body, x, sign in ((ba, wa, 1.0), (bb, wb, -1.0)):
+            if model.size:
+                pk, bk = pose[model], body[model]
+                local = np.einsum("ki,kij->kj", x[model] - states.translation[pk, bk], states.rotation[pk, bk])
+                _, jx, omega = body_points(states, pk, bk, local)  # R^T (x - t) back on its body
+                out[model] += sign * point_hessian_along(omega, jx, u[model])
         return out
-
-    def _exact(self, states: BodyStates, pose: int, row: int, w: HullWitness) -> np.ndarray | None:
-        """The exact Hessian of one row from its closest features, or ``None``."""
-        i, j, dist = int(w.piece_a[0, 0]), int(w.piece_b[0, 0]), float(w.dist[0, 0])
-        if i < 0 or dist <= 0.0:
-            return None
-        ba, bb = int(self.body_a[row]), int(self.body_b[row])
-        u = w.u[0, 0]
-        fa = support_feature(self._shapes[i], self._rot[i], self._trans[i], -states.rotation[pose, ba].T @ u)
-        fb = support_feature(self._shapes[j], self._rot[j], self._trans[j], states.rotation[pose, bb].T @ u)
-        if fa is None or fb is None:
-            return None
-        return feature_hessian(states, pose, ba, fa, bb, fb, dist, (w.wa[0, 0], w.wb[0, 0]))
