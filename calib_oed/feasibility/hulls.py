@@ -331,36 +331,37 @@ class HullPairs:
         gap = A[:, pa] + s[..., None] * (B[:, pa] - A[:, pa]) - A[:, pb] - tt[..., None] * (B[:, pb] - A[:, pb])
         lower = np.linalg.norm(gap, axis=2) - self._cr[pa] - self._cr[pb]  # (n, PP)
         res = coal.DistanceResult()
-        orders = [lo + np.argsort(lower[:, lo:hi], axis=1) for lo, hi in zip(bounds[:-1], bounds[1:], strict=True)]
+        orders = [(lo + np.argsort(lower[:, lo:hi], axis=1)).tolist()
+                  for lo, hi in zip(bounds[:-1], bounds[1:], strict=True)]
         shapes, pa_l, pb_l, low, curved = self._shapes, pa.tolist(), pb.tolist(), lower.tolist(), self._curved
+        normal = np.zeros((n, H, 3))
+        distance, transform = self._distance, coal.Transform3s
         for k in range(n):
             placed: dict[int, coal.Transform3s] = {}  # piece placements of pose k, made once
-            low_k = low[k]
+            low_k, rw_k, tw_k = low[k], rw[k], tw[k]
             for h in range(H):
-                best, hit = np.inf, None
-                for c in orders[h][k].tolist():
+                best = np.inf
+                for c in orders[h][k]:
                     if low_k[c] >= max(best, 0.0):
                         break
                     i, j = pa_l[c], pb_l[c]
-                    if i not in placed:
-                        placed[i] = coal.Transform3s(rw[k, i], tw[k, i])
-                    if j not in placed:
-                        placed[j] = coal.Transform3s(rw[k, j], tw[k, j])
-                    d = self._distance(shapes[i], placed[i], shapes[j], placed[j], low_k[c],
-                                       curved[i] or curved[j], res)
+                    ti, tj = placed.get(i), placed.get(j)
+                    if ti is None:
+                        ti = placed[i] = transform(rw_k[i], tw_k[i])
+                    if tj is None:
+                        tj = placed[j] = transform(rw_k[j], tw_k[j])
+                    d = distance(shapes[i], ti, shapes[j], tj, low_k[c], curved[i] or curved[j], res)
                     calls += 1
                     if d < best:
                         best = d
                         piece_a[k, h], piece_b[k, h] = i, j
-                        hit = (np.array(res.getNearestPoint1()), np.array(res.getNearestPoint2()),
-                               np.array(res.normal, dtype=float))
-                if hit is None:
-                    continue
-                p1, p2, normal = hit
-                gap_w = p1 - p2
-                norm = float(np.sqrt(gap_w @ gap_w))
-                dist[k, h], wa[k, h], wb[k, h] = best, p1, p2
-                u[k, h] = gap_w / norm if best > 0.0 and norm > 1e-9 else -normal
+                        wa[k, h], wb[k, h], normal[k, h] = res.getNearestPoint1(), res.getNearestPoint2(), res.normal
+                dist[k, h] = 0.0 if best == np.inf else best
+        # u from the witnesses: their direction when separated (and apart), else minus coal's normal
+        gap = wa - wb
+        norm = np.sqrt(np.einsum("nhi,nhi->nh", gap, gap))
+        apart = (dist > 0.0) & (norm > 1e-9)
+        u = np.where(apart[..., None], gap / np.where(apart, norm, 1.0)[..., None], -normal)
         return HullWitness(dist, wa, wb, u, calls, piece_a, piece_b)
 
     def piece_vertices(self, states: BodyStates, pose: int, piece: int) -> np.ndarray | None:
