@@ -178,43 +178,51 @@ def _circle_axes(axis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 class _Curves:
-    r"""Points, segments and circles (rims) on bodies as :math:`x(z) = p + z\,d + \cos z\,E_1 + \sin z\,E_2`
-    (body frame; a point: :math:`d = E = 0`, :math:`z = 0`; a segment: :math:`E = 0`,
-    :math:`z \in [0, 1]`; a circle of radius :math:`\rho` about :math:`p`: :math:`d = 0`,
-    :math:`E_k = \rho e_k`, :math:`z` the angle), one per row, (K,)."""
+    r"""Points, segments and circles (rims) on bodies, one per row (K,): :math:`x(z)` with 0 or 1
+    parameter (body frame): a point; :math:`p_0 + z\,(p_1 - p_0)`, :math:`z \in [0, 1]`; a circle
+    of radius :math:`\rho` about :math:`p_0`, :math:`p_0 + \rho(\cos z\,e_1 + \sin z\,e_2)`."""
 
     def __init__(self, features):
         k = len(features)
         self.p, self.d, self.e1, self.e2 = (np.zeros((k, 3)) for _ in range(4))
+        self.rho = np.zeros((k, 1))
         self.segment = np.array([f.kind == "segment" for f in features], dtype=bool)
-        self.param = np.array([f.kind != "point" for f in features], dtype=bool)
+        self.circle = np.array([f.kind == "circle" for f in features], dtype=bool)
+        self.param = self.segment | self.circle
         self.radius = np.array([f.radius for f in features], dtype=float)
         for i, f in enumerate(features):
             self.p[i] = f.points[0]
             if f.kind == "segment":
                 self.d[i] = f.points[1] - f.points[0]
             elif f.kind == "circle":
-                e1, e2 = _circle_axes(f.normal)
-                self.e1[i], self.e2[i] = f.circle * e1, f.circle * e2
+                self.e1[i], self.e2[i] = _circle_axes(f.normal)
+                self.rho[i] = f.circle
 
     def at(self, z: np.ndarray, rows=slice(None)):
         """x, dx/dz, d2x/dz2 (K, 3) each at parameters ``z`` (K,) of ``rows``; the last two free vectors."""
         c, s = np.cos(z)[:, None], np.sin(z)[:, None]
-        e1, e2, d = self.e1[rows], self.e2[rows], self.d[rows]
-        ring = c * e1 + s * e2
-        return self.p[rows] + z[:, None] * d + ring, d - s * e1 + c * e2, -ring
+        seg, circ, rho = self.segment[rows, None], self.circle[rows, None], self.rho[rows]
+        p, d, e1, e2 = self.p[rows], self.d[rows], self.e1[rows], self.e2[rows]
+        r = rho * (c * e1 + s * e2)
+        x = np.where(seg, p + z[:, None] * d, np.where(circ, p + r, p))
+        dx = np.where(seg, d, np.where(circ, rho * (-s * e1 + c * e2), 0.0))
+        return x, dx, np.where(circ, -r, 0.0)
 
     def start(self, w: np.ndarray) -> np.ndarray:
         """The parameters (K,) of the points nearest ``w`` (K, 3) (body frame)."""
         v = w - self.p
-        seg = np.clip(np.einsum("ki,ki->k", v, self.d) / np.maximum(np.einsum("ki,ki->k", self.d, self.d),
-                                                                     1e-300), 0.0, 1.0)
-        ang = np.arctan2(np.einsum("ki,ki->k", v, self.e2), np.einsum("ki,ki->k", v, self.e1))
-        return np.where(self.segment, seg, np.where(self.param, ang, 0.0))
+        seg = np.clip(_dot(v, self.d) / np.maximum(_dot(self.d, self.d), 1e-300), 0.0, 1.0)
+        return np.where(self.segment, seg, np.where(self.circle, np.arctan2(_dot(v, self.e2), _dot(v, self.e1)), 0.0))
 
 
 def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    return np.einsum("ki,ki->k", a, b)
+    """Row-wise dot products (K,) of (K, n) arrays (as ``a[k] @ b[k]``, bit for bit)."""
+    return (a[:, None, :] @ b[:, :, None])[:, 0, 0]
+
+
+def _mv(m: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Row-wise products (K, n) of matrices (K, n, p) and vectors (K, p) (as ``m[k] @ v[k]``)."""
+    return (m @ v[:, :, None])[:, :, 0]
 
 
 def _masked_solve(m: np.ndarray, b: np.ndarray, free: np.ndarray):
@@ -243,71 +251,70 @@ def curve_hessians(states: BodyStates, pose, body_a, fa, body_b, fb, dist, witne
     Newton on :math:`\varphi(z) = \lVert x_A(z_A) - x_B(z_B)\rVert^2 / 2` from coal's ``witness``
     points (K, 2, 3) (world), every row at once; a row stops when its step is below 1e-14, or no
     parameter is free (a segment's end, clamped while the slope points out), or after 30 steps.
+    Every row's arithmetic is that of the row alone, in the same order (the same bits whatever
+    rows share the batch).
     """
     pose, body_a, body_b = (np.asarray(x, dtype=int) for x in (pose, body_a, body_b))
     ca, cb = _Curves(fa), _Curves(fb)
     ra, rb = states.rotation[pose, body_a], states.rotation[pose, body_b]
     ta, tb = states.translation[pose, body_a], states.translation[pose, body_b]
     k_rows = len(pose)
-    z = np.stack([ca.start(np.einsum("kji,kj->ki", ra, witness[:, 0] - ta)),
-                  cb.start(np.einsum("kji,kj->ki", rb, witness[:, 1] - tb))], axis=1)
+    z = np.stack([ca.start(_mv(np.swapaxes(ra, 1, 2), witness[:, 0] - ta)),
+                  cb.start(_mv(np.swapaxes(rb, 1, 2), witness[:, 1] - tb))], axis=1)
     has = np.stack([ca.param, cb.param], axis=1)
     seg = np.stack([ca.segment, cb.segment], axis=1)
     free, ok, active = has.copy(), np.ones(k_rows, dtype=bool), np.ones(k_rows, dtype=bool)
 
-    def local(rows, za, zb):
-        (xa, da, dda), (xb, db, ddb) = ca.at(za, rows), cb.at(zb, rows)
-        rot_a, rot_b = ra[rows], rb[rows]
-        e = (rot_a @ xa[:, :, None])[:, :, 0] + ta[rows] - (rot_b @ xb[:, :, None])[:, :, 0] - tb[rows]
-        va, vb = (rot_a @ da[:, :, None])[:, :, 0], -(rot_b @ db[:, :, None])[:, :, 0]
-        curv = np.stack([_dot(e, (rot_a @ dda[:, :, None])[:, :, 0]), -_dot(e, (rot_b @ ddb[:, :, None])[:, :, 0])],
-                        axis=1)
-        return (xa, xb), e, (va, vb), curv
+    def normal_matrix(rows, e, va, vb, dda, ddb):
+        """ez, ez^T ez + diag(e^T R_a x_a'', -e^T R_b x_b'') of ``rows``."""
+        ez = np.stack([va, vb], axis=2)
+        diag = np.zeros((len(e), 2, 2))
+        diag[:, 0, 0], diag[:, 1, 1] = _dot(e, _mv(ra[rows], dda)), -_dot(e, _mv(rb[rows], ddb))
+        return ez, np.swapaxes(ez, 1, 2) @ ez + diag
 
     for _ in range(30):
         rows = np.flatnonzero(active)
         if not rows.size:
             break
-        _, e, (va, vb), curv = local(rows, z[rows, 0], z[rows, 1])
-        grad = np.stack([_dot(va, e), _dot(vb, e)], axis=1)
-        hess = np.stack([np.stack([_dot(va, va) + curv[:, 0], _dot(va, vb)], axis=1),
-                         np.stack([_dot(vb, va), _dot(vb, vb) + curv[:, 1]], axis=1)], axis=1)
+        (xa, da, dda), (xb, db, ddb) = ca.at(z[rows, 0], rows), cb.at(z[rows, 1], rows)
+        e = _mv(ra[rows], xa) + ta[rows] - _mv(rb[rows], xb) - tb[rows]
+        ez, hess = normal_matrix(rows, e, _mv(ra[rows], da), -_mv(rb[rows], db), dda, ddb)
+        grad = _mv(np.swapaxes(ez, 1, 2), e)
         zr = z[rows]
         fr = has[rows] & ~(seg[rows] & (((zr <= 0) & (grad > 0)) | ((zr >= 1) & (grad < 0))))
         free[rows] = fr
         stop = ~fr.any(axis=1)
         active[rows[stop]] = False
-        go = ~stop
-        rows, fr = rows[go], fr[go]
-        step, good = _masked_solve(hess[go], (grad[go] * fr)[:, :, None], fr)
-        ok[rows[~good]] = False
-        active[rows[~good]] = False
-        step = -step[:, :, 0] * fr
-        rows, step = rows[good], step[good]
-        z[rows] += step
+        rows, fr, hess, grad = rows[~stop], fr[~stop], hess[~stop], grad[~stop]
+        step, good = _masked_solve(hess, np.where(fr, grad, 0.0)[:, :, None], fr)
+        ok[rows[~good]] = active[rows[~good]] = False
+        rows, fr, step = rows[good], fr[good], -step[good, :, 0]
+        z[rows] = np.where(fr, z[rows] + step, z[rows])
         z[rows] = np.where(seg[rows], np.clip(z[rows], 0.0, 1.0), z[rows])
-        active[rows[np.abs(step).max(axis=1) < 1e-14]] = False
-    (xa, xb), e, (va, vb), curv = local(slice(None), z[:, 0], z[:, 1])
+        active[rows[np.where(fr, np.abs(step), 0.0).max(axis=1) < 1e-14]] = False
+    (xa, da, dda), (xb, db, ddb) = ca.at(z[:, 0]), cb.at(z[:, 1])
     pa, ja, oa = body_points(states, pose, body_a, xa)
     pb, jb, ob = body_points(states, pose, body_b, xb)
     e = pa - pb
-    d = np.linalg.norm(e, axis=1)
-    ok &= (np.abs(d - ca.radius - cb.radius - dist) <= TOL) & (d >= TOL)
+    d = np.sqrt(_dot(e, e))
+    ok &= ~((np.abs(d - ca.radius - cb.radius - dist) > TOL) | (d < TOL))
     d = np.where(ok, d, 1.0)
     u = e / d[:, None]
     big_e = ja - jb
+    big_t = np.swapaxes(big_e, 1, 2)
     out = point_hessian_along(oa, ja, u) - point_hessian_along(ob, jb, u)
-    ge = np.einsum("kiv,ki->kv", big_e, u)
-    out += (np.swapaxes(big_e, 1, 2) @ big_e - ge[:, :, None] * ge[:, None, :]) / d[:, None, None]
-    cols = np.stack([np.einsum("kiv,ki->kv", big_e, v) + np.einsum("kiv,ki->kv", om, np.cross(v, e))
-                     for v, om in ((va, oa), (vb, ob))], axis=2) * free[:, None, :]  # (K, nv, 2)
-    a = np.stack([np.stack([_dot(va, va) + curv[:, 0], _dot(va, vb)], axis=1),
-                  np.stack([_dot(vb, va), _dot(vb, vb) + curv[:, 1]], axis=1)], axis=1)
-    some = ok & free.any(axis=1)
-    if some.any():
-        x, good = _masked_solve(a[some], np.swapaxes(cols[some], 1, 2), free[some])
-        out[some] -= (cols[some] @ x) / d[some, None, None]
-        ok[np.flatnonzero(some)[~good]] = False
+    ge = _mv(big_t, u)
+    out += (big_t @ big_e - ge[:, :, None] * ge[:, None, :]) / d[:, None, None]
+    some = np.flatnonzero(ok & free.any(axis=1))
+    if some.size:
+        vz = (_mv(ra[some], da[some]), -_mv(rb[some], db[some]))
+        cols = [_mv(big_t[some], v) + _mv(np.cross(np.swapaxes(om[some], 1, 2), v[:, None, :]), e[some])
+                for v, om in zip(vz, (oa, ob), strict=True)]
+        _, a = normal_matrix(some, e[some], vz[0], vz[1], dda[some], ddb[some])
+        g = np.where(free[some, None, :], np.stack(cols, axis=2), 0.0)  # (k, nv, 2)
+        x, good = _masked_solve(a, np.swapaxes(g, 1, 2), free[some])
+        out[some] -= (g @ x) / d[some, None, None]
+        ok[some[~good]] = False
     return out, ok
 
 

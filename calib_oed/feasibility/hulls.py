@@ -334,13 +334,12 @@ class HullPairs:
         orders = [(lo + np.argsort(lower[:, lo:hi], axis=1)).tolist()
                   for lo, hi in zip(bounds[:-1], bounds[1:], strict=True)]
         shapes, pa_l, pb_l, low, curved = self._shapes, pa.tolist(), pb.tolist(), lower.tolist(), self._curved
-        normal = np.zeros((n, H, 3))
         distance, transform = self._distance, coal.Transform3s
         for k in range(n):
             placed: dict[int, coal.Transform3s] = {}  # piece placements of pose k, made once
             low_k, rw_k, tw_k = low[k], rw[k], tw[k]
             for h in range(H):
-                best = np.inf
+                best, normal = np.inf, None
                 for c in orders[h][k]:
                     if low_k[c] >= max(best, 0.0):
                         break
@@ -355,13 +354,14 @@ class HullPairs:
                     if d < best:
                         best = d
                         piece_a[k, h], piece_b[k, h] = i, j
-                        wa[k, h], wb[k, h], normal[k, h] = res.getNearestPoint1(), res.getNearestPoint2(), res.normal
-                dist[k, h] = 0.0 if best == np.inf else best
-        # u from the witnesses: their direction when separated (and apart), else minus coal's normal
-        gap = wa - wb
-        norm = np.sqrt(np.einsum("nhi,nhi->nh", gap, gap))
-        apart = (dist > 0.0) & (norm > 1e-9)
-        u = np.where(apart[..., None], gap / np.where(apart, norm, 1.0)[..., None], -normal)
+                        wa[k, h], wb[k, h] = res.getNearestPoint1(), res.getNearestPoint2()
+                        normal = np.array(res.normal, dtype=float)
+                if normal is None:
+                    continue
+                gap_w = wa[k, h] - wb[k, h]
+                norm = float(np.sqrt(gap_w @ gap_w))
+                dist[k, h] = best
+                u[k, h] = gap_w / norm if best > 0.0 and norm > 1e-9 else -normal
         return HullWitness(dist, wa, wb, u, calls, piece_a, piece_b)
 
     def piece_vertices(self, states: BodyStates, pose: int, piece: int) -> np.ndarray | None:
