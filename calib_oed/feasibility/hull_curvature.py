@@ -57,7 +57,7 @@ from calib_oed.feasibility.curvature import (
     segment_distance_derivatives,
 )
 
-__all__ = ["Feature", "feature_hessian", "support_feature"]
+__all__ = ["Feature", "curve_hessians", "feature_hessian", "feature_hessians", "support_feature"]
 
 #: Tolerance [m] of the support set and of the feature distance against coal's (and,
 #: as a direction cosine, of a cylinder's side or cap).
@@ -177,98 +177,145 @@ def _circle_axes(axis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return e1, np.cross(axis, e1)
 
 
-class _Curve:
-    """A point, segment or circle on a body, as :math:`x(z)` with 0 or 1 parameter (body frame)."""
+class _Curves:
+    r"""Points, segments and circles (rims) on bodies, one per row (K,): :math:`x(z)` with 0 or 1
+    parameter (body frame): a point; :math:`p_0 + z\,(p_1 - p_0)`, :math:`z \in [0, 1]`; a circle
+    of radius :math:`\rho` about :math:`p_0`, :math:`p_0 + \rho(\cos z\,e_1 + \sin z\,e_2)`."""
 
-    def __init__(self, feature: Feature):
-        self.f = feature
-        self.n = 0 if feature.kind == "point" else 1
-        if feature.kind == "circle":
-            self.e1, self.e2 = _circle_axes(feature.normal)
+    def __init__(self, features):
+        k = len(features)
+        self.p, self.d, self.e1, self.e2 = (np.zeros((k, 3)) for _ in range(4))
+        self.rho = np.zeros((k, 1))
+        self.segment = np.array([f.kind == "segment" for f in features], dtype=bool)
+        self.circle = np.array([f.kind == "circle" for f in features], dtype=bool)
+        self.param = self.segment | self.circle
+        self.radius = np.array([f.radius for f in features], dtype=float)
+        for i, f in enumerate(features):
+            self.p[i] = f.points[0]
+            if f.kind == "segment":
+                self.d[i] = f.points[1] - f.points[0]
+            elif f.kind == "circle":
+                self.e1[i], self.e2[i] = _circle_axes(f.normal)
+                self.rho[i] = f.circle
 
-    def at(self, z: float):
-        """x, dx/dz, d2x/dz2 in the body frame; the last two as free vectors."""
-        f = self.f
-        if f.kind == "point":
-            return f.points[0], np.zeros(3), np.zeros(3)
-        if f.kind == "segment":
-            d = f.points[1] - f.points[0]
-            return f.points[0] + z * d, d, np.zeros(3)
-        r = f.circle * (np.cos(z) * self.e1 + np.sin(z) * self.e2)
-        return f.points[0] + r, f.circle * (-np.sin(z) * self.e1 + np.cos(z) * self.e2), -r
+    def at(self, z: np.ndarray, rows=slice(None)):
+        """x, dx/dz, d2x/dz2 (K, 3) each at parameters ``z`` (K,) of ``rows``; the last two free vectors."""
+        c, s = np.cos(z)[:, None], np.sin(z)[:, None]
+        seg, circ, rho = self.segment[rows, None], self.circle[rows, None], self.rho[rows]
+        p, d, e1, e2 = self.p[rows], self.d[rows], self.e1[rows], self.e2[rows]
+        r = rho * (c * e1 + s * e2)
+        x = np.where(seg, p + z[:, None] * d, np.where(circ, p + r, p))
+        dx = np.where(seg, d, np.where(circ, rho * (-s * e1 + c * e2), 0.0))
+        return x, dx, np.where(circ, -r, 0.0)
 
-    def start(self, w: np.ndarray) -> float:
-        """The parameter of the point nearest ``w`` (body frame)."""
-        f = self.f
-        if f.kind == "segment":
-            d = f.points[1] - f.points[0]
-            return float(np.clip((w - f.points[0]) @ d / max(d @ d, 1e-300), 0.0, 1.0))
-        if f.kind == "circle":
-            v = w - f.points[0]
-            return float(np.arctan2(v @ self.e2, v @ self.e1))
-        return 0.0
+    def start(self, w: np.ndarray) -> np.ndarray:
+        """The parameters (K,) of the points nearest ``w`` (K, 3) (body frame)."""
+        v = w - self.p
+        seg = np.clip(_dot(v, self.d) / np.maximum(_dot(self.d, self.d), 1e-300), 0.0, 1.0)
+        return np.where(self.segment, seg, np.where(self.circle, np.arctan2(_dot(v, self.e2), _dot(v, self.e1)), 0.0))
 
 
-def _curves(states, pose, body_a, fa, body_b, fb, dist, witness=None):
-    r""":math:`\nabla^2 d` of :math:`d = \min_z \lVert x_A(z_A) - x_B(z_B)\rVert - r_A - r_B` for
-    points, segments and circles (a rim): the value function's Hessian with the Schur term of
-    the free parameters, as for two segments (docs/feasibility.md §7)."""
-    ca, cb = _Curve(fa), _Curve(fb)
+def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise dot products (K,) of (K, n) arrays (as ``a[k] @ b[k]``, bit for bit)."""
+    return (a[:, None, :] @ b[:, :, None])[:, 0, 0]
+
+
+def _mv(m: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Row-wise products (K, n) of matrices (K, n, p) and vectors (K, p) (as ``m[k] @ v[k]``)."""
+    return (m @ v[:, :, None])[:, :, 0]
+
+
+def _masked_solve(m: np.ndarray, b: np.ndarray, free: np.ndarray):
+    r"""Solve the free block of ``m`` (K, 2, 2) for ``b`` (K, 2, c) (zero where not free), the
+    identity on the rest; ``(x, ok)``, ``ok`` False where the free block is singular."""
+    both = free[:, :, None] & free[:, None, :]
+    m = np.where(both, m, np.eye(2)[None])
+    try:
+        return np.linalg.solve(m, b), np.ones(len(m), dtype=bool)
+    except np.linalg.LinAlgError:  # rare (parallel or coaxial features): one by one
+        x, ok = np.zeros_like(b), np.ones(len(m), dtype=bool)
+        for k in range(len(m)):
+            try:
+                x[k] = np.linalg.solve(m[k], b[k])
+            except np.linalg.LinAlgError:
+                ok[k] = False
+        return x, ok
+
+
+def curve_hessians(states: BodyStates, pose, body_a, fa, body_b, fb, dist, witness):
+    r""":math:`\nabla^2 d` (K, nv, nv) of :math:`d = \min_z \lVert x_A(z_A) - x_B(z_B)\rVert - r_A - r_B`
+    for points, segments and circles (a rim), one pair of features per row, and ``ok`` (K,): the
+    value function's Hessian with the Schur term of the free parameters, as for two segments
+    (docs/feasibility.md §7), where its value is coal's ``dist`` [m] (K,), else not ``ok``.
+
+    Newton on :math:`\varphi(z) = \lVert x_A(z_A) - x_B(z_B)\rVert^2 / 2` from coal's ``witness``
+    points (K, 2, 3) (world), every row at once; a row stops when its step is below 1e-14, or no
+    parameter is free (a segment's end, clamped while the slope points out), or after 30 steps.
+    Every row's arithmetic is that of the row alone, in the same order (the same bits whatever
+    rows share the batch).
+    """
+    pose, body_a, body_b = (np.asarray(x, dtype=int) for x in (pose, body_a, body_b))
+    ca, cb = _Curves(fa), _Curves(fb)
     ra, rb = states.rotation[pose, body_a], states.rotation[pose, body_b]
     ta, tb = states.translation[pose, body_a], states.translation[pose, body_b]
-    # Newton on phi(z) = |x_A(z_A) - x_B(z_B)|^2 / 2 from coal's witnesses (world), or else from
-    # the points nearest the other feature's centre
-    wa, wb = witness if witness is not None else (rb @ cb.f.points.mean(axis=0) + tb,
-                                                   ra @ ca.f.points.mean(axis=0) + ta)
-    z = np.array([ca.start(ra.T @ (wa - ta)), cb.start(rb.T @ (wb - tb))])
-    free = np.array([ca.n == 1, cb.n == 1])
+    k_rows = len(pose)
+    z = np.stack([ca.start(_mv(np.swapaxes(ra, 1, 2), witness[:, 0] - ta)),
+                  cb.start(_mv(np.swapaxes(rb, 1, 2), witness[:, 1] - tb))], axis=1)
+    has = np.stack([ca.param, cb.param], axis=1)
+    seg = np.stack([ca.segment, cb.segment], axis=1)
+    free, ok, active = has.copy(), np.ones(k_rows, dtype=bool), np.ones(k_rows, dtype=bool)
+
+    def normal_matrix(rows, e, va, vb, dda, ddb):
+        """ez, ez^T ez + diag(e^T R_a x_a'', -e^T R_b x_b'') of ``rows``."""
+        ez = np.stack([va, vb], axis=2)
+        diag = np.zeros((len(e), 2, 2))
+        diag[:, 0, 0], diag[:, 1, 1] = _dot(e, _mv(ra[rows], dda)), -_dot(e, _mv(rb[rows], ddb))
+        return ez, np.swapaxes(ez, 1, 2) @ ez + diag
+
     for _ in range(30):
-        (xa, da, dda), (xb, db, ddb) = ca.at(z[0]), cb.at(z[1])
-        e = ra @ xa + ta - rb @ xb - tb
-        ez = np.stack([ra @ da, -(rb @ db)], axis=1)
-        grad = ez.T @ e
-        hess = ez.T @ ez + np.diag([e @ (ra @ dda), -(e @ (rb @ ddb))])
-        for k, c in enumerate((ca, cb)):  # a segment's end: clamped while the slope points out
-            free[k] = c.n == 1 and not (c.f.kind == "segment" and ((z[k] <= 0 and grad[k] > 0)
-                                                                  or (z[k] >= 1 and grad[k] < 0)))
-        if not free.any():
+        rows = np.flatnonzero(active)
+        if not rows.size:
             break
-        f = np.flatnonzero(free)
-        try:
-            step = -np.linalg.solve(hess[np.ix_(f, f)], grad[f])
-        except np.linalg.LinAlgError:
-            return None  # parallel or coaxial: no isolated minimum
-        z[f] += step
-        for k, c in enumerate((ca, cb)):
-            if c.f.kind == "segment":
-                z[k] = min(max(z[k], 0.0), 1.0)
-        if np.abs(step).max() < 1e-14:
-            break
-    (xa, da, dda), (xb, db, ddb) = ca.at(z[0]), cb.at(z[1])
-    pa, ja, oa = _points(states, pose, body_a, xa[None])
-    pb, jb, ob = _points(states, pose, body_b, xb[None])
-    e = pa[0] - pb[0]
-    d = float(np.linalg.norm(e))
-    if abs(d - fa.radius - fb.radius - dist) > TOL or d < TOL:
-        return None
-    u = e / d
-    big_e = ja[0] - jb[0]
-    out = point_hessian_along(oa, ja, u[None])[0] - point_hessian_along(ob, jb, u[None])[0]
-    ge = big_e.T @ u
-    out += (big_e.T @ big_e - np.outer(ge, ge)) / d
-    f = np.flatnonzero(free)
-    if f.size:
-        vz = [ra @ da, -(rb @ db)]
-        omega = [oa[0], ob[0]]
-        cols = [big_e.T @ vz[k] + np.cross(omega[k].T, vz[k]) @ e for k in range(2)]
-        ez = np.stack(vz, axis=1)
-        a = ez.T @ ez + np.diag([e @ (ra @ dda), -(e @ (rb @ ddb))])
-        g = np.stack(cols, axis=1)[:, f]
-        try:
-            out -= g @ np.linalg.solve(a[np.ix_(f, f)], g.T) / d
-        except np.linalg.LinAlgError:
-            return None
-    return out
+        (xa, da, dda), (xb, db, ddb) = ca.at(z[rows, 0], rows), cb.at(z[rows, 1], rows)
+        e = _mv(ra[rows], xa) + ta[rows] - _mv(rb[rows], xb) - tb[rows]
+        ez, hess = normal_matrix(rows, e, _mv(ra[rows], da), -_mv(rb[rows], db), dda, ddb)
+        grad = _mv(np.swapaxes(ez, 1, 2), e)
+        zr = z[rows]
+        fr = has[rows] & ~(seg[rows] & (((zr <= 0) & (grad > 0)) | ((zr >= 1) & (grad < 0))))
+        free[rows] = fr
+        stop = ~fr.any(axis=1)
+        active[rows[stop]] = False
+        rows, fr, hess, grad = rows[~stop], fr[~stop], hess[~stop], grad[~stop]
+        step, good = _masked_solve(hess, np.where(fr, grad, 0.0)[:, :, None], fr)
+        ok[rows[~good]] = active[rows[~good]] = False
+        rows, fr, step = rows[good], fr[good], -step[good, :, 0]
+        z[rows] = np.where(fr, z[rows] + step, z[rows])
+        z[rows] = np.where(seg[rows], np.clip(z[rows], 0.0, 1.0), z[rows])
+        active[rows[np.where(fr, np.abs(step), 0.0).max(axis=1) < 1e-14]] = False
+    (xa, da, dda), (xb, db, ddb) = ca.at(z[:, 0]), cb.at(z[:, 1])
+    pa, ja, oa = body_points(states, pose, body_a, xa)
+    pb, jb, ob = body_points(states, pose, body_b, xb)
+    e = pa - pb
+    d = np.sqrt(_dot(e, e))
+    ok &= ~((np.abs(d - ca.radius - cb.radius - dist) > TOL) | (d < TOL))
+    d = np.where(ok, d, 1.0)
+    u = e / d[:, None]
+    big_e = ja - jb
+    big_t = np.swapaxes(big_e, 1, 2)
+    out = point_hessian_along(oa, ja, u) - point_hessian_along(ob, jb, u)
+    ge = _mv(big_t, u)
+    out += (big_t @ big_e - ge[:, :, None] * ge[:, None, :]) / d[:, None, None]
+    some = np.flatnonzero(ok & free.any(axis=1))
+    if some.size:
+        vz = (_mv(ra[some], da[some]), -_mv(rb[some], db[some]))
+        cols = [_mv(big_t[some], v) + _mv(np.cross(np.swapaxes(om[some], 1, 2), v[:, None, :]), e[some])
+                for v, om in zip(vz, (oa, ob), strict=True)]
+        _, a = normal_matrix(some, e[some], vz[0], vz[1], dda[some], ddb[some])
+        g = np.where(free[some, None, :], np.stack(cols, axis=2), 0.0)  # (k, nv, 2)
+        x, good = _masked_solve(a, np.swapaxes(g, 1, 2), free[some])
+        out[some] -= (g @ x) / d[some, None, None]
+        ok[some[~good]] = False
+    return out, ok
 
 
 def feature_hessian(states: BodyStates, pose: int, body_a: int, fa: Feature, body_b: int, fb: Feature,
@@ -286,7 +333,12 @@ def feature_hessian(states: BodyStates, pose: int, body_a: int, fa: Feature, bod
     if "face" in (fa.kind, fb.kind):
         return None
     if "circle" in (fa.kind, fb.kind):
-        return _curves(states, pose, body_a, fa, body_b, fb, dist, witness)
+        if witness is None:  # the points nearest the other feature's centre
+            witness = tuple(states.rotation[pose, body] @ f.points.mean(axis=0) + states.translation[pose, body]
+                            for body, f in ((body_b, fb), (body_a, fa)))
+        hess, ok = curve_hessians(states, [pose], [body_a], [fa], [body_b], [fb], np.array([dist]),
+                                  np.array(witness)[None])
+        return hess[0] if ok[0] else None
     ends = [np.repeat(f.points, 3 - len(f.points), axis=0) for f in (fa, fb)]  # a point: a = b
     x, jx, om = (np.concatenate(z) for z in zip(_points(states, pose, body_a, ends[0]),
                                                 _points(states, pose, body_b, ends[1]), strict=True))
@@ -299,3 +351,25 @@ def feature_hessian(states: BodyStates, pose: int, body_a: int, fa: Feature, bod
     if abs(d[0] - fa.radius - fb.radius - dist) > TOL:
         return None
     return hess[0]
+
+
+def feature_hessians(states: BodyStates, pose, body_a, fa, body_b, fb, dist, witness):
+    """:func:`feature_hessian` of K rows, (K, nv, nv), and which have one (K,): the pairs with a
+    circle (a rim) in one batch (:func:`curve_hessians`), the others one by one.
+    ``witness``: coal's witness points (K, 2, 3) (world) [m]."""
+    k_rows, nv = len(pose), states.jacobian.shape[-1]
+    out, ok = np.zeros((k_rows, nv, nv)), np.zeros(k_rows, dtype=bool)
+    kinds = [(a.kind, b.kind) for a, b in zip(fa, fb, strict=True)]
+    curves = np.array([k for k, pair in enumerate(kinds) if dist[k] > 0.0 and "circle" in pair
+                       and "face" not in pair], dtype=int)
+    for k in np.setdiff1d(np.arange(k_rows), curves):
+        hess = feature_hessian(states, int(pose[k]), int(body_a[k]), fa[k], int(body_b[k]), fb[k],
+                               float(dist[k]), (witness[k, 0], witness[k, 1]))
+        if hess is not None:
+            out[k], ok[k] = hess, True
+    if curves.size:
+        hess, good = curve_hessians(states, np.asarray(pose)[curves], np.asarray(body_a)[curves],
+                                    [fa[k] for k in curves], np.asarray(body_b)[curves],
+                                    [fb[k] for k in curves], np.asarray(dist)[curves], witness[curves])
+        out[curves[good]], ok[curves[good]] = hess[good], True
+    return out, ok

@@ -68,7 +68,8 @@ from calib_oed.feasibility import fit_cache
 from calib_oed.feasibility.bodies import BodyStates
 from calib_oed.feasibility.capsules import _local_balls, fit_capsule, link_names
 from calib_oed.feasibility.curvature import body_points, point_hessian_along
-from calib_oed.feasibility.hull_curvature import _vertices, feature_hessian, support_feature
+from calib_oed.feasibility.hull_curvature import _vertices, feature_hessians, support_feature
+from calib_oed.feasibility.hull_witness import HullWitness, WitnessMemo
 from calib_oed.feasibility.link_fit import (
     LinkFitSettings,
     geometry_key,
@@ -214,27 +215,6 @@ def link_pieces(robot, geometry_model: pin.GeometryModel, slabs: int | None = No
     return out
 
 
-@dataclass(frozen=True, eq=False)
-class HullWitness:
-    """Closest points of the link pairs' pieces, per pose.
-
-    Attributes:
-        dist: Signed distance :math:`\\min d(P, Q)` [m], (n, H).
-        wa, wb: Witness points on the first and second link, world [m], (n, H, 3).
-        u: Unit normal from ``wb`` towards ``wa``, (n, H, 3).
-        calls: coal distance calls made (the broad phase's cost).
-        piece_a, piece_b: The closest pair's pieces (indices into the model's pieces), (n, H).
-    """
-
-    dist: np.ndarray
-    wa: np.ndarray
-    wb: np.ndarray
-    u: np.ndarray
-    calls: int
-    piece_a: np.ndarray | None = None
-    piece_b: np.ndarray | None = None
-
-
 class HullPairs:
     """The convex-piece rows of a feasibility model (module docstring).
 
@@ -295,6 +275,9 @@ class HullPairs:
         self.fallbacks = 0
         #: Rows whose curvature was exact (closest features) or the tangent-plane model.
         self.curvature = {"exact": 0, "model": 0}
+        #: Every row's witnesses of the poses evaluated last (hull_witness.py): the same placements
+        #: are not sent to coal twice (a trial point, then its curvature and pieces).
+        self.memo = WitnessMemo(self._body)
 
     def __len__(self) -> int:
         return len(self.link_pairs)
@@ -305,8 +288,31 @@ class HullPairs:
         return tuple(f"self:{a}|{b}" for a, b in self.link_pairs)
 
     def closest(self, states: BodyStates, rows: np.ndarray | None = None) -> HullWitness:
-        """Witnesses of every pose of ``states`` and link pairs ``rows`` (default all)."""
-        rows = np.arange(len(self)) if rows is None else np.asarray(rows, dtype=int)
+        """Witnesses of every pose of ``states`` and link pairs ``rows`` (default all): those of
+        poses whose placements the memo holds from it, the others from coal (kept in the memo when
+        every row is asked for)."""
+        every = np.arange(len(self))
+        rows = every if rows is None else np.asarray(rows, dtype=int)
+        if not len(self) or not len(rows):
+            return self._closest(states, rows)
+        keys = self.memo.keys(states.rotation, states.translation)
+        found, packed = self.memo.find(keys)
+        if found.size == len(keys):
+            return HullWitness.unpack(np.array(packed)).take(rows)
+        full = rows.size == every.size and np.array_equal(rows, every)
+        missing = np.setdiff1d(np.arange(len(keys)), found)
+        fresh = self._closest(states if found.size == 0 else states.take(missing), rows)
+        if full:
+            self.memo.store([keys[k] for k in missing], fresh)
+        if found.size == 0:
+            return fresh
+        old = HullWitness.unpack(np.array(packed)).take(rows).pack()
+        out = np.empty((len(keys), old.shape[1]))
+        out[found], out[missing] = old, fresh.pack()
+        return HullWitness.unpack(out, fresh.calls)
+
+    def _closest(self, states: BodyStates, rows: np.ndarray) -> HullWitness:
+        """Witnesses of every pose of ``states`` and link pairs ``rows`` by coal (module docstring)."""
         n = states.rotation.shape[0]
         H = len(rows)
         dist, wa, wb, u = np.zeros((n, H)), np.zeros((n, H, 3)), np.zeros((n, H, 3)), np.zeros((n, H, 3))
@@ -325,35 +331,36 @@ class HullPairs:
         gap = A[:, pa] + s[..., None] * (B[:, pa] - A[:, pa]) - A[:, pb] - tt[..., None] * (B[:, pb] - A[:, pb])
         lower = np.linalg.norm(gap, axis=2) - self._cr[pa] - self._cr[pb]  # (n, PP)
         res = coal.DistanceResult()
-        orders = [lo + np.argsort(lower[:, lo:hi], axis=1) for lo, hi in zip(bounds[:-1], bounds[1:], strict=True)]
+        orders = [(lo + np.argsort(lower[:, lo:hi], axis=1)).tolist()
+                  for lo, hi in zip(bounds[:-1], bounds[1:], strict=True)]
         shapes, pa_l, pb_l, low, curved = self._shapes, pa.tolist(), pb.tolist(), lower.tolist(), self._curved
+        distance, transform = self._distance, coal.Transform3s
         for k in range(n):
             placed: dict[int, coal.Transform3s] = {}  # piece placements of pose k, made once
-            low_k = low[k]
+            low_k, rw_k, tw_k = low[k], rw[k], tw[k]
             for h in range(H):
-                best, hit = np.inf, None
-                for c in orders[h][k].tolist():
+                best, normal = np.inf, None
+                for c in orders[h][k]:
                     if low_k[c] >= max(best, 0.0):
                         break
                     i, j = pa_l[c], pb_l[c]
-                    if i not in placed:
-                        placed[i] = coal.Transform3s(rw[k, i], tw[k, i])
-                    if j not in placed:
-                        placed[j] = coal.Transform3s(rw[k, j], tw[k, j])
-                    d = self._distance(shapes[i], placed[i], shapes[j], placed[j], low_k[c],
-                                       curved[i] or curved[j], res)
+                    ti, tj = placed.get(i), placed.get(j)
+                    if ti is None:
+                        ti = placed[i] = transform(rw_k[i], tw_k[i])
+                    if tj is None:
+                        tj = placed[j] = transform(rw_k[j], tw_k[j])
+                    d = distance(shapes[i], ti, shapes[j], tj, low_k[c], curved[i] or curved[j], res)
                     calls += 1
                     if d < best:
                         best = d
                         piece_a[k, h], piece_b[k, h] = i, j
-                        hit = (np.array(res.getNearestPoint1()), np.array(res.getNearestPoint2()),
-                               np.array(res.normal, dtype=float))
-                if hit is None:
+                        wa[k, h], wb[k, h] = res.getNearestPoint1(), res.getNearestPoint2()
+                        normal = np.array(res.normal, dtype=float)
+                if normal is None:
                     continue
-                p1, p2, normal = hit
-                gap_w = p1 - p2
+                gap_w = wa[k, h] - wb[k, h]
                 norm = float(np.sqrt(gap_w @ gap_w))
-                dist[k, h], wa[k, h], wb[k, h] = best, p1, p2
+                dist[k, h] = best
                 u[k, h] = gap_w / norm if best > 0.0 and norm > 1e-9 else -normal
         return HullWitness(dist, wa, wb, u, calls, piece_a, piece_b)
 
@@ -396,36 +403,43 @@ class HullPairs:
     def hessians(self, states: BodyStates, pose: np.ndarray, rows: np.ndarray, exact: bool = True) -> np.ndarray:
         r"""Second derivatives (K, nv, nv) of link pairs ``rows`` (K,) at poses ``pose`` (K,) of
         ``states`` (with Jacobians): exact for the closest features
-        (:func:`calib_oed.feasibility.hull_curvature.feature_hessian`), else (or with
-        ``exact=False``) the tangent-plane model :math:`u^\top(\partial^2 w_a - \partial^2 w_b)`.
+        (:func:`calib_oed.feasibility.hull_curvature.feature_hessians`, every row at once), else
+        (or with ``exact=False``) the tangent-plane model :math:`u^\top(\partial^2 w_a - \partial^2 w_b)`.
         ``self.curvature`` counts both."""
         pose, rows = np.asarray(pose, dtype=int), np.asarray(rows, dtype=int)
         nv = states.jacobian.shape[-1]
-        out = np.zeros((len(pose), nv, nv))
-        for k in range(len(pose)):
-            w = self.closest(states.take(pose[k:k + 1]), rows[k:k + 1])
-            hess = self._exact(states, int(pose[k]), int(rows[k]), w) if exact else None
-            self.curvature["exact" if hess is not None else "model"] += 1
-            if hess is not None:
-                out[k] = hess
-                continue
-            for body, x, sign in ((self.body_a, w.wa, 1.0), (self.body_b, w.wb, -1.0)):
-                bk = body[rows[k:k + 1]]
-                rot, trans = states.rotation[pose[k], bk[0]], states.translation[pose[k], bk[0]]
-                local = (x[0] - trans) @ rot  # R^T (x - t)
-                _, jx, omega = body_points(states, pose[k:k + 1], bk, local)
-                out[k] += sign * point_hessian_along(omega, jx, w.u[0])[0]
+        out, ok = np.zeros((len(pose), nv, nv)), np.zeros(len(pose), dtype=bool)
+        if not pose.size:
+            return out
+        used, at = np.unique(pose, return_inverse=True)
+        w = self.closest(states.take(used))  # every row of those poses (the memo: no coal call)
+        dist, wa, wb, u = w.dist[at, rows], w.wa[at, rows], w.wb[at, rows], w.u[at, rows]
+        ba, bb = self.body_a[rows], self.body_b[rows]
+        if exact:
+            found, fa, fb = [], [], []
+            for k, (i, j) in enumerate(zip(w.piece_a[at, rows].tolist(), w.piece_b[at, rows].tolist(), strict=True)):
+                if i < 0 or dist[k] <= 0.0:
+                    continue
+                f_a = support_feature(self._shapes[i], self._rot[i], self._trans[i],
+                                      -states.rotation[pose[k], ba[k]].T @ u[k])
+                f_b = support_feature(self._shapes[j], self._rot[j], self._trans[j],
+                                      states.rotation[pose[k], bb[k]].T @ u[k])
+                if f_a is not None and f_b is not None:
+                    found.append(k)
+                    fa.append(f_a)
+                    fb.append(f_b)
+            if found:
+                sel = np.array(found)
+                hess, good = feature_hessians(states, pose[sel], ba[sel], fa, bb[sel], fb, dist[sel],
+                                              np.stack([wa[sel], wb[sel]], axis=1))
+                out[sel[good]], ok[sel[good]] = hess[good], True
+        self.curvature["exact"] += int(ok.sum())
+        self.curvature["model"] += int((~ok).sum())
+        model = np.flatnonzero(~ok)
+        for body, x, sign in ((ba, wa, 1.0), (bb, wb, -1.0)):
+            if model.size:
+                pk, bk = pose[model], body[model]
+                local = np.einsum("ki,kij->kj", x[model] - states.translation[pk, bk], states.rotation[pk, bk])
+                _, jx, omega = body_points(states, pk, bk, local)  # R^T (x - t) back on its body
+                out[model] += sign * point_hessian_along(omega, jx, u[model])
         return out
-
-    def _exact(self, states: BodyStates, pose: int, row: int, w: HullWitness) -> np.ndarray | None:
-        """The exact Hessian of one row from its closest features, or ``None``."""
-        i, j, dist = int(w.piece_a[0, 0]), int(w.piece_b[0, 0]), float(w.dist[0, 0])
-        if i < 0 or dist <= 0.0:
-            return None
-        ba, bb = int(self.body_a[row]), int(self.body_b[row])
-        u = w.u[0, 0]
-        fa = support_feature(self._shapes[i], self._rot[i], self._trans[i], -states.rotation[pose, ba].T @ u)
-        fb = support_feature(self._shapes[j], self._rot[j], self._trans[j], states.rotation[pose, bb].T @ u)
-        if fa is None or fb is None:
-            return None
-        return feature_hessian(states, pose, ba, fa, bb, fb, dist, (w.wa[0, 0], w.wb[0, 0]))

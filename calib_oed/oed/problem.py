@@ -67,6 +67,21 @@ class DesignProblem:
         self.upper = np.tile(robot.upper - margin, self.n)
         self.n_objective = 0
         self.n_constraints = 0
+        self._states: list[tuple[bytes, object]] = []  # the last body states with Jacobians, by q
+
+    def _body_states(self, q: np.ndarray, compute: bool = True):
+        """Body states with Jacobians of ``q`` (n, nq): those of the last two designs evaluated when
+        ``q`` is one of them, bit for bit (an accepted trial point's curvature and row pieces),
+        else computed (``compute``) or ``None``."""
+        key = np.ascontiguousarray(q).tobytes()
+        for k, states in self._states:
+            if k == key:
+                return states
+        if not compute:
+            return None
+        states = compute_body_states(self.feasibility.robot.model, q, jacobian=True)
+        self._states = [(key, states), *self._states[:1]]
+        return states
 
     @property
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
@@ -106,14 +121,15 @@ class DesignProblem:
         lam = np.asarray(lam, dtype=float)
         if lam.size and np.any(lam):
             blocks = blocks - self.feasibility.compute_lagrangian_hessian(
-                q, lam.reshape(self.n, -1), kinds=self.kinds)
+                q, lam.reshape(self.n, -1), kinds=self.kinds, states=self._body_states(q, compute=False))
         low = None if obj.low_rank is None else obj.low_rank / np.sqrt(self.scale)
         return StructuredHessian(blocks, low)
 
     def compute_constraint_rows(self, x: np.ndarray, jacobian: bool = True):
         """Constraint values (n, m) and Jacobian (n, m, nq) or None."""
         q = self.configurations(x)
-        states = compute_body_states(self.feasibility.robot.model, q, jacobian=jacobian)
+        states = self._body_states(q) if jacobian else compute_body_states(self.feasibility.robot.model, q,
+                                                                           jacobian=False)
         res = self.feasibility.compute_from_states(q, states, jacobian, kinds=self.kinds)
         return res.values, res.jacobian
 
@@ -146,7 +162,10 @@ class DesignProblem:
         if not mine.any():
             return none
         poses, at = np.unique(rows[mine] // m, return_inverse=True)
-        states = compute_body_states(self.feasibility.robot.model, self.configurations(x)[poses], jacobian=True)
+        q = self.configurations(x)
+        known = self._body_states(q, compute=False)
+        states = known.take(poses) if known is not None else compute_body_states(
+            self.feasibility.robot.model, q[poses], jacobian=True)
         pieces = hull_row_pieces(hull, states, at, h[mine], self.feasibility.settings.margins.clearance)
         pose = poses[pieces.pose]
         local = first + pieces.row  # model row -> design-local row

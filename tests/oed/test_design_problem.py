@@ -143,3 +143,23 @@ def test_row_pieces_land_on_their_stacked_rows(nlp, monkeypatch):
     # rows that are not convex-piece rows are never passed on
     others = np.array([i for i, lbl in enumerate(labels) if not any(h in lbl for h in hull.labels)])
     assert problem.compute_row_pieces(q0.ravel(), others)[0].size == 0
+
+
+def test_an_evaluated_point_keeps_its_body_states(kr16, nlp):
+    """After the rows of a point, its Lagrangian Hessian and row pieces reuse the point's body
+    states (and the convex-piece witnesses): the same arrays as a problem that evaluates nothing
+    before."""
+    problem, q0 = nlp
+    x = q0.ravel() + np.random.default_rng(4).normal(scale=1e-2, size=q0.size)
+    c, _ = problem.compute_constraints(x)
+    lam = np.where(c < np.quantile(c, 0.3), 1.0, 0.0)
+    warm = problem.compute_lagrangian_hessian(x, lam)
+    assert problem._body_states(problem.configurations(x), compute=False) is not None
+    objective = problem.objective
+    fresh = DesignProblem(objective, setup(load_scene("fms_kr16")).feasibility, 10, scale=problem.scale)
+    cold = fresh.compute_lagrangian_hessian(x, lam)
+    assert np.array_equal(warm.blocks, cold.blocks)
+    rows = np.flatnonzero(lam)
+    for a, b in zip(problem.compute_row_pieces(x, rows), fresh.compute_row_pieces(x, rows), strict=True):
+        assert np.array_equal(a if isinstance(a, np.ndarray) else a.toarray(),
+                              b if isinstance(b, np.ndarray) else b.toarray())
