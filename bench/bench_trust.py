@@ -34,6 +34,7 @@ scene's default prior on top of the scene's noise). The calibration is
     nice -n 5 python bench/bench_trust.py --cost   # CPU of the fit and assessment, both kernels
     nice -n 5 python bench/bench_trust.py --frame world --source realistic   # the world frame
     nice -n 5 python bench/bench_trust.py --frame world --source joint       # the joint prior's own truths
+    nice -n 5 python bench/bench_trust.py --by-prior-variance --truths 4     # where the TCP prediction is conservative
 
 ``--frame world``: per truth, the expected RMS on the new poses in the world (robot base) frame
 (``identify``'s assessment with the data's blocks, ``calibration/world_frame.py``) against the
@@ -268,6 +269,47 @@ def world_main(args):
             json.dump(rows, fh, indent=2)
 
 
+def by_prior_variance(scenes, truths, n_new=300):
+    """``--by-prior-variance``: the tracker-frame TCP prediction over the achieved RMS on new poses,
+    pooled over ``truths`` realistic truths per scene, in terciles of the joint-space prior's own
+    variance of the TCP's model error at the pose (the lever arms and gravity torques of the joint
+    errors there): a stationary fitted model error predicts the same size everywhere."""
+    for name in scenes:
+        s = setup(load_scene(name))
+        pr = s.problem
+        prior = default_joint_prior(pr)
+        c = pr.kpi.point
+
+        def own(q, pr=pr, prior=prior, c=c):
+            j = evaluate_setup(pr.space, None, q).tool_point_config_jacobian(c, "tracker")[:, :, :prior.nq]
+            return np.einsum("knn,nck,nck->n", prior.compute_kernels(q, q), j, j)
+
+        sums = np.zeros((3, 2))
+        for truth in range(truths):
+            from calib_oed.calibration.realistic import sample_truth
+
+            q = pr.robot.random_configurations(60, 1000 + truth)
+            rob = identify_robust(pr.space, simulate(s, q, truth, "realistic"), pr.identifiability,
+                                  model_error=start_prior(s.scene))
+            true = sample_truth(s, np.random.default_rng(truth))
+            q_new = new_poses(q, n_new, 2000 + truth)
+            est = evaluate_setup(pr.space, rob.result.p, q_new)
+            tracker = pr.space.tracker_placement(true.p)
+            e = est.tool_point(c, "tracker") - (true.compute_tcp(q_new, c) - tracker.translation) @ tracker.rotation
+            g = est.tool_point_param_jacobian(c, "tracker", None)[:, :, rob.result.free_indices]
+            v = np.trace(error_covariances(rob.linearisation, rob.model_error.prior, g, q_new, None), axis1=1, axis2=2)
+            k = own(q_new)
+            edges = np.quantile(k, [1 / 3, 2 / 3])
+            b = np.digitize(k, edges)
+            for t in range(3):
+                sums[t] += v[b == t].sum(), np.sum(e[b == t] ** 2)
+        print(f"{name}: TCP predicted/achieved (tracker frame) on {n_new} new poses x {truths} truths, by tercile of "
+              f"the prior's own TCP variance (low, mid, high): "
+              + ", ".join(f"{x:.2f}" for x in np.sqrt(sums[:, 0] / sums[:, 1]))
+              + f"; the working configurations' own variance {np.round(own(pr.kpi.configurations) * 1e6, 4)} mm2, "
+              f"tercile edges of the last truth {np.round(edges * 1e6, 4)} mm2", flush=True)
+
+
 def cost(scenes):
     """CPU seconds of the fit and the assessment per kernel (module docstring, ``--cost``)."""
     for name in scenes:
@@ -303,9 +345,14 @@ def main():
                     help="the kernel fitted (default: what identify fits)")
     ap.add_argument("--json", metavar="FILE")
     ap.add_argument("--cost", action="store_true", help="only the CPU cost of both kernels")
+    ap.add_argument("--by-prior-variance", action="store_true",
+                    help="only the TCP prediction by tercile of the joint-space prior's own variance")
     args = ap.parse_args()
     if args.cost:
         cost(args.scenes)
+        return
+    if args.by_prior_variance:
+        by_prior_variance(args.scenes, args.truths)
         return
     if args.frame == "world" or args.source == "joint":
         if args.source == "gp" or args.frame != "world":
