@@ -110,4 +110,4 @@ class WitnessMemo:
         for key, row in zip(keys, witness.pack(), strict=True):
             self._rows[key] = row
         for old in list(self._rows)[: max(0, len(self._rows) - self.size)]:
-            del self._rows[old]
+            self._rows.pop(old, None)  # another thread may have dropped it
