@@ -44,6 +44,7 @@ from threadpoolctl import threadpool_limits
 
 from calib_oed import load_scene
 from calib_oed.calibration.identification import identify
+from calib_oed.calibration.joint_prior_choice import joint_prior
 from calib_oed.calibration.model_error import linearise
 from calib_oed.calibration.prediction import compensation
 from calib_oed.calibration.realistic import sample_truth
@@ -53,7 +54,7 @@ from calib_oed.calibration.workflow import setup
 from calib_oed.model.compliance import Compliance
 from calib_oed.model.joint_map import JointGains
 from calib_oed.oed.design import design
-from calib_oed.oed.model_error import default_prior, design_prior, scene_criterion
+from calib_oed.oed.model_error import design_prior, scene_criterion
 from calib_oed.oed.positions import reflector_positions
 from calib_oed.scene.records import ComplianceSpec
 
@@ -127,7 +128,7 @@ def run_scene(scene_ref: str, model: str, n: int, truths: int, noise: int, seed:
               out: Path | None, prior_scale: float = 1.0, frame: str | None = None) -> dict:
     scene = load_scene(scene_ref)
     s = setup(extended_scene(scene) if model == "extended" else scene)
-    prior = s.scene.model_error if s.scene.model_error is not None else default_prior(s.problem)
+    prior = s.scene.model_error if s.scene.model_error is not None else joint_prior(s.problem)
     if prior_scale != 1.0:
         prior = prior.scaled(prior_scale)
     row = {"scene": s.scene.name, "model": model, "n": n, "truths": truths, "noise_draws": noise,

@@ -57,13 +57,14 @@ import numpy as np
 from scipy.stats import chi2
 
 from calib_oed.calibration.crossval import cross_validate
+from calib_oed.calibration.joint_prior_choice import joint_prior
 from calib_oed.calibration.model_error import IDENTIFY_KERNEL, fit_model_error, start_prior
 from calib_oed.calibration.prediction import compensation, error_covariances, new_poses
 from calib_oed.calibration.robust import identify_robust
 from calib_oed.calibration.simulation import draw_true_parameters, simulate_observations
 from calib_oed.calibration.trust import assess
 from calib_oed.calibration.workflow import setup
-from calib_oed.calibration.world_frame import default_joint_prior, draw_joint_errors
+from calib_oed.calibration.world_frame import draw_joint_errors
 from calib_oed.measurement.base import evaluate_setup
 from calib_oed.measurement.dataset import MeasurementSet
 from calib_oed.measurement.discrepancy import KERNELS, DiscrepancyPrior
@@ -179,7 +180,7 @@ def world_case(s, truth, source, n_train, n_new):
     if source == "joint":  # the prior's own truths: joint-angle errors drawn from the joint-space prior
         rng = np.random.default_rng(truth)
         p_true = draw_true_parameters(pr.space, pr.identifiability.free_indices, rng)
-        eps = draw_joint_errors(default_joint_prior(pr), np.vstack([q, q_new, q_work]), rng)
+        eps = draw_joint_errors(joint_prior(pr), np.vstack([q, q_new, q_work]), rng)
         blocks = simulate_observations(pr.space, pr.models, q + eps[:n_train], p_true, rng)
         train = [ObservationBlock(b.model, q, b.values) for b in blocks]
         true_new = evaluate_setup(pr.space, p_true, q_new + eps[n_train:n_train + n_new])
@@ -277,7 +278,7 @@ def by_prior_variance(scenes, truths, n_new=300):
     for name in scenes:
         s = setup(load_scene(name))
         pr = s.problem
-        prior = default_joint_prior(pr)
+        prior = joint_prior(pr)
         c = pr.kpi.point
 
         def own(q, pr=pr, prior=prior, c=c):

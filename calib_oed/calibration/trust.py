@@ -30,11 +30,12 @@ import numpy as np
 import scipy.linalg
 
 from calib_oed.calibration.hyper_uncertainty import laplace_covariance
+from calib_oed.calibration.joint_prior_choice import joint_prior as prior_of
 from calib_oed.calibration.model_error import Linearisation
 from calib_oed.calibration.plausibility import Implausible, check_plausibility
 from calib_oed.calibration.prediction import PredictedAccuracy, predict_accuracy
 from calib_oed.calibration.robust import RobustIdentification
-from calib_oed.calibration.world_frame import JointErrorModel, default_joint_prior, row_offsets
+from calib_oed.calibration.world_frame import JointErrorModel, row_offsets
 from calib_oed.measurement.discrepancy import DiscrepancyPrior
 from calib_oed.measurement.joint_prior import JointErrorPrior
 from calib_oed.measurement.position import TrackerPosition
@@ -117,7 +118,7 @@ def assess(problem, robust: RobustIdentification, feasibility=None, blocks=None,
     ``feasibility``: the scene's constraints, so that the expected RMS on new poses is over
     feasible poses in the training joint ranges (None: uniform in those ranges); ``blocks``: the
     data ``robust`` was identified from, for the world-frame numbers with ``joint_prior``
-    (None: :func:`~calib_oed.calibration.world_frame.default_joint_prior`;
+    (None: :func:`~calib_oed.calibration.joint_prior_choice.joint_prior`, the size-class default;
     :mod:`calib_oed.calibration.world_frame`). Without ``blocks``, or with measurements other than
     reflector positions, the prediction is in the tracker frame only."""
     if robust.model_error is None or robust.linearisation is None:
@@ -127,7 +128,7 @@ def assess(problem, robust: RobustIdentification, feasibility=None, blocks=None,
     q_train = np.unique(lin.q, axis=0)
     joint = None
     if blocks is not None and all(isinstance(b.model, TrackerPosition) for b in blocks):
-        joint = JointErrorModel.build(problem.space, lin, joint_prior or default_joint_prior(problem), res.p,
+        joint = JointErrorModel.build(problem.space, lin, joint_prior or prior_of(problem), res.p,
                                       row_offsets(problem.space, blocks, robust))
     args = (problem, lin, prior, res.p, free, q_train)
     configs, weights = compensation_weights(lin, prior)

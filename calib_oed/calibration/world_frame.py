@@ -72,12 +72,6 @@ TRACKER_COVERS = ("where the tracker data place the TCP; for targets registered 
                   "and what validate measures")
 
 
-def default_joint_prior(problem) -> JointErrorPrior:
-    """The joint-space prior of ``problem``'s robot size class with the payload of its compliance
-    model, if any (the design's default, ``calib_oed.oed.model_error.default_prior``)."""
-    return JointErrorPrior.default_for(problem.robot, getattr(problem.space, "compliance", None))
-
-
 def row_offsets(space, blocks, robust) -> np.ndarray:
     """Tool-frame offset of the point behind every value of ``robust``'s final linearisation,
     (m, 3) [m] at its estimate: each kept measurement's reflector, repeated per component."""

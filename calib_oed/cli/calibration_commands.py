@@ -188,6 +188,7 @@ def cmd_identify(args) -> int:
         per_row,
         write_residuals_csv,
     )
+    from calib_oed.calibration.joint_prior_choice import joint_prior
     from calib_oed.calibration.trust import assess
     from calib_oed.calibration.workflow import (
         export_result,
@@ -218,7 +219,8 @@ def cmd_identify(args) -> int:
                             error_model=s.scene.error_model(),
                             model_error=robust.model_error.prior,
                             gross=None if robust.dropped is None else per_row(mset, robust, robust.dropped))
-    trust = assess(s.problem, robust, s.feasibility, blocks)
+    trust = assess(s.problem, robust, s.feasibility, blocks,
+                   joint_prior=joint_prior(s.problem, getattr(s.scene, "joint_error", None)))
     data = result.to_dict()
     data["fit"] = fit_dict(report, robust, sanity)
     data["model_error"] = robust.model_error.to_dict()

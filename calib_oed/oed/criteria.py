@@ -247,7 +247,7 @@ def make_criterion(name: str, *, kpi_jacobian=None, n_params: int | None = None,
             criterion under model error (:mod:`calib_oed.oed.model_error`).
         model_error: Its prior, a :class:`~calib_oed.measurement.discrepancy.DiscrepancyPrior`
             or a :class:`~calib_oed.measurement.joint_prior.JointErrorPrior` (None: the joint-space
-            default, :func:`calib_oed.oed.model_error.default_prior`).
+            default, :func:`calib_oed.calibration.joint_prior_choice.joint_prior`).
 
     Raises:
         UnknownCriterionError: ``name`` is not in :data:`CRITERIA`.
@@ -270,11 +270,12 @@ def make_criterion(name: str, *, kpi_jacobian=None, n_params: int | None = None,
             raise ValueError("criterion 'params' needs n_params, the number of parameters")
         return ACriterion.parameters(n_params)
     if name in ("kpi_model", "kpi_kriging"):
-        from calib_oed.oed.model_error import default_prior, make_model_error_criterion
+        from calib_oed.calibration.joint_prior_choice import joint_prior
+        from calib_oed.oed.model_error import make_model_error_criterion
 
         if problem is None or kpi_jacobian is None:
             raise ValueError(f"criterion {name!r} needs problem= and kpi_jacobian=")
-        prior = model_error if model_error is not None else default_prior(problem)
+        prior = model_error if model_error is not None else joint_prior(problem)
         return make_model_error_criterion(problem, kpi_jacobian, prior, kpi_weights, name)
     if name == "D":
         return DCriterion()

@@ -77,12 +77,12 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.linalg
 
+from calib_oed.calibration.joint_prior_choice import joint_prior
 from calib_oed.exceptions import CertificateError, DesignError
 from calib_oed.measurement.discrepancy import DiscrepancyPrior
 from calib_oed.measurement.joint_prior import JointErrorPrior, PointJacobians, point_jacobians
 from calib_oed.measurement.position import TrackerPosition
 from calib_oed.oed.criterion_base import Criterion, _not_identifiable
-from calib_oed.oed.joint_prior_choice import joint_prior
 
 #: Names of the criteria in :data:`calib_oed.oed.criteria.CRITERIA`: the KPI error of the
 #: parametric fit (the default design criterion), and of GLS plus kriging compensation.
@@ -108,7 +108,7 @@ MODEL_ERROR_NO_CERTIFICATE = (
 def default_criterion(scene) -> str:
     """The default design criterion: ``kpi_model`` when it applies (reflector positions, the
     mean KPI aggregate), with the scene's ``robot.model_error`` or else the joint-space prior
-    (:func:`default_prior`); else the paper's ``kpi``.
+    (:func:`~calib_oed.calibration.joint_prior_choice.joint_prior` (the size-class default)); else the paper's ``kpi``.
 
     Measured on the realistic simulator (``docs/oed.md``, ``bench/bench_model_error_design.py``,
     60 poses, 40 truths, paired with the ``kpi`` design of the same seed): the ``kpi_model``
@@ -134,8 +134,8 @@ def design_settings(objective, settings):
 def scene_criterion(s, criterion, prior=None):
     """``criterion``, with the name ``kpi_model`` made for the set-up ``s`` with ``prior``, else its
     scene's joint-space prior (``robot.model_error`` with ``kind: joint``, or ``--prior-from``:
-    :func:`calib_oed.oed.joint_prior_choice.joint_prior`), else its isotropic ``robot.model_error``,
-    else :func:`default_prior`; None: :func:`default_criterion`."""
+    :func:`calib_oed.calibration.joint_prior_choice.joint_prior`), else its isotropic ``robot.model_error``,
+    else :func:`~calib_oed.calibration.joint_prior_choice.joint_prior` (the size-class default); None: :func:`default_criterion`."""
     if criterion is None:
         criterion = default_criterion(s.scene)
     if isinstance(criterion, str) and criterion in (MODEL_ERROR, KRIGING):
@@ -144,7 +144,7 @@ def scene_criterion(s, criterion, prior=None):
         g = problem.kpi_jacobian(None)[:, free] * problem.space.unit_scale[free] * _MM  # as the objective's
         if prior is None:
             prior = scene_prior(s)
-            prior = default_prior(problem) if prior is None else prior
+            prior = joint_prior(problem) if prior is None else prior
         return make_model_error_criterion(problem, g, prior, getattr(problem.kpi, "weights", None), criterion)
     return criterion
 
@@ -152,17 +152,10 @@ def scene_criterion(s, criterion, prior=None):
 def scene_prior(s):
     """The model-error prior the set-up ``s``'s scene gives the design criterion: its joint-space
     prior (``robot.model_error`` with ``kind: joint``, or ``--prior-from``), else its isotropic
-    ``robot.model_error``, else None (the default, :func:`default_prior`)."""
+    ``robot.model_error``, else None (the default, :func:`~calib_oed.calibration.joint_prior_choice.joint_prior` (the size-class default))."""
     if getattr(s.scene, "joint_error", None) is not None:
         return joint_prior(s.problem, s.scene.joint_error)
     return s.scene.model_error
-
-
-def default_prior(problem) -> JointErrorPrior:
-    """The model-error prior of a design without ``robot.model_error``: the joint-space prior
-    for the robot's size class (:meth:`JointErrorPrior.default_for`), the payload of the
-    problem's compliance model if it has one."""
-    return JointErrorPrior.default_for(problem.robot, getattr(problem.space, "compliance", None))
 
 
 def design_prior(problem, prior: DiscrepancyPrior) -> DiscrepancyPrior:

@@ -27,7 +27,7 @@ once- and twice-per-revolution amplitudes per joint (``harmonic_mm``; a fit with
 to zero: its smooth part holds that variance); the identified compliances ``joint{i}.c`` and gains
 ``joint{i}.gain`` (``p``, SI) give :math:`\gamma_k = |c_k|`, :math:`\nu_k = |g_k|` where identified.
 Amplitudes at the points become joint angles by each joint's lever arm when the criterion is made
-(:mod:`calib_oed.oed.joint_prior_choice`).
+(:mod:`calib_oed.calibration.joint_prior_choice`).
 """
 
 from __future__ import annotations

@@ -292,7 +292,7 @@ class JointErrorSpec:
             that joint's default.
         at_point: ``once``, ``twice``, ``smooth`` given as an RMS per Cartesian axis at the
             measured points [m] (an identification's fitted kernel), turned into joint angles by
-            each joint's lever arm when the criterion is made (:mod:`calib_oed.oed.joint_prior_choice`).
+            each joint's lever arm when the criterion is made (:mod:`calib_oed.calibration.joint_prior_choice`).
         scale: Every amplitude times this (> 0).
         source: Where the numbers come from (the scene, or the identification file).
     """

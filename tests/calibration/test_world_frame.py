@@ -6,12 +6,12 @@ import numpy as np
 import pytest
 
 from calib_oed.calibration.identification import identify
+from calib_oed.calibration.joint_prior_choice import joint_prior
 from calib_oed.calibration.model_error import linearise
 from calib_oed.calibration.simulation import draw_true_parameters, simulate_observations
 from calib_oed.calibration.workflow import setup
 from calib_oed.calibration.world_frame import (
     JointErrorModel,
-    default_joint_prior,
     draw_joint_errors,
     point_jacobians,
 )
@@ -51,7 +51,7 @@ def test_prior_prediction_in_both_frames_is_the_monte_carlo_of_its_own_truths(kr
     draws of the prior's joint-angle errors through identify."""
     s = kr16
     pr = s.problem
-    prior = default_joint_prior(pr)
+    prior = joint_prior(pr)
     q = pr.robot.random_configurations(30, 7)
     q_t = np.vstack([pr.kpi.configurations, pr.robot.random_configurations(8, 8)])
     point = pr.kpi.point
@@ -87,7 +87,7 @@ def test_assess_reports_both_frames_in_text_and_json(kr16):
     s = kr16
     pr = s.problem
     q = pr.robot.random_configurations(30, 3)
-    blocks, _, _ = prior_truth_blocks(s, q, pr.kpi.configurations, default_joint_prior(pr), np.random.default_rng(5))
+    blocks, _, _ = prior_truth_blocks(s, q, pr.kpi.configurations, joint_prior(pr), np.random.default_rng(5))
     rob = identify_robust(pr.space, blocks, pr.identifiability, model_error=start_prior(s.scene))
     acc = assess(pr, rob, blocks=blocks).predicted
     assert acc.world_prior_scale > 0

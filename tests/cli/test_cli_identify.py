@@ -160,3 +160,24 @@ def test_validate_names_poses_of_the_identification_itself(files, capsys):
                 in text) is (shared > 0)
         assert main(["validate", "fms_kr16", str(out), str(path), "--json"]) == EXIT_OK
         assert json.loads(capsys.readouterr().out)["poses_in_training"] == shared
+
+
+def test_identify_takes_the_scenes_joint_prior_for_the_world_frame(files, tmp_path, capsys):
+    """The scene's ``robot.model_error: {kind: joint}`` is the prior of identify's world-frame
+    numbers (the same prior as the design's), not the size-class default."""
+    from pathlib import Path
+
+    import calib_oed.scene.shipped as shipped
+
+    _, cal, _ = files
+    text = (Path(shipped.__file__).parent / "fms_kr16.yaml").read_text()
+    assert "\nrobot:\n" in text
+    scene = tmp_path / "kr16_prior.yaml"
+    scene.write_text(text.replace("\nrobot:\n", "\nrobot:\n  model_error: {kind: joint, once_arcsec: 120}\n", 1))
+    worlds = []
+    for name, where in (("default", "fms_kr16"), ("scene", str(scene))):
+        assert main(["identify", where, str(cal), "-o", str(tmp_path / name), "--json"]) == EXIT_OK
+        worlds.append(json.loads(capsys.readouterr().out)["predicted_accuracy"]["uncompensated"]["world_frame"])
+    default, given = worlds
+    assert given["prior"].startswith("scene (default") and default["prior"].startswith("default")
+    assert given["working_configurations"][0]["gauge_share_mm2"] != default["working_configurations"][0]["gauge_share_mm2"]

@@ -11,12 +11,13 @@ from test_model_error_design import (
 )
 
 from calib_oed import load_scene
+from calib_oed.calibration.joint_prior_choice import joint_prior as default_prior
 from calib_oed.calibration.workflow import setup
 from calib_oed.exceptions import DesignError, ParameterError
 from calib_oed.feasibility.sampling import sample_feasible
 from calib_oed.measurement.base import evaluate_setup
 from calib_oed.measurement.joint_prior import JointErrorPrior, point_jacobians
-from calib_oed.oed.model_error import KRIGING, MODEL_ERROR, default_prior
+from calib_oed.oed.model_error import KRIGING, MODEL_ERROR
 from calib_oed.oed.objective import DesignObjective
 
 

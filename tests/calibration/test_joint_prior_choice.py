@@ -1,4 +1,4 @@
-"""Tests of calib_oed.oed.joint_prior_choice: the scene's or an identification's joint-space prior,
+"""Tests of calib_oed.calibration.joint_prior_choice: the scene's or an identification's joint-space prior,
 and the lever-arm conversion of amplitudes at the points checked by a seeded Monte Carlo."""
 
 from __future__ import annotations
@@ -6,9 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from calib_oed.calibration.joint_prior_choice import LEVER_CONFIGURATIONS, joint_prior, lever_arms
 from calib_oed.calibration.workflow import setup
 from calib_oed.measurement.joint_prior import JointErrorPrior, point_jacobians
-from calib_oed.oed.joint_prior_choice import LEVER_CONFIGURATIONS, joint_prior, lever_arms
 from calib_oed.oed.model_error import scene_criterion
 from calib_oed.scene.reader import load_scene
 from calib_oed.scene.records import JointErrorSpec
