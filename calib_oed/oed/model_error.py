@@ -108,14 +108,14 @@ MODEL_ERROR_NO_CERTIFICATE = (
 def default_criterion(scene) -> str:
     """The default design criterion: ``kpi_model`` when it applies (reflector positions, the
     mean KPI aggregate), with the scene's ``robot.model_error`` or else the joint-space prior
-    (:func:`~calib_oed.calibration.joint_prior_choice.joint_prior` (the size-class default)); else the paper's ``kpi``.
+    (the size-class default, :func:`~calib_oed.calibration.joint_prior_choice.joint_prior`); else the paper's ``kpi``.
 
     Measured on the realistic simulator (``docs/oed.md``, ``bench/bench_model_error_design.py``,
     60 poses, 40 truths, paired with the ``kpi`` design of the same seed): the ``kpi_model``
     design with the default joint-space prior missed the working configurations by 0.20x
     (``fms_kr16`` rigid), 0.23x (with compliance and gains identified) and 0.34x (``ur5_table``
-    with compliance and gains) the ``kpi`` design's error; 0.82x (rigid ``ur5_table``) and 0.93x
-    (UR10 cell with compliance and gains) where its SQP stalled after 9 and 4 iterations.
+    with compliance and gains) the ``kpi`` design's error; 0.12x (rigid ``ur5_table``) and 0.28x
+    (UR10 cell with compliance and gains; these two with 20 truths).
     """
     applies = scene.measurement == "position" and scene.kpi.aggregate == "mean"
     return MODEL_ERROR if applies else "kpi"
