@@ -13,6 +13,7 @@
 - DEVELOPERS.md's module map lists every module; links between the docs resolve.
 - Test files (and tests) that modules, docs, README.md, DEVELOPERS.md, benchmarks,
   examples and shipped YAML comments name are there.
+- docs/uncertainty.md's noise-model table quotes the quick starts (README.md, docs/quickstart.md).
 """
 
 from __future__ import annotations
@@ -537,3 +538,21 @@ def test_feasibility_md_rows_per_pose_of_the_shipped_scenes():
             "on convex pieces") in flat
     for name, (total, self_rows, pieces) in (("fms_kr300", kr300), ("fms_kr500", kr500), ("ur5_table", ur5)):
         assert f"`{name}` {total} (self {self_rows}, {pieces} on pieces" in flat, name
+
+
+def test_uncertainty_md_quotes_the_quick_starts():
+    """docs/uncertainty.md's table of what the shipped noise model changes quotes, in its shipped
+    column, the heuristic σ and the validation's noise floor of docs/quickstart.md and the
+    KPI-optimal share of README.md's quick start (both checked against a run by test_quickstart);
+    the isotropic noise floor is √3 × the scene's 0.01 mm."""
+    rows = {r[0]: r for r in table_after(read("docs/uncertainty.md"), "| fms_kr16, 60 poses |")}
+    quick = " ".join(read("docs/quickstart.md").split())
+    heuristic = re.search(r"the heuristic design \(([\d.e-]+) mm², ([\d.]+) mm\)", quick)
+    floor = re.search(r"noise floor \(a perfect model\): RMS ([\d.]+) mm", quick)
+    share = re.search(r"KPI-optimal: (\d+)% of the heuristic's variance", read("README.md"))
+    assert heuristic and floor and share, "quick starts: the quoted lines were not found"
+    assert math.sqrt(float(heuristic.group(1))) == pytest.approx(float(heuristic.group(2)), abs=5e-6)
+    assert rows["heuristic KPI σ per axis"][2] == f"{1e3 * float(heuristic.group(2)):.2f} µm"
+    assert rows["validation noise floor (30 poses)"][2] == f"{floor.group(1)} mm"
+    assert rows["validation noise floor (30 poses)"][1] == f"{math.sqrt(3) * 0.01:.4f} mm"
+    assert f"({share.group(1)} % of the heuristic's variance" in rows["KPI-optimal KPI σ per axis"][2]

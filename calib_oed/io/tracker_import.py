@@ -191,8 +191,7 @@ def read_pose_array(source, robot: Robot, reflector_names: Sequence[str], *,
         problems.add(None, "no data rows (the file is empty or holds only comments)")
         problems.raise_if_any()
     split, decimal_comma = _splitter(lines[0][1])
-    prismatic = np.array([j.shortname().startswith("JointModelP") for j in robot.model.joints[1:]])
-    scale = np.where(prismatic, length, angle)
+    scale = np.where(robot.prismatic, length, angle)
     q_rows, refl, pos, skipped = [], [], [], 0
     for number, line in lines:
         fields = split(line)

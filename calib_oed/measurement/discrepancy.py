@@ -388,4 +388,4 @@ class DiscrepancyPrior:
 
 def linear_joints_of(robot) -> tuple[int, ...]:
     """Indices of the robot's prismatic joints (measured by plain differences)."""
-    return tuple(i for i, j in enumerate(robot.model.joints[1:]) if j.shortname().startswith("JointModelP"))
+    return tuple(int(i) for i in np.flatnonzero(robot.prismatic))

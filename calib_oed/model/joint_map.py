@@ -27,7 +27,7 @@ rule decides, ``docs/conventions.md``). A gain on the controller side,
 error :math:`\delta r` of the controller's coupling :math:`(j, f, r)` moves
 :math:`q_j` by :math:`s_j k_j\,\delta r\,c_f`; for a source joint without a coupling
 of its own this is :math:`\kappa_{jf} (q_f - o_f)` with
-:math:`\kappa_{jf} = \delta r\,s_j k_j/(s_f k_f)` (:func:`controller_ratio_error`).
+:math:`\kappa_{jf} = \delta r\,s_j k_j/(s_f k_f)`, so :math:`\delta r = \kappa_{jf}\,s_f k_f/(s_j k_j)`.
 """
 
 from __future__ import annotations
@@ -91,15 +91,6 @@ class JointGains:
             out[j - 1, m, f - 1] = 1.0
         out.setflags(write=False)
         return out
-
-
-def controller_ratio_error(kappa: float, sign_scale_joint: float, sign_scale_source: float) -> float:
-    r"""The controller coupling ratio error :math:`\delta r = \kappa\,s_f k_f/(s_j k_j)` of an identified :math:`\kappa`.
-
-    ``sign_scale_joint`` is :math:`s_j k_j` of the coupled joint, ``sign_scale_source``
-    :math:`s_f k_f` of the source joint (:class:`~calib_oed.model.controller.ControllerConvention`).
-    """
-    return float(kappa) * float(sign_scale_source) / float(sign_scale_joint)
 
 
 def effective_configurations(q: np.ndarray, basis: np.ndarray, theta: np.ndarray) -> np.ndarray:

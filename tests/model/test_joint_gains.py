@@ -12,7 +12,7 @@ from calib_oed.measurement.second_order import tool_point_param_config_hessian
 from calib_oed.measurement.sensitivity import weighted_jacobian
 from calib_oed.model.compliance import Compliance
 from calib_oed.model.identifiability import select_gauge
-from calib_oed.model.joint_map import JointGains, controller_ratio_error
+from calib_oed.model.joint_map import JointGains
 from calib_oed.model.parameters import Group, ParameterSpace
 
 
@@ -55,7 +55,6 @@ def test_effective_configuration_is_the_gain_law(robot):
     expected[:, 1] *= 1.001
     expected[:, 2] += 0.5 * q[:, 1]
     np.testing.assert_allclose(qe, expected, rtol=0, atol=1e-15)
-    assert controller_ratio_error(0.5, -1.0, 2.0) == -1.0
 
 
 def test_rigid_second_order_refuses_a_state_with_gains(robot):
