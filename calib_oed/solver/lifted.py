@@ -93,8 +93,9 @@ class LiftedQPWorkspace(SparseWorkspace):
                            shape=(k + n, n + r))
         return Hz, Az, Cz, U, r
 
-    def solve(self, sub: QPSubproblem, d0=None, lam0=None, nu0=None) -> QPStep:
-        """Solve ``sub`` (``sub.H`` a :class:`StructuredHessian`), warm-started from ``(d0, lam0, nu0)``."""
+    def solve(self, sub: QPSubproblem, d0=None, lam0=None, nu0=None, refresh: bool = False) -> QPStep:
+        """Solve ``sub`` (``sub.H`` a :class:`StructuredHessian`), warm-started from ``(d0, lam0, nu0)``;
+        ``refresh`` recomputes the equilibration of a reused object."""
         n, k = self.n, sub.lower.size
         Hz, Az, Cz, U, r = self._matrices(sub.H, sub.C)
         gz = np.concatenate([sub.g, np.zeros(r)])
@@ -109,7 +110,7 @@ class LiftedQPWorkspace(SparseWorkspace):
             self._qp, self._key = qp, key
         else:
             qp = self._qp
-            qp.update(Hz, gz, Az, np.zeros(r), Cz, lower, upper)
+            qp.update(Hz, gz, Az, np.zeros(r), Cz, lower, upper, update_preconditioner=refresh)
         if d0 is not None or lam0 is not None or nu0 is not None:
             d = np.zeros(n) if d0 is None else np.asarray(d0, dtype=float)
             w = U.T @ d

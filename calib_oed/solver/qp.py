@@ -239,7 +239,16 @@ class DenseQPWorkspace:
     The Ruiz equilibration is computed when the object is built and kept
     through ``update`` (``update_preconditioner=False``): recomputing it costs
     more than the solve itself (45 ms vs 12 ms at :math:`K = 2048`,
-    :math:`n = 360`), and a stale diagonal scaling is still a valid one.
+    :math:`n = 360`), and a stale diagonal scaling of rows it has seen is
+    still a valid one. Not so for a slot that was padding when it was
+    computed: a QP with more rows than the equilibration saw
+    (``scaled_rows``) recomputes it. ``ur5_table``'s ``kpi_model`` design
+    (issue 30) built the object at 1235 rows; its QPs of 1442 rows then all
+    stopped at ProxQP's iteration limit with residuals of 0.01-100, and the
+    SQP stalled after 9 iterations; re-equilibrated, each was solved in 30-40
+    ProxQP iterations (``tests/solver/test_qp.py``). ``refresh``
+    recomputes it on demand (the retry of a failed QP,
+    :mod:`calib_oed.solver.subproblem`).
 
     Warm start: ``initial_guess = WARM_START``, with the caller's guess for
     :math:`(d, \lambda, \nu)` written into the solver's result vectors after
@@ -262,6 +271,7 @@ class DenseQPWorkspace:
         if max_capacity is not None:
             self.min_capacity = self.capacity = min(self.capacity, max(1, int(max_capacity)))
         self.update_preconditioner = update_preconditioner
+        self.scaled_rows = 0  # rows of the QP the equilibration was computed on (slots above: padding)
         self._qp = None
 
     def _build(self, capacity: int):
@@ -272,8 +282,9 @@ class DenseQPWorkspace:
         self.capacity = capacity
         self._qp = qp
 
-    def solve(self, sub: QPSubproblem, d0=None, lam0=None, nu0=None) -> QPStep:
-        """Solve ``sub``, warm-started from ``(d0, lam0, nu0)`` when given."""
+    def solve(self, sub: QPSubproblem, d0=None, lam0=None, nu0=None, refresh: bool = False) -> QPStep:
+        """Solve ``sub``, warm-started from ``(d0, lam0, nu0)`` when given; ``refresh``
+        recomputes the equilibration (as does a QP with more rows than it saw)."""
         n, k = self.n, sub.lower.size
         if self.max_capacity is not None and k > self.max_capacity:
             raise QPSizeError(f"dense QP of {k} rows above its capacity bound {self.max_capacity}")
@@ -296,9 +307,13 @@ class DenseQPWorkspace:
                                      else pq.InitialGuess.NO_INITIAL_GUESS)
         if fresh:
             qp.init(sub.H, sub.g, None, None, C, lower, upper, sub.box_lower, sub.box_upper)
+            self.scaled_rows = k
         else:
+            rescale = self.update_preconditioner or refresh or k > self.scaled_rows
             qp.update(sub.H, sub.g, None, None, C, lower, upper, sub.box_lower, sub.box_upper,
-                      update_preconditioner=self.update_preconditioner)
+                      update_preconditioner=rescale)
+            if rescale:
+                self.scaled_rows = k
         if warm:
             z = warm_duals(lam0, nu0, k, n, box_at=cap)
             # results.x / results.z are views of the solver's vectors: this is the warm start
@@ -361,8 +376,9 @@ class SparseQPWorkspace(SparseWorkspace):
         data = as_dense(H)[self._h_rows, self._h_cols]
         return sp.csc_matrix((data, self._h_rows.astype(np.int32), self._h_indptr), shape=(self.n, self.n))
 
-    def solve(self, sub: QPSubproblem, d0=None, lam0=None, nu0=None) -> QPStep:
-        """Solve ``sub``, warm-started from ``(d0, lam0, nu0)`` when given."""
+    def solve(self, sub: QPSubproblem, d0=None, lam0=None, nu0=None, refresh: bool = False) -> QPStep:
+        """Solve ``sub``, warm-started from ``(d0, lam0, nu0)`` when given; ``refresh``
+        recomputes the equilibration of a reused object."""
         n, k = self.n, sub.lower.size
         rows = sp.csr_matrix(sub.C) if k else sp.csr_matrix((0, n))
         nnz = n * (n + 1) // 2 + rows.nnz + n
@@ -383,7 +399,7 @@ class SparseQPWorkspace(SparseWorkspace):
             self._qp, self._pattern = qp, pattern
         else:
             qp = self._qp
-            qp.update(H, sub.g, None, None, C, lower, upper)
+            qp.update(H, sub.g, None, None, C, lower, upper, update_preconditioner=refresh)
         if d0 is not None or lam0 is not None or nu0 is not None:
             x = np.zeros(n) if d0 is None else np.asarray(d0, dtype=float)
             qp.solve(x, None, warm_duals(lam0, nu0, k, n))

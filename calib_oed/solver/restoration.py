@@ -144,7 +144,10 @@ class _RestorationMixin:
             self._stop(SQPStatus.QP_FAILED, f"QP subproblem failed ({qp_status}): {self._crash_message}; "
                        f"restoration cannot reduce the violation ({pt.violation_max:.2e}) further")
         elif pt.violation_max <= s.tol_feasibility:  # feasible to tolerance: not an infeasibility
-            self._stop(SQPStatus.STALLED, "the linearised constraints are inconsistent at a point "
+            # ProxQP does not detect infeasibility: a QP it did not solve may be inconsistent,
+            # or ProxQP failed on it (the stale equilibration of issue 30): the status says which QP
+            self._stop(SQPStatus.STALLED, f"the QP subproblem was not solved (status {qp_status!r}: "
+                       "its linearised constraints are inconsistent, or ProxQP did not converge) at a point "
                        f"feasible to tolerance (violation {pt.violation_max:.2e} <= tol_feasibility "
                        f"{s.tol_feasibility:.0e}) and restoration cannot reduce it further")
         else:

@@ -89,8 +89,9 @@ class SQPStatus(str, Enum):
     TIME_LIMIT = "time_limit"
     """The wall-clock limit (``SQPSettings.time_limit``) was reached first."""
     STALLED = "stalled"
-    """The trust region or the step fell below its minimum without convergence, or the
-    linearised constraints are inconsistent at a point feasible to tolerance."""
+    """The trust region or the step fell below its minimum without convergence, or a QP
+    subproblem at a point feasible to tolerance was not solved (its linearised constraints
+    inconsistent, or ProxQP not converging on it) and restoration could not help."""
     INFEASIBLE = "infeasible"
     """Feasibility restoration could not reduce a violation above ``tol_feasibility``."""
     FAILED = "failed"

@@ -85,7 +85,10 @@ far from active; :math:`f` scaled by the caller to O(1). One iteration at
    the violation (:meth:`~calib_oed.solver.iteration._Run._restore`); if that cannot reduce the violation,
    stop with :attr:`SQPStatus.INFEASIBLE` (:attr:`SQPStatus.STALLED` if the
    violation is already within ``tol_feasibility``: then the linearisation is
-   inconsistent, e.g. degenerate active rows, not the problem). A QP that fails at a feasible
+   inconsistent, e.g. degenerate active rows, or ProxQP did not converge on the QP, not the
+   problem). Every QP ProxQP did not solve is retried cold with a recomputed equilibration
+   (:mod:`calib_oed.solver.qp`, :class:`~calib_oed.solver.qp.DenseQPWorkspace`), before any of
+   this. A QP that fails at a feasible
    :math:`x_k` (numerical trouble) is retried with :math:`\Delta / 10`, then
    :attr:`SQPStatus.FAILED` (:attr:`SQPStatus.QP_FAILED` when the QP solver
    raised, returned non-finite values or the QP was too large).

@@ -112,13 +112,14 @@ class QPSolver:
                 self._ws[name] = SparseQPWorkspace(n, s.qp_eps_abs, s.qp_max_iterations, s.max_qp_nonzeros)
         return name, self._ws[name]
 
-    def solve(self, sub: QPSubproblem, lam0=None, nu0=None) -> QPStep:
-        """Solve ``sub`` warm-started from the duals; failures come back as a failed step."""
+    def solve(self, sub: QPSubproblem, lam0=None, nu0=None, refresh: bool = False) -> QPStep:
+        """Solve ``sub`` warm-started from the duals; failures come back as a failed step.
+        ``refresh``: a reused ProxQP object recomputes its equilibration first."""
         n, k = self.n, sub.lower.size
         name = ""
         try:
             name, ws = self._workspace(sub)
-            step = ws.solve(sub, None, lam0, nu0)
+            step = ws.solve(sub, None, lam0, nu0, refresh=True) if refresh else ws.solve(sub, None, lam0, nu0)
         except QPSizeError as exc:
             step = failed_step(n, k, "too_large", str(exc))
         except Exception as exc:  # noqa: BLE001 (ProxQP raises RuntimeError, ValueError, MemoryError, ...)
@@ -248,8 +249,9 @@ class _SubproblemMixin:
             step = self._solve(sub, np.concatenate([self.lam_rows[rows], np.zeros(pieces.size)]), self.nu, tol_d)
             ok = step.is_solved(tol_p, tol_d)
             if not ok and step.status not in CRASHED and self._info.backend != "block":
-                # a stale warm start can mislead ProxQP: cold
-                cold = self._solve(sub, None, None, tol_d)
+                # a stale warm start or a stale equilibration of the reused ProxQP object
+                # (:class:`~calib_oed.solver.qp.DenseQPWorkspace`) can mislead it: cold, rescaled
+                cold = self._solve(sub, None, None, tol_d, refresh=True)
                 step, ok = cold._replace(iterations=cold.iterations + step.iterations), cold.is_solved(tol_p, tol_d)
             self.p.times["qp"] += time.perf_counter() - t
             if not ok or rounds == _MISSED_ROUNDS:
@@ -262,8 +264,8 @@ class _SubproblemMixin:
             its += step.iterations
         return rows, step._replace(iterations=step.iterations + its), ok
 
-    def _solve(self, sub, lam0, nu0, tol):
-        step = self.qp.solve(sub, lam0, nu0)
+    def _solve(self, sub, lam0, nu0, tol, refresh=False):
+        step = self.qp.solve(sub, lam0, nu0, refresh)
         self._info.backend = self.qp.last_backend
         if (self.s.qp_polish and step.status not in CRASHED and step.primal_residual <= 1e3 * tol
                 and self.qp.last_backend != "block"  # it polishes its own active set, O(n)
