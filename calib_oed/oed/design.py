@@ -273,7 +273,7 @@ def design(
         callback: Called with each SQP iteration record.
         hessian: ``"exact"`` (default: the exact Lagrangian Hessian, per-pose
             blocks plus the low-rank coupling, where the criterion has one:
-            ``kpi``, ``params``, ``D``) or ``"bfgs"`` (damped BFGS).
+            ``kpi``, ``params``, ``D``, ``kpi_model`` with the joint-space prior) or ``"bfgs"`` (damped BFGS).
         aggregate: ``"mean"`` (default: the criterion, for ``kpi`` the weighted
             mean variance of the KPI points) or ``"max"`` (criterion ``kpi``
             only: the worst-case variance :math:`\max_i v_i`, by the epigraph
@@ -317,7 +317,7 @@ def design(
         if not refine:
             best = _best_start(objective, starts, aggregate)
         else:
-            sqp = model_error.design_settings(objective, settings)
+            sqp = model_error.design_settings(objective, settings, exact)
             best = (optimise_worst_case(s, starts, criterion, collisions, sqp, callback)
                     if aggregate == "max"
                     else optimise_starts(s, starts, criterion, collisions, sqp, callback, hessian, runs))

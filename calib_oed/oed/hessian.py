@@ -37,12 +37,14 @@ import scipy.linalg
 
 from calib_oed.oed.criteria import ACriterion, DCriterion
 from calib_oed.oed.criterion_base import Criterion, _cholesky
+from calib_oed.oed.model_error_hessian import covers
 from calib_oed.solver.result import StructuredHessian
 
 
 def has_exact_hessian(criterion: Criterion) -> bool:
-    """Whether :func:`structured_hessian` covers ``criterion`` (the A and D criteria)."""
-    return isinstance(criterion, (ACriterion, DCriterion))
+    """Whether :func:`structured_hessian` covers ``criterion`` (the A and D criteria), or
+    :func:`calib_oed.oed.model_error_hessian.design_hessian` does (``kpi_model``, joint-space prior)."""
+    return isinstance(criterion, (ACriterion, DCriterion)) or covers(criterion)
 
 
 def pose_blocks(gamma: np.ndarray, rows: np.ndarray, d_rows: np.ndarray,

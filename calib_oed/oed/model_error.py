@@ -94,6 +94,10 @@ PREDICTORS = ("fit", "kriging")
 #: iterations is within 5 % of the value at 120-270 (``docs/oed.md``); keeps the design time
 #: within 1.5x of the noise-only design's.
 MODEL_ERROR_ITERATIONS = 60
+#: SQP iterations of a model-error design with the exact Hessian (``kpi_model``,
+#: :mod:`calib_oed.oed.model_error_hessian`): at n = 60 on fms_kr16 and ur5_table at most the CPU of
+#: :data:`MODEL_ERROR_ITERATIONS` BFGS iterations, with a lower value (``docs/benchmarks.md``).
+MODEL_ERROR_EXACT_ITERATIONS = 25
 #: Relative point motion [1] below which a joint counts as moving no point (:func:`design_prior`).
 STILL_TOL = 1e-9
 _MM = 1e3
@@ -121,14 +125,15 @@ def default_criterion(scene) -> str:
     return MODEL_ERROR if applies else "kpi"
 
 
-def design_settings(objective, settings):
+def design_settings(objective, settings, exact: bool = False):
     """``settings``, or for a criterion of the whole design the SQP defaults capped at
-    :data:`MODEL_ERROR_ITERATIONS` (its Hessian is damped BFGS: ``docs/oed.md``)."""
+    :data:`MODEL_ERROR_EXACT_ITERATIONS` with the exact Hessian (``exact``: ``kpi_model``),
+    :data:`MODEL_ERROR_ITERATIONS` with damped BFGS (``docs/oed.md``)."""
     if settings is not None or not getattr(objective, "needs_design", False):
         return settings
     from calib_oed.solver.sqp import SQPSettings
 
-    return SQPSettings(max_iterations=MODEL_ERROR_ITERATIONS)  # DESIGN_SQP, capped
+    return SQPSettings(max_iterations=MODEL_ERROR_EXACT_ITERATIONS if exact else MODEL_ERROR_ITERATIONS)
 
 
 def scene_criterion(s, criterion, prior=None):

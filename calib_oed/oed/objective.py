@@ -55,6 +55,7 @@ from calib_oed.measurement import evaluate_setup
 from calib_oed.oed.criteria import ACriterion, make_criterion
 from calib_oed.oed.criterion_base import Criterion
 from calib_oed.oed.hessian import has_exact_hessian, structured_hessian
+from calib_oed.oed.model_error_hessian import design_hessian
 from calib_oed.oed.whitening import (
     NoisePieces,
     whitened_row_derivatives,
@@ -392,12 +393,18 @@ class DesignObjective:
         positive semidefinite coupling :math:`\nabla^2\Phi(M)[M_a, M_b]` through
         :math:`M`, :math:`M_a = \partial M/\partial q_a`, exact from first derivatives
         (:mod:`calib_oed.oed.hessian`, ``docs/derivations.md`` §12–13). The prior :math:`M_0` enters through
-        :math:`M`. None for criteria other than A (``kpi``, ``params``) and D,
+        :math:`M`. ``kpi_model`` (joint-space prior): the dense exact Hessian made positive definite
+        (:mod:`calib_oed.oed.model_error_hessian`). None for criteria other than A (``kpi``, ``params``) and D,
         and when a measurement model has no second configuration derivative
         (:meth:`compute_row_hessians`; e.g. with joint compliance modelled).
         """
         if not has_exact_hessian(self.criterion):
             return None
+        if self.needs_design:  # kpi_model: dense, made positive definite (oed/model_error_hessian.py)
+            try:
+                return design_hessian(self, q)
+            except NotIdentifiableError as exc:
+                raise self._named(exc) from None
         rows, d_rows, info, state = self._evaluated(q)
         dd_rows = self._row_hessians(state)
         if dd_rows is None:

@@ -120,11 +120,12 @@ def test_evaluate_names_the_unit_of_every_criterion(capsys, tmp_path):
 
 def test_the_default_call_keeps_the_model_error_criterion_s_iteration_cap(capsys, monkeypatch):
     """Without --iterations/--time-limit the command gives the design its own defaults: for
-    kpi_model (damped BFGS) the capped SQP, not the 300 iterations of the exact-Hessian criteria
+    kpi_model (exact Hessian) the capped SQP, not the 300 iterations of the exact-Hessian criteria
     (the default fms_kr16 call stalled after 259 iterations in 73 s where the cap ends in 20 s)."""
     import calib_oed.oed.model_error as model_error
 
     monkeypatch.setattr(model_error, "MODEL_ERROR_ITERATIONS", 2)
+    monkeypatch.setattr(model_error, "MODEL_ERROR_EXACT_ITERATIONS", 2)
     assert main(["design", "fms_kr16", "-n", "12", "--pool", "200", "--no-collisions", "--json"]) == 0
     data = json.loads(capsys.readouterr().out)
     assert data["criterion"] == "kpi_model" and data["solver"]["iterations"] <= 2

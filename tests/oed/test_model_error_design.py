@@ -17,6 +17,7 @@ from calib_oed.oed.design import design
 from calib_oed.oed.model_error import (
     KRIGING,
     MODEL_ERROR,
+    MODEL_ERROR_EXACT_ITERATIONS,
     MODEL_ERROR_ITERATIONS,
     default_criterion,
     design_prior,
@@ -189,6 +190,8 @@ def test_it_is_registered_and_not_a_function_of_m(kr16):
 def test_a_kpi_model_design_has_no_certificate(kr16):
     s, _ = kr16
     assert design_settings(DesignObjective(s.problem, MODEL_ERROR), None).max_iterations == MODEL_ERROR_ITERATIONS
+    exact = design_settings(DesignObjective(s.problem, MODEL_ERROR), None, True)
+    assert exact.max_iterations == MODEL_ERROR_EXACT_ITERATIONS
     assert design_settings(DesignObjective(s.problem, "kpi"), None) is None
     d = design(s, 12, MODEL_ERROR, pool=300, seed=0, enrich=False, settings=SQPSettings(max_iterations=3))
     assert d.criterion == MODEL_ERROR and d.value <= d.start_value

@@ -1,0 +1,301 @@
+r"""The exact Hessian of ``kpi_model`` (the fit predictor under the joint-space prior) in the
+configurations, for the design SQP.
+
+**Setting** (:mod:`calib_oed.oed.model_error`). :math:`\phi = \Psi(\tilde F, S, k_w)
+= \mathrm{tr}(\Omega K_{ww}) + \mathrm{tr}(\Omega V^\top S V) - 2\,\mathrm{tr}(\Omega V^\top k_w)`,
+:math:`V = \tilde F Y`, :math:`Y = M^{-1}\tilde G^\top`, :math:`M = \tilde F^\top\tilde F`. A
+direction :math:`a = (j, m)` (joint m of pose j) moves pose j's rows
+:math:`\partial\tilde F = E_j A_a`, :math:`A_a = \partial_m\tilde F_j`; the measurement
+covariance :math:`\partial S = E_j X_a + X_a^\top E_j^\top` with
+:math:`X_a[\alpha, (i,\beta)] = \sum_\kappa (\partial_m k_\kappa(q_j, q_i)\,B_{j\alpha\kappa}
++ k_\kappa(q_j, q_i)\,\partial_m B_{j\alpha\kappa})\,B_{i\beta\kappa}` (first argument only:
+the diagonal block follows from the kernel's symmetry); and pose j's rows of :math:`k_w` by
+:math:`X^w_a`. The gradient is :math:`g_a = \langle D_F, \partial\tilde F\rangle
++ 2\langle U_{j\cdot}, X_a\rangle + \langle x_w, X^w_a\rangle`, :math:`D_F = \partial\Psi/\partial\tilde F`,
+:math:`U = V\Omega V^\top`, :math:`x_w = -2V\Omega`. Its derivative along :math:`b = (l, p)`:
+
+.. math::
+    H_{ab} = \underbrace{\Psi_{FF}[A_a, A_b] + \Psi_{FS}[A_a, \partial_b S] + \Psi_{FS}[A_b, \partial_a S]
+      + \Psi_{Fk}[A_a, \partial_b k_w] + \Psi_{Fk}[A_b, \partial_a k_w]}_{\text{through the adjoints}}
+      + \underbrace{\langle D_F, \partial_{ab}\tilde F\rangle + 2\langle U_{j\cdot}, \partial_b X_a\rangle
+      + \langle x_w, \partial_b X^w_a\rangle}_{\text{second derivatives of the pieces}},
+
+with :math:`dV = dF\,Y + \tilde F\,dY`, :math:`dY = -M^{-1}dM\,Y`,
+:math:`\Psi_{FF}[A_a, A_b] = 2\,\mathrm{tr}(\Omega\,dV_a^\top S\,dV_b) + 2\langle d^2V_{ab}, R\Omega\rangle`
+(:math:`R = SV - k_w`, :math:`d^2V_{ab} = dF_a dY_b + dF_b dY_a + \tilde F d^2Y_{ab}`,
+:math:`d^2Y_{ab} = M^{-1}(dM_b M^{-1}dM_a + dM_a M^{-1}dM_b - d^2M_{ab})Y`),
+:math:`\Psi_{FS}[A, \partial S] = 2\langle\partial S, dV\,\Omega V^\top\rangle`,
+:math:`\Psi_{Fk}[A, \partial k_w] = -2\langle\partial k_w, dV\,\Omega\rangle`. The kernel's second
+derivatives in both arguments (own angle: :math:`\pm k''(\Delta)`; gain :math:`\nu^2`; compliance
+:math:`\gamma^2\,\partial\tau\,\partial\tau^\top` and :math:`\gamma^2\,\partial^2\tau\,\tau`), the
+points' second Jacobian derivatives (:func:`point_derivatives`) and the gravity torques' second
+derivatives (:func:`gravity_hessians`) are closed form. Checked against central differences of the
+exact gradient in ``tests/oed/test_model_error_hessian.py``.
+
+The Hessian couples every pair of poses (the kernel) and is indefinite; the SQP takes it made
+positive definite by the absolute value of its eigenvalues (the rule of
+:mod:`calib_oed.solver.hessian`, applied to the whole matrix), in the form of the solver's
+lifted QP (:func:`structured_hessian`): the :math:`n/3` largest :math:`|\theta|` as a low-rank
+factor, the rest by its pose blocks (a dense factor would make every QP dense). Not covered (None: the SQP's damped BFGS): ``kpi_kriging``, the
+isotropic prior, a full noise model (whitening that moves with the pose), joint compliance modelled
+(no second row derivatives), prismatic joints.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pinocchio as pin
+import scipy.linalg
+
+from calib_oed.model.kinematics import compute_tool_kinematics
+from calib_oed.solver.hessian import LIFTED_MAX_RANK_RATIO
+from calib_oed.solver.result import StructuredHessian
+
+_MM = 1e3
+_A = np.sqrt(5.0)
+#: Eigenvalues of the Hessian below this times the largest are raised to it (:func:`structured_hessian`).
+EIGENVALUE_FLOOR = 1e-8
+
+
+def point_derivatives(axes: np.ndarray, jac: np.ndarray):
+    r""":math:`\partial_l J_k` and :math:`\partial_m\partial_l J_k` of point Jacobian columns of a serial
+    revolute chain: ``axes`` :math:`a_k` (n, K, 3), ``jac`` :math:`J_k` (n, P, 3, K) (zero for joints
+    that do not move the point). :math:`\partial_l J_k = a_{\min} \times J_{\max}`;
+    :math:`\partial_m(a_p \times J_r) = [m < p]\,(a_m \times a_p) \times J_r + a_p \times \partial_m J_r`.
+    Returns (n, P, 3, K, K) and (n, P, 3, K, K, K), symmetric in the joint indices."""
+    nk = jac.shape[-1]
+    a = axes[:, None, :, None, :]  # (n, 1, K, 1, 3): a_k
+    jt = np.moveaxis(jac, 2, 3)  # (n, P, K, 3): J_l
+    lo, hi = np.minimum.outer(np.arange(nk), np.arange(nk)), np.maximum.outer(np.arange(nk), np.arange(nk))
+    ax = np.cross(a, jt[:, :, None, :, :])  # [.., k, l] = a_k x J_l
+    d = ax[:, :, lo, hi]  # (n, P, K, K, 3)
+    # T[p, m, r] = a_p x dJ_r/dq_m + [m < p] (a_m x a_p) x J_r
+    t = np.cross(axes[:, None, :, None, None, :], d[:, :, None, :, :, :])
+    aa = np.cross(axes[:, None, :, :], axes[:, :, None, :])  # [p, m] = a_m x a_p
+    aa = aa * (np.arange(nk)[None, :] < np.arange(nk)[:, None])[None, :, :, None]  # m < p
+    t += np.cross(aa[:, None, :, :, None, :], jt[:, :, None, None, :, :])
+    m = np.arange(nk)
+    dd = t[:, :, lo[:, :, None], m[None, None, :], hi[:, :, None]]  # (n, P, K, K, K, 3)
+    return np.moveaxis(d, 4, 2), np.moveaxis(dd, 5, 2)
+
+
+def gravity_hessians(load, q: np.ndarray) -> np.ndarray:
+    r""":math:`\partial^2\tau_{g,k}/\partial q_m\partial q_p` (n, nv, nv, nv) [N·m/rad²] of a
+    :class:`~calib_oed.model.compliance.GravityLoad` (revolute joints):
+    :math:`\tau_{g,k} = \sum_i m_i\,g\cdot J_k(c_i)`, :math:`c_i` the centre of mass of body i."""
+    model, data = load.model, load.data
+    nv = model.nv
+    g = np.asarray(model.gravity.linear)
+    mass = np.array([model.inertias[i].mass for i in range(1, nv + 1)])
+    axes, orig, com = (np.empty((len(q), nv, 3)) for _ in range(3))
+    for s, qs in enumerate(q):
+        pin.forwardKinematics(model, data, qs)
+        for i in range(1, nv + 1):
+            axes[s, i - 1] = data.oMi[i].rotation @ load.axes[i - 1, 3:]
+            orig[s, i - 1] = data.oMi[i].translation
+            com[s, i - 1] = data.oMi[i].act(model.inertias[i].lever)
+    jac = np.cross(axes[:, None, :, :], com[:, :, None, :] - orig[:, None, :, :])  # [s, i, k]
+    jac *= (np.arange(nv)[None, :] <= np.arange(nv)[:, None])[None, :, :, None]  # k <= i
+    dd = point_derivatives(axes, np.moveaxis(jac, 3, 2))[1]  # (n, P, 3, K, K, K)
+    return np.einsum("i,x,sixkmp->skmp", mass, g, dd)
+
+
+def _own_second(prior, q1, q2):
+    r""":math:`k''_\kappa(\Delta)` of the own-angle parts (n1, n2, K) [rad²/rad²]."""
+    d = q1[:, None, :] - q2[None, :, :]
+    a1, a2, s2, inv = prior.once**2, prior.twice**2, prior.smooth**2, 1.0 / prior.length**2
+    r = np.abs(2.0 * np.sin(0.5 * d)) * np.sqrt(inv)
+    e = np.exp(-_A * r)
+    g = -(5.0 / 3.0) * (1 + _A * r) * e
+    matern = (25.0 / 3.0) * e * np.sin(d) ** 2 * inv**2 + g * np.cos(d) * inv
+    return -a1 * np.cos(d) - 4.0 * a2 * np.cos(2 * d) + s2 * matern
+
+
+def kernel_second(prior, q1, q2, grav=None):
+    r""":math:`\partial^2 k_\kappa/\partial x_m\partial x_p` and :math:`\partial^2 k_\kappa/\partial x_m\partial y_p`
+    at :math:`(x, y) = (q_{1a}, q_{2b})`, each (K, n1, n2, nv, nv). ``grav``: (torques at q1, at q2,
+    their derivatives at q1, at q2, second derivatives at q1), or None without a compliance part."""
+    nk = prior.nq
+    own = np.moveaxis(_own_second(prior, q1, q2), 2, 0)  # (K, n1, n2)
+    d11 = np.zeros((nk, len(q1), len(q2), nk, nk))
+    d12 = np.zeros_like(d11)
+    idx = np.arange(nk)
+    d11[idx, :, :, idx, idx] = own
+    d12[idx, :, :, idx, idx] = -own + (prior.gain**2)[:, None, None]
+    if grav is not None:
+        t1, t2, dt1, dt2, ddt1 = grav
+        c2 = (prior.compliance**2)[:, None, None, None, None]
+        d11 += c2 * np.einsum("akmp,bk->kabmp", ddt1, t2)
+        d12 += c2 * np.einsum("akm,bkp->kabmp", dt1, dt2)
+    return d11, d12
+
+
+def covers(criterion) -> bool:
+    """Whether :func:`design_hessian` applies to ``criterion`` (``kpi_model`` with the joint-space prior)."""
+    return (getattr(criterion, "needs_design", False) and getattr(criterion, "predictor", None) == "fit"
+            and getattr(criterion, "joint_space", False))
+
+
+def design_hessian(objective, q: np.ndarray) -> StructuredHessian | None:
+    """The exact Hessian of ``objective`` (a :class:`~calib_oed.oed.objective.DesignObjective` of a
+    criterion :func:`covers`) at ``q``, made positive definite (:func:`structured_hessian`); None
+    where a second derivative is missing (joint compliance or gains modelled, prismatic joints)."""
+    crit = objective.criterion
+    if not covers(crit):
+        return None
+    grav = crit.prior.gravity
+    if grav is not None and np.any(grav.axes[:, :3] != 0):  # a prismatic joint
+        return None
+    rows, d_rows, _, state = objective._evaluated(q)
+    dd_rows = objective._row_hessians(state)
+    if dd_rows is None:
+        return None
+    z, d_z, dd_z = [], [], []
+    nv = d_rows.shape[-1]
+    for mdl in objective.problem.models:
+        if getattr(mdl, "noise", None) is None:
+            z.append(np.broadcast_to(np.diag(1.0 / mdl.sigma), (len(q), 3, 3)))
+            d_z.append(np.zeros((len(q), 3, 3, nv)))
+            dd_z.append(np.zeros((len(q), 3, 3, nv, nv)))
+            continue
+        pieces = objective._whitening(mdl, state, 2)
+        if pieces.dd_w is None:
+            return None
+        z.append(pieces.w)
+        d_z.append(pieces.d_w)
+        dd_z.append(pieces.dd_w)
+    h = compute_hessian(crit, rows, np.asarray(q, dtype=float), np.concatenate(z, axis=1), d_rows, dd_rows,
+                        np.concatenate(d_z, axis=1), np.concatenate(dd_z, axis=1))
+    return structured_hessian(h, nv, int(LIFTED_MAX_RANK_RATIO * h.shape[0]))
+
+
+def compute_hessian(crit, rows, q, z, d_rows, dd_rows, d_z=None, dd_z=None) -> np.ndarray:
+    r""":math:`\nabla^2_x\phi` (n nv, n nv), :math:`x = \mathrm{vec}(q)` pose-major (module docstring).
+
+    Args: as :meth:`~calib_oed.oed.model_error.ModelErrorCriterion.compute_design`, with
+    ``dd_rows`` :math:`\partial^2\tilde F_j/\partial q_j^2` (n, d, n_f, nv, nv) and the whitening's
+    second derivative ``dd_z`` (n, d, 3, nv, nv) (both None: a constant whitening).
+    """
+    n, d, nf = rows.shape
+    nv = d_rows.shape[-1]
+    big = n * nv
+    prior, om = crit.prior, crit.omega
+    flat = rows.reshape(-1, nf)
+    s, k_w, _, (kk, kwk, b, jac, _, tau) = crit._covariances(rows, q, z, False)
+    t3 = k_w.shape[1]
+    factor = scipy.linalg.cho_factor(flat.T @ flat, lower=True, check_finite=False)
+    y = scipy.linalg.cho_solve(factor, crit.kpi_jacobian.T, check_finite=False)  # (nf, T3)
+    v = flat @ y
+    r = s @ v - k_w
+    qq = scipy.linalg.cho_solve(factor, flat.T @ r, check_finite=False)
+    d_f = 2.0 * (r * om) @ y.T - 2.0 * flat @ ((qq * om) @ y.T + (y * om) @ qq.T)
+    u4 = ((v * om) @ v.T).reshape(n, d, n, d)
+    x_w = -2.0 * v * om
+
+    # the points' Jacobian derivatives, whitened: B, dB, ddB (n, d, K[, nv[, nv]])
+    pts = crit.points
+    kin = compute_tool_kinematics(pts.model, pts.frame_id, q, regressor=False, jacobian=True)
+    axes = np.swapaxes(pts.rotation.T @ kin.rotation @ kin.jacobian[:, 3:, :], 1, 2)  # (n, K, 3)
+    d_jac, dd_jac = point_derivatives(axes, jac)
+    zr = z.reshape(n, -1, 3, 3)
+    db = np.einsum("jrxy,jrykm->jrxkm", zr, d_jac)
+    ddb = np.einsum("jrxy,jrykmp->jrxkmp", zr, dd_jac)
+    if d_z is not None:  # B = Z J with Z moving with the pose
+        dzr = d_z.reshape(n, -1, 3, 3, nv)
+        db += np.einsum("jrxym,jryk->jrxkm", dzr, jac)
+        dzj = np.einsum("jrxym,jrykp->jrxkmp", dzr, d_jac)
+        ddb += dzj + np.swapaxes(dzj, 4, 5)
+        ddb += np.einsum("jrxymp,jryk->jrxkmp", dd_z.reshape(n, -1, 3, 3, nv, nv), jac)
+    db = db.reshape(n, d, nv, nv)
+    ddb = ddb.reshape(n, d, nv, nv, nv)
+
+    # kernels and their derivatives
+    jw, tau_w, _ = crit._joint_work
+    grav = prior.gravity if prior.gravity is not None and np.any(prior.compliance > 0) else None
+    if grav is not None:
+        dt = grav.torque_derivatives(q)
+        ddt = gravity_hessians(grav, q)
+    dk1 = prior.compute_kernel_gradients(q, q, None if grav is None else (tau, tau, dt))
+    dkw1 = prior.compute_kernel_gradients(q, crit.working, None if grav is None else (tau, tau_w[0], dt))
+    d11, d12 = kernel_second(prior, q, q, None if grav is None else (tau, tau, dt, dt, ddt))
+    d11w = kernel_second(prior, q, crit.working, None if grav is None else
+                         (tau, tau_w[0], dt, np.zeros((len(crit.working), nv, nv)), ddt))[0]
+
+    # first derivatives of F, M, Y, V along every direction a = (j, m)
+    a_rows = np.moveaxis(d_rows, 3, 1)  # (n, nv, d, nf)
+    atf = np.einsum("jmdf,jdg->jmfg", a_rows, rows)
+    dm = (atf + np.swapaxes(atf, 2, 3)).reshape(big, nf, nf)
+    dy = -scipy.linalg.cho_solve(factor, np.moveaxis(dm @ y, 0, 1).reshape(nf, -1),
+                                 check_finite=False).reshape(nf, big, t3).transpose(1, 0, 2)
+    ay = a_rows @ y  # (n, nv, d, T3)
+    dv = np.einsum("xf,Nfc->Nxc", flat, dy).reshape(n, nv, n, d, t3)
+    dv[np.arange(n), :, np.arange(n)] += ay
+    dv = dv.reshape(big, n * d, t3)
+
+    # through the adjoints: Psi_FF, Psi_FS, Psi_Fk
+    sdv = (s @ np.moveaxis(dv, 0, 1).reshape(n * d, -1)).reshape(n * d, big, t3)
+    h = 2.0 * (dv * om).reshape(big, -1) @ np.moveaxis(sdv, 1, 0).reshape(big, -1).T
+    rw = (r * om).reshape(n, d, t3)
+    p_a = np.einsum("jmdf,jdc->jmfc", a_rows, rw).reshape(big, -1)
+    cross = p_a @ dy.reshape(big, -1).T
+    lam = scipy.linalg.cho_solve(factor, flat.T @ (r * om), check_finite=False)  # M^-1 F^T R Omega
+    gm = dm.reshape(big, -1) @ np.einsum("fc,Ngc->Nfg", lam, dy).reshape(big, -1).T
+    h += 2.0 * (cross + cross.T) - 2.0 * (gm + gm.T)
+    blocks = -2.0 * np.einsum("jmdc,jpdc->jmp", a_rows @ lam, ay)
+    blocks = blocks + np.swapaxes(blocks, 1, 2)
+    x = (np.einsum("kjim,jak,ibk->jmaib", dk1, b, b, optimize=True)
+         + np.einsum("kji,jakm,ibk->jmaib", kk, db, b, optimize=True)).reshape(n, nv, d, n * d)
+    xk = _MM * (np.einsum("kjim,jak,ick->jmaic", dkw1, b, jw, optimize=True)
+                + np.einsum("kji,jakm,ick->jmaic", kwk, db, jw, optimize=True)).reshape(n, nv, d, t3)
+    dvr = dv.reshape(big, n, d, t3)
+    xv = np.einsum("lpax,xc->lpac", x, v * om)
+    xtv = np.einsum("lpax,lac->lpxc", x, (v * om).reshape(n, d, t3)).reshape(big, -1)
+    hfs = 2.0 * (np.einsum("Nlac,lpac->Nlp", dvr, xv).reshape(big, big) + dv.reshape(big, -1) @ xtv.T)
+    hfk = -2.0 * np.einsum("Nlac,lpac->Nlp", dvr * om, xk).reshape(big, big)
+    h += hfs + hfs.T + hfk + hfk.T
+
+    # second derivatives of the pieces: rows, S (all pairs of poses), k_w (per pose)
+    blocks += np.einsum("jdf,jdfmp->jmp", d_f.reshape(n, d, nf), dd_rows)
+    ub = np.einsum("jalb,jak,lbk->kjl", u4, b, b, optimize=True)
+    w1 = np.einsum("jalb,lbkp->jalkp", u4, db, optimize=True)
+    udb_r = np.einsum("jak,jalkp->kjlp", b, w1, optimize=True)  # U with B left, dB right
+    udb_l = np.swapaxes(udb_r, 1, 2)
+    udbdb = np.einsum("jakm,jalkp->kjlmp", db, w1, optimize=True)
+    pair_h = (np.einsum("kjlmp,kjl->jmlp", d12, ub)
+              + np.einsum("kjlm,kjlp->jmlp", dk1, udb_r)
+              + np.einsum("kjlp,kjlm->jmlp", np.swapaxes(dk1, 1, 2), udb_l)
+              + np.einsum("kjl,kjlmp->jmlp", kk, udbdb))
+    h += 2.0 * pair_h.reshape(big, big)
+    uddb = np.einsum("jaib,jakmp,ibk->kjimp", u4, ddb, b, optimize=True)
+    own = (np.einsum("kjimp,kji->jmp", d11, ub) + np.einsum("kjim,kjip->jmp", dk1, udb_l)
+           + np.einsum("kjip,kjim->jmp", dk1, udb_l) + np.einsum("kji,kjimp->jmp", kk, uddb))
+    blocks += 2.0 * own
+    xwj = np.einsum("jaic,ick->jaik", x_w.reshape(n, d, -1, 3), jw) * _MM
+    blocks += (np.einsum("jaik,kjimp,jak->jmp", xwj, d11w, b, optimize=True)
+               + np.einsum("jaik,kjim,jakp->jmp", xwj, dkw1, db, optimize=True)
+               + np.einsum("jaik,kjip,jakm->jmp", xwj, dkw1, db, optimize=True)
+               + np.einsum("jaik,kji,jakmp->jmp", xwj, kwk, ddb, optimize=True))
+    h4 = h.reshape(n, nv, n, nv).copy()
+    h4[np.arange(n), :, np.arange(n)] += blocks
+    h = h4.reshape(big, big)
+    return 0.5 * (h + h.T)
+
+
+def structured_hessian(h: np.ndarray, nv: int, rank: int | None = None) -> StructuredHessian:
+    r""":math:`|H|` of :math:`H = Q\Theta Q^\top`, :math:`|H| = Q\max(|\Theta|, \epsilon)Q^\top`,
+    :math:`\epsilon` = :data:`EIGENVALUE_FLOOR` times the largest :math:`|\theta|`, as a
+    :class:`StructuredHessian`. ``rank`` None: zero pose blocks and the dense factor
+    :math:`U = Q\max(|\Theta|, \epsilon)^{1/2}`. ``rank`` r: U keeps the r largest
+    :math:`|\theta|`, the rest of :math:`|H|` enters by its pose blocks (principal blocks of a
+    positive semidefinite matrix, so positive semidefinite)."""
+    theta, vec = np.linalg.eigh(h)
+    mag = np.abs(theta)
+    mag = np.maximum(mag, EIGENVALUE_FLOOR * max(mag.max(initial=0.0), 1e-300))
+    b = h.shape[0] // nv
+    if rank is None or rank >= len(mag):
+        return StructuredHessian(np.zeros((b, nv, nv)), vec * np.sqrt(mag))
+    order = np.argsort(mag)
+    keep, rest = order[len(mag) - rank:], order[:len(mag) - rank]
+    vr = (vec[:, rest] * np.sqrt(mag[rest])).reshape(b, nv, -1)
+    blocks = np.einsum("jar,jbr->jab", vr, vr)
+    return StructuredHessian(blocks, vec[:, keep] * np.sqrt(mag[keep]))

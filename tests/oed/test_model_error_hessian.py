@@ -1,0 +1,80 @@
+"""The exact Hessian of kpi_model (calib_oed.oed.model_error_hessian) against central differences
+of its exact gradient, on kr16 (fms_kr16, tracker noise that moves with the pose) and UR5."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from conftest import central_difference
+
+import calib_oed.oed.model_error_hessian as meh
+from calib_oed.calibration.workflow import setup
+from calib_oed.oed.hessian import has_exact_hessian
+from calib_oed.oed.model_error import scene_criterion
+from calib_oed.oed.objective import DesignObjective
+from calib_oed.scene.reader import load_scene
+
+
+@pytest.fixture(scope="module", params=["fms_kr16", "ur5_table"])
+def case(request):
+    s = setup(load_scene(request.param))
+    objective = DesignObjective(s.problem, scene_criterion(s, "kpi_model"))
+    return s, objective, s.problem.robot.random_configurations(10, 3)
+
+
+def test_exact_hessian_matches_central_differences_of_the_gradient(case, monkeypatch):
+    s, objective, q = case
+    seen = {}
+    exact = meh.compute_hessian
+
+    def keep(*args, **kwargs):
+        seen["h"] = exact(*args, **kwargs)
+        return seen["h"]
+
+    monkeypatch.setattr(meh, "compute_hessian", keep)
+    structured = objective.compute_hessian(q)
+    fd = central_difference(lambda x: objective.compute(x.reshape(q.shape)).gradient.ravel(), q.ravel())
+    h = seen["h"]
+    assert np.abs(h - fd).max() <= 1e-6 * np.abs(fd).max()
+    nv = q.shape[1]
+    off = ~np.kron(np.eye(len(q)), np.ones((nv, nv))).astype(bool)
+    assert np.abs(h[off]).max() > 1e-3 * np.abs(h).max()  # the kernel couples the poses
+    theta = np.linalg.eigvalsh(h)
+    assert theta[0] < 0 < theta[-1]  # indefinite: the SQP gets |H|
+    rank = structured.low_rank.shape[1]
+    assert rank == len(h) // 3  # the solver's lifted QP, not a dense one
+    kept = np.linalg.eigvalsh(structured.low_rank.T @ structured.low_rank)
+    np.testing.assert_allclose(kept, np.sort(np.abs(theta))[-rank:], rtol=1e-8, atol=1e-8 * np.abs(theta).max())
+    assert np.linalg.eigvalsh(structured.blocks).min() >= -1e-10 * np.abs(theta).max()
+
+
+def test_gravity_torque_hessians_match_central_differences(case):
+    s, objective, q = case
+    load = objective.criterion.prior.gravity
+    got = meh.gravity_hessians(load, q[:2])
+    for k in range(2):
+        fd = central_difference(lambda x: load.torque_derivatives(x[None])[0], q[k])
+        assert np.abs(got[k] - fd).max() <= 1e-6 * np.abs(fd).max()
+
+
+def test_structured_hessian_is_exact_where_positive_definite():
+    rng = np.random.default_rng(0)
+    a = rng.standard_normal((12, 12))
+    h = a @ a.T + np.eye(12)
+    np.testing.assert_allclose(meh.structured_hessian(h, 6).dense(), h, rtol=1e-10, atol=1e-10)
+    # of low rank: exact on the pose blocks and on the kept eigenvectors
+    b = rng.standard_normal((12, 3))
+    h = b @ b.T + np.kron(np.eye(2), np.diag(np.arange(1.0, 7.0)))
+    low = meh.structured_hessian(h, 6, 4)
+    assert low.low_rank.shape == (12, 4)
+    blocks = np.kron(np.eye(2), np.ones((6, 6))).astype(bool)
+    np.testing.assert_allclose(low.dense()[blocks], h[blocks], rtol=1e-10, atol=1e-10)
+    theta, vec = np.linalg.eigh(h)
+    np.testing.assert_allclose(low.low_rank @ low.low_rank.T @ vec[:, -4:], vec[:, -4:] * theta[-4:], atol=1e-9)
+
+
+def test_criteria_it_does_not_cover(case):
+    s, objective, _ = case
+    assert has_exact_hessian(objective.criterion)
+    assert not has_exact_hessian(scene_criterion(s, "kpi_kriging"))
+    assert not has_exact_hessian(scene_criterion(s, "kpi_model", s.scene.discrepancy()))  # isotropic
