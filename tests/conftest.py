@@ -66,7 +66,7 @@ def _fresh_geometry_cache(tmp_path_factory):
     patch.undo()
 
 
-# ---- measurement programs (tests/program): fms_kr16, its continuous check, feasible poses
+# ---- fms_kr16: its scene, set-up, continuous check (tests/program) and feasible poses
 
 
 @pytest.fixture(scope="session")
@@ -85,13 +85,29 @@ def kr16_checker(kr16_scene):
 
 
 @pytest.fixture(scope="session")
-def kr16_poses(kr16_scene) -> np.ndarray:
-    """12 poses that keep every constraint of the scene (the design's model), seed 3."""
-    from calib_oed.feasibility.pairs import feasibility_from_scene
+def kr16_setup(kr16_scene):
+    """fms_kr16's set-up (calibration problem and feasibility model), built once per session
+    (per xdist worker). Read-only: a test that changes it builds its own with ``setup``."""
+    from calib_oed.calibration.workflow import setup
+
+    return setup(kr16_scene)
+
+
+@pytest.fixture(scope="session")
+def kr16(kr16_setup):
+    """``kr16_setup`` by its short name; a test module may define its own ``kr16`` (a robot, or the
+    set-up with poses) from ``kr16_setup``, which keeps its name everywhere."""
+    return kr16_setup
+
+
+@pytest.fixture(scope="session")
+def kr16_poses(kr16_setup) -> np.ndarray:
+    """12 poses that keep every constraint of the scene (the design's model), seed 3; read-only."""
     from calib_oed.feasibility.sampling import sample_feasible
 
-    model, _ = feasibility_from_scene(kr16_scene)
-    return sample_feasible(model, 12, 3)
+    poses = sample_feasible(kr16_setup.feasibility, 12, 3)
+    poses.setflags(write=False)
+    return poses
 
 
 @pytest.fixture(scope="session")

@@ -12,17 +12,15 @@ from calib_oed.calibration.identification import identify
 from calib_oed.calibration.model_error import linearise
 from calib_oed.calibration.prediction import new_poses
 from calib_oed.calibration.simulation import draw_true_parameters, simulate_observations
-from calib_oed.calibration.workflow import setup
 from calib_oed.measurement.dataset import MeasurementSet
 from calib_oed.measurement.discrepancy import DiscrepancyPrior
-from calib_oed.scene.reader import load_scene
 
 TRUE = DiscrepancyPrior(1e-4, tuple(np.radians([45, 45, 45, 90, 90, 90])))
 
 
 @pytest.fixture(scope="module")
-def fms():
-    return setup(load_scene("fms_kr16"))
+def fms(kr16_setup):
+    return kr16_setup  # the session's fms_kr16 set-up (tests/conftest.py)
 
 
 def _truth(fms, seed, n=60, n_val=200):

@@ -13,13 +13,12 @@ from calib_oed.calibration.fit_report import (
 )
 from calib_oed.calibration.robust import identify_robust
 from calib_oed.calibration.sanity import check_measurements
-from calib_oed.calibration.workflow import setup, simulated_measurements
-from calib_oed.scene.reader import load_scene
+from calib_oed.calibration.workflow import simulated_measurements
 
 
 @pytest.fixture(scope="module")
-def fms():
-    return setup(load_scene("fms_kr16"))
+def fms(kr16_setup):
+    return kr16_setup  # the session's fms_kr16 set-up (tests/conftest.py)
 
 
 def _fit(s, q, truth_seed):

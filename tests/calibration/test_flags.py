@@ -10,7 +10,6 @@ from calib_oed.calibration.flags import classify_flags
 from calib_oed.calibration.problem import CalibrationProblem
 from calib_oed.calibration.robust import identify_robust
 from calib_oed.calibration.simulation import draw_true_parameters, simulate_observations
-from calib_oed.calibration.workflow import setup
 from calib_oed.measurement.discrepancy import DiscrepancyPrior
 from calib_oed.measurement.observations import ObservationBlock
 from calib_oed.scene.reader import load_scene
@@ -23,8 +22,8 @@ HARMONIC = DiscrepancyPrior(6e-5, TRUE.length_scales, "matern52_harmonic",
 
 
 @pytest.fixture(scope="module")
-def fms():
-    return setup(load_scene("fms_kr16"))
+def fms(kr16_setup):
+    return kr16_setup  # the session's fms_kr16 set-up (tests/conftest.py)
 
 
 def _blocks(problem, seed, n=60, prior=TRUE):

@@ -18,18 +18,16 @@ from calib_oed.calibration.identification import identify
 from calib_oed.calibration.model_error import fit_model_error, linearise, restricted_log_likelihood
 from calib_oed.calibration.prediction import error_covariances, new_poses
 from calib_oed.calibration.simulation import draw_true_parameters, simulate_observations
-from calib_oed.calibration.workflow import setup
 from calib_oed.measurement.base import evaluate_setup
 from calib_oed.measurement.discrepancy import DiscrepancyPrior
 from calib_oed.measurement.observations import ObservationBlock
-from calib_oed.scene.reader import load_scene
 
 TRUE = DiscrepancyPrior(1e-4, tuple(np.radians([45, 45, 45, 90, 90, 90])), sigma_white=1e-5)
 
 
 @pytest.fixture(scope="module")
-def fms():
-    return setup(load_scene("fms_kr16"))
+def fms(kr16_setup):
+    return kr16_setup  # the session's fms_kr16 set-up (tests/conftest.py)
 
 
 def _fit(fms, seed, n=60):

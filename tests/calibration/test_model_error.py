@@ -15,17 +15,15 @@ from calib_oed.calibration.model_error import (
     restricted_log_likelihood,
 )
 from calib_oed.calibration.simulation import draw_true_parameters, simulate_observations
-from calib_oed.calibration.workflow import setup
 from calib_oed.measurement.discrepancy import DiscrepancyPrior
-from calib_oed.scene.reader import load_scene
 from tests.conftest import central_difference, relative_error
 
 TRUE = DiscrepancyPrior(1e-4, tuple(np.radians([45, 45, 45, 90, 90, 90])))
 
 
 @pytest.fixture(scope="module")
-def fms():
-    return setup(load_scene("fms_kr16"))
+def fms(kr16_setup):
+    return kr16_setup  # the session's fms_kr16 set-up (tests/conftest.py)
 
 
 def _data(fms, seed, n=60, prior=TRUE):

@@ -29,11 +29,6 @@ def only(component: str | None, **extra) -> RealisticSettings:
 
 
 @pytest.fixture(scope="module")
-def kr16():
-    return setup("fms_kr16")
-
-
-@pytest.fixture(scope="module")
 def ur5():
     return setup("ur5_table")
 

@@ -11,7 +11,7 @@ from calib_oed.calibration.crossval import held_out_errors, noise_floor, subset
 from calib_oed.calibration.problem import CalibrationProblem
 from calib_oed.calibration.robust import identify_robust
 from calib_oed.calibration.simulation import draw_true_parameters, simulate_observations
-from calib_oed.calibration.workflow import setup, simulated_measurements
+from calib_oed.calibration.workflow import simulated_measurements
 from calib_oed.exceptions import ParameterError
 from calib_oed.measurement.observations import ObservationBlock
 from calib_oed.model.compliance import Compliance
@@ -20,8 +20,8 @@ from calib_oed.scene.records import ComplianceSpec
 
 
 @pytest.fixture(scope="module")
-def fms():
-    return setup(load_scene("fms_kr16"))
+def fms(kr16_setup):
+    return kr16_setup  # the session's fms_kr16 set-up (tests/conftest.py)
 
 
 def test_one_gross_error_is_exactly_the_flagged_row(fms):

@@ -12,11 +12,6 @@ from calib_oed import heuristic_design, load_scene, setup
 from calib_oed.exceptions import DesignError, SceneError, UnknownSceneError
 
 
-@pytest.fixture(scope="module")
-def kr16():
-    return setup("fms_kr16")
-
-
 def test_setup_takes_a_name_a_path_or_a_scene(kr16):
     path = resources.files("calib_oed.scene.shipped").joinpath("fms_kr16.yaml")
     for ref in (str(path), path, load_scene("fms_kr16")):

@@ -16,11 +16,6 @@ from calib_oed.scene.reader import load_scene
 
 
 @pytest.fixture(scope="module")
-def kr16():
-    return setup(load_scene("fms_kr16"))
-
-
-@pytest.fixture(scope="module")
 def designs(kr16, tmp_path_factory):
     """Two heuristic designs of 25 poses: one as design.yaml in a folder, one as a CSV."""
     root = tmp_path_factory.mktemp("designs")

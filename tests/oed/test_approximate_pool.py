@@ -6,7 +6,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from calib_oed.calibration.workflow import setup
 from calib_oed.feasibility.constraints import FEASIBILITY_TOL
 from calib_oed.feasibility.sampling import sample_feasible
 from calib_oed.oed import certificate as cert
@@ -14,14 +13,8 @@ from calib_oed.oed.approximate import solve_approximate
 from calib_oed.oed.approximate_pool import approximate_pool, approximate_start, rounded_start
 from calib_oed.oed.design import evaluate_design
 from calib_oed.oed.objective import DesignObjective
-from calib_oed.scene.reader import load_scene
 
 N = 12
-
-
-@pytest.fixture(scope="module")
-def kr16():
-    return setup(load_scene("fms_kr16"))
 
 
 @pytest.fixture(scope="module")

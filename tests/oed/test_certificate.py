@@ -9,7 +9,6 @@ import numpy as np
 import pytest
 from conftest import central_difference, relative_error
 
-from calib_oed.calibration.workflow import setup
 from calib_oed.exceptions import CertificateError, ShapeError
 from calib_oed.feasibility.sampling import sample_feasible
 from calib_oed.oed import approximate as approximate_design
@@ -17,16 +16,10 @@ from calib_oed.oed import certificate as cert
 from calib_oed.oed.design import design, exchange_baseline
 from calib_oed.oed.objective import DesignObjective
 from calib_oed.oed.sensitivity_maxima import sensitivity_field
-from calib_oed.scene.reader import load_scene
 from calib_oed.solver.sqp import SQPSettings
 
 
 # ------------------------------------------------ the certificate of a design
-@pytest.fixture(scope="module")
-def kr16():
-    return setup(load_scene("fms_kr16"))
-
-
 @pytest.fixture(scope="module")
 def kr16_pool(kr16):
     return sample_feasible(kr16.feasibility, 300, 11)

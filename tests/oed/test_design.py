@@ -6,7 +6,6 @@ import numpy as np
 import pytest
 import yaml
 
-from calib_oed.calibration.workflow import setup
 from calib_oed.exceptions import DesignError, ShapeError
 from calib_oed.io.design_file import read_design_csv
 from calib_oed.oed.approximate_pool import approximate_pool, approximate_start
@@ -14,16 +13,10 @@ from calib_oed.oed.design import design, evaluate_design, exchange_baseline, heu
 from calib_oed.oed.objective import DesignObjective
 from calib_oed.oed.result import format_design_table, write_design
 from calib_oed.oed.starts import candidate_pool
-from calib_oed.scene.reader import load_scene
 from calib_oed.solver.sqp import SQPSettings
 
 N = 14
 SETTINGS = SQPSettings(max_iterations=40)
-
-
-@pytest.fixture(scope="module")
-def kr16():
-    return setup(load_scene("fms_kr16"))
 
 
 @pytest.fixture(scope="module")

@@ -16,16 +16,10 @@ from calib_oed.io.design_file import write_design_csv
 from calib_oed.oed import memory
 from calib_oed.oed.design import design, exchange_baseline
 from calib_oed.oed.starts import multiplicities
-from calib_oed.scene.reader import load_scene
 from calib_oed.solver.sqp import SQPSettings
 
 N = 12
 FEW = SQPSettings(max_iterations=15)
-
-
-@pytest.fixture(scope="module")
-def kr16():
-    return setup(load_scene("fms_kr16"))
 
 
 @pytest.fixture(scope="module")

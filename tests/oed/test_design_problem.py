@@ -6,10 +6,9 @@ import numpy as np
 import pytest
 from conftest import central_difference, relative_error
 
-from calib_oed.calibration.workflow import heuristic_design, setup
+from calib_oed.calibration.workflow import heuristic_design
 from calib_oed.oed.objective import DesignObjective
 from calib_oed.oed.problem import COLLISION_KINDS, DesignProblem
-from calib_oed.scene.reader import load_scene
 
 
 def stacked_labels(problem: DesignProblem) -> list[str]:
@@ -17,11 +16,6 @@ def stacked_labels(problem: DesignProblem) -> list[str]:
     rows = [lbl for k, lbl in zip(problem.feasibility.kinds, problem.feasibility.labels, strict=True)
             if k in problem.kinds]
     return [f"pose {j}: {lbl}" for j in range(problem.n) for lbl in rows]
-
-
-@pytest.fixture(scope="module")
-def kr16():
-    return setup(load_scene("fms_kr16"))
 
 
 @pytest.fixture(scope="module")

@@ -22,9 +22,9 @@ from calib_oed.oed.objective import DesignObjective
 
 
 @pytest.fixture(scope="module")
-def kr16():
-    s = setup(load_scene("fms_kr16"))
-    return s, sample_feasible(s.feasibility, 24, 11)
+def kr16(kr16_setup):
+    """The session's fms_kr16 set-up (tests/conftest.py) with feasible poses (24, seed 11)."""
+    return kr16_setup, sample_feasible(kr16_setup.feasibility, 24, 11)
 
 
 def strong_prior(problem) -> JointErrorPrior:

@@ -28,9 +28,9 @@ from calib_oed.solver.sqp import SQPSettings
 
 
 @pytest.fixture(scope="module")
-def kr16():
-    s = setup(load_scene("fms_kr16"))
-    return s, sample_feasible(s.feasibility, 30, 11)
+def kr16(kr16_setup):
+    """The session's fms_kr16 set-up (tests/conftest.py) with feasible poses (30, seed 11)."""
+    return kr16_setup, sample_feasible(kr16_setup.feasibility, 30, 11)
 
 
 def two_reflector_problem():

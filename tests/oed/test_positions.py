@@ -7,11 +7,8 @@ import json
 import numpy as np
 import pytest
 
-from calib_oed import load_scene
-from calib_oed.calibration.workflow import setup
 from calib_oed.cli import EXIT_BAD_INPUT, EXIT_OK, main
 from calib_oed.exceptions import DesignError
-from calib_oed.feasibility.sampling import sample_feasible
 from calib_oed.oed.design import evaluate_design
 from calib_oed.oed.positions import (
     POSITION_TOL,
@@ -25,9 +22,9 @@ from tests.conftest import make_space
 
 
 @pytest.fixture(scope="module")
-def kr16():
-    s = setup(load_scene("fms_kr16"))
-    return s, sample_feasible(s.feasibility, 12, 3)
+def kr16(kr16_setup, kr16_poses):
+    """The session's fms_kr16 set-up and its 12 feasible poses (seed 3; tests/conftest.py)."""
+    return kr16_setup, kr16_poses
 
 
 def test_a_turn_of_the_last_joint_about_the_reflector_is_the_same_position(kr16):

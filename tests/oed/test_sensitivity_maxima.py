@@ -5,18 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from calib_oed.calibration.workflow import setup
 from calib_oed.feasibility.sampling import sample_feasible
 from calib_oed.oed import sensitivity_maxima as sm
 from calib_oed.oed.approximate import information, solve_approximate
 from calib_oed.oed.objective import DesignObjective
 from calib_oed.oed.problem import DesignProblem
-from calib_oed.scene.reader import load_scene
-
-
-@pytest.fixture(scope="module")
-def kr16():
-    return setup(load_scene("fms_kr16"))
 
 
 @pytest.fixture(scope="module")

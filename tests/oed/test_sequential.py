@@ -7,23 +7,17 @@ import json
 import numpy as np
 import pytest
 
-from calib_oed.calibration.workflow import heuristic_design, setup, simulated_measurements
+from calib_oed.calibration.workflow import heuristic_design, simulated_measurements
 from calib_oed.exceptions import SequentialError
 from calib_oed.feasibility.sampling import sample_feasible
 from calib_oed.oed.sequential import SequentialDesigner
 from calib_oed.oed.sequential_run import measurements_needed, run_sequential
-from calib_oed.scene.reader import load_scene
 from calib_oed.solver.sqp import SQPSettings
 
 #: The heuristic 60-pose design of fms_kr16 (seed 0) predicts 0.0062 mm under the shipped
 #: tracker error model and repeatability (0.0036 mm with the old isotropic 0.01 mm); 0.007 is reachable.
 TARGET = 0.007
 FAST = SQPSettings(max_iterations=10)
-
-
-@pytest.fixture(scope="module")
-def kr16():
-    return setup(load_scene("fms_kr16"))
 
 
 @pytest.fixture(scope="module")
@@ -66,7 +60,7 @@ def test_truth_is_the_workflow_truth_and_estimate_improves(run, kr16):
     assert run.steps[-1].tcp_error_mm.max() < run.steps[0].tcp_error_mm.max()
 
 
-def test_comparison_consistent(run):
+def test_comparison_consistent(run, kr16):
     by = {c.method: c for c in run.comparison}
     heur = by["heuristic"]
     assert heur.n is not None and heur.sigma_mm[heur.n] <= TARGET
@@ -83,14 +77,10 @@ def test_comparison_consistent(run):
     assert "sequential" in text and "heuristic" in text and "CHECK FAILED" not in text
     # the fixed 60-pose references at the final estimate: the heuristic one is the seed-0 design
     assert run.reference_n == 60 and d["reference"]["n"] == 60
-    heur60 = kr16_sigma_mm(run, heuristic_design(setup(load_scene("fms_kr16")), 60, 0))
+    heur60 = float(kr16.problem.kpi_sigma(heuristic_design(kr16, 60, 0), run.p_estimate).max() * 1e3)
     assert run.reference["heuristic"] == pytest.approx(heur60, rel=1e-9)
     assert run.reference["fixed KPI-optimal"] < run.reference["heuristic"]
     assert "fixed 60-pose designs at the final estimate" in text
-
-
-def kr16_sigma_mm(run, q):
-    return float(setup(load_scene("fms_kr16")).problem.kpi_sigma(q, run.p_estimate).max() * 1e3)
 
 
 def test_propose_beats_random_batch(kr16):
@@ -174,7 +164,7 @@ def test_measurements_needed_heuristic_is_nested(kr16):
 
 
 # ------------------------------------------------------------------ the CLI
-def test_cli_sequential_stops_at_the_target_and_writes_its_files(capsys, tmp_path):
+def test_cli_sequential_stops_at_the_target_and_writes_its_files(capsys, tmp_path, kr16):
     from calib_oed.cli import EXIT_OK, main
     from calib_oed.io.design_file import read_design_csv
 
@@ -187,7 +177,6 @@ def test_cli_sequential_stops_at_the_target_and_writes_its_files(capsys, tmp_pat
     assert data["reached"] and sig[-1] <= 0.005 < min(sig[:-1])
     assert data["check"] == []
     assert data["n_measurements"] == 9 + 2 * (len(sig) - 1)
-    kr16 = setup(load_scene("fms_kr16"))
     q = read_design_csv(tmp_path / "measured.csv", kr16.problem.robot)
     np.testing.assert_allclose(q, np.array(data["q_rad"]), rtol=0, atol=1e-15)
     assert json.loads((tmp_path / "sequential.json").read_text())["n_measurements"] == len(q)

@@ -25,10 +25,10 @@ PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
 
 @pytest.fixture(scope="module")
-def kr16():
-    """The fms_kr16 scene (one reflector, one working configuration) and a 30-pose design."""
-    s = setup(load_scene("fms_kr16"))
-    return s, heuristic_design(s, 30, 0)
+def kr16(kr16_setup):
+    """The session's fms_kr16 set-up (one reflector, one working configuration; tests/conftest.py)
+    and a 30-pose design."""
+    return kr16_setup, heuristic_design(kr16_setup, 30, 0)
 
 
 @pytest.fixture(scope="module")

@@ -79,8 +79,8 @@ def tool_point(s, q: np.ndarray, point: np.ndarray) -> np.ndarray:
 
 # ----------------------------------------------------------------- fixtures
 @pytest.fixture(scope="module")
-def s():
-    return setup(load_scene("fms_kr16"))
+def s(kr16_setup):
+    return kr16_setup  # the session's fms_kr16 set-up (tests/conftest.py)
 
 
 @pytest.fixture(scope="module")
