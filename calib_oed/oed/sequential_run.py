@@ -199,8 +199,8 @@ def measurements_needed(setup: Setup, target_sigma_mm: float, method: str, *,
     sigmas = {}
     q_heur = heuristic_design(setup, grid[-1], seed) if method == "heuristic" else None
     for n in grid:
-        q = q_heur[:n] if q_heur is not None else optimal_design(setup, n, "kpi", seed=seed,
-                                                                 settings=settings).q
+        q = q_heur[:n] if q_heur is not None else optimal_design(setup, n, "kpi", seed=seed, settings=settings,
+                                                                 certificate=False).q
         sigmas[n] = float(setup.problem.kpi_sigma(q, p).max() * 1e3)
         if sigmas[n] <= target_sigma_mm:
             return MeasurementsNeeded(method, n, sigmas)
@@ -254,7 +254,8 @@ def run_sequential(setup: Setup, target_sigma_mm: float, *, batch: int = 5, init
     if initial_design not in INITIAL_DESIGNS:
         raise SequentialError("initial_design", initial_design, f"must be one of {', '.join(INITIAL_DESIGNS)}")
     q_all = (heuristic_design(setup, int(initial), seed) if initial_design == "heuristic" else
-             np.array(optimal_design(setup, int(initial), criterion, seed=seed, settings=compare_settings).q))
+             np.array(optimal_design(setup, int(initial), criterion, seed=seed, settings=compare_settings,
+                                     certificate=False).q))
     blocks = simulate_observations(space, problem.models, q_all, p_true, rng)
     added, method, feasible, seconds = len(q_all), "initial", True, 0.0
     steps = []
@@ -282,7 +283,7 @@ def run_sequential(setup: Setup, target_sigma_mm: float, *, batch: int = 5, init
     reference = {}
     if compare and reference_n:
         fixed = {"fixed KPI-optimal": optimal_design(setup, int(reference_n), "kpi", seed=seed,
-                                                     settings=compare_settings).q,
+                                                     settings=compare_settings, certificate=False).q,
                  "heuristic": heuristic_design(setup, int(reference_n), seed)}
         reference = {k: float(problem.kpi_sigma(q, p_hat).max() * 1e3) for k, q in fixed.items()}
     q_all.setflags(write=False)
