@@ -6,9 +6,10 @@ import numpy as np
 import pytest
 from conftest import central_difference, relative_error
 
-from calib_oed.calibration.workflow import heuristic_design
+from calib_oed.calibration.workflow import heuristic_design, setup
 from calib_oed.oed.objective import DesignObjective
 from calib_oed.oed.problem import COLLISION_KINDS, DesignProblem
+from calib_oed.scene.reader import load_scene
 
 
 def stacked_labels(problem: DesignProblem) -> list[str]:
