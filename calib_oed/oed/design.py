@@ -85,13 +85,12 @@ def _setup(scene: Scene | Setup) -> Setup:
     return scene if isinstance(scene, Setup) else Setup(scene)
 
 
+@threadpool_limits.wrap(limits=1)  # one BLAS thread: the same bits whatever the environment's count
 def criterion_values(objective: DesignObjective, q: np.ndarray, prior=None) -> dict[str, float]:
-    """Every criterion of :data:`calib_oed.oed.criteria.CRITERIA` at design ``q``.
-
-    ``kpi`` and ``params`` are average variances [mm², (mm or mrad)²], ``D``
-    is log det C, ``E`` the largest covariance eigenvalue, ``O1..O5`` the
-    observability indices (larger is better), ``kpi_model``/``kpi_kriging`` under ``prior`` (NaN for poses).
-    """
+    """Every criterion of :data:`calib_oed.oed.criteria.CRITERIA` at design ``q``. ``kpi`` and
+    ``params`` are average variances [mm², (mm or mrad)²], ``D`` is log det C, ``E`` the largest
+    covariance eigenvalue, ``O1..O5`` the observability indices (larger is better),
+    ``kpi_model``/``kpi_kriging`` under ``prior`` (NaN for poses)."""
     blocks = objective.compute_blocks(q)
     info = objective.information(blocks)
     n_rows = blocks.shape[0] * blocks.shape[1]
