@@ -215,6 +215,11 @@ class MeasurementFileError(CalibOedError):
         )
 
 
+class IdentificationFileError(CalibOedError, ValueError):
+    """An identification JSON that does not hold what the joint-space model-error prior needs
+    (``--prior-from``, ``robot.model_error.from``; the message says what)."""
+
+
 class ExportError(CalibOedError):
     """A result could not be written (bad output path, unsupported URDF content)."""
 

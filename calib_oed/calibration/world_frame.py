@@ -41,8 +41,8 @@ gauge share, never below the world-frame prediction of the exact model (noise on
     \lambda = \frac{\overline{\mathrm{tr}\,V_T^{\mathrm{fit}}}}{\overline{\mathrm{tr}\,V_T^{\mathrm{prior}}}}
     \text{ (means over the new poses)}.
 
-The prior's amplitudes are the size class's published values
-(:meth:`JointErrorPrior.default_for`), not fitted to the data (the residuals do not see the part
+The prior's amplitudes are the scene's ``robot.model_error`` (``kind: joint``) or else the size
+class's published values (:meth:`JointErrorPrior.default_for`), not fitted to the data (the residuals do not see the part
 the fit absorbs); :math:`\lambda` scales its variances to the size of this robot's model error as
 the fitted model error sees it in the tracker frame, where both predict the same thing. Checked by
 Monte Carlo of joint-angle draws of the prior through the nonlinear identification in
@@ -65,7 +65,8 @@ MM_PER_M = 1e3
 #: What the world-frame numbers cover, in one sentence (report and JSON).
 WORLD_COVERS = ("where the controller works and the KPI is declared; the tracker-frame error plus the "
                 "rigid move of the base that the fit's tracker pose takes from the unmodelled joint errors, "
-                "which the residuals cannot show: from the joint-space prior of the robot's size class, "
+                "which the residuals cannot show: from the joint-space prior (the scene's robot.model_error, "
+                "else the robot's size class), "
                 "scaled to the model error fitted here")
 #: What the tracker-frame numbers cover, in one sentence.
 TRACKER_COVERS = ("where the tracker data place the TCP; for targets registered with the tracker, "
@@ -77,12 +78,9 @@ def row_offsets(space, blocks, robust) -> np.ndarray:
     (m, 3) [m] at its estimate: each kept measurement's reflector, repeated per component."""
     offsets = space.reflector_offsets(robust.result.p)
     per = np.concatenate([np.repeat(offsets[b.model.reflector][None], b.n, axis=0) for b in blocks])
-    if robust.dropped is not None:
-        per = per[~robust.dropped]
     dims = np.concatenate([np.full(b.n, b.model.dim) for b in blocks])
-    if robust.dropped is not None:
-        dims = dims[~robust.dropped]
-    return np.repeat(per, dims, axis=0)
+    kept = slice(None) if robust.dropped is None else ~robust.dropped
+    return np.repeat(per[kept], dims[kept], axis=0)
 
 
 @dataclass(frozen=True, eq=False)

@@ -170,12 +170,8 @@ def _apply_prior_from(args) -> None:
         return
     import dataclasses
 
-    from calib_oed.exceptions import SceneError
-    from calib_oed.scene.joint_error import (
-        IdentificationFileError,
-        load_identification,
-        spec_from_identification,
-    )
+    from calib_oed.exceptions import IdentificationFileError, SceneError
+    from calib_oed.scene.joint_error import load_identification, spec_from_identification
 
     scene = _scene(args.scene)
     try:

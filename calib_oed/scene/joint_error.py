@@ -37,6 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
+from calib_oed.exceptions import IdentificationFileError
 from calib_oed.measurement.joint_prior import ARCSEC
 from calib_oed.scene.fields import FieldReader
 from calib_oed.scene.records import JointErrorSpec
@@ -52,10 +53,6 @@ JOINT_KEYS = {
     "stiffness_knm_per_rad": ("compliance", 1e3, True),  # inverted below
 }
 _OTHER = ("scale", "from")
-
-
-class IdentificationFileError(ValueError):
-    """An identification JSON that does not hold what the joint prior needs (the message says what)."""
 
 
 def read_joint_error(reader: FieldReader, spec: dict, nq: int, key: str = "robot.model_error") -> JointErrorSpec:

@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 import yaml
 
-from calib_oed.exceptions import SceneError
+from calib_oed.exceptions import IdentificationFileError, SceneError
 from calib_oed.measurement.joint_prior import ARCSEC
-from calib_oed.scene.joint_error import IdentificationFileError, spec_from_identification
+from calib_oed.scene.joint_error import spec_from_identification
 from calib_oed.scene.reader import load_scene, scene_from_dict
 
 SHIPPED = Path(load_scene("fms_kr16").source)
