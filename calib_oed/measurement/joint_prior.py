@@ -160,6 +160,18 @@ class JointErrorPrior:
         dk = -a1 * np.sin(d) - 2 * a2 * np.sin(2 * d) + g * np.sin(d) * inv
         return dk + self.gain**2 * q2[None, :, :]
 
+    def compute_own_second(self, q1: np.ndarray, q2: np.ndarray) -> np.ndarray:
+        r""":math:`k''_\kappa(\Delta)` of the own-angle parts, without the gain and compliance
+        parts, (n1, n2, nq) [rad²/rad²] (for the criterion's exact Hessian,
+        :mod:`calib_oed.oed.model_error_hessian`)."""
+        d = q1[:, None, :] - q2[None, :, :]
+        a1, a2, s2, inv = self.once**2, self.twice**2, self.smooth**2, 1.0 / self.length**2
+        r = np.abs(2.0 * np.sin(0.5 * d)) * np.sqrt(inv)
+        e = np.exp(-_A * r)
+        g = -(5.0 / 3.0) * (1 + _A * r) * e
+        matern = (25.0 / 3.0) * e * np.sin(d) ** 2 * inv**2 + g * np.cos(d) * inv
+        return -a1 * np.cos(d) - 4.0 * a2 * np.cos(2 * d) + s2 * matern
+
     def compute_kernels(self, q1: np.ndarray, q2: np.ndarray, tau=None) -> np.ndarray:
         r""":math:`k_k(q_{1,a}, q_{2,b})` (nq, n1, n2) [rad²]; ``tau`` the torques at (q1, q2) if known."""
         k = np.moveaxis(self._own(q1, q2, False), 2, 0)

@@ -52,7 +52,6 @@ from calib_oed.solver.hessian import LIFTED_MAX_RANK_RATIO
 from calib_oed.solver.result import StructuredHessian
 
 _MM = 1e3
-_A = np.sqrt(5.0)
 #: Eigenvalues of the Hessian below this times the largest are raised to it (:func:`structured_hessian`).
 EIGENVALUE_FLOOR = 1e-8
 
@@ -100,23 +99,12 @@ def gravity_hessians(load, q: np.ndarray) -> np.ndarray:
     return np.einsum("i,x,sixkmp->skmp", mass, g, dd)
 
 
-def _own_second(prior, q1, q2):
-    r""":math:`k''_\kappa(\Delta)` of the own-angle parts (n1, n2, K) [rad²/rad²]."""
-    d = q1[:, None, :] - q2[None, :, :]
-    a1, a2, s2, inv = prior.once**2, prior.twice**2, prior.smooth**2, 1.0 / prior.length**2
-    r = np.abs(2.0 * np.sin(0.5 * d)) * np.sqrt(inv)
-    e = np.exp(-_A * r)
-    g = -(5.0 / 3.0) * (1 + _A * r) * e
-    matern = (25.0 / 3.0) * e * np.sin(d) ** 2 * inv**2 + g * np.cos(d) * inv
-    return -a1 * np.cos(d) - 4.0 * a2 * np.cos(2 * d) + s2 * matern
-
-
 def kernel_second(prior, q1, q2, grav=None):
     r""":math:`\partial^2 k_\kappa/\partial x_m\partial x_p` and :math:`\partial^2 k_\kappa/\partial x_m\partial y_p`
     at :math:`(x, y) = (q_{1a}, q_{2b})`, each (K, n1, n2, nv, nv). ``grav``: (torques at q1, at q2,
     their derivatives at q1, at q2, second derivatives at q1), or None without a compliance part."""
     nk = prior.nq
-    own = np.moveaxis(_own_second(prior, q1, q2), 2, 0)  # (K, n1, n2)
+    own = np.moveaxis(prior.compute_own_second(q1, q2), 2, 0)  # (K, n1, n2)
     d11 = np.zeros((nk, len(q1), len(q2), nk, nk))
     d12 = np.zeros_like(d11)
     idx = np.arange(nk)
