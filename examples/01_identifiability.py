@@ -11,7 +11,7 @@ is on the A6 axis, docs/conventions.md), the tracker absorbs the base (every
 ``joint1.*`` parameter is fixed), and more measurements do not make the KPI
 worse.
 
-Run: .venv/bin/python examples/01_identifiability.py   (about 2 s)
+Run: .venv/bin/python examples/01_identifiability.py   (about 2 s of CPU)
 """
 
 from __future__ import annotations

@@ -25,7 +25,7 @@ to 1 nm; on the validation poses the calibrated files leave only the
 measurement noise (the noise floor sqrt(mean tr Sigma_i), ~0.03 mm here).
 
 Everything is written into a temporary folder that is removed at the end.
-Run: .venv/bin/python examples/02_identify_simulated.py   (about 3 s)
+Run: .venv/bin/python examples/02_identify_simulated.py   (about 4 s of CPU)
 """
 
 from __future__ import annotations

@@ -12,7 +12,7 @@ Checks: the page holds all 20 poses and no infeasible one; the drawn
 ellipsoid's half-axes are those of the KPI covariance C_s at the chi-square
 radius, times the stated scale; the page needs no network.
 
-Run: .venv/bin/python examples/04_view_design.py [OUT.html]   (about 10 s)
+Run: .venv/bin/python examples/04_view_design.py [OUT.html]   (about 20 s of CPU)
 """
 
 from __future__ import annotations

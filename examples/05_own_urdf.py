@@ -27,7 +27,7 @@ last joint axis: 4R + 3 = 27); the YAML file loads to the same scene; the
 design improves the KPI over its start and every pose is feasible, on the
 capsules and on the URDF collision geometry.
 
-Run: .venv/bin/python examples/05_own_urdf.py   (about 4 s)
+Run: .venv/bin/python examples/05_own_urdf.py   (about 9 s of CPU)
 """
 
 from __future__ import annotations

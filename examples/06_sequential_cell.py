@@ -17,7 +17,7 @@ satisfies every feasibility row (joint limits, incidence, collisions, beam);
 the predicted σ never rises; the TCP error against the simulated truth is
 consistent with the prediction (below 4 σ).
 
-Run: .venv/bin/python examples/06_sequential_cell.py   (about 5 s)
+Run: .venv/bin/python examples/06_sequential_cell.py   (about 30 s of CPU)
 """
 
 from __future__ import annotations
