@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import scipy.stats
 
-from calib_oed.calibration.confidence import NotPositiveDefiniteError
+from calib_oed.calibration.confidence import ConfidenceEllipsoid
 from calib_oed.calibration.workflow import (
     heuristic_design,
     identify_measurements,
@@ -84,16 +84,12 @@ def test_kpi_ellipse_extents_are_the_marginal_95_percent_intervals(kr16):
                        ratio * _line(xy, "30 poses").get_xdata(), rtol=1e-10, atol=1e-15)
 
 
-def test_covariance_ellipses_validate_their_input(kr16):
+def test_kpi_ellipsoids_name_the_working_configurations_of_a_bad_index(kr16):
     s, q = kr16
-    with pytest.raises(ShapeError, match=r"\(3, 3\)"):
-        plots.plot_covariance_ellipses({"a": np.eye(2) * 1e-8})
-    with pytest.raises(NotPositiveDefiniteError):
-        plots.plot_covariance_ellipses({"a": np.diag([1e-8, 1e-8, 0.0])})
-    with pytest.raises(ValueError, match="at least one"):
-        plots.plot_covariance_ellipses({})
     with pytest.raises(ValueError, match=r"0 \(car_side\)"):
         plots.plot_kpi_ellipsoids(s.problem, {"h": q}, kpi_index=1)
+    with pytest.raises(ValueError, match="at least one"):
+        plots.plot_kpi_ellipsoids(s.problem, {})
 
 
 def _tick_label_gaps(fig) -> list[float]:
@@ -122,7 +118,9 @@ def _tick_label_gaps(fig) -> list[float]:
 ])
 def test_ellipse_tick_labels_do_not_overlap(sigma, stretch):
     cov = np.diag((sigma * np.array(stretch, dtype=float)) ** 2)
-    fig = plots.plot_covariance_ellipses({"a": cov, "b": 0.5 * cov})
+    fig = plots._ellipse_figure(  # the panels of plot_kpi_ellipsoids, on given covariances
+        [plots._Curve(n, n, f"C{k}", ConfidenceEllipsoid(np.zeros(3), c, 0.95, n))
+         for k, (n, c) in enumerate((("a", cov), ("b", 0.5 * cov)))], 0.95, "ticks", "design")
     gaps = _tick_label_gaps(fig)
     assert min(gaps) > 2.0, gaps
 
