@@ -188,22 +188,6 @@ def _provenance(space: ParameterSpace, p: np.ndarray, where: str, changed, name:
     return text
 
 
-def export_calibrated_urdf(space: ParameterSpace, p: np.ndarray | None, path: str | os.PathLike,
-                           *, robot_name: str | None = None) -> Path:
-    r"""Write the calibrated URDF (:func:`calibrated_urdf_text`) to ``path``, atomically.
-
-    Loading the file with :func:`calib_oed.load_robot` (same tool frame, locked
-    joints and ``package_dirs``) gives the model ``space.perturbed_model(p)``.
-
-    Raises:
-        ShapeError, NonFiniteError: bad ``p``.
-        ExportError: the folder does not exist, ``path`` is a folder, the write
-            failed, or the URDF cannot be edited. No file is left behind.
-    """
-    text = calibrated_urdf_text(space, p, robot_name=robot_name)
-    return _write(path, text)
-
-
 # ---------------------------------------------------------------- both
 def export_calibration(space: ParameterSpace, p: np.ndarray | None,
                        folder: str | os.PathLike, *, stem: str | None = None,
@@ -211,7 +195,7 @@ def export_calibration(space: ParameterSpace, p: np.ndarray | None,
     """Write ``<stem>_calibrated.urdf`` and ``<stem>_sensor.yaml`` into ``folder``.
 
     Args:
-        space, p: As for :func:`export_calibrated_urdf`.
+        space, p: As for :func:`calibrated_urdf_text`.
         folder: An existing folder.
         stem: File name stem; defaults to the robot's name.
         robot_name: New ``<robot name>`` in the URDF; ``None`` keeps the URDF's.
@@ -247,6 +231,5 @@ def export_calibration(space: ParameterSpace, p: np.ndarray | None,
 
 __all__ = [
     "calibrated_urdf_text",
-    "export_calibrated_urdf",
     "export_calibration",
 ]

@@ -49,7 +49,6 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import NamedTuple
 
-
 from calib_oed.exceptions import JointLimitError, ParameterError
 
 __all__ = [
