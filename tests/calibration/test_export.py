@@ -9,7 +9,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 import yaml
-from conftest import ROBOTS, make_space
+from conftest import ROBOTS, make_space, random_parameters
 
 from calib_oed import load_robot
 from calib_oed.calibration import export_files
@@ -59,7 +59,7 @@ def setup(request):
 
 def test_round_trip_matches_perturbed_model(setup, tmp_path):
     robot, space = setup
-    p = space.random(np.random.default_rng(11), sigma_length=1e-3, sigma_angle=1e-3)
+    p = random_parameters(space, np.random.default_rng(11), sigma_length=1e-3, sigma_angle=1e-3)
     path = export_calibration(space, p, tmp_path, stem="cal")["urdf"]
     loaded = reload(robot, path)
     assert loaded.joint_names == robot.joint_names
@@ -86,7 +86,7 @@ def test_zero_perturbation_reproduces_nominal(setup, tmp_path):
 def test_only_perturbed_joint_origins_change(setup, tmp_path):
     """Locked joints, fixed joints, mimic, transmissions, limits: all as in the source."""
     robot, space = setup
-    p = space.random(5, sigma_length=1e-3, sigma_angle=1e-3)
+    p = random_parameters(space, 5, sigma_length=1e-3, sigma_angle=1e-3)
     p[space.joint_slice(2)] = 0.0  # an untouched movable joint keeps its text
     text = calibrated_urdf_text(space, p)
     full_a = pin.buildModelFromXML(robot.urdf_text)
@@ -115,7 +115,7 @@ def test_only_perturbed_joint_origins_change(setup, tmp_path):
 def test_output_is_valid_urdf_with_provenance(tmp_path):
     robot = load_robot("panda")
     space = make_space(robot)
-    p = space.random(2)
+    p = random_parameters(space, 2)
     path = export_calibration(space, p, tmp_path, stem="panda", robot_name="panda_cell3")["urdf"]
     model = pin.buildModelFromUrdf(str(path))  # parses as a URDF file, fingers included
     assert model.nq == robot.nq + len(robot.locked_joints)
@@ -174,7 +174,7 @@ def test_origin_precision_near_gimbal_lock(tmp_path):
 def test_generated_robot_without_file(tmp_path):
     robot = load_robot("notional_l650_m600")
     space = make_space(robot, reflectors=((0.0, 0.0, 0.05),))
-    p = space.random(4, sigma_length=1e-3, sigma_angle=1e-3)
+    p = random_parameters(space, 4, sigma_length=1e-3, sigma_angle=1e-3)
     loaded = reload(robot, export_calibration(space, p, tmp_path, stem="n")["urdf"])
     dt, dr, dx = fk_errors(robot, loaded.model, space.perturbed_model(p))
     assert max(dt, dr, dx) < TOL
@@ -183,7 +183,7 @@ def test_generated_robot_without_file(tmp_path):
 def test_sensor_yaml_round_trip(tmp_path):
     robot = load_robot("kr16")
     space = make_space(robot)
-    p = space.random(np.random.default_rng(7), sigma_length=1e-3, sigma_angle=1e-3)
+    p = random_parameters(space, np.random.default_rng(7), sigma_length=1e-3, sigma_angle=1e-3)
     path = export_calibration(space, p, tmp_path)["sensor"]
     tracker, offsets = read_sensor_yaml(path)
     expected = space.tracker_placement(p)
@@ -222,7 +222,7 @@ def test_sensor_yaml_rejects_inconsistent_or_bad_files(tmp_path):
 def test_export_calibration_writes_both(tmp_path):
     robot = load_robot("ur5")
     space = make_space(robot)
-    p = space.random(9)
+    p = random_parameters(space, 9)
     paths = export_calibration(space, p, tmp_path)
     assert paths == {"urdf": tmp_path / "ur5_calibrated.urdf",
                      "sensor": tmp_path / "ur5_sensor.yaml"}
@@ -253,7 +253,7 @@ def test_bad_folder_and_bad_p_write_nothing(tmp_path):
 
 def test_failed_write_leaves_no_file(tmp_path, monkeypatch):
     space = make_space(load_robot("kr16"))
-    p = space.random(1)
+    p = random_parameters(space, 1)
 
     def fail(*args, **kwargs):
         raise OSError("disk full")
