@@ -168,7 +168,28 @@ class QPUse:
 
 
 @dataclass(frozen=True)
-class IterationRecord(QPUse):
+class _Step:
+    """The fields of :class:`IterationRecord` before those of :class:`QPUse` (documented there)."""
+
+    iteration: int
+    objective: float
+    merit: float
+    penalty: float
+    violation: float
+    stationarity: float
+    step_norm: float
+    step_bound: float
+    n_rows_kept: int
+    qp_status: str
+    qp_iterations: int
+    backtracks: int
+    restoration: bool
+    time: float
+    second_order_correction: bool = False
+
+
+@dataclass(frozen=True)
+class IterationRecord(QPUse, _Step):
     r"""One SQP iteration: the QP solved at :math:`x_k` and the step to :math:`x_{k+1}`.
 
     Values at the point reached (``objective``, ``merit``, ``violation``) are
@@ -197,24 +218,8 @@ class IterationRecord(QPUse):
         second_order_correction: The accepted point is the second-order
             correction of the full step.
 
-    and, keyword-only, what the QP used (:class:`QPUse`).
+    and after them, keyword-only, what the QP used (:class:`QPUse`).
     """
-
-    iteration: int
-    objective: float
-    merit: float
-    penalty: float
-    violation: float
-    stationarity: float
-    step_norm: float
-    step_bound: float
-    n_rows_kept: int
-    qp_status: str
-    qp_iterations: int
-    backtracks: int
-    restoration: bool
-    time: float
-    second_order_correction: bool = False
 
 
 @dataclass(frozen=True)
