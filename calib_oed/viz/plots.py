@@ -129,7 +129,6 @@ def plot_kpi_ellipsoids(
     problem,
     designs: Mapping[str, np.ndarray],
     *,
-    kpi_index: int | None = None,
     level: float = 0.95,
 ) -> Figure:
     r"""The paper's Figure 7: KPI confidence regions of several designs, in mm.
@@ -147,31 +146,18 @@ def plot_kpi_ellipsoids(
         designs: Name (``"heuristic"``, ``"KPI-optimal"``, ...) to
             configurations (n, nq) [rad], or to a record with a ``q``
             attribute (:class:`~calib_oed.oed.result.Design`).
-        kpi_index: One working configuration, 0 .. t-1; ``None``: all of them.
         level: Confidence level in (0, 1).
 
     Returns:
         A figure with three axes, ``fig.axes`` in the order of :data:`PLANES`; the
         line of design ``d`` at point ``w`` has ``gid`` ``d`` with one KPI point, else
         ``"d @ w"``.
-
-    Raises:
-        ValueError: ``kpi_index`` out of range (the message lists the
-            working configurations).
     """
     scene = getattr(problem, "scene", None)
     reflector_names = [r.name for r in scene.reflectors] if scene is not None else None
     problem = _problem(problem)
     names = problem.kpi.names
-    if kpi_index is None:
-        points = list(range(len(names)))
-    elif isinstance(kpi_index, bool) or not isinstance(kpi_index, (int, np.integer)) \
-            or not 0 <= kpi_index < len(names):
-        valid = ", ".join(f"{i} ({n})" for i, n in enumerate(names))
-        raise ValueError(f"kpi_index {kpi_index!r}: the working configurations are {valid} "
-                         "(or None: all)")
-    else:
-        points = [int(kpi_index)]
+    points = list(range(len(names)))
     if not designs:
         raise ValueError("designs: give at least one name -> configurations (n, nq) [rad]")
     curves = []
