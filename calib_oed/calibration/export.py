@@ -59,14 +59,12 @@ _MOVABLE_TYPES = ("revolute", "prismatic", "continuous")
 
 
 # ---------------------------------------------------------------- URDF
-def calibrated_urdf_text(space: ParameterSpace, p: np.ndarray | None, *,
-                         robot_name: str | None = None) -> str:
+def calibrated_urdf_text(space: ParameterSpace, p: np.ndarray | None) -> str:
     r"""The robot's URDF with every joint origin :math:`O_i` replaced by :math:`O_i\exp_6(\delta_i)`.
 
     Args:
         space: The parameter space; its robot's ``urdf_text`` is edited.
         p: Parameter vector, shape ``(space.size,)`` (SI); ``None`` means nominal.
-        robot_name: New ``<robot name>``; ``None`` keeps the URDF's.
 
     Returns:
         The URDF text, starting with an XML declaration and a provenance comment.
@@ -113,10 +111,6 @@ def calibrated_urdf_text(space: ParameterSpace, p: np.ndarray | None, *,
         _set_origin(element, new)
         changed.append((i, name, delta))
 
-    if robot_name is not None:
-        if not str(robot_name).strip():
-            raise ExportError("robot_name must not be empty")
-        root.set("name", str(robot_name))
     header = _provenance(space, p, where, changed, root.get("name"))
     return f'<?xml version="1.0" encoding="utf-8"?>\n<!--\n{header}\n-->\n{_document(root)}\n'
 
@@ -190,15 +184,13 @@ def _provenance(space: ParameterSpace, p: np.ndarray, where: str, changed, name:
 
 # ---------------------------------------------------------------- both
 def export_calibration(space: ParameterSpace, p: np.ndarray | None,
-                       folder: str | os.PathLike, *, stem: str | None = None,
-                       robot_name: str | None = None) -> dict[str, Path]:
+                       folder: str | os.PathLike, *, stem: str | None = None) -> dict[str, Path]:
     """Write ``<stem>_calibrated.urdf`` and ``<stem>_sensor.yaml`` into ``folder``.
 
     Args:
         space, p: As for :func:`calibrated_urdf_text`.
         folder: An existing folder.
         stem: File name stem; defaults to the robot's name.
-        robot_name: New ``<robot name>`` in the URDF; ``None`` keeps the URDF's.
 
     Returns:
         ``{"urdf": path, "sensor": path}``.
@@ -214,7 +206,7 @@ def export_calibration(space: ParameterSpace, p: np.ndarray | None,
     stem = space.robot.name if stem is None else str(stem)
     if not stem or Path(stem).name != stem or stem in (".", ".."):
         raise ExportError(f"stem {stem!r} must be a plain file name (no folder part)")
-    urdf_text = calibrated_urdf_text(space, p, robot_name=robot_name)
+    urdf_text = calibrated_urdf_text(space, p)
     sensor_text = sensor_yaml_text(space, p)
     urdf_path = folder / f"{stem}_calibrated.urdf"
     sensor_path = folder / f"{stem}_sensor.yaml"
