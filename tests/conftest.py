@@ -7,7 +7,7 @@ import pinocchio as pin
 import pytest
 
 from calib_oed import load_robot
-from calib_oed.model.parameters import ParameterSpace
+from calib_oed.model.parameters import Group, ParameterSpace
 
 ROBOTS = ("ur5", "panda", "kr16")
 
@@ -26,6 +26,17 @@ def make_space(robot, reflectors=((0.03, -0.01, 0.05), (0.0, 0.04, 0.02))):
 @pytest.fixture(scope="session")
 def space(robot):
     return make_space(robot)
+
+
+def random_parameters(space: ParameterSpace, rng, sigma_length: float = 0.5e-3, sigma_angle: float = 0.5e-3,
+                      sigma_compliance: float = 1e-6, sigma_gain: float = 1e-3) -> np.ndarray:
+    """Random parameters of ``space``, normal with the given standard deviations [m], [rad],
+    [rad/(N·m)], [1] (``rng`` a seed or a Generator)."""
+    rng = np.random.default_rng(rng)
+    table = {"m": sigma_length, "rad": sigma_angle}
+    sd = np.array([sigma_gain if p.group in (Group.GAIN, Group.COUPLING)
+                   else table.get(p.unit, sigma_compliance) for p in space.parameters])
+    return rng.normal(size=space.size) * sd
 
 
 def central_difference(fun, x, eps=1e-6):

@@ -59,14 +59,12 @@ _MOVABLE_TYPES = ("revolute", "prismatic", "continuous")
 
 
 # ---------------------------------------------------------------- URDF
-def calibrated_urdf_text(space: ParameterSpace, p: np.ndarray | None, *,
-                         robot_name: str | None = None) -> str:
+def calibrated_urdf_text(space: ParameterSpace, p: np.ndarray | None) -> str:
     r"""The robot's URDF with every joint origin :math:`O_i` replaced by :math:`O_i\exp_6(\delta_i)`.
 
     Args:
         space: The parameter space; its robot's ``urdf_text`` is edited.
         p: Parameter vector, shape ``(space.size,)`` (SI); ``None`` means nominal.
-        robot_name: New ``<robot name>``; ``None`` keeps the URDF's.
 
     Returns:
         The URDF text, starting with an XML declaration and a provenance comment.
@@ -113,10 +111,6 @@ def calibrated_urdf_text(space: ParameterSpace, p: np.ndarray | None, *,
         _set_origin(element, new)
         changed.append((i, name, delta))
 
-    if robot_name is not None:
-        if not str(robot_name).strip():
-            raise ExportError("robot_name must not be empty")
-        root.set("name", str(robot_name))
     header = _provenance(space, p, where, changed, root.get("name"))
     return f'<?xml version="1.0" encoding="utf-8"?>\n<!--\n{header}\n-->\n{_document(root)}\n'
 
@@ -188,33 +182,15 @@ def _provenance(space: ParameterSpace, p: np.ndarray, where: str, changed, name:
     return text
 
 
-def export_calibrated_urdf(space: ParameterSpace, p: np.ndarray | None, path: str | os.PathLike,
-                           *, robot_name: str | None = None) -> Path:
-    r"""Write the calibrated URDF (:func:`calibrated_urdf_text`) to ``path``, atomically.
-
-    Loading the file with :func:`calib_oed.load_robot` (same tool frame, locked
-    joints and ``package_dirs``) gives the model ``space.perturbed_model(p)``.
-
-    Raises:
-        ShapeError, NonFiniteError: bad ``p``.
-        ExportError: the folder does not exist, ``path`` is a folder, the write
-            failed, or the URDF cannot be edited. No file is left behind.
-    """
-    text = calibrated_urdf_text(space, p, robot_name=robot_name)
-    return _write(path, text)
-
-
 # ---------------------------------------------------------------- both
 def export_calibration(space: ParameterSpace, p: np.ndarray | None,
-                       folder: str | os.PathLike, *, stem: str | None = None,
-                       robot_name: str | None = None) -> dict[str, Path]:
+                       folder: str | os.PathLike, *, stem: str | None = None) -> dict[str, Path]:
     """Write ``<stem>_calibrated.urdf`` and ``<stem>_sensor.yaml`` into ``folder``.
 
     Args:
-        space, p: As for :func:`export_calibrated_urdf`.
+        space, p: As for :func:`calibrated_urdf_text`.
         folder: An existing folder.
         stem: File name stem; defaults to the robot's name.
-        robot_name: New ``<robot name>`` in the URDF; ``None`` keeps the URDF's.
 
     Returns:
         ``{"urdf": path, "sensor": path}``.
@@ -230,7 +206,7 @@ def export_calibration(space: ParameterSpace, p: np.ndarray | None,
     stem = space.robot.name if stem is None else str(stem)
     if not stem or Path(stem).name != stem or stem in (".", ".."):
         raise ExportError(f"stem {stem!r} must be a plain file name (no folder part)")
-    urdf_text = calibrated_urdf_text(space, p, robot_name=robot_name)
+    urdf_text = calibrated_urdf_text(space, p)
     sensor_text = sensor_yaml_text(space, p)
     urdf_path = folder / f"{stem}_calibrated.urdf"
     sensor_path = folder / f"{stem}_sensor.yaml"
@@ -247,6 +223,5 @@ def export_calibration(space: ParameterSpace, p: np.ndarray | None,
 
 __all__ = [
     "calibrated_urdf_text",
-    "export_calibrated_urdf",
     "export_calibration",
 ]

@@ -60,6 +60,7 @@ from calib_oed.measurement import evaluate_setup
 from calib_oed.measurement.observations import ObservationBlock
 from calib_oed.model.identifiability import IdentifiabilityReport
 from calib_oed.model.parameters import ANGLE_SCALE, LENGTH_SCALE, ParameterSpace
+from calib_oed.values import readonly
 
 __all__ = [
     "METHODS",
@@ -209,12 +210,6 @@ def residual_function(space: ParameterSpace, blocks: Sequence[ObservationBlock],
 
 
 # --------------------------------------------------------------------------- identify
-def _readonly(a) -> np.ndarray:
-    a = np.array(a, dtype=float)
-    a.setflags(write=False)
-    return a
-
-
 def _check_options(method, max_nfev, correlation_threshold, outlier_threshold):
     if method not in METHODS:
         raise ParameterError(f"unknown method {method!r}; valid methods are: {', '.join(METHODS)}")
@@ -261,14 +256,14 @@ def _block_diagnostics(res: _Residuals, r: np.ndarray, threshold: float):
     raw, pos_mm, ang_mrad, norms, outliers = [], [], [], [], []
     for k, b in enumerate(res.blocks):
         rk = r[res.slices[k]].reshape(b.values.shape)
-        raw.append(_readonly(np.einsum("nij,nj->ni", res.chol[k], rk)))
+        raw.append(readonly(np.einsum("nij,nj->ni", res.chol[k], rk)))
         units = np.array(b.model.units)
-        pos_mm.append(_readonly(np.linalg.norm(raw[-1][:, units == "m"], axis=1) / LENGTH_SCALE))
+        pos_mm.append(readonly(np.linalg.norm(raw[-1][:, units == "m"], axis=1) / LENGTH_SCALE))
         ang_mrad.append(
-            _readonly(np.linalg.norm(raw[-1][:, units == "rad"], axis=1) / ANGLE_SCALE)
+            readonly(np.linalg.norm(raw[-1][:, units == "rad"], axis=1) / ANGLE_SCALE)
             if np.any(units == "rad") else None
         )
-        norms.append(_readonly(np.linalg.norm(rk, axis=1) / np.sqrt(b.model.dim)))
+        norms.append(readonly(np.linalg.norm(rk, axis=1) / np.sqrt(b.model.dim)))
         outliers += [Outlier(k, int(i), float(norms[-1][i]))
                      for i in np.flatnonzero(norms[-1] > threshold)]
     return tuple(raw), tuple(pos_mm), tuple(ang_mrad), tuple(norms), tuple(outliers)
@@ -356,14 +351,14 @@ def identify(
         free_names=free_names,
         free_indices=free_idx,
         parameter_units=tuple(p.unit for p in space.parameters),
-        p=_readonly(res.full(x)),
+        p=readonly(res.full(x)),
         status=_status(int(sol.status)),
         message=message,
         nfev=int(sol.nfev),
         njev=None if sol.njev is None else int(sol.njev),
         method=method,
         cost=float(sol.cost),
-        residuals=_readonly(r),
+        residuals=readonly(r),
         block_names=tuple(b.model.name for b in res.blocks),
         block_residuals=raw,
         point_residuals_mm=pos_mm,
@@ -375,12 +370,12 @@ def identify(
         max_mrad=None if all_mrad is None else float(all_mrad.max()),
         dof=int(dof),
         noise_factor=float(r @ r / dof) if dof > 0 else float("nan"),
-        covariance=_readonly(cov),
-        correlation=_readonly(corr),
+        covariance=readonly(cov),
+        correlation=readonly(corr),
         strong_correlations=strong,
         correlation_threshold=float(correlation_threshold),
         condition_number=cond,
         outliers=outliers,
         outlier_threshold=float(outlier_threshold),
-        f1=_readonly(f1),
+        f1=readonly(f1),
     )

@@ -146,10 +146,10 @@ class MonteCarloResult:
         return "\n".join(lines)
 
 
-def _run_chunk(problem, q, seeds, sigma_length, sigma_angle):
+def _run_chunk(problem, q, seeds):
     out = []
     for ss in seeds:
-        trial = simulate_calibration(problem, q, np.random.default_rng(ss), sigma_length, sigma_angle)
+        trial = simulate_calibration(problem, q, np.random.default_rng(ss))
         out.append((trial.error_before, trial.error_after, trial.converged))
     return out
 
@@ -162,11 +162,12 @@ def monte_carlo(
     *,
     n_jobs: int = 2,
     level: float = 0.95,
-    sigma_length: float = 0.5e-3,
-    sigma_angle: float = 0.5e-3,
     progress: bool = False,
 ) -> MonteCarloResult:
     """Simulate ``n_runs`` calibrations at design ``q`` and compare with the predicted :math:`C_s`.
+
+    The true robots: the free parameters normal, 0.5 mm and 0.5 mrad
+    (:func:`~calib_oed.calibration.simulation.simulate_calibration`).
 
     Args:
         problem: A :class:`calib_oed.calibration.problem.CalibrationProblem`.
@@ -175,8 +176,6 @@ def monte_carlo(
         seed: Seed of the runs.
         n_jobs: Parallel workers (joblib; 1 runs in this process).
         level: Confidence level of the ellipsoid coverage check.
-        sigma_length: Standard deviation [m] of the true length parameters.
-        sigma_angle: Standard deviation [rad] of the true angle parameters.
         progress: Show a progress bar.
     """
     if int(n_runs) < 2:
@@ -192,12 +191,11 @@ def monte_carlo(
     seeds = np.random.SeedSequence(seed).spawn(n_runs)
     n_chunks = min(n_runs, 4 * n_jobs if n_jobs > 1 else max(1, n_runs // 25))
     chunks = [c for c in np.array_split(np.arange(n_runs), n_chunks) if c.size]
-    args = (sigma_length, sigma_angle)
     if n_jobs == 1:
-        results = (_run_chunk(problem, q, [seeds[i] for i in c], *args) for c in chunks)
+        results = (_run_chunk(problem, q, [seeds[i] for i in c]) for c in chunks)
     else:
         results = Parallel(n_jobs=n_jobs, return_as="generator")(
-            delayed(_run_chunk)(problem, q, [seeds[i] for i in c], *args) for c in chunks
+            delayed(_run_chunk)(problem, q, [seeds[i] for i in c]) for c in chunks
         )
     runs = []
     for chunk in tqdm(results, total=len(chunks), disable=not progress, desc="Monte Carlo", unit="chunk"):

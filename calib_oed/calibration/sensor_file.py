@@ -2,13 +2,10 @@ r"""The identified sensor set-up as a YAML file: write it, read it back.
 
 A URDF describes the robot only; the identified tracker pose
 :math:`T_{W,T}` and reflector offsets :math:`c_j` (and, when modelled, the
-joint compliances and the joint gains) go to a small YAML file (:func:`write_sensor_yaml`,
-read back by :func:`read_sensor_yaml`, :func:`read_sensor_compliance` and
+joint compliances and the joint gains) go to a small YAML file (:func:`sensor_yaml_text`, written by
+:func:`calib_oed.calibration.export.export_calibration`, read back by :func:`read_sensor_yaml`, :func:`read_sensor_compliance` and
 :func:`read_sensor_gains`), next to
 the calibrated URDF (:mod:`calib_oed.calibration.export`).
-
-Files are written atomically (:func:`calib_oed.io.atomic.atomic_write_text`):
-a failed export leaves no file behind.
 """
 
 from __future__ import annotations
@@ -21,7 +18,6 @@ import pinocchio as pin
 import yaml
 
 from calib_oed._version import __version__
-from calib_oed.calibration.export_files import _write
 from calib_oed.exceptions import CalibOedError, ExportError, InputFileError
 from calib_oed.model.compliance import Compliance
 from calib_oed.model.joint_map import JointGains
@@ -117,18 +113,6 @@ def _floatlist(values) -> list[float]:
     return [float(v) + 0.0 for v in np.asarray(values, dtype=float).ravel()]
 
 
-def write_sensor_yaml(space: ParameterSpace, p: np.ndarray | None,
-                      path: str | os.PathLike) -> Path:
-    """Write :func:`sensor_yaml_text` to ``path``, atomically.
-
-    Raises:
-        ShapeError, NonFiniteError: bad ``p``.
-        ExportError: the folder does not exist, ``path`` is a folder or the write failed.
-    """
-    return _write(path, sensor_yaml_text(space, p))
-
-
-
 def _load(path: Path) -> dict:
     """The sensor file's YAML mapping ({} if it is not a mapping); ExportError if unreadable."""
     try:
@@ -138,7 +122,7 @@ def _load(path: Path) -> dict:
     return data if isinstance(data, dict) else {}
 
 def read_sensor_yaml(path: str | os.PathLike) -> tuple[pin.SE3, np.ndarray]:
-    r"""Read a sensor file written by :func:`write_sensor_yaml`.
+    r"""Read a sensor file (:func:`sensor_yaml_text`).
 
     Returns:
         The tracker pose :math:`T_{W,T}` and the reflector offsets, shape (k, 3)
@@ -287,5 +271,4 @@ __all__ = [
     "read_sensor_compliance",
     "read_sensor_yaml",
     "sensor_yaml_text",
-    "write_sensor_yaml",
 ]

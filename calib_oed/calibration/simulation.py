@@ -135,16 +135,13 @@ def simulate_calibration(
     problem,
     q: np.ndarray,
     rng: np.random.Generator | int,
-    sigma_length: float = 0.5e-3,
-    sigma_angle: float = 0.5e-3,
-    p_true: np.ndarray | None = None,
 ) -> CalibrationTrial:
-    """Run one simulated calibration of ``problem`` (a :class:`CalibrationProblem`) at design ``q``."""
+    """Run one simulated calibration of ``problem`` (a :class:`CalibrationProblem`) at design ``q``:
+    a true robot of :func:`draw_true_parameters` (default deviations), measured and identified."""
     rng = np.random.default_rng(rng)
     space = problem.space
     free = problem.identifiability.free_indices
-    if p_true is None:
-        p_true = draw_true_parameters(space, free, rng, sigma_length, sigma_angle)
+    p_true = draw_true_parameters(space, free, rng)
     blocks = simulate_observations(space, problem.models, q, p_true, rng)
     result = identify(space, blocks, free)
     s_true = problem.kpi.compute_values(space, p_true)

@@ -331,14 +331,6 @@ class DiscrepancyPrior:
             grad = grad + self._harmonic_terms(q1, q2, 1).sum(axis=3)
         return grad
 
-    def kernel_hessian(self, q1, q2) -> np.ndarray:
-        r""":math:`\partial^2 k/\partial q_1^2` (n1, n2, nq, nq) [m²/rad²], per pair."""
-        u, c, _, g, h, _ = self._pieces(q1, q2)
-        diag = g[:, :, None] * c
-        if self.harmonic:
-            diag = diag + self._harmonic_terms(q1, q2, 2).sum(axis=3)
-        return diag[..., None] * np.eye(self.nq) + h[:, :, None, None] * u[..., :, None] * u[..., None, :]
-
     def kernel_log_gradient(self, q1, q2) -> np.ndarray:
         r"""Derivatives of :math:`k` in the log-hyperparameters, (n1, n2,
         :attr:`n_kernel_hyperparameters`) [m²]: :math:`\partial k/\partial\log\sigma = 2k_{ARD}`,

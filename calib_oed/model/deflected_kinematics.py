@@ -101,16 +101,6 @@ class JointDeflection:
         gains = None if space.gain_basis is None else np.array(p[space.gain_slice])
         return cls(gravity, c, space.gain_basis, gains, text)
 
-    def compute_effective(self, q: np.ndarray) -> np.ndarray:
-        r""":math:`q_{eff}` at every row of ``q`` (n, nq) [rad or m]."""
-        q = np.atleast_2d(np.asarray(q, dtype=float))
-        return np.array([self.compute_effective_one(row) for row in q]).reshape(q.shape)
-
-    def compute_chain(self, q: np.ndarray) -> np.ndarray:
-        r""":math:`D = \partial q_{eff}/\partial q` at every row of ``q``, (n, nq, nq) [1]."""
-        q = np.atleast_2d(np.asarray(q, dtype=float))
-        return np.array([self.compute_chain_one(row) for row in q]).reshape(q.shape + q.shape[-1:])
-
     def compute_effective_one(self, q: np.ndarray) -> np.ndarray:
         r""":math:`q_{eff}` of one configuration (nq,) (the inverse kinematics' call)."""
         out = q.copy()

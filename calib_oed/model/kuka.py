@@ -49,13 +49,11 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import NamedTuple
 
-import pinocchio as pin
-
 from calib_oed.exceptions import JointLimitError, ParameterError
 
 __all__ = [
     "KR16", "KR300", "KR500", "KUKA_ROBOTS", "NOTIONAL_LAMBDAS", "NOTIONAL_MUS",
-    "KukaDimensions", "build_kuka_model", "kuka_urdf", "notional_dimensions",
+    "KukaDimensions", "kuka_urdf", "notional_dimensions",
     "notional_grid", "write_kuka_urdf",
 ]  # fmt: skip
 
@@ -359,14 +357,6 @@ def kuka_urdf(dims: KukaDimensions) -> str:
         "</robot>",
     ]  # fmt: skip
     return "\n".join(lines) + "\n"
-
-
-def build_kuka_model(dims: KukaDimensions) -> tuple[pin.Model, pin.GeometryModel]:
-    """Pinocchio model and collision model of ``dims`` (fixed base, nq = nv = 6)."""
-    text = kuka_urdf(dims)
-    model = pin.buildModelFromXML(text)
-    collision = pin.buildGeomFromUrdfString(model, text, pin.GeometryType.COLLISION)
-    return model, collision
 
 
 def write_kuka_urdf(dims: KukaDimensions, path: str | os.PathLike[str]) -> Path:

@@ -332,12 +332,3 @@ class ParameterSpace:
             [pin.Jexp6(p[self.joint_slice(i)]) for i in range(1, self.n_joints + 1)]
         )
 
-    def random(self, rng: np.random.Generator | int, sigma_length: float = 0.5e-3,
-               sigma_angle: float = 0.5e-3, sigma_compliance: float = 1e-6,
-               sigma_gain: float = 1e-3) -> np.ndarray:
-        """Random parameters, normal with the given standard deviations [m], [rad], [rad/(N·m)], [1]."""
-        rng = np.random.default_rng(rng)
-        table = {"m": sigma_length, "rad": sigma_angle}
-        sd = np.array([sigma_gain if p.group in (Group.GAIN, Group.COUPLING)
-                       else table.get(p.unit, sigma_compliance) for p in self.parameters])
-        return rng.normal(size=self.size) * sd

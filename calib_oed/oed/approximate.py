@@ -304,8 +304,6 @@ def solve_approximate(
     weights=None,
     tol: float = 1e-4,
     max_iterations: int = 500,
-    time_limit: float = np.inf,
-    add: int | None = None,
 ) -> ApproximateDesign:
     r"""The approximate design minimising :math:`\Phi(M(w))` over candidates, to a certified gap.
 
@@ -317,9 +315,8 @@ def solve_approximate(
         weights: Start weights (N,) instead (e.g. a previous solution, padded).
         tol: Stop when the equivalence residual :math:`\rho \le` tol (the
             relative gap of the bound; module docstring).
-        max_iterations: Most Newton steps.
-        time_limit: Wall time [s] after which it stops unconverged.
-        add: Violating candidates added to the working set per step (default :math:`p`).
+        max_iterations: Most Newton steps. Each adds up to :math:`p` violating candidates
+            to the working set.
 
     Raises:
         CertificateError: unsupported criterion, bad tolerance, start or weights.
@@ -334,7 +331,6 @@ def solve_approximate(
         raise CertificateError("tol", tol, "must be a relative gap in (0, 1), e.g. 1e-4")
     if int(max_iterations) != max_iterations or max_iterations < 0:
         raise CertificateError("max_iterations", max_iterations, "must be an integer >= 0")
-    add = p if add is None else int(add)
     if weights is not None:
         w = np.array(weights, dtype=float)
         if w.shape != (n,) or not np.all(np.isfinite(w)) or w.min() < 0 or w.sum() <= 0:
@@ -353,12 +349,12 @@ def solve_approximate(
         dbar = mean_sensitivity(kind, value, p)
         rho = max(float(dsen.max()) / dbar - 1.0, 0.0)
         history.append(rho)
-        if rho <= tol or it >= max_iterations or time.perf_counter() - t0 > time_limit:
+        if rho <= tol or it >= max_iterations:
             break
         it += 1
         sup = np.flatnonzero(w)
-        viol = np.setdiff1d(np.argsort(-dsen)[: add + sup.size], sup)
-        viol = viol[dsen[viol] > dbar][:add]
+        viol = np.setdiff1d(np.argsort(-dsen)[: p + sup.size], sup)
+        viol = viol[dsen[viol] > dbar][:p]
         work = np.concatenate([sup, viol])
         cov = scipy.linalg.cho_solve((scipy.linalg.cholesky(m, lower=True), True), np.eye(p))
         h = _hessian(blocks[work], gamma, cov, kind) / dbar

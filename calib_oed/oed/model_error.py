@@ -309,10 +309,6 @@ class ModelErrorCriterion(Criterion):
         v = b + a @ y                                          # V = S^-1 (k_w + F Y)
         return diag, (kernels, v, -2.0 * (v * om) @ y.T)
 
-    def compute_point_errors(self, rows: np.ndarray, q: np.ndarray, z: np.ndarray) -> np.ndarray:
-        r""":math:`\mathrm{tr}\,C_{ii}/3` per working configuration [mm²], (t,)."""
-        return self._solve(rows, q, z, False)[0].reshape(-1, 3).sum(axis=1) / 3.0
-
     def compute_design(self, rows: np.ndarray, q: np.ndarray, z: np.ndarray,
                        d_rows: np.ndarray | None = None, d_z: np.ndarray | None = None):
         r""":math:`\phi` [mm²] and, with ``d_rows``, :math:`\partial\phi/\partial q` (n, nq).

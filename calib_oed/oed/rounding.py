@@ -34,7 +34,7 @@ import numpy as np
 
 from calib_oed.exceptions import DesignError
 
-__all__ = ["efficient_rounding", "rounding_efficiency"]
+__all__ = ["efficient_rounding"]
 
 
 def efficient_rounding(weights, n: int, cap: int | None = None) -> np.ndarray:
@@ -76,10 +76,3 @@ def efficient_rounding(weights, n: int, cap: int | None = None) -> np.ndarray:
         counts[k] -= 1
     return counts
 
-
-def rounding_efficiency(weights, counts) -> float:
-    r""":math:`\varepsilon = \min_i n_i/(n w_i)`: the rounded design's information is at least :math:`\varepsilon\,n\,M(w)`."""
-    w = np.asarray(weights, dtype=float)
-    c = np.asarray(counts, dtype=float)
-    w = w / w.sum()
-    return float(np.min(c / (c.sum() * w)))

@@ -94,8 +94,7 @@ class LocalMaxima:
 
 
 def maximise_sensitivity(setup, objective: DesignObjective, gamma: np.ndarray, starts, scale: float, *,
-                         collisions: bool = True, max_iterations: int = 80,
-                         time_limit: float = np.inf) -> LocalMaxima:
+                         collisions: bool = True, max_iterations: int = 80) -> LocalMaxima:
     r"""Local maxima of :math:`d(x)` s.t. the design constraints, from each start (one SQP, separable).
 
     Maximises :math:`\sum_j d(x_j)/\text{scale}` over the K poses at once
@@ -126,8 +125,7 @@ def maximise_sensitivity(setup, objective: DesignObjective, gamma: np.ndarray, s
         return seen[1] if seen is not None and np.array_equal(seen[0], x) else None
 
     res = solve_sqp(negative, starts.ravel(), constraints=constraints, bounds=nlp.bounds,
-                    settings=SQPSettings(max_iterations=max_iterations, time_limit=time_limit,
-                                         step_bound=0.2),
+                    settings=SQPSettings(max_iterations=max_iterations, step_bound=0.2),
                     block_size=nq)
     if res.status is SQPStatus.INTERRUPTED:  # Ctrl-C ends the certificate, not just this search
         raise KeyboardInterrupt

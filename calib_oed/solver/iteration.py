@@ -15,6 +15,7 @@ Hessian is used, as its fallback.
 from __future__ import annotations
 
 import time
+from dataclasses import asdict
 
 import numpy as np
 
@@ -24,8 +25,8 @@ from calib_oed.solver.nlp import _Point, _Problem
 from calib_oed.solver.pieces import RowPieces, check_pieces
 from calib_oed.solver.polish import polish
 from calib_oed.solver.restoration import _RestorationMixin
-from calib_oed.solver.result import IterationRecord, SQPSettings, SQPStatus, kkt_residuals
-from calib_oed.solver.subproblem import CRASHED, QPSolver, _QPInfo, _SubproblemMixin
+from calib_oed.solver.result import IterationRecord, QPUse, SQPSettings, SQPStatus, kkt_residuals
+from calib_oed.solver.subproblem import CRASHED, QPSolver, _SubproblemMixin
 
 _MESSAGES = {
     SQPStatus.CONVERGED: "KKT conditions satisfied to tolerance",
@@ -71,7 +72,7 @@ class _Run(_SubproblemMixin, _RestorationMixin):
         self._version = 0  # counts accepted points (the exact Hessian is cached per point and lam)
         self._exact = self._exact_key = None
         self._use_exact = True
-        self._info = _QPInfo()
+        self._info = QPUse()
         self._crash_message = ""  # of the QP that sent the iteration to restoration, if it crashed
         self.n_fallbacks, self.fallback_reason = 0, ""
         self.history: list[IterationRecord] = []
@@ -165,12 +166,11 @@ class _Run(_SubproblemMixin, _RestorationMixin):
     def _record(self, k, stat, step_norm, delta, n_rows, qp_status, qp_iter, backtracks, restoration,
                 corrected=False):
         pt, info = self.pt, self._info
-        self.n_fallbacks += bool(info.fallback)
+        self.n_fallbacks += info.hessian_fallback
         rec = IterationRecord(k, pt.f, self._merit(pt), self.mu, pt.violation_max, stat, step_norm,
                               delta, int(n_rows), qp_status, int(qp_iter), int(backtracks),
                               bool(restoration), time.perf_counter() - self.t0, bool(corrected),
-                              info.hessian, bool(info.fallback), int(info.modified), info.backend,
-                              int(info.dropped), int(info.pieces))
+                              **asdict(info))
         self.history.append(rec)
         return rec
 
@@ -191,7 +191,7 @@ class _Run(_SubproblemMixin, _RestorationMixin):
         s, pt = self.s, self.pt
         delta = self.delta
         self._use_exact = True
-        self._info = _QPInfo()
+        self._info = QPUse()
         rows, step, ok = self._qp(delta)
         qp_iter = step.iterations
         if not ok and self._info.hessian == "exact" and step.status != "unreachable_row":

@@ -138,8 +138,58 @@ def kkt_residuals(x, g, c, A, lam, lb, ub, bound_tol, pieces=None):
     return stat, comp, nu
 
 
+@dataclass(frozen=True, kw_only=True)
+class QPUse:
+    r"""What the QP of one SQP iteration used (the QP's part of an :class:`IterationRecord`).
+
+    Attributes:
+        hessian: The QP's Hessian: ``"bfgs"`` (damped BFGS) or ``"exact"`` (the caller's
+            ``lagrangian_hessian``, made positive definite).
+        hessian_fallback: The exact Hessian was asked for but not used in this
+            iteration (the callable returned None, raised or gave a bad value, or
+            its QP failed): the BFGS one was.
+        hessian_modified: Eigenvalues of the exact Hessian changed to make it
+            positive definite (:mod:`calib_oed.solver.hessian`).
+        qp_backend: ``"dense"``, ``"sparse"``, ``"lifted"`` (sparse, the
+            coupling :math:`U U^\top` kept factored) or ``"block"`` (the interior point of
+            :mod:`calib_oed.solver.block_qp`); ``""`` when no QP was solved.
+        n_rows_dropped: Near-active rows left out by ``SQPSettings.max_qp_rows``
+            (the farthest from activity).
+        n_pieces: Extra QP rows: the smooth pieces of kinked rows at :math:`x_k`
+            (:mod:`calib_oed.solver.pieces`).
+    """
+
+    hessian: str = "bfgs"
+    hessian_fallback: bool = False
+    hessian_modified: int = 0
+    qp_backend: str = ""
+    n_rows_dropped: int = 0
+    n_pieces: int = 0
+
+
 @dataclass(frozen=True)
-class IterationRecord:
+class _Step:
+    """The fields of :class:`IterationRecord` before those of :class:`QPUse` (documented there)."""
+
+    iteration: int
+    objective: float
+    merit: float
+    penalty: float
+    violation: float
+    stationarity: float
+    step_norm: float
+    step_bound: float
+    n_rows_kept: int
+    qp_status: str
+    qp_iterations: int
+    backtracks: int
+    restoration: bool
+    time: float
+    second_order_correction: bool = False
+
+
+@dataclass(frozen=True)
+class IterationRecord(QPUse, _Step):
     r"""One SQP iteration: the QP solved at :math:`x_k` and the step to :math:`x_{k+1}`.
 
     Values at the point reached (``objective``, ``merit``, ``violation``) are
@@ -167,43 +217,9 @@ class IterationRecord:
         time: Seconds since the start of :func:`~calib_oed.solver.sqp.solve_sqp` [s].
         second_order_correction: The accepted point is the second-order
             correction of the full step.
-        hessian: The QP's Hessian: ``"bfgs"`` (damped BFGS) or ``"exact"`` (the caller's
-            ``lagrangian_hessian``, made positive definite).
-        hessian_fallback: The exact Hessian was asked for but not used in this
-            iteration (the callable returned None, raised or gave a bad value, or
-            its QP failed): the BFGS one was.
-        hessian_modified: Eigenvalues of the exact Hessian changed to make it
-            positive definite (:mod:`calib_oed.solver.hessian`).
-        qp_backend: ``"dense"``, ``"sparse"``, ``"lifted"`` (sparse, the
-            coupling :math:`U U^\top` kept factored) or ``"block"`` (the interior point of
-            :mod:`calib_oed.solver.block_qp`); ``""`` when no QP was solved.
-        n_rows_dropped: Near-active rows left out by ``SQPSettings.max_qp_rows``
-            (the farthest from activity).
-        n_pieces: Extra QP rows: the smooth pieces of kinked rows at :math:`x_k`
-            (:mod:`calib_oed.solver.pieces`).
-    """
 
-    iteration: int
-    objective: float
-    merit: float
-    penalty: float
-    violation: float
-    stationarity: float
-    step_norm: float
-    step_bound: float
-    n_rows_kept: int
-    qp_status: str
-    qp_iterations: int
-    backtracks: int
-    restoration: bool
-    time: float
-    second_order_correction: bool = False
-    hessian: str = "bfgs"
-    hessian_fallback: bool = False
-    hessian_modified: int = 0
-    qp_backend: str = ""
-    n_rows_dropped: int = 0
-    n_pieces: int = 0
+    and after them, keyword-only, what the QP used (:class:`QPUse`).
+    """
 
 
 @dataclass(frozen=True)

@@ -31,7 +31,7 @@ and the second-order correction with the same Hessian.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import replace
 
 import numpy as np
 import scipy.sparse as sp
@@ -48,7 +48,7 @@ from calib_oed.solver.qp import (
     SparseQPWorkspace,
 )
 from calib_oed.solver.restoration import unreachable_rows
-from calib_oed.solver.result import StructuredHessian
+from calib_oed.solver.result import QPUse, StructuredHessian
 from calib_oed.solver.rows import missed_rows, select_rows
 from calib_oed.solver.settings import SQPSettings
 
@@ -135,18 +135,6 @@ class QPSolver:
         return step
 
 
-@dataclass
-class _QPInfo:
-    """What the last QP of an iteration used (for its :class:`IterationRecord`)."""
-
-    hessian: str = "bfgs"
-    fallback: bool = False
-    modified: int = 0
-    backend: str = ""
-    dropped: int = 0
-    pieces: int = 0
-
-
 class _SubproblemMixin:
     """Row selection, Hessian and QP solve of :class:`calib_oed.solver.iteration._Run`."""
 
@@ -231,7 +219,8 @@ class _SubproblemMixin:
         for rounds in range(_MISSED_ROUNDS + 1):
             rows = sel.rows
             H, label, fallback, modified = self._qp_hessian(rows.size + pieces.size)
-            self._info = _QPInfo(label, fallback, modified, "", int(sel.dropped.size), pieces.size)
+            self._info = QPUse(hessian=label, hessian_fallback=bool(fallback), hessian_modified=int(modified),
+                               n_rows_dropped=int(sel.dropped.size), n_pieces=int(pieces.size))
             qp_rows = np.concatenate([rows, pieces.rows])  # the row of c behind each QP row
             constants = np.concatenate([pt.c[rows], pieces.values])
             sub = QPSubproblem(H, pt.g, _stack(pt.A[rows], pieces.gradients), -constants,
@@ -248,7 +237,7 @@ class _SubproblemMixin:
             t = time.perf_counter()
             step = self._solve(sub, np.concatenate([self.lam_rows[rows], np.zeros(pieces.size)]), self.nu, tol_d)
             ok = step.is_solved(tol_p, tol_d)
-            if not ok and step.status not in CRASHED and self._info.backend != "block":
+            if not ok and step.status not in CRASHED and self._info.qp_backend != "block":
                 # a stale warm start or a stale equilibration of the reused ProxQP object
                 # (:class:`~calib_oed.solver.qp.DenseQPWorkspace`) can mislead it: cold, rescaled
                 cold = self._solve(sub, None, None, tol_d, refresh=True)
@@ -266,7 +255,7 @@ class _SubproblemMixin:
 
     def _solve(self, sub, lam0, nu0, tol, refresh=False):
         step = self.qp.solve(sub, lam0, nu0, refresh)
-        self._info.backend = self.qp.last_backend
+        self._info = replace(self._info, qp_backend=self.qp.last_backend)
         if (self.s.qp_polish and step.status not in CRASHED and step.primal_residual <= 1e3 * tol
                 and self.qp.last_backend != "block"  # it polishes its own active set, O(n)
                 and self.pt.x.size <= self.s.max_dense_qp_size):

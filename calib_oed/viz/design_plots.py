@@ -122,11 +122,8 @@ def plot_pose_contributions(
     objective_or_problem,
     q: np.ndarray,
     criterion: str | Criterion | None = None,
-    *,
-    sort: bool = False,
-    sensitivity: bool = True,
 ) -> Figure:
-    """Bar chart of :func:`pose_contributions` of design ``q``, in percent.
+    """Bar chart of :func:`pose_contributions` of design ``q``, in percent, in pose order.
 
     Bars: the exact leave-one-out increase [%] per pose (hatched red bars at
     the top of the axis for poses without which the design is singular);
@@ -134,9 +131,6 @@ def plot_pose_contributions(
 
     Args:
         objective_or_problem, q, criterion: As :func:`pose_contributions`.
-        sort: Largest contribution first (tick labels keep the pose numbers);
-            otherwise in pose order.
-        sensitivity: Also draw the first-order estimate.
 
     Returns:
         A figure with one axis; bar ``i`` (left to right) has ``gid``
@@ -145,35 +139,32 @@ def plot_pose_contributions(
     obj = _objective(objective_or_problem, criterion)
     crit = obj.criterion
     loo = pose_contributions(obj, q)
-    first = pose_contributions(obj, q, kind="sensitivity") if sensitivity else None
+    first = pose_contributions(obj, q, kind="sensitivity")
     n = loo.size
     finite = np.isfinite(loo)
-    order = np.argsort(-np.where(finite, loo, np.inf), kind="stable") if sort else np.arange(n)
-    top = 100.0 * max(loo[finite].max() if finite.any() else 0.0,
-                      first.max() if first is not None else 0.0)
+    top = 100.0 * max(loo[finite].max() if finite.any() else 0.0, first.max())
     cap = 1.15 * top if top > 0 else 1.0
-    heights = np.where(finite, 100.0 * loo, cap)[order]
+    heights = np.where(finite, 100.0 * loo, cap)
     fig = Figure(figsize=(max(8.0, min(16.0, 0.22 * n + 3.0)), 5.0), layout="constrained")
     ax = fig.subplots()
     x = np.arange(n)
     bars = ax.bar(x, heights, color="C0")
     handles = [Patch(facecolor="C0", label="left out: exact increase")]
-    for k, (rect, j) in enumerate(zip(bars, order, strict=True)):
+    for j, rect in enumerate(bars):
         rect.set_gid(f"pose {j}")
         if not finite[j]:
             rect.set(color="C3", hatch="//", alpha=0.6)
-            ax.text(k, cap, "\u221e", ha="center", va="bottom", color="C3")
+            ax.text(j, cap, "\u221e", ha="center", va="bottom", color="C3")
     if not finite.all():
         handles.append(Patch(facecolor="C3", hatch="//", alpha=0.6,
                              label="left out: design singular (\u221e)"))
         ax.set_ylim(top=1.1 * cap)
-    if first is not None:
-        handles += ax.plot(x, 100.0 * first[order], "o", color="k", ms=3.5, gid="sensitivity",
-                           label="first order: \u2212\u2202log Q/\u2202w (equivalence theorem)")
-    ax.set_xticks(x, [str(j) for j in order], fontsize=7 if n > 30 else 9,
+    handles += ax.plot(x, 100.0 * first, "o", color="k", ms=3.5, gid="sensitivity",
+                       label="first order: \u2212\u2202log Q/\u2202w (equivalence theorem)")
+    ax.set_xticks(x, [str(j) for j in x], fontsize=7 if n > 30 else 9,
                   rotation=90 if n > 30 else 0)
     ax.set_xlim(-0.7, n - 0.3)
-    ax.set_xlabel("pose (row of the design)" + (", largest contribution first" if sort else ""))
+    ax.set_xlabel("pose (row of the design)")
     quantity = "det C" if isinstance(crit, DCriterion) else (
         f"1/{crit.name}" if isinstance(crit, ObservabilityIndex) else "the criterion")
     ax.set_ylabel(f"increase of {quantity} without the pose [%]")

@@ -6,7 +6,7 @@ write it with :func:`save_figure`, which renders with Agg (PNG), or the SVG
 and PDF backends. Lengths are plotted in mm; inputs are SI (m, m²) unless an
 argument says otherwise.
 
-- :func:`plot_kpi_ellipsoids` / :func:`plot_covariance_ellipses`: the paper's
+- :func:`plot_kpi_ellipsoids`: the paper's
   Figure 7, the 95 % confidence region of the KPI (a tool point at every
   working configuration, in the world or tracker frame) of several designs,
   projected onto the xy, xz and yz planes. Drawn are the *marginal* ellipses
@@ -44,7 +44,7 @@ MM_PER_M = 1e3
 MRAD_PER_RAD = 1e3
 #: File suffixes :func:`save_figure` writes, and the matplotlib format of each.
 FIGURE_FORMATS = {".png": "png", ".svg": "svg", ".pdf": "pdf"}
-#: Coordinate planes of :func:`plot_covariance_ellipses`: name and the two axes.
+#: Coordinate planes of :func:`plot_kpi_ellipsoids`: name and the two axes.
 PLANES = (("xy", (0, 1)), ("xz", (0, 2)), ("yz", (1, 2)))
 #: Most tick intervals per axis of an ellipse panel (at most TICK_BINS + 1 labels).
 TICK_BINS = 4
@@ -106,56 +106,6 @@ def _ellipse_figure(curves: Sequence[_Curve], level: float, title: str, legend_t
     return fig
 
 
-def _check_covariance(name: str, cov) -> np.ndarray:
-    cov = np.asarray(cov, dtype=float)
-    if cov.shape != (3, 3):
-        raise ShapeError(f"covariance of {name!r}", "(3, 3) [m^2]", cov.shape)
-    return cov
-
-
-def plot_covariance_ellipses(
-    covariances: Mapping[str, np.ndarray],
-    *,
-    level: float = 0.95,
-    title: str | None = None,
-) -> Figure:
-    r"""Marginal confidence ellipses of 3-D positions in the xy, xz and yz planes, in mm.
-
-    One closed curve per entry, centred at 0 (deviation from the estimate),
-    :math:`\{y : y^\top C_{JJ}^{-1} y \le \chi^2_2(\mathrm{level})\}` for the
-    coordinate pairs :math:`J` of :data:`PLANES`; its extent along axis
-    :math:`k` is :math:`\sqrt{\chi^2_2(\mathrm{level})\,C_{kk}}`. The legend
-    gives each entry's :math:`\sigma = \sqrt{\mathrm{tr}(C)/3}` [mm].
-
-    Args:
-        covariances: Name (e.g. ``"KPI-optimal"``) to covariance :math:`C`,
-            (3, 3) [m²], symmetric positive definite.
-        level: Confidence level in (0, 1).
-        title: Figure title (default: says what is drawn).
-
-    Returns:
-        A figure with three axes, ``fig.axes`` in the order of :data:`PLANES`;
-        each curve is a line whose ``gid`` is the entry's name.
-
-    Raises:
-        ShapeError: a covariance is not (3, 3).
-        NotPositiveDefiniteError, NonFiniteError, ConfidenceLevelError: from
-            :class:`~calib_oed.calibration.confidence.ConfidenceEllipsoid`.
-    """
-    if not covariances:
-        raise ValueError("covariances: give at least one name -> (3, 3) covariance [m^2]")
-    curves = []
-    for (name, cov), color in zip(covariances.items(), _colors(len(covariances)), strict=True):
-        cov = _check_covariance(name, cov)
-        curves.append(_Curve(str(name), f"{name}: \u03c3 = {_sigma_mm([cov]):#.3g} mm", color,
-                             ConfidenceEllipsoid(np.zeros(3), cov, level, str(name))))
-    return _ellipse_figure(
-        curves, level,
-        title or f"{level:.0%} confidence regions, deviation from the estimate "
-                 "(marginal ellipses, \u03c7\u00b2 with 2 degrees of freedom)",
-        "design: KPI \u03c3 = \u221a(tr C/3)")
-
-
 def kpi_description(kpi, reflector_names: Sequence[str] | None = None) -> str:
     """What a KPI is and in which frame, in words: ``"TCP position, world frame"``,
     ``"centre of reflector 'smr0', tracker frame"``, ``"tool point (0, 0, 120) mm, world frame"``.
@@ -179,7 +129,6 @@ def plot_kpi_ellipsoids(
     problem,
     designs: Mapping[str, np.ndarray],
     *,
-    kpi_index: int | None = None,
     level: float = 0.95,
 ) -> Figure:
     r"""The paper's Figure 7: KPI confidence regions of several designs, in mm.
@@ -187,8 +136,7 @@ def plot_kpi_ellipsoids(
     For each design :math:`q` and KPI point :math:`i` (working configuration),
     the 3×3 block :math:`C_i` of :math:`C_s(q)` (``problem.kpi_covariance``,
     [m²], in the KPI's frame: world or tracker) is drawn as marginal ellipses
-    in the xy, xz and yz planes (as :func:`plot_covariance_ellipses`), one line
-    per point, in the design's colour. The legend gives per design
+    in the xy, xz and yz planes, one line per point, in the design's colour. The legend gives per design
     :math:`\sigma = \sqrt{\sum_i \mathrm{tr}(C_i)/(3t)}` [mm] over its t drawn
     points; the title names the KPI point, its frame and the working configurations.
 
@@ -198,36 +146,24 @@ def plot_kpi_ellipsoids(
         designs: Name (``"heuristic"``, ``"KPI-optimal"``, ...) to
             configurations (n, nq) [rad], or to a record with a ``q``
             attribute (:class:`~calib_oed.oed.result.Design`).
-        kpi_index: One working configuration, 0 .. t-1; ``None``: all of them.
         level: Confidence level in (0, 1).
 
     Returns:
-        A figure as :func:`plot_covariance_ellipses`; the line of design ``d``
-        at point ``w`` has ``gid`` ``d`` with one KPI point, else ``"d @ w"``.
-
-    Raises:
-        ValueError: ``kpi_index`` out of range (the message lists the
-            working configurations).
+        A figure with three axes, ``fig.axes`` in the order of :data:`PLANES`; the
+        line of design ``d`` at point ``w`` has ``gid`` ``d`` with one KPI point, else
+        ``"d @ w"``.
     """
     scene = getattr(problem, "scene", None)
     reflector_names = [r.name for r in scene.reflectors] if scene is not None else None
     problem = _problem(problem)
     names = problem.kpi.names
-    if kpi_index is None:
-        points = list(range(len(names)))
-    elif isinstance(kpi_index, bool) or not isinstance(kpi_index, (int, np.integer)) \
-            or not 0 <= kpi_index < len(names):
-        valid = ", ".join(f"{i} ({n})" for i, n in enumerate(names))
-        raise ValueError(f"kpi_index {kpi_index!r}: the working configurations are {valid} "
-                         "(or None: all)")
-    else:
-        points = [int(kpi_index)]
+    points = list(range(len(names)))
     if not designs:
         raise ValueError("designs: give at least one name -> configurations (n, nq) [rad]")
     curves = []
     for (design, q), color in zip(designs.items(), _colors(len(designs)), strict=True):
         c_s = problem.kpi_covariance(np.asarray(getattr(q, "q", q), dtype=float))
-        blocks = [_check_covariance(design, c_s[3 * i : 3 * i + 3, 3 * i : 3 * i + 3]) for i in points]
+        blocks = [c_s[3 * i : 3 * i + 3, 3 * i : 3 * i + 3] for i in points]
         over = f" (RMS over {len(points)} points)" if len(points) > 1 else ""
         for k, (i, cov) in enumerate(zip(points, blocks, strict=True)):
             gid = str(design) if len(points) == 1 else f"{design} @ {names[i]}"

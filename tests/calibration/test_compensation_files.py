@@ -110,23 +110,24 @@ def test_compliance_and_gains_are_kept_for_compensate(tmp_path):
     them); ``compensate``'s keeps them as the joint deflection, with the working payload named."""
     from calib_oed.model.deflected_kinematics import JointDeflection
     from tests.calibration.test_compensation import deflecting_scene
+    from tests.model.test_deflected_kinematics import effective
 
     problem, result, _ = write_calibration(tmp_path, deflecting_scene())
     with pytest.raises(CompensationError, match="joint compliance, which a URDF or a parameter table cannot hold"):
         load_calibration(problem.space, tmp_path)
     q = problem.space.robot.random_configurations(5, 7)
-    expected = JointDeflection.from_space(problem.space, result.p).compute_effective(q)
+    expected = effective(JointDeflection.from_space(problem.space, result.p), q)
     loaded = load_compensation(problem.space, tmp_path)              # the scene declares the payload
-    assert np.allclose(loaded.deflection.compute_effective(q), expected, rtol=0, atol=1e-14)
+    assert np.allclose(effective(loaded.deflection, q), expected, rtol=0, atol=1e-14)
     assert "16 kg" in loaded.payload and "the scene's robot.compliance.payload" in loaded.payload
     assert np.allclose(loaded.uncertainty.p, result.p) and len(loaded.deflection.gains) == 6
     plain = CalibrationProblem.from_scene(load_scene("fms_kr16")).space    # no compliance block: the file's
     loaded = load_compensation(plain, tmp_path)
-    assert np.allclose(loaded.deflection.compute_effective(q), expected, rtol=0, atol=1e-14)
+    assert np.allclose(effective(loaded.deflection, q), expected, rtol=0, atol=1e-14)
     assert "identified under" in loaded.payload
     empty = load_compensation(plain, tmp_path, payload_mass=0.0)      # another payload: another deflection
     assert "0 kg" in empty.payload and "--payload-kg" in empty.payload
-    assert np.abs(empty.deflection.compute_effective(q) - expected).max() > 1e-6
+    assert np.abs(effective(empty.deflection, q) - expected).max() > 1e-6
     data = json.loads((tmp_path / "identification.json").read_text())
     data["p"]["joint2.c"] *= 1.01                                     # not the sensor file's compliance
     (tmp_path / "identification.json").write_text(json.dumps(data))
@@ -135,4 +136,4 @@ def test_compliance_and_gains_are_kept_for_compensate(tmp_path):
     (tmp_path / "identification.json").unlink()                       # the sensor file alone
     loaded = load_compensation(plain, tmp_path)
     assert loaded.uncertainty is None
-    assert np.allclose(loaded.deflection.compute_effective(q), expected, rtol=0, atol=1e-14)
+    assert np.allclose(effective(loaded.deflection, q), expected, rtol=0, atol=1e-14)

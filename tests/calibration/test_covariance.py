@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import scipy.optimize
 import scipy.stats
-from conftest import make_space
+from conftest import make_space, random_parameters
 
 from calib_oed import load_robot
 from calib_oed.calibration.covariance import (
@@ -66,7 +66,7 @@ def test_kpi_covariance_against_monte_carlo(problem):
     free = problem.identifiability.free_indices
     q = problem.robot.random_configurations(30, 5)
     p_true = np.zeros(space.size)
-    p_true[free] = space.random(rng)[free]
+    p_true[free] = random_parameters(space, rng)[free]
     c_s = problem.kpi_covariance(q, p_true)
     s_true = problem.kpi.compute_values(space, p_true).ravel()
     h_true = stacked_values([model], evaluate_setup(space, p_true, q, jacobian=False))

@@ -9,16 +9,12 @@ import numpy as np
 import pinocchio as pin
 import pytest
 import yaml
-from conftest import ROBOTS, make_space
+from conftest import ROBOTS, make_space, random_parameters
 
 from calib_oed import load_robot
 from calib_oed.calibration import export_files
-from calib_oed.calibration.export import (
-    calibrated_urdf_text,
-    export_calibrated_urdf,
-    export_calibration,
-)
-from calib_oed.calibration.sensor_file import SENSOR_FORMAT, read_sensor_yaml, write_sensor_yaml
+from calib_oed.calibration.export import calibrated_urdf_text, export_calibration
+from calib_oed.calibration.sensor_file import SENSOR_FORMAT, read_sensor_yaml
 from calib_oed.exceptions import ExportError, ShapeError
 
 TOL = 1e-9  # [m], [rad]
@@ -63,8 +59,8 @@ def setup(request):
 
 def test_round_trip_matches_perturbed_model(setup, tmp_path):
     robot, space = setup
-    p = space.random(np.random.default_rng(11), sigma_length=1e-3, sigma_angle=1e-3)
-    path = export_calibrated_urdf(space, p, tmp_path / "cal.urdf")
+    p = random_parameters(space, np.random.default_rng(11), sigma_length=1e-3, sigma_angle=1e-3)
+    path = export_calibration(space, p, tmp_path, stem="cal")["urdf"]
     loaded = reload(robot, path)
     assert loaded.joint_names == robot.joint_names
     assert loaded.tool_frame_id == robot.tool_frame_id
@@ -80,7 +76,7 @@ def test_round_trip_matches_perturbed_model(setup, tmp_path):
 
 def test_zero_perturbation_reproduces_nominal(setup, tmp_path):
     robot, space = setup
-    path = export_calibrated_urdf(space, space.zeros(), tmp_path / "nominal.urdf")
+    path = export_calibration(space, space.zeros(), tmp_path, stem="nominal")["urdf"]
     loaded = reload(robot, path)
     for a, b in zip(loaded.model.jointPlacements, robot.model.jointPlacements, strict=True):
         assert a == b  # the source text is kept, so the parse is identical
@@ -90,9 +86,9 @@ def test_zero_perturbation_reproduces_nominal(setup, tmp_path):
 def test_only_perturbed_joint_origins_change(setup, tmp_path):
     """Locked joints, fixed joints, mimic, transmissions, limits: all as in the source."""
     robot, space = setup
-    p = space.random(5, sigma_length=1e-3, sigma_angle=1e-3)
+    p = random_parameters(space, 5, sigma_length=1e-3, sigma_angle=1e-3)
     p[space.joint_slice(2)] = 0.0  # an untouched movable joint keeps its text
-    text = export_calibrated_urdf(space, p, tmp_path / "cal.urdf").read_text()
+    text = calibrated_urdf_text(space, p)
     full_a = pin.buildModelFromXML(robot.urdf_text)
     full_b = pin.buildModelFromXML(text)
     assert list(full_a.names) == list(full_b.names)
@@ -119,8 +115,8 @@ def test_only_perturbed_joint_origins_change(setup, tmp_path):
 def test_output_is_valid_urdf_with_provenance(tmp_path):
     robot = load_robot("panda")
     space = make_space(robot)
-    p = space.random(2)
-    path = export_calibrated_urdf(space, p, tmp_path / "panda.urdf", robot_name="panda_cell3")
+    p = random_parameters(space, 2)
+    path = export_calibration(space, p, tmp_path, stem="panda")["urdf"]
     model = pin.buildModelFromUrdf(str(path))  # parses as a URDF file, fingers included
     assert model.nq == robot.nq + len(robot.locked_joints)
     text = path.read_text()
@@ -128,10 +124,9 @@ def test_output_is_valid_urdf_with_provenance(tmp_path):
     head = text.split("-->", 1)[0]
     assert f"{space.size} parameters" in head
     assert f"the {6 * robot.nq} joint parameters" in head
-    assert "panda_cell3" in head
-    assert ET.fromstring(text.split("\n", 1)[1]).get("name") == "panda_cell3"
+    assert ET.fromstring(text.split("\n", 1)[1]).get("name") == ET.fromstring(robot.urdf_text).get("name")
     # date-free: the same calibration gives the same bytes
-    again = export_calibrated_urdf(space, p, tmp_path / "again.urdf", robot_name="panda_cell3")
+    again = export_calibration(space, p, tmp_path, stem="again")["urdf"]
     assert again.read_bytes() == path.read_bytes()
 
 
@@ -169,7 +164,7 @@ def test_origin_precision_near_gimbal_lock(tmp_path):
     for scale in (1e-5, 1e-9, 1e-12):
         p = space.zeros()
         p[space.joint_slice(2)] = rng.normal(size=6) * scale
-        path = export_calibrated_urdf(space, p, tmp_path / f"out_{scale}.urdf")
+        path = export_calibration(space, p, tmp_path, stem=f"out_{scale}")["urdf"]
         loaded = reload(robot, path)
         a, b = loaded.model.jointPlacements[2], space.perturbed_model(p).jointPlacements[2]
         assert np.linalg.norm(pin.log6(a.inverse() * b).vector) < 1e-14
@@ -178,8 +173,8 @@ def test_origin_precision_near_gimbal_lock(tmp_path):
 def test_generated_robot_without_file(tmp_path):
     robot = load_robot("notional_l650_m600")
     space = make_space(robot, reflectors=((0.0, 0.0, 0.05),))
-    p = space.random(4, sigma_length=1e-3, sigma_angle=1e-3)
-    loaded = reload(robot, export_calibrated_urdf(space, p, tmp_path / "n.urdf"))
+    p = random_parameters(space, 4, sigma_length=1e-3, sigma_angle=1e-3)
+    loaded = reload(robot, export_calibration(space, p, tmp_path, stem="n")["urdf"])
     dt, dr, dx = fk_errors(robot, loaded.model, space.perturbed_model(p))
     assert max(dt, dr, dx) < TOL
 
@@ -187,8 +182,8 @@ def test_generated_robot_without_file(tmp_path):
 def test_sensor_yaml_round_trip(tmp_path):
     robot = load_robot("kr16")
     space = make_space(robot)
-    p = space.random(np.random.default_rng(7), sigma_length=1e-3, sigma_angle=1e-3)
-    path = write_sensor_yaml(space, p, tmp_path / "sensor.yaml")
+    p = random_parameters(space, np.random.default_rng(7), sigma_length=1e-3, sigma_angle=1e-3)
+    path = export_calibration(space, p, tmp_path)["sensor"]
     tracker, offsets = read_sensor_yaml(path)
     expected = space.tracker_placement(p)
     assert np.abs(tracker.homogeneous - expected.homogeneous).max() < 1e-12
@@ -208,7 +203,7 @@ def test_sensor_yaml_round_trip(tmp_path):
 
 def test_sensor_yaml_rejects_inconsistent_or_bad_files(tmp_path):
     space = make_space(load_robot("kr16"))
-    path = write_sensor_yaml(space, space.zeros(), tmp_path / "s.yaml")
+    path = export_calibration(space, space.zeros(), tmp_path)["sensor"]
     data = yaml.safe_load(path.read_text())
     data["tracker"]["position_mm"][0] += 1.0  # a hand edit of one copy only
     edited = tmp_path / "edited.yaml"
@@ -226,7 +221,7 @@ def test_sensor_yaml_rejects_inconsistent_or_bad_files(tmp_path):
 def test_export_calibration_writes_both(tmp_path):
     robot = load_robot("ur5")
     space = make_space(robot)
-    p = space.random(9)
+    p = random_parameters(space, 9)
     paths = export_calibration(space, p, tmp_path)
     assert paths == {"urdf": tmp_path / "ur5_calibrated.urdf",
                      "sensor": tmp_path / "ur5_sensor.yaml"}
@@ -243,30 +238,28 @@ def test_bad_folder_and_bad_p_write_nothing(tmp_path):
     missing = tmp_path / "no_such_folder"
     with pytest.raises(ExportError, match="no_such_folder"):
         export_calibration(space, space.zeros(), missing)
-    with pytest.raises(ExportError, match="no_such_folder"):
-        export_calibrated_urdf(space, space.zeros(), missing / "x.urdf")
-    with pytest.raises(ExportError, match="no_such_folder"):
-        write_sensor_yaml(space, space.zeros(), missing / "x.yaml")
     with pytest.raises(ShapeError):
         export_calibration(space, np.zeros(space.size - 1), tmp_path)
-    with pytest.raises(ExportError, match="it is a folder"):
-        export_calibrated_urdf(space, space.zeros(), tmp_path)
     with pytest.raises(ExportError, match="plain file name"):
         export_calibration(space, space.zeros(), tmp_path, stem="a/b")
     assert not missing.exists()
     assert os.listdir(tmp_path) == []
+    (tmp_path / "kr16_calibrated.urdf").mkdir()
+    with pytest.raises(ExportError, match="it is a folder"):
+        export_calibration(space, space.zeros(), tmp_path)
+    assert os.listdir(tmp_path) == ["kr16_calibrated.urdf"]
 
 
 def test_failed_write_leaves_no_file(tmp_path, monkeypatch):
     space = make_space(load_robot("kr16"))
-    p = space.random(1)
+    p = random_parameters(space, 1)
 
     def fail(*args, **kwargs):
         raise OSError("disk full")
 
     monkeypatch.setattr(os, "replace", fail)  # the rename at the end of the atomic write
     with pytest.raises(ExportError, match="disk full"):
-        export_calibrated_urdf(space, p, tmp_path / "cal.urdf")
+        export_calibration(space, p, tmp_path)
     assert os.listdir(tmp_path) == []
     monkeypatch.undo()
 
@@ -281,12 +274,6 @@ def test_failed_write_leaves_no_file(tmp_path, monkeypatch):
     with pytest.raises(ExportError, match="disk full"):
         export_calibration(space, p, tmp_path)
     assert os.listdir(tmp_path) == []  # the URDF written first was removed again
-
-
-def test_text_helper_rejects_empty_robot_name():
-    space = make_space(load_robot("kr16"))
-    with pytest.raises(ExportError, match="robot_name"):
-        calibrated_urdf_text(space, None, robot_name=" ")
 
 
 def test_a_one_line_urdf_is_written_indented():

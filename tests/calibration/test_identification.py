@@ -6,7 +6,7 @@ import json
 
 import numpy as np
 import pytest
-from conftest import central_difference, make_space, relative_error
+from conftest import central_difference, make_space, random_parameters, relative_error
 
 from calib_oed import load_robot
 from calib_oed.calibration.identification import (
@@ -53,7 +53,7 @@ def true_parameters(problem, seed):
     """A random perturbation (0.5 mm, 0.5 mrad) of the free parameters; fixed ones nominal."""
     free = problem.identifiability.free_indices
     p = np.zeros(problem.space.size)
-    p[free] = problem.space.random(seed)[free]
+    p[free] = random_parameters(problem.space, seed)[free]
     return p
 
 
@@ -100,7 +100,7 @@ def test_noise_free_data_recover_the_true_parameters(name, request):
 def test_fixed_parameters_stay_at_p0(ur5):
     """Non-nominal p0: the fixed parameters keep their p0 values, the free ones start there."""
     space, free = ur5.space, ur5.identifiability.free_indices
-    p0 = space.random(14)
+    p0 = random_parameters(space, 14)
     p_true = p0.copy()
     p_true[free] += true_parameters(ur5, 15)[free]
     q = ur5.robot.random_configurations(40, 16)
@@ -136,7 +136,7 @@ def test_residual_jacobian_matches_central_differences(kr16_mixed):
     q = problem.robot.random_configurations(6, 32)
     blocks = [simulate(space, TrackerPosition(0), q, p_true),
               simulate(space, PoseMeasurement(1), q[:4], p_true)]
-    p0 = space.random(33)  # non-nominal fixed parameters too
+    p0 = random_parameters(space, 33)  # non-nominal fixed parameters too
     fun, jac = residual_function(space, blocks, problem.identifiability, p0)
     x = p0[problem.identifiability.free_indices] + 0.5 * true_parameters(problem, 34)[
         problem.identifiability.free_indices]

@@ -10,9 +10,10 @@ import numpy as np
 import pytest
 import yaml
 
+from calib_oed.calibration.export import export_calibration
 from calib_oed.calibration.identification import identify
 from calib_oed.calibration.problem import CalibrationProblem
-from calib_oed.calibration.sensor_file import read_sensor_gains, write_sensor_yaml
+from calib_oed.calibration.sensor_file import read_sensor_gains
 from calib_oed.calibration.simulation import draw_true_parameters, simulate_observations
 from calib_oed.cli import EXIT_OK, main
 from calib_oed.exceptions import ExportError, SceneError
@@ -101,12 +102,13 @@ def test_sensor_yaml_round_trip_and_errors(gain_problem, tmp_path):
     space = gain_problem.space
     p = space.zeros()
     p[space.gain_slice] = np.arange(1, 8) * 1e-4
-    path = write_sensor_yaml(space, p, tmp_path / "s.yaml")
+    path = export_calibration(space, p, tmp_path)["sensor"]
     layout, values = read_sensor_gains(path, space.robot.joint_names)
     assert layout == space.joint_gains
     np.testing.assert_array_equal(values, p[space.gain_slice])
-    assert read_sensor_gains(write_sensor_yaml(CalibrationProblem.from_scene(load_scene("fms_kr16")).space,
-                                               None, tmp_path / "r.yaml"), space.robot.joint_names) is None
+    rigid = export_calibration(CalibrationProblem.from_scene(load_scene("fms_kr16")).space, None,
+                               tmp_path, stem="rigid")["sensor"]
+    assert read_sensor_gains(rigid, space.robot.joint_names) is None
     data = yaml.safe_load(path.read_text())
     data["joint_gains"]["joints"][1]["joint"] = "elbow"
     path.write_text(yaml.safe_dump(data))

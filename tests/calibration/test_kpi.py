@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 import pytest
-from conftest import central_difference, relative_error
+from conftest import central_difference, random_parameters, relative_error
 
 from calib_oed.calibration.kpi import TcpKpi
 from calib_oed.exceptions import ShapeError
@@ -18,7 +18,7 @@ from calib_oed.model.kinematics import compute_tool_kinematics
 def test_kpi_jacobian(space, frame, at, reflector):
     q = space.robot.random_configurations(2, 21)
     kpi = TcpKpi(q, point=np.array([0.01, -0.02, 0.1]), frame=frame, reflector=reflector)
-    p = space.zeros() if at == "nominal" else space.random(3, 5e-3, 5e-3)
+    p = space.zeros() if at == "nominal" else random_parameters(space, 3, 5e-3, 5e-3)
     g = kpi.compute_param_jacobian(space, p)
     numeric = central_difference(lambda x: kpi.compute_values(space, x).ravel(), p)
     assert g.shape == (6, space.size)

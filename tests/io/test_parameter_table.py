@@ -7,6 +7,7 @@ from dataclasses import replace
 import numpy as np
 import pinocchio as pin
 import pytest
+from conftest import random_parameters
 
 from calib_oed import load_robot
 from calib_oed.exceptions import ParameterTableError
@@ -23,7 +24,7 @@ from calib_oed.model.parameters import ParameterSpace
 def _calibrated(name):
     robot = load_robot(name)
     space = ParameterSpace(robot, pin.SE3.Identity(), np.zeros((1, 3)))
-    return replace(robot, model=space.perturbed_model(space.random(3)))
+    return replace(robot, model=space.perturbed_model(random_parameters(space, 3)))
 
 
 @pytest.mark.parametrize("convention", CONVENTIONS)

@@ -39,19 +39,6 @@ def test_kernel_gradient_matches_central_differences(prior):
         assert relative_error(prior.kernel_gradient(q1, q2)[a], num) < 1e-6
 
 
-def test_kernel_hessians_match_central_differences(prior):
-    q1, q2 = _points(1)
-    hess = prior.kernel_hessian(q1, q2)
-    cross = -hess  # k depends on q1 - q2 only
-    for a in range(q1.shape[0]):
-        num = central_difference(lambda x, a=a: prior.kernel_gradient(x[None], q2)[0], q1[a], 1e-6)
-        assert relative_error(hess[a], num) < 1e-5
-        for b in range(q2.shape[0]):  # d/dq2 of dk/dq1
-            num = central_difference(
-                lambda x, a=a: prior.kernel_gradient(q1[a][None], x[None])[0, 0], q2[b], 1e-6)
-            assert relative_error(cross[a, b], num) < 1e-5
-
-
 def test_a_revolute_joint_turned_a_full_revolution_is_the_same_arm():
     prior = DiscrepancyPrior(3e-4, ELL)
     q = np.random.default_rng(5).uniform(-2, 2, (10, 6))

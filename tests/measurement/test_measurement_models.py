@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import central_difference, relative_error
+from conftest import central_difference, random_parameters, relative_error
 
 from calib_oed.exceptions import NonFiniteError, ShapeError
 from calib_oed.measurement import PoseMeasurement, TrackerPosition, evaluate_setup
@@ -19,7 +19,7 @@ TOL = 1e-6
 
 @pytest.fixture(params=["nominal", "perturbed"])
 def params(request, space):
-    return space.zeros() if request.param == "nominal" else space.random(4, 5e-3, 5e-3)
+    return space.zeros() if request.param == "nominal" else random_parameters(space, 4, 5e-3, 5e-3)
 
 
 @pytest.mark.parametrize("kind", MODELS)
@@ -63,7 +63,7 @@ def test_pose_probe_rotation_mixed_derivative(space):
     import pinocchio as pin
 
     model = PoseMeasurement(1, probe_rotation=pin.exp3(np.array([0.1, 0.2, -0.3])))
-    p = space.random(7, 5e-3, 5e-3)
+    p = random_parameters(space, 7, 5e-3, 5e-3)
     q = space.robot.random_configurations(2, 14)
     analytic = model.compute_param_config_jacobian(evaluate_setup(space, p, q))
     assert relative_error(analytic, _mixed_differences(model, space, p, q)) < TOL
@@ -87,7 +87,7 @@ def test_position_value_matches_frame_placement(space):
     import pinocchio as pin
 
     q = space.robot.random_configurations(2, 5)
-    p = space.random(6, 1e-3, 1e-3)
+    p = random_parameters(space, 6, 1e-3, 1e-3)
     state = evaluate_setup(space, p, q)
     h = TrackerPosition(1).compute_values(state)
     for k in range(2):

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 import pytest
-from conftest import central_difference, make_space, relative_error
+from conftest import central_difference, make_space, random_parameters, relative_error
 
 from calib_oed import load_robot
 from calib_oed.measurement import PoseMeasurement, TrackerPosition, evaluate_setup
@@ -26,7 +26,7 @@ EPS = 1e-4
 
 @pytest.fixture(params=["nominal", "perturbed"])
 def params(request, space):
-    return space.zeros() if request.param == "nominal" else space.random(4, 5e-3, 5e-3)
+    return space.zeros() if request.param == "nominal" else random_parameters(space, 4, 5e-3, 5e-3)
 
 
 def _along_each_pose(fun, q):
@@ -54,7 +54,7 @@ def test_param_config_hessian(space, params, kind):
 @pytest.mark.parametrize("frame", ["world", "tracker"])
 def test_tool_point_hessian_in_both_frames(space, frame):
     """The tool-point helper with a fixed point (no reflector columns) in either frame."""
-    p = space.random(5, 5e-3, 5e-3)
+    p = random_parameters(space, 5, 5e-3, 5e-3)
     q = space.robot.random_configurations(2, 16)
     offset = np.array([0.01, 0.02, 0.12])
     analytic = tool_point_param_config_hessian(evaluate_setup(space, p, q), offset, frame)

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import pinocchio as pin
-from conftest import central_difference, relative_error
+from conftest import central_difference, random_parameters, relative_error
 
 from calib_oed.measurement import PoseMeasurement, TrackerPosition
 from calib_oed.model.compliance import Compliance
@@ -48,7 +48,7 @@ def joint_term(robot, kind: str) -> JointTerm:
     gains = GAINS if "gains" in kind else None
     comp = (PAYLOAD if kind == "compliance" else Compliance(8.0, [0.0, 0.02, 0.1])) if "compliance" in kind else None
     space = ParameterSpace(robot, tracker(), REFLECTORS, compliance=comp, joint_gains=gains)
-    p = space.random(4, 5e-3, 5e-3, sigma_gain=2e-2)
+    p = random_parameters(space, 4, 5e-3, 5e-3, sigma_gain=2e-2)
     if comp is not None:
         tau = np.abs(space.gravity.torques(robot.random_configurations(50, 0))).max(axis=0)
         scale = 0.01 if gains else np.random.default_rng(5).uniform(0.5, 1.0, space.n_joints) * 0.02

@@ -11,8 +11,9 @@ import pytest
 import yaml
 from conftest import central_difference, relative_error
 
+from calib_oed.calibration.export import export_calibration
 from calib_oed.calibration.problem import CalibrationProblem
-from calib_oed.calibration.sensor_file import read_sensor_compliance, write_sensor_yaml
+from calib_oed.calibration.sensor_file import read_sensor_compliance
 from calib_oed.exceptions import ParameterError, SceneError, ShapeError
 from calib_oed.model.compliance import Compliance, GravityLoad
 from calib_oed.model.robot import load_robot
@@ -100,6 +101,6 @@ def test_payload_alone_makes_the_main_axes_compliance_identifiable_and_exports(t
     space = problem.space
     p = space.zeros()
     p[space.compliance_slice] = 1e-6
-    back, c = read_sensor_compliance(write_sensor_yaml(space, p, tmp_path / "s.yaml"), space.robot.joint_names)
+    back, c = read_sensor_compliance(export_calibration(space, p, tmp_path)["sensor"], space.robot.joint_names)
     np.testing.assert_array_equal(back.link_masses, np.zeros(6))
     np.testing.assert_array_equal(c, p[space.compliance_slice])

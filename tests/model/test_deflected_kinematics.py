@@ -15,6 +15,11 @@ from calib_oed.model.joint_map import JointGains
 from calib_oed.model.parameters import ParameterSpace
 from tests.conftest import central_difference
 
+
+def effective(deflection: JointDeflection, q) -> np.ndarray:
+    """:math:`q_{eff}` at every row of ``q`` (n, nq) [rad or m]."""
+    return np.array([deflection.compute_effective_one(row) for row in np.atleast_2d(q)])
+
 PAYLOAD = Compliance(60.0, np.array([0.0, 0.05, 0.15]))
 
 
@@ -42,9 +47,9 @@ def test_chain_matches_finite_differences():
     space, p = _space_and_p()
     deflection = JointDeflection.from_space(space, p)
     q = space.robot.random_configurations(3, 1)
-    d = deflection.compute_chain(q)
+    d = [deflection.compute_chain_one(row) for row in q]
     for k in range(3):
-        fd = central_difference(lambda x: deflection.compute_effective(x[None])[0], q[k])
+        fd = central_difference(deflection.compute_effective_one, q[k])
         assert np.allclose(d[k], fd, atol=1e-8)
         assert np.abs(d[k] - np.eye(space.robot.nq)).max() > 1e-4     # the deflection is felt
 
@@ -88,10 +93,10 @@ def test_payload_changes_only_the_gravity():
     space, p = _space_and_p(gains=False)
     q = space.robot.random_configurations(4, 6)
     same = JointDeflection.from_space(space, p, PAYLOAD)
-    assert np.allclose(same.compute_effective(q), JointDeflection.from_space(space, p).compute_effective(q))
+    assert np.allclose(effective(same, q), effective(JointDeflection.from_space(space, p), q))
     empty = JointDeflection.from_space(space, p, Compliance(0.0))
     assert "0 kg" in empty.payload
-    dq = JointDeflection.from_space(space, p).compute_effective(q) - empty.compute_effective(q)
+    dq = effective(JointDeflection.from_space(space, p), q) - effective(empty, q)
     assert np.abs(dq).max() > 1e-5                                     # 60 kg deflects the joints
     rigid = ParameterSpace(space.robot, pin.SE3.Identity(), np.zeros((1, 3)))
     assert JointDeflection.from_space(rigid, rigid.zeros()) is None

@@ -7,6 +7,7 @@ from dataclasses import replace
 import numpy as np
 import pinocchio as pin
 import pytest
+from conftest import random_parameters
 
 from calib_oed import load_robot
 from calib_oed.exceptions import ParameterTableError
@@ -19,7 +20,7 @@ TOL = 1e-9
 def _calibrated(name: str, seed: int):
     robot = load_robot(name)
     space = ParameterSpace(robot, pin.SE3.Identity(), np.zeros((1, 3)))
-    return replace(robot, model=space.perturbed_model(space.random(seed)))
+    return replace(robot, model=space.perturbed_model(random_parameters(space, seed)))
 
 
 @pytest.mark.parametrize("convention", CONVENTIONS)

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import central_difference, relative_error
+from conftest import central_difference, random_parameters, relative_error
 from joint_terms import (
     MODELS,
     REFLECTORS,
@@ -110,7 +110,7 @@ def test_kpi_jacobian(term, frame):
 def test_zero_terms_give_the_plain_values_exactly(term, kind):
     robot, added = term.space.robot, term.added
     plain = ParameterSpace(robot, tracker(), REFLECTORS)
-    p = plain.random(2, 5e-3, 5e-3)
+    p = random_parameters(plain, 2, 5e-3, 5e-3)
     q = robot.random_configurations(3, 4)
     model = MODELS[kind]()
     a = evaluate_setup(plain, p, q)

@@ -17,7 +17,6 @@ from calib_oed.model.kuka import (
     NOTIONAL_LAMBDAS,
     NOTIONAL_MUS,
     KukaDimensions,
-    build_kuka_model,
     kuka_urdf,
     notional_dimensions,
     notional_grid,
@@ -35,6 +34,13 @@ PUBLISHED_DEG = {
     "kr500": [(-185, 185), (-130, 20), (-100, 144), (-350, 350), (-120, 120), (-350, 350)],
 }
 NOMINAL_REACH = {"kr16": 1.610, "kr300": 2.500, "kr500": 2.830}  # from the type names [m]
+
+
+def build_kuka_model(dims: KukaDimensions) -> tuple[pin.Model, pin.GeometryModel]:
+    """Pinocchio model and collision model of the generated URDF of ``dims``."""
+    text = kuka_urdf(dims)
+    model = pin.buildModelFromXML(text)
+    return model, pin.buildGeomFromUrdfString(model, text, pin.GeometryType.COLLISION)
 
 
 def tool0_pose(model: pin.Model, q: np.ndarray, frame: str = "tool0") -> pin.SE3:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 import pytest
-from conftest import central_difference, make_space, relative_error
+from conftest import central_difference, make_space, random_parameters, relative_error
 
 from calib_oed.exceptions import NonFiniteError, ShapeError, UnknownParameterError
 from calib_oed.model.kinematics import compute_tool_kinematics
@@ -27,7 +27,7 @@ def test_order_names_and_units(space):
 
 def test_perturbation_never_mutates_nominal(space):
     before = [pin.SE3(m) for m in space.robot.model.jointPlacements]
-    p = space.random(0, 1e-2, 1e-2)
+    p = random_parameters(space, 0, 1e-2, 1e-2)
     model = space.perturbed_model(p)
     for i, m0 in enumerate(before):
         assert space.robot.model.jointPlacements[i].isApprox(m0)
@@ -38,7 +38,7 @@ def test_perturbation_never_mutates_nominal(space):
 
 
 def test_sensor_parameters(space):
-    p = space.random(1, 1e-2, 1e-2)
+    p = random_parameters(space, 1, 1e-2, 1e-2)
     t = space.tracker_placement(p)
     assert t.isApprox(space.tracker_placement0 * pin.exp6(p[:6]), 1e-12)
     assert np.allclose(space.reflector_offsets(p),
@@ -49,7 +49,7 @@ def test_sensor_parameters(space):
 def test_regressor_equals_explicit_perturbation(space, at):
     """LOCAL kinematic regressor (block i-1 for joint i) against perturbed models."""
     robot = space.robot
-    p0 = space.zeros() if at == "nominal" else space.random(2, 1e-2, 1e-2)
+    p0 = space.zeros() if at == "nominal" else random_parameters(space, 2, 1e-2, 1e-2)
     model = space.perturbed_model(p0)
     q = robot.random_configurations(3, 7)
     kin = compute_tool_kinematics(model, robot.tool_frame_id, q)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import central_difference, make_space, relative_error
+from conftest import central_difference, make_space, random_parameters, relative_error
 
 from calib_oed.calibration.kpi import TcpKpi
 from calib_oed.calibration.problem import CalibrationProblem
@@ -66,7 +66,7 @@ def test_gradient_with_pose_measurement_and_prior(robot):
     problem = _problem(robot, pose=True)
     base = DesignObjective(problem, "kpi")
     prior = base.compute_information(robot.random_configurations(10, 3))
-    objective = DesignObjective(problem, "kpi", p=problem.space.random(2, 1e-3, 1e-3), prior=prior)
+    objective = DesignObjective(problem, "kpi", p=random_parameters(problem.space, 2, 1e-3, 1e-3), prior=prior)
     q = robot.random_configurations(4, 32)
     numeric = _partial_differences(objective, q, [0, 1, 2, 3])
     assert relative_error(objective.compute(q).gradient, numeric) < 1e-5
@@ -217,7 +217,7 @@ def test_hessian_with_prior_weights_and_perturbed_parameters(robot):
     base = DesignObjective(problem, "kpi")
     prior = base.compute_information(robot.random_configurations(10, 3))
     crit = ACriterion.kpi(base.kpi_jacobian(), weights=[1.0, 3.0])
-    objective = DesignObjective(problem, crit, p=problem.space.random(2, 1e-3, 1e-3), prior=prior)
+    objective = DesignObjective(problem, crit, p=random_parameters(problem.space, 2, 1e-3, 1e-3), prior=prior)
     q = robot.random_configurations(4, 39)  # fewer poses than parameters: the prior makes M regular
     hess = objective.compute_hessian(q)
     assert relative_error(hess.dense(), _gradient_differences(objective, q)) < 1e-6

@@ -9,7 +9,7 @@ import pytest
 
 from calib_oed.exceptions import DesignError
 from calib_oed.oed.criteria import ACriterion
-from calib_oed.oed.rounding import efficient_rounding, rounding_efficiency
+from calib_oed.oed.rounding import efficient_rounding
 
 
 def _compositions(n: int, parts: int, cap: int):
@@ -17,6 +17,14 @@ def _compositions(n: int, parts: int, cap: int):
     for c in itertools.product(range(min(n, cap) + 1), repeat=parts):
         if sum(c) == n:
             yield np.array(c)
+
+
+def rounding_efficiency(weights, counts) -> float:
+    r""":math:`\varepsilon = \min_i n_i/(n w_i)`: the rounded design's information is at least
+    :math:`\varepsilon\,n\,M(w)` (Pukelsheim & Rieder 1992)."""
+    w = np.asarray(weights, dtype=float)
+    c = np.asarray(counts, dtype=float)
+    return float(np.min(c / (c.sum() * (w / w.sum()))))
 
 
 def test_known_small_cases():

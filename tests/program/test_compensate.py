@@ -14,6 +14,7 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 import pytest
+from conftest import random_parameters
 
 from calib_oed import load_robot
 from calib_oed.calibration.compensation import calibrated_robot
@@ -39,7 +40,7 @@ def robots():
     for name in ("kr16", "ur5"):
         robot = load_robot(name)
         space = ParameterSpace(robot, pin.SE3.Identity(), np.zeros((1, 3)))
-        out[name] = (robot, calibrated_robot(space, space.random(7)))
+        out[name] = (robot, calibrated_robot(space, random_parameters(space, 7)))
     return out
 
 

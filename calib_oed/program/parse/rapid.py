@@ -35,6 +35,7 @@ from calib_oed.program.parse.targets import (
     Language,
     ParsedProgram,
     Target,
+    argument_starts,
     indent_of,
     line_of,
     numbers_in,
@@ -78,23 +79,6 @@ def _groups(text: str, start: int, file: str) -> list[tuple[int, int]]:
         else:
             k += 1
     return out
-
-
-def _arguments(text: str, start: int) -> list[int]:
-    """Where each top-level positional argument of the instruction from ``start`` to its ``;``
-    begins (optional arguments and switches ``\\Name`` that open an argument left out)."""
-    args, depth, begin = [], 0, start
-    for k in range(start, len(text)):
-        c = text[k]
-        if depth == 0 and c in ",;":
-            at = begin + len(text[begin:k]) - len(text[begin:k].lstrip())
-            if not text.startswith("\\", at):
-                args.append(at)
-            begin = k + 1
-            if c == ";":
-                break
-        depth += (c in "([") - (c in ")]")
-    return args
 
 
 def _target(text, start, file, name, kind) -> Target:
@@ -161,7 +145,7 @@ def _unread_points(texts: dict[str, str]) -> list[str]:
         for m in [*_MOVE.finditer(text), *_OTHER.finditer(text)]:
             if m.group(1).upper() == "MOVEEXTJ":
                 continue
-            args = _arguments(text, m.end())
+            args = argument_starts(text, m.end(), ";", "\\")
             for k in _point_arguments(m.group(1)):
                 if k >= len(args):
                     continue
@@ -194,7 +178,7 @@ def parse(texts: dict[str, str]) -> ParsedProgram:
             if m.group(1).upper() == "MOVEEXTJ":            # external axes only: no robot target
                 continue
             name = f"{file} line {line_of(text, m.start(1)) + 1}"
-            points = _arguments(text, m.end())[:2 if m.group(1).upper().startswith("MOVEC") else 1]
+            points = argument_starts(text, m.end(), ";", "\\")[:2 if m.group(1).upper().startswith("MOVEC") else 1]
             for start, which in zip(points, ("via", "end") if len(points) == 2 else ("",), strict=True):
                 if text.startswith("[", start):
                     inner = _groups(text, start, file)

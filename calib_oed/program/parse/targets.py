@@ -122,6 +122,23 @@ def numbers_in(text: str, start: int, end: int) -> list[Number]:
 _LINE_STARTS: dict[int, tuple[str, np.ndarray]] = {}
 
 
+def argument_starts(text: str, start: int, end: str, skip: str | None = None) -> list[int]:
+    """Where each top-level, comma-separated argument from ``start`` to the closing ``end``
+    begins; arguments that open with ``skip`` are left out."""
+    args, depth, begin = [], 0, start
+    for k in range(start, len(text)):
+        c = text[k]
+        if depth == 0 and c in "," + end:
+            at = begin + len(text[begin:k]) - len(text[begin:k].lstrip())
+            if skip is None or not text.startswith(skip, at):
+                args.append(at)
+            begin = k + 1
+            if c == end:
+                break
+        depth += (c in "([") - (c in ")]")
+    return args
+
+
 def line_of(text: str, pos: int) -> int:
     """0-based line index of character ``pos`` (line starts indexed once per text)."""
     cached = _LINE_STARTS.get(id(text))
@@ -212,5 +229,5 @@ def insert_after_lines(text: str, comments: list[tuple[int, str]]) -> str:
     return "".join(out)
 
 
-__all__ = ["NUMBER", "Language", "Number", "ParsedProgram", "Target", "format_number", "indent_of",
+__all__ = ["NUMBER", "Language", "Number", "ParsedProgram", "Target", "argument_starts", "format_number", "indent_of",
            "insert_after_lines", "line_of", "numbers_in", "rewrite", "skipped_move"]

@@ -23,6 +23,7 @@ from calib_oed.program.parse.targets import (
     Language,
     ParsedProgram,
     Target,
+    argument_starts,
     indent_of,
     line_of,
     numbers_in,
@@ -71,20 +72,6 @@ def _literal(text: str, bracket: int, file: str, name: str, pose: bool) -> Targe
     return Target(name, "pose" if pose else "joint", file, line_of(text, end), tuple(nums), indent_of(text, bracket))
 
 
-def _arguments(text: str, start: int) -> list[int]:
-    """Where each top-level argument of the call whose ``(`` ends at ``start`` begins."""
-    args, depth, begin = [], 0, start
-    for k in range(start, len(text)):
-        c = text[k]
-        if depth == 0 and c in ",)":
-            args.append(begin + len(text[begin:k]) - len(text[begin:k].lstrip()))
-            begin = k + 1
-            if c == ")":
-                break
-        depth += (c in "([") - (c in ")]")
-    return args
-
-
 def parse(texts: dict[str, str]) -> ParsedProgram:
     """Targets of URScript files ``{name.script: text}``."""
     targets, tool, notes = {}, None, []
@@ -98,7 +85,7 @@ def parse(texts: dict[str, str]) -> ParsedProgram:
             t = _literal(text, m.end() - 1, file, "set_tcp", True)
             tool = LANGUAGE.pose_from(t.values)
         for m in _MOVE.finditer(text):
-            line, args = line_of(text, m.start()) + 1, _arguments(text, m.end()) or [m.end()]
+            line, args = line_of(text, m.start()) + 1, argument_starts(text, m.end(), ")") or [m.end()]
             points = [(args[0], f"line {line}", "target")] if m.group(1) != "movec" else \
                 [(a, f"line {line} ({w})", f"{w} point") for a, w in zip(args[:2], ("via", "end"), strict=False)]
             for at, name, what in points:
