@@ -20,6 +20,8 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
+from calib_oed.model.kinematics import cross
+
 
 @dataclass(frozen=True, eq=False)
 class BodyStates:
@@ -49,7 +51,7 @@ class BodyStates:
         r""":math:`u^\top J_x` (n, s, nv) for points ``x`` (n, s, 3) on bodies ``body`` (s,)
         and directions ``u`` (n, s, 3)."""
         jac = self.jacobian[:, body]  # (n, s, 6, nv)
-        lever = np.cross(x - self.translation[:, body], u)
+        lever = cross(x - self.translation[:, body], u)
         return np.einsum("nsi,nsiv->nsv", u, jac[:, :, :3]) + np.einsum(
             "nsi,nsiv->nsv", lever, jac[:, :, 3:]
         )
