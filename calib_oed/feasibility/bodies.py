@@ -63,13 +63,16 @@ def compute_body_states(model: pin.Model, q: np.ndarray, jacobian: bool = True) 
     n, nb = q.shape[0], model.njoints
     hom = np.empty((n, nb, 4, 4))
     jac = np.zeros((n, nb, 6, model.nv)) if jacobian else None
-    for k, qk in enumerate(q):
+    placements, joint_jacobian, frame = data.oMi, pin.getJointJacobian, pin.LOCAL_WORLD_ALIGNED
+    for k, qk in enumerate(q):  # the Python wrappers fetched once: this loop is per pose
+        hom_k = hom[k]
         if jacobian:
             pin.computeJointJacobians(model, data, qk)
+            jac_k = jac[k]
             for j in range(1, nb):
-                jac[k, j] = pin.getJointJacobian(model, data, j, pin.LOCAL_WORLD_ALIGNED)
+                jac_k[j] = joint_jacobian(model, data, j, frame)
         else:
             pin.forwardKinematics(model, data, qk)
         for j in range(nb):
-            hom[k, j] = data.oMi[j].homogeneous
+            hom_k[j] = placements[j].homogeneous
     return BodyStates(hom[:, :, :3, :3], hom[:, :, :3, 3], jac)
