@@ -20,6 +20,8 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
+from calib_oed.model.kinematics import cross
+
 
 @dataclass(frozen=True, eq=False)
 class BodyStates:
@@ -49,7 +51,7 @@ class BodyStates:
         r""":math:`u^\top J_x` (n, s, nv) for points ``x`` (n, s, 3) on bodies ``body`` (s,)
         and directions ``u`` (n, s, 3)."""
         jac = self.jacobian[:, body]  # (n, s, 6, nv)
-        lever = np.cross(x - self.translation[:, body], u)
+        lever = cross(x - self.translation[:, body], u)
         return np.einsum("nsi,nsiv->nsv", u, jac[:, :, :3]) + np.einsum(
             "nsi,nsiv->nsv", lever, jac[:, :, 3:]
         )
@@ -61,13 +63,16 @@ def compute_body_states(model: pin.Model, q: np.ndarray, jacobian: bool = True) 
     n, nb = q.shape[0], model.njoints
     hom = np.empty((n, nb, 4, 4))
     jac = np.zeros((n, nb, 6, model.nv)) if jacobian else None
-    for k, qk in enumerate(q):
+    placements, joint_jacobian, frame = data.oMi, pin.getJointJacobian, pin.LOCAL_WORLD_ALIGNED
+    for k, qk in enumerate(q):  # the Python wrappers fetched once: this loop is per pose
+        hom_k = hom[k]
         if jacobian:
             pin.computeJointJacobians(model, data, qk)
+            jac_k = jac[k]
             for j in range(1, nb):
-                jac[k, j] = pin.getJointJacobian(model, data, j, pin.LOCAL_WORLD_ALIGNED)
+                jac_k[j] = joint_jacobian(model, data, j, frame)
         else:
             pin.forwardKinematics(model, data, qk)
         for j in range(nb):
-            hom[k, j] = data.oMi[j].homogeneous
+            hom_k[j] = placements[j].homogeneous
     return BodyStates(hom[:, :, :3, :3], hom[:, :, :3, 3], jac)

@@ -56,6 +56,7 @@ from calib_oed.feasibility.curvature import (
     point_hessian_along,
     segment_distance_derivatives,
 )
+from calib_oed.model.kinematics import cross
 
 __all__ = ["Feature", "curve_hessians", "feature_hessian", "feature_hessians", "support_feature"]
 
@@ -172,9 +173,9 @@ def _face_point(states, pose, face_body, face: Feature, point_body, point: Featu
 
 def _circle_axes(axis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Two unit vectors completing the unit ``axis`` to a right-handed frame."""
-    e1 = np.cross(axis, [1.0, 0.0, 0.0] if abs(axis[0]) < 0.9 else [0.0, 1.0, 0.0])
+    e1 = cross(axis, [1.0, 0.0, 0.0] if abs(axis[0]) < 0.9 else [0.0, 1.0, 0.0])
     e1 /= np.linalg.norm(e1)
-    return e1, np.cross(axis, e1)
+    return e1, cross(axis, e1)
 
 
 class _Curves:
@@ -308,7 +309,7 @@ def curve_hessians(states: BodyStates, pose, body_a, fa, body_b, fb, dist, witne
     some = np.flatnonzero(ok & free.any(axis=1))
     if some.size:
         vz = (_mv(ra[some], da[some]), -_mv(rb[some], db[some]))
-        cols = [_mv(big_t[some], v) + _mv(np.cross(np.swapaxes(om[some], 1, 2), v[:, None, :]), e[some])
+        cols = [_mv(big_t[some], v) + _mv(cross(np.swapaxes(om[some], 1, 2), v[:, None, :]), e[some])
                 for v, om in zip(vz, (oa, ob), strict=True)]
         _, a = normal_matrix(some, e[some], vz[0], vz[1], dda[some], ddb[some])
         g = np.where(free[some, None, :], np.stack(cols, axis=2), 0.0)  # (k, nv, 2)

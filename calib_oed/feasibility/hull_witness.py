@@ -17,6 +17,7 @@ checks both give the same arrays, bit for bit).
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 
 import numpy as np
@@ -109,5 +110,6 @@ class WitnessMemo:
             return
         for key, row in zip(keys, witness.pack(), strict=True):
             self._rows[key] = row
-        for old in list(self._rows)[: max(0, len(self._rows) - self.size)]:
+        excess = len(self._rows) - self.size  # the oldest first (insertion order), no copy of every key
+        for old in list(itertools.islice(self._rows, max(0, excess))):
             self._rows.pop(old, None)  # another thread may have dropped it

@@ -334,14 +334,16 @@ class HullPairs:
         orders = [(lo + np.argsort(lower[:, lo:hi], axis=1)).tolist()
                   for lo, hi in zip(bounds[:-1], bounds[1:], strict=True)]
         shapes, pa_l, pb_l, low, curved = self._shapes, pa.tolist(), pb.tolist(), lower.tolist(), self._curved
-        distance, transform = self._distance, coal.Transform3s
-        for k in range(n):
+        transform, coal_distance, request, fallback = coal.Transform3s, coal.distance, self._request, self._fallback
+        found, best_a, best_b, best_n, best_d = [], [], [], [], []  # the rows' closest pairs, written at the end
+        for k in range(n):  # the loops call coal and keep its answers; the arithmetic is done below
             placed: dict[int, coal.Transform3s] = {}  # piece placements of pose k, made once
             low_k, rw_k, tw_k = low[k], rw[k], tw[k]
             for h in range(H):
-                best, normal = np.inf, None
+                best = np.inf
                 for c in orders[h][k]:
-                    if low_k[c] >= max(best, 0.0):
+                    low_c = low_k[c]
+                    if low_c >= best and low_c >= 0.0:  # low_c >= max(best, 0)
                         break
                     i, j = pa_l[c], pb_l[c]
                     ti, tj = placed.get(i), placed.get(j)
@@ -349,19 +351,36 @@ class HullPairs:
                         ti = placed[i] = transform(rw_k[i], tw_k[i])
                     if tj is None:
                         tj = placed[j] = transform(rw_k[j], tw_k[j])
-                    d = distance(shapes[i], ti, shapes[j], tj, low_k[c], curved[i] or curved[j], res)
+                    res.clear()  # a curved pair: the duality-gap request, a failed call (__init__) repeated
+                    if curved[i] or curved[j]:
+                        d = coal_distance(shapes[i], ti, shapes[j], tj, request, res)
+                        if not (abs(d) < GJK_FAILED and d != 0.0 and d >= low_c - 1e-9):
+                            self.fallbacks += 1
+                            res.clear()
+                            d = coal_distance(shapes[i], ti, shapes[j], tj, fallback, res)
+                    else:
+                        d = coal_distance(shapes[i], ti, shapes[j], tj, fallback, res)
+                    if not abs(d) < GJK_FAILED:
+                        raise FloatingPointError(f"coal's signed distance of two convex pieces failed ({d})")
                     calls += 1
                     if d < best:
-                        best = d
-                        piece_a[k, h], piece_b[k, h] = i, j
-                        wa[k, h], wb[k, h] = res.getNearestPoint1(), res.getNearestPoint2()
-                        normal = np.array(res.normal, dtype=float)
-                if normal is None:
-                    continue
-                gap_w = wa[k, h] - wb[k, h]
-                norm = float(np.sqrt(gap_w @ gap_w))
-                dist[k, h] = best
-                u[k, h] = gap_w / norm if best > 0.0 and norm > 1e-9 else -normal
+                        best, pi, pj = d, i, j
+                        p1, p2, normal = res.getNearestPoint1(), res.getNearestPoint2(), res.normal.copy()
+                if best < np.inf:
+                    found.append((k, h, pi, pj))
+                    best_a.append(p1)
+                    best_b.append(p2)
+                    best_n.append(normal)
+                    best_d.append(best)
+        if found:
+            kk, hh, ii, jj = np.array(found).T
+            piece_a[kk, hh], piece_b[kk, hh], dist[kk, hh] = ii, jj, best_d
+            wa[kk, hh], wb[kk, hh] = best_a, best_b
+            gap_w = wa[kk, hh] - wb[kk, hh]
+            norm = np.sqrt((gap_w[:, None, :] @ gap_w[:, :, None])[:, 0, 0])  # each row's own dot product
+            unit = (np.array(best_d) > 0.0) & (norm > 1e-9)
+            u[kk[unit], hh[unit]] = gap_w[unit] / norm[unit, None]
+            u[kk[~unit], hh[~unit]] = -np.array(best_n)[~unit]
         return HullWitness(dist, wa, wb, u, calls, piece_a, piece_b)
 
     def piece_vertices(self, states: BodyStates, pose: int, piece: int) -> np.ndarray | None:
@@ -373,22 +392,6 @@ class HullPairs:
         body = self._body[piece]
         in_body = local @ self._rot[piece].T + self._trans[piece]
         return in_body @ states.rotation[pose, body].T + states.translation[pose, body]
-
-    def _distance(self, s1, t1, s2, t2, lower: float, curved: bool, res) -> float:
-        """coal's signed distance of two placed pieces [m] (witnesses in ``res``): with the
-        duality-gap request for a curved piece, coal's defaults otherwise; a failed call (see
-        ``__init__``) is repeated with the defaults."""
-        res.clear()
-        if curved:
-            d = coal.distance(s1, t1, s2, t2, self._request, res)
-            if abs(d) < GJK_FAILED and d != 0.0 and d >= lower - 1e-9:
-                return d
-            self.fallbacks += 1
-            res.clear()
-        d = coal.distance(s1, t1, s2, t2, self._fallback, res)
-        if not abs(d) < GJK_FAILED:
-            raise FloatingPointError(f"coal's signed distance of two convex pieces failed ({d})")
-        return d
 
     def rows(self, states: BodyStates, clearance: float, jacobian: bool):
         """Values :math:`g` (n, H) [m] and Jacobians (n, H, nv) (``None`` without ``jacobian``)."""

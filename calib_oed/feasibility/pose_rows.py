@@ -24,6 +24,7 @@ from calib_oed.feasibility.curvature import (
     point_hessian,
 )
 from calib_oed.feasibility.row_family import RowFamily
+from calib_oed.model.kinematics import cross
 
 
 class JointRows(RowFamily):
@@ -107,7 +108,7 @@ class IncidenceRows(RowFamily):
         if not jacobian:
             return values, None
         jac_ang = states.jacobian[:, self.body, 3:]  # (n, 3, nv)
-        d_rot = np.einsum("nki,niv->nkv", np.cross(z, u), jac_ang)
+        d_rot = np.einsum("nki,niv->nkv", cross(z, u), jac_ang)
         # -z^T (I - u u^T) / L  applied to the point Jacobian of c
         w = -(z - np.einsum("nki,nki->nk", z, u)[..., None] * u) / length
         d_pt = states.directional_jacobian(body, c, w)

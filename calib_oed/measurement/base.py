@@ -39,6 +39,7 @@ from calib_oed.model.joint_map import config_chain_term, effective_configuration
 from calib_oed.model.kinematics import (
     ToolKinematics,
     compute_tool_kinematics,
+    cross,
     jacobian_config_derivative,
     regressor_config_derivative,
     skew,
@@ -283,10 +284,10 @@ class SetupState:
         omega = kin.jacobian[:, 3:, :]  # (n, 3, nv) local
         n, nv = self.n, omega.shape[2]
         out = np.zeros((n, 3, space.size, nv))
-        lk = kin.regressor[:, :3, :] + np.cross(kin.regressor[:, 3:, :], c[None, :, None], axis=1)
-        lkq = reg_q[:, :3] + np.cross(reg_q[:, 3:], c[None, :, None, None], axis=1)
+        lk = kin.regressor[:, :3, :] + cross(kin.regressor[:, 3:, :], c[None, :, None], axis=1)
+        lkq = reg_q[:, :3] + cross(reg_q[:, 3:], c[None, :, None, None], axis=1)
         # [w_k]x L(K): cross of omega (n,3,1,nv) with L(K) (n,3,6nj,1)
-        d_eps = np.cross(omega[:, :, None, :], lk[:, :, :, None], axis=1) + lkq
+        d_eps = cross(omega[:, :, None, :], lk[:, :, :, None], axis=1) + lkq
         rot = kin.rotation
         if frame == "tracker":
             rot = self.tracker.rotation.T @ rot

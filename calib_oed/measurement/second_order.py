@@ -47,13 +47,13 @@ import numpy as np
 import pinocchio as pin
 
 from calib_oed.measurement.base import SetupState
-from calib_oed.model.kinematics import ad_matrices, skew
+from calib_oed.model.kinematics import ad_matrices, cross, skew
 
 
 def lever(mat: np.ndarray, c: np.ndarray) -> np.ndarray:
     r""":math:`L(X) = X_v + X_\omega \times c` along axis 1 of ``mat`` (n, 6, ...) -> (n, 3, ...)."""
     shape = (1, 3) + (1,) * (mat.ndim - 2)
-    return mat[:, :3] + np.cross(mat[:, 3:], np.reshape(c, shape), axis=1)
+    return mat[:, :3] + cross(mat[:, 3:], np.reshape(c, shape), axis=1)
 
 
 def rotation_products(state: SetupState) -> np.ndarray:
@@ -134,7 +134,7 @@ def tool_point_param_config_hessian(
     if frame == "tracker":
         lj = lever(kin.jacobian, c)  # (n, 3, nv)
         omega = kin.jacobian[:, 3:, :]
-        y_kl = np.cross(omega[:, :, None, :], lj[:, :, :, None], axis=1) + lever(state.jacobian_q, c)
+        y_kl = cross(omega[:, :, None, :], lj[:, :, :, None], axis=1) + lever(state.jacobian_q, c)
         y_kl = np.einsum("nab,nbkl->nkla", rot, y_kl)  # (n, k, l, 3)
         trk = np.zeros((n, nv, nv, 3, 6))
         trk[..., 3:] = skew(y_kl)

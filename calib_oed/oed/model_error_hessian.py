@@ -47,7 +47,7 @@ import numpy as np
 import pinocchio as pin
 import scipy.linalg
 
-from calib_oed.model.kinematics import compute_tool_kinematics
+from calib_oed.model.kinematics import compute_tool_kinematics, cross
 from calib_oed.solver.hessian import LIFTED_MAX_RANK_RATIO
 from calib_oed.solver.result import StructuredHessian
 
@@ -66,13 +66,13 @@ def point_derivatives(axes: np.ndarray, jac: np.ndarray):
     a = axes[:, None, :, None, :]  # (n, 1, K, 1, 3): a_k
     jt = np.moveaxis(jac, 2, 3)  # (n, P, K, 3): J_l
     lo, hi = np.minimum.outer(np.arange(nk), np.arange(nk)), np.maximum.outer(np.arange(nk), np.arange(nk))
-    ax = np.cross(a, jt[:, :, None, :, :])  # [.., k, l] = a_k x J_l
+    ax = cross(a, jt[:, :, None, :, :])  # [.., k, l] = a_k x J_l
     d = ax[:, :, lo, hi]  # (n, P, K, K, 3)
     # T[p, m, r] = a_p x dJ_r/dq_m + [m < p] (a_m x a_p) x J_r
-    t = np.cross(axes[:, None, :, None, None, :], d[:, :, None, :, :, :])
-    aa = np.cross(axes[:, None, :, :], axes[:, :, None, :])  # [p, m] = a_m x a_p
+    t = cross(axes[:, None, :, None, None, :], d[:, :, None, :, :, :])
+    aa = cross(axes[:, None, :, :], axes[:, :, None, :])  # [p, m] = a_m x a_p
     aa = aa * (np.arange(nk)[None, :] < np.arange(nk)[:, None])[None, :, :, None]  # m < p
-    t += np.cross(aa[:, None, :, :, None, :], jt[:, :, None, None, :, :])
+    t += cross(aa[:, None, :, :, None, :], jt[:, :, None, None, :, :])
     m = np.arange(nk)
     dd = t[:, :, lo[:, :, None], m[None, None, :], hi[:, :, None]]  # (n, P, K, K, K, 3)
     return np.moveaxis(d, 4, 2), np.moveaxis(dd, 5, 2)

@@ -72,6 +72,23 @@ def test_distance_never_exceeds_the_mesh_distance(ur10):
     assert np.median(gap) < 0.01  # tight: a centimetre at most, typically (4 slabs per link)
 
 
+def test_witness_normals_are_each_rows_own_arithmetic(ur10):
+    """The batched unit normals are, bit for bit, those of one row at a time: the gap of the
+    witnesses over its own dot product's root (the arithmetic the designs were computed with)."""
+    robot, _, hp = ur10
+    q = robot.random_configurations(120, 5)
+    w = hp.closest(compute_body_states(robot.model, q, jacobian=False))
+    checked = 0
+    for k, h in zip(*np.nonzero(w.dist > 0.0), strict=True):
+        gap = w.wa[k, h] - w.wb[k, h]
+        norm = float(np.sqrt(gap @ gap))
+        if norm > 1e-9:
+            assert w.u[k, h].tobytes() == (gap / norm).tobytes(), (k, h)
+            checked += 1
+    assert checked > 100
+    assert np.allclose(np.linalg.norm(w.u[w.piece_a >= 0], axis=1), 1.0)
+
+
 def test_rows_have_the_exact_gradient(ur10):
     """Jacobian (envelope theorem, coal's witnesses) against central differences of the values,
     at poses where the closest piece pair does not switch within the step."""

@@ -10,6 +10,7 @@ from conftest import central_difference, relative_error
 from calib_oed.model.kinematics import (
     ad_matrices,
     compute_tool_kinematics,
+    cross,
     jacobian_config_derivative,
     log_jacobian,
     log_jacobian_derivative,
@@ -120,3 +121,20 @@ def test_log_jacobian_derivatives_match_differences(angle):
     batch = log_jacobian_second_derivative(theta[None, None], np.stack([u, v])[:, None],
                                            np.stack([u, v])[None, :])
     assert batch.shape == (2, 2, 3, 3) and np.allclose(batch[0, 1], d2, rtol=0, atol=1e-15)
+
+
+@pytest.mark.parametrize("shape_a, shape_b, axis", [
+    ((5, 7, 3), (5, 7, 3), -1),  # points and directions of bodies.directional_jacobian
+    ((1, 3, 1), (4, 3, 9), 1),  # a lever against columns (kinematics.point_sensitivity)
+    ((4, 3, 12, 1, 1), (1, 3, 1, 1), 1),  # regressor derivative columns (measurement.base)
+    ((4, 3, 1, 6), (4, 3, 12, 1), 1),
+    ((3,), (3,), -1),  # two vectors
+])
+def test_cross_is_numpy_cross_bit_for_bit_and_in_layout(shape_a, shape_b, axis):
+    rng = np.random.default_rng(7)
+    a, b = rng.normal(size=shape_a), rng.normal(size=shape_b)
+    mine, numpy_cross = cross(a, b, axis=axis), np.cross(a, b, axis=axis)
+    assert mine.shape == numpy_cross.shape and mine.strides == numpy_cross.strides
+    assert mine.tobytes() == numpy_cross.tobytes()  # every bit, in memory order
+    if a.ndim == 1:  # a list as the second vector (hull_curvature's frame completion)
+        assert cross(a, [0.0, 1.0, 0.0]).tobytes() == np.cross(a, [0.0, 1.0, 0.0]).tobytes()
