@@ -388,6 +388,12 @@ def write_report(
     if result.failures:
         parts += ["## Failed cases", "\n".join(f"- `{f.case_id}`: {f.error}"
                                                for f in result.failures)]
+    if stopped := result.clock_stopped():
+        parts += ["## Designs stopped by the wall clock (load-dependent)", (
+            f"The SQP's time limit stopped {len(stopped)} designs: their values depend on the "
+            "machine's load; rerun with `sqp: {time_limit: null}` for results that do not. "
+            + ", ".join(f"`{r.case_id}` {design_label(r.criterion, r.collisions)}"
+                        for r in stopped) + ".")]
     parts += ["## The paper's claims and ours", _claims_md(result, tables) or "(no cases)"]
     if plan.certificate is not None:
         cp = plan.certificate

@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from calib_oed.solver.result import SQPStatus
 from calib_oed.study.config import StudyCase, StudyConfig
 from calib_oed.values import plain
 
@@ -268,6 +269,11 @@ class StudyResult:
 
     def rows(self) -> list[DesignRow]:
         return [r for c in self.cases for r in c.rows]
+
+    def clock_stopped(self) -> list[DesignRow]:
+        """The designs the SQP's wall-clock limit (``sqp.time_limit``) stopped: their values
+        depend on the machine's load, unlike those bounded by the iteration limit."""
+        return [r for r in self.rows() if r.status == SQPStatus.TIME_LIMIT.value]
 
     def case(self, case_id: str) -> CaseResult:
         for c in self.cases:

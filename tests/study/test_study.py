@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import copy
 import csv
+import dataclasses
 import json
 import shutil
 import sys
@@ -149,6 +150,8 @@ def test_shipped_studies():
         assert (plan.n, plan.criteria, plan.collisions) == (60, ("params", "kpi"), (True, False))
     smoke = load_study_config("smoke")
     assert len(smoke.specs) == 2 and smoke.plan.max_iterations <= 20
+    # same seed, same results under any load: the iteration limit bounds every design, no clock
+    assert [c.plan.time_limit for c in (kuka, grid, smoke)] == [None, None, None]
 
 
 # ---------------------------------------------------------------- the smoke study
@@ -380,6 +383,20 @@ def test_report_tables_match_the_table(smoke_study, tmp_path):
     # the same report from the folder alone
     again = write_report(smoke_study.out_dir, tmp_path / "again", figures=False)
     assert again["report"].read_text() == text
+
+
+def test_report_flags_designs_stopped_by_the_clock(smoke_study, tmp_path):
+    heading = "## Designs stopped by the wall clock (load-dependent)"
+    assert smoke_study.clock_stopped() == []
+    assert heading not in write_report(smoke_study, tmp_path, figures=False)["report"].read_text()
+    first = smoke_study.cases[0]
+    stopped = dataclasses.replace(first.row("optimal", "kpi", False), status="time_limit")
+    rows = tuple(stopped if r == first.row("optimal", "kpi", False) else r for r in first.rows)
+    result = dataclasses.replace(smoke_study, cases=(dataclasses.replace(first, rows=rows),
+                                                     *smoke_study.cases[1:]))
+    assert result.clock_stopped() == [stopped]
+    text = write_report(result, tmp_path / "stopped", figures=False)["report"].read_text()
+    assert heading in text and f"`{first.case_id}` kpi-no_collisions" in text
 
 
 def test_report_exports_the_figure7_case_designs(smoke_study, tmp_path):
