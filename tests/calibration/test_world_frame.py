@@ -88,7 +88,7 @@ def test_assess_reports_both_frames_in_text_and_json(kr16):
     pr = s.problem
     q = pr.robot.random_configurations(30, 3)
     blocks, _, _ = prior_truth_blocks(s, q, pr.kpi.configurations, joint_prior(pr), np.random.default_rng(5))
-    rob = identify_robust(pr.space, blocks, pr.identifiability, model_error=start_prior(s.scene))
+    rob = identify_robust(pr.space, blocks, pr.identifiability, model_error=start_prior(s.scene, pr))
     acc = assess(pr, rob, blocks=blocks).predicted
     assert acc.world_prior_scale > 0
     world2, tracker2 = np.square(acc.world_tcp_rms_mm), np.square(acc.tcp_rms_mm)
@@ -129,7 +129,7 @@ def test_realistic_world_frame_new_pose_prediction_over_four_truths(scene):
         rng = np.random.default_rng(truth)
         true = sample_truth(s, rng)
         blocks = list(measure(true, pr.models, q, rng).blocks)
-        rob = identify_robust(pr.space, blocks, pr.identifiability, model_error=start_prior(s.scene))
+        rob = identify_robust(pr.space, blocks, pr.identifiability, model_error=start_prior(s.scene, pr))
         predicted = assess(pr, rob, blocks=blocks).predicted.world_new_pose_rms_mm
         achieved = np.sqrt(np.mean(np.sum(true.compute_model_errors(rob.result.p, new_poses(q, 200, 2000 + truth))
                                           ** 2, axis=-1))) * 1e3
