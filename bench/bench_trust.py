@@ -75,7 +75,6 @@ from calib_oed.measurement.discrepancy import KERNELS, DiscrepancyPrior
 from calib_oed.measurement.observations import ObservationBlock
 from calib_oed.scene.reader import load_scene
 
-
 #: Whether the fitted model error follows the joint prior pose by pose (``--stationary``: not).
 SCALED = {"on": True}
 
