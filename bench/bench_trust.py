@@ -34,7 +34,11 @@ scene's default prior on top of the scene's noise). The calibration is
     nice -n 5 python bench/bench_trust.py --cost   # CPU of the fit and assessment, both kernels
     nice -n 5 python bench/bench_trust.py --frame world --source realistic   # the world frame
     nice -n 5 python bench/bench_trust.py --frame world --source joint       # the joint prior's own truths
-    nice -n 5 python bench/bench_trust.py --by-prior-variance --truths 4     # where the TCP prediction is conservative
+    nice -n 5 python bench/bench_trust.py --by-prior-variance --truths 4     # the TCP prediction by the prior's variance
+    nice -n 5 python bench/bench_trust.py ... --stationary    # any of these with the stationary model error
+
+The model error fitted is identify's (``model_error.start_prior``: pose-scaled by the joint prior,
+``measurement/pose_scale.py``); ``--stationary`` fits it without the pose scale, for comparison.
 
 ``--frame world``: per truth, the expected RMS on the new poses in the world (robot base) frame
 (``identify``'s assessment with the data's blocks, ``calibration/world_frame.py``) against the
@@ -71,6 +75,15 @@ from calib_oed.measurement.discrepancy import KERNELS, DiscrepancyPrior
 from calib_oed.measurement.observations import ObservationBlock
 from calib_oed.scene.reader import load_scene
 
+#: Whether the fitted model error follows the joint prior pose by pose (``--stationary``: not).
+SCALED = {"on": True}
+
+
+def identify_start(s):
+    """The model-error prior identify starts from (``model_error.start_prior``), pose-scaled unless
+    ``--stationary``."""
+    return start_prior(s.scene, s.problem, scaled=SCALED["on"])
+
 
 def simulate(s, q, truth, source):
     """Blocks of every reflector at ``q`` on truth number ``truth``."""
@@ -105,10 +118,10 @@ def case(s, truth, source, n_train, n_new, kernel):
     q = pr.robot.random_configurations(n_train, 1000 + truth)
     q_new = new_poses(q, n_new, 2000 + truth)
     train, test = split(simulate(s, np.vstack([q, q_new]), truth, source), n_train)
-    d = start_prior(s.scene)
+    d = identify_start(s)
     kernel = kernel or d.kernel_name
     prior0 = d if kernel == d.kernel_name else DiscrepancyPrior(
-        d.sigma, d.length_scales, kernel, d.source, d.sigma_white, d.linear_joints)
+        d.sigma, d.length_scales, kernel, d.source, d.sigma_white, d.linear_joints, (), d.scale)
     other_kernel = "matern52" if kernel == IDENTIFY_KERNEL else IDENTIFY_KERNEL
     t0 = time.process_time()
     rob = identify_robust(pr.space, train, pr.identifiability, model_error=prior0)
@@ -146,7 +159,8 @@ def case(s, truth, source, n_train, n_new, kernel):
     cv = cross_validate(pr.space, as_set(pr.robot, train), pr.identifiability, 5,
                         error_model=s.scene.error_model(), model_error=prior)
     other = fit_model_error(lin, DiscrepancyPrior(prior0.sigma, prior0.length_scales, other_kernel,
-                                                  "default", prior0.sigma_white, prior0.linear_joints))
+                                                  "default", prior0.sigma_white, prior0.linear_joints,
+                                                  (), prior0.scale))
     return {
         "scene": s.scene.name, "truth": truth, "sigma0": rob.linear.sigma0,
         "fitted": prior.describe(), "pred_over_achieved": float(np.sqrt(sq["pred"] / n) / ach),
@@ -210,7 +224,7 @@ def world_case(s, truth, source, n_train, n_new):
             return ({"world": world.reshape(-1, 3), "tracker": (est_t - true_t).reshape(-1, 3)},
                     {f: tcp_errors(s, true, p_hat, f) for f in ("world", "tracker")})
     t0 = time.process_time()
-    rob = identify_robust(pr.space, train, pr.identifiability, model_error=start_prior(s.scene))
+    rob = identify_robust(pr.space, train, pr.identifiability, model_error=identify_start(s))
     pred = assess(pr, rob, blocks=train).predicted
     seconds = time.process_time() - t0
     new, work = achieved(rob.result.p)
@@ -274,7 +288,8 @@ def by_prior_variance(scenes, truths, n_new=300):
     """``--by-prior-variance``: the tracker-frame TCP prediction over the achieved RMS on new poses,
     pooled over ``truths`` realistic truths per scene, in terciles of the joint-space prior's own
     variance of the TCP's model error at the pose (the lever arms and gravity torques of the joint
-    errors there): a stationary fitted model error predicts the same size everywhere."""
+    errors there): a stationary fitted model error predicts the same size everywhere, a pose-scaled
+    one follows the prior's shape with its fitted weight (printed, mean over the truths)."""
     for name in scenes:
         s = setup(load_scene(name))
         pr = s.problem
@@ -285,13 +300,13 @@ def by_prior_variance(scenes, truths, n_new=300):
             j = evaluate_setup(pr.space, None, q).tool_point_config_jacobian(c, "tracker")[:, :, :prior.nq]
             return np.einsum("knn,nck,nck->n", prior.compute_kernels(q, q), j, j)
 
-        sums = np.zeros((3, 2))
+        sums, weights = np.zeros((3, 2)), []
         for truth in range(truths):
             from calib_oed.calibration.realistic import sample_truth
 
             q = pr.robot.random_configurations(60, 1000 + truth)
             rob = identify_robust(pr.space, simulate(s, q, truth, "realistic"), pr.identifiability,
-                                  model_error=start_prior(s.scene))
+                                  model_error=identify_start(s))
             true = sample_truth(s, np.random.default_rng(truth))
             q_new = new_poses(q, n_new, 2000 + truth)
             est = evaluate_setup(pr.space, rob.result.p, q_new)
@@ -299,6 +314,8 @@ def by_prior_variance(scenes, truths, n_new=300):
             e = est.tool_point(c, "tracker") - (true.compute_tcp(q_new, c) - tracker.translation) @ tracker.rotation
             g = est.tool_point_param_jacobian(c, "tracker", None)[:, :, rob.result.free_indices]
             v = np.trace(error_covariances(rob.linearisation, rob.model_error.prior, g, q_new, None), axis1=1, axis2=2)
+            fitted = rob.model_error.prior.scale
+            weights.append(np.nan if fitted is None else fitted.weight)
             k = own(q_new)
             edges = np.quantile(k, [1 / 3, 2 / 3])
             b = np.digitize(k, edges)
@@ -307,6 +324,7 @@ def by_prior_variance(scenes, truths, n_new=300):
         print(f"{name}: TCP predicted/achieved (tracker frame) on {n_new} new poses x {truths} truths, by tercile of "
               f"the prior's own TCP variance (low, mid, high): "
               + ", ".join(f"{x:.2f}" for x in np.sqrt(sums[:, 0] / sums[:, 1]))
+              + f"; fitted pose-scale weight {np.mean(weights):.2f}"
               + f"; the working configurations' own variance {np.round(own(pr.kpi.configurations) * 1e6, 4)} mm2, "
               f"tercile edges of the last truth {np.round(edges * 1e6, 4)} mm2", flush=True)
 
@@ -317,10 +335,10 @@ def cost(scenes):
         s = setup(load_scene(name))
         pr = s.problem
         train = simulate(s, pr.robot.random_configurations(60, 1000), 0, "realistic")
-        d = start_prior(s.scene)
+        d = identify_start(s)
         for kernel in ("matern52", IDENTIFY_KERNEL) * 2:
             prior0 = DiscrepancyPrior(d.sigma, d.length_scales, kernel, d.source, d.sigma_white,
-                                      d.linear_joints)
+                                      d.linear_joints, (), d.scale)
             t0 = time.process_time()
             rob = identify_robust(pr.space, train, pr.identifiability, model_error=prior0)
             t1 = time.process_time()
@@ -344,11 +362,14 @@ def main():
     ap.add_argument("--n-new", type=int, default=200)
     ap.add_argument("--kernel", choices=KERNELS, default=None,
                     help="the kernel fitted (default: what identify fits)")
+    ap.add_argument("--stationary", action="store_true",
+                    help="fit the stationary model error (without the joint prior's pose scale)")
     ap.add_argument("--json", metavar="FILE")
     ap.add_argument("--cost", action="store_true", help="only the CPU cost of both kernels")
     ap.add_argument("--by-prior-variance", action="store_true",
                     help="only the TCP prediction by tercile of the joint-space prior's own variance")
     args = ap.parse_args()
+    SCALED["on"] = not args.stationary
     if args.cost:
         cost(args.scenes)
         return

@@ -205,7 +205,7 @@ def exact_model_error(space: ParameterSpace, lin, prior, p: np.ndarray, free: np
 def marginal_model_error(prior) -> ModelErrorTerm:
     r""":math:`k(q, q)\,I_3` [m²]: the fitted model error's variance at any pose (what ``identify``'s
     ``identification.json`` keeps, without the linearisation that :func:`exact_model_error` needs)."""
-    return lambda q, point: np.broadcast_to(prior.variance * np.eye(3), (len(q), 3, 3)).copy()
+    return lambda q, point: prior.pose_variance(np.asarray(q, float))[:, None, None] * np.eye(3)
 
 
 def calibrated_robot(space: ParameterSpace, p: np.ndarray) -> Robot:

@@ -39,10 +39,10 @@ import numpy as np
 import pinocchio as pin
 
 from calib_oed.calibration.compensation import CalibrationUncertainty, marginal_model_error
+from calib_oed.calibration.joint_prior_choice import fitted_model_error
 from calib_oed.calibration.sensor_file import read_sensor_compliance, read_sensor_gains
 from calib_oed.calibration.validation import find_calibration_files
 from calib_oed.exceptions import CompensationError, UnknownParameterError
-from calib_oed.measurement.discrepancy import DiscrepancyPrior
 from calib_oed.model.deflected_kinematics import JointDeflection
 from calib_oed.model.parameters import ParameterSpace
 from calib_oed.model.robot import Robot, load_robot
@@ -182,7 +182,7 @@ def _read(space: ParameterSpace, files: dict) -> tuple[Robot, CalibrationUncerta
         free = np.array([space.index(e["name"]) for e in data["free"]], dtype=int)
         cov = np.array(data["covariance"], dtype=float)
         fitted = (data.get("model_error") or {}).get("fitted")
-        prior = None if fitted is None else DiscrepancyPrior.from_dict(fitted, space.robot.nq, str(path))
+        prior = None if fitted is None else fitted_model_error(fitted, space, str(path))
         factor = 1.0 if prior is not None else max(1.0, float(data.get("noise_factor") or 1.0))
         ranges = data.get("training_joint_ranges")
         joint_range = None if ranges is None else tuple(

@@ -50,6 +50,7 @@ from calib_oed.calibration.model_error import (
     HARMONIC_BOUNDS,
     LENGTH_BOUNDS,
     SIGMA_BOUNDS,
+    WEIGHT_BOUNDS,
     WHITE_BOUNDS,
     Linearisation,
     restricted_log_likelihood,
@@ -68,24 +69,29 @@ TAU_MAX = 0.5
 
 def theta_of(prior: DiscrepancyPrior) -> np.ndarray:
     """:math:`\\theta` (``prior.n_kernel_hyperparameters`` + 1,): log sigma, log length scales,
-    log harmonic amplitudes (harmonic kernels), log white part (each at least its lower bound)."""
+    log harmonic amplitudes (harmonic kernels), log weight of a pose scale, log white part (each
+    at least its lower bound)."""
     amp = np.maximum(prior.harmonic, HARMONIC_BOUNDS[0]) if prior.harmonic else []
-    return np.log([prior.sigma, *prior.length_scales, *amp, max(prior.sigma_white, WHITE_BOUNDS[0])])
+    weight = [] if prior.scale is None else [max(prior.scale.weight, WEIGHT_BOUNDS[0])]
+    return np.log([prior.sigma, *prior.length_scales, *amp, *weight, max(prior.sigma_white, WHITE_BOUNDS[0])])
 
 
 def prior_of(prior: DiscrepancyPrior, theta: np.ndarray) -> DiscrepancyPrior:
     """``prior`` with the hyperparameters :math:`\\theta`."""
-    nq = prior.nq
-    amp = np.exp(theta[1 + nq:-1]) if prior.harmonic else None
+    nq, n_h = prior.nq, len(prior.harmonic)
+    amp = np.exp(theta[1 + nq:1 + nq + n_h]) if prior.harmonic else None
+    weight = None if prior.scale is None else float(min(np.exp(theta[-2]), 1.0))
     return prior.with_values(float(np.exp(theta[0])), np.exp(theta[1:1 + nq]), prior.source,
-                             float(np.exp(theta[-1])), amp)
+                             float(np.exp(theta[-1])), amp, weight)
 
 
 def _bounds(prior: DiscrepancyPrior) -> tuple[np.ndarray, np.ndarray]:
     """Lower and upper bounds of :func:`theta_of` (log)."""
-    n_h = len(prior.harmonic)
-    lo = [SIGMA_BOUNDS[0]] + [LENGTH_BOUNDS[0]] * prior.nq + [HARMONIC_BOUNDS[0]] * n_h + [WHITE_BOUNDS[0]]
-    hi = [SIGMA_BOUNDS[1]] + [LENGTH_BOUNDS[1]] * prior.nq + [HARMONIC_BOUNDS[1]] * n_h + [WHITE_BOUNDS[1]]
+    n_h, n_w = len(prior.harmonic), int(prior.scale is not None)
+    lo = [SIGMA_BOUNDS[0]] + [LENGTH_BOUNDS[0]] * prior.nq + [HARMONIC_BOUNDS[0]] * n_h \
+        + [WEIGHT_BOUNDS[0]] * n_w + [WHITE_BOUNDS[0]]
+    hi = [SIGMA_BOUNDS[1]] + [LENGTH_BOUNDS[1]] * prior.nq + [HARMONIC_BOUNDS[1]] * n_h \
+        + [WEIGHT_BOUNDS[1]] * n_w + [WHITE_BOUNDS[1]]
     return np.log(lo), np.log(hi)
 
 

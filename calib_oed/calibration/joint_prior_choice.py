@@ -18,7 +18,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from calib_oed.measurement.discrepancy import DiscrepancyPrior
 from calib_oed.measurement.joint_prior import JointErrorPrior, point_jacobians
+from calib_oed.measurement.pose_scale import PoseScale
 
 #: Relative lever arm [1] below which a joint moves no point (as :data:`calib_oed.oed.model_error.STILL_TOL`).
 STILL_TOL = 1e-9
@@ -61,3 +63,24 @@ def joint_prior(problem, spec=None) -> JointErrorPrior:
     for name in ("once", "twice", "smooth", "gain", "compliance"):
         parts[name] = parts[name] * f
     return JointErrorPrior(**parts, gravity=base.gravity, source=f"{spec.source} ({base.source})")
+
+
+def pose_scale(problem, spec=None) -> PoseScale:
+    """The pose scale of a fitted model error (:mod:`calib_oed.measurement.pose_scale`): the shape
+    of :func:`joint_prior` at the centre of ``problem``'s nominal reflectors, weight 1 and mean
+    variance 1 until the fit normalises and weighs it."""
+    centre = np.mean(problem.space.reflector_offsets(None), axis=0)
+    return PoseScale(joint_prior(problem, spec), point_jacobians(problem, centre[None]))
+
+
+def fitted_model_error(data, space, source: str = "identification") -> DiscrepancyPrior:
+    """The fitted model error of an ``identification.json`` (``model_error.fitted``) with its pose
+    scale restored for ``space`` (the scene's parameter space: its robot and payload;
+    :meth:`PoseScale.from_dict`); :meth:`DiscrepancyPrior.from_dict` alone gives the stationary part.
+
+    Raises:
+        ParameterError: the record is malformed.
+    """
+    prior = DiscrepancyPrior.from_dict(data, space.robot.nq, source)
+    recorded = data.get("pose_scale")
+    return prior if not recorded else prior.with_scale(PoseScale.from_dict(recorded, space))

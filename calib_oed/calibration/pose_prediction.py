@@ -31,6 +31,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.stats import chi2
 
+from calib_oed.calibration.joint_prior_choice import fitted_model_error
 from calib_oed.calibration.model_error import Linearisation
 from calib_oed.calibration.prediction import error_covariances
 from calib_oed.exceptions import ParameterError
@@ -71,12 +72,14 @@ class RowPrediction:
                 "the calibration's statistics hold)")
 
 
-def read_record(identification: dict | None) -> tuple[Linearisation, DiscrepancyPrior, tuple[str, ...]] | None:
-    """The linearised identification, its fitted model error and free parameter names, or None
-    when ``identification.json`` has no ``prediction_data`` (written before it existed)."""
+def read_record(identification: dict | None, space: ParameterSpace
+                ) -> tuple[Linearisation, DiscrepancyPrior, tuple[str, ...]] | None:
+    """The linearised identification, its fitted model error (its pose scale restored for the
+    scene's ``space``) and free parameter names, or None when ``identification.json`` has no
+    ``prediction_data`` (written before it existed)."""
     try:
         data = identification["prediction_data"]
-        prior = DiscrepancyPrior.from_dict(identification["model_error"]["fitted"])
+        prior = fitted_model_error(identification["model_error"]["fitted"], space)
         return Linearisation.from_dict(data), prior, tuple(str(n) for n in data["free_names"])
     except (TypeError, KeyError, ValueError, IndexError, ParameterError):
         return None

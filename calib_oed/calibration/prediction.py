@@ -104,7 +104,7 @@ def error_covariances(lin: Linearisation, prior: DiscrepancyPrior | None, jac_ne
     v = (b @ sigma) @ b.T - bc - bc.T
     blocks = np.stack([v[3 * i:3 * i + 3, 3 * i:3 * i + 3] for i in range(n)])
     if prior is not None:
-        blocks += prior.variance * np.eye(3)
+        blocks += prior.pose_variance(q_new)[:, None, None] * np.eye(3)
     if noise_new is not None:
         blocks += noise_new
     return 0.5 * (blocks + np.swapaxes(blocks, 1, 2))

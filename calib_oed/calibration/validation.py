@@ -39,12 +39,14 @@ import numpy as np
 import pinocchio as pin
 
 from calib_oed.calibration.crossval import noise_floor
+from calib_oed.calibration.joint_prior_choice import fitted_model_error
 from calib_oed.calibration.pose_prediction import (
     RowPrediction,
     predict_rows,
     read_record,
     region_threshold_of,
 )
+from calib_oed.calibration.problem import CalibrationProblem
 from calib_oed.calibration.sensor_file import (
     read_sensor_compliance,
     read_sensor_gains,
@@ -55,7 +57,6 @@ from calib_oed.calibration.verdict import read_identification
 from calib_oed.exceptions import ExportError, MeasurementFileError, ParameterError
 from calib_oed.measurement.base import evaluate_setup
 from calib_oed.measurement.dataset import MeasurementSet
-from calib_oed.measurement.discrepancy import DiscrepancyPrior
 from calib_oed.model.parameters import ParameterSpace
 from calib_oed.model.robot import load_robot
 from calib_oed.scene.records import Scene
@@ -198,11 +199,12 @@ def _errors(space: ParameterSpace, mset: MeasurementSet, blocks, model: str, p=N
     return ErrorStatistics(model, np.linalg.norm(residual, axis=1) * MM_PER_M, rotation), residual
 
 
-def _compensation(files: dict):
-    """:math:`\\mu(q)` of the identification beside the URDF (:mod:`calib_oed.calibration.trust`)."""
+def _compensation(files: dict, space: ParameterSpace):
+    """:math:`\\mu(q)` of the identification beside the URDF (:mod:`calib_oed.calibration.trust`);
+    ``space`` the scene's (for the model error's pose scale)."""
     data = read_identification(files)
     try:
-        prior = DiscrepancyPrior.from_dict(data["model_error"]["fitted"])
+        prior = fitted_model_error(data["model_error"]["fitted"], space)
         comp = data["compensation"]
         configs = np.array(comp["configurations_rad"], float)
         weights = np.array(comp["weights_per_m"], float)
@@ -245,6 +247,7 @@ def validate_calibration(scene: Scene, calibration: str | os.PathLike, mset: Mea
     blocks = mset.blocks(error_model=scene.error_model())
     nominal_space = ParameterSpace(robot, scene.tracker.placement(),
                                    np.array([r.offset for r in scene.reflectors]))
+    scene_space = CalibrationProblem.from_scene(scene).space  # its payload, for the model error's pose scale
     calibrated_space = ParameterSpace(calibrated, tracker, offsets,
                                       compliance=None if compliance is None else compliance[0],
                                       joint_gains=None if gains is None else gains[0])
@@ -257,9 +260,9 @@ def validate_calibration(scene: Scene, calibration: str | os.PathLike, mset: Mea
             p_calibrated[calibrated_space.gain_slice] = gains[1]
     floor = noise_floor(mset, blocks)
     calibrated_errors, residual = _errors(calibrated_space, mset, blocks, "calibrated", p_calibrated,
-                                          _compensation(files) if compensated else None)
+                                          _compensation(files, scene_space) if compensated else None)
     ident = read_identification(files)
-    record = read_record(ident)
+    record = read_record(ident, scene_space)
     return ValidationResult(
         nominal=_errors(nominal_space, mset, blocks, "nominal")[0],
         calibrated=calibrated_errors,

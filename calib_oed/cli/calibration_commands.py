@@ -162,7 +162,7 @@ def _identify_fit(s, mset, args):
     blocks = mset.blocks(error_model=s.scene.error_model())
     drop = "all" if args.drop_flagged else ("gross" if args.loss == "robust" else "none")
     return sanity, blocks, identify_robust(problem.space, blocks, problem.identifiability,
-                                           model_error=start_prior(s.scene), drop=drop)
+                                           model_error=start_prior(s.scene, problem), drop=drop)
 
 
 def _scene_and_measurements(args):

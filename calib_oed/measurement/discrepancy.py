@@ -67,6 +67,14 @@ squared exponential :math:`g = -k`, :math:`h = k`), the derivatives in :math:`q_
 diagonal only, :math:`\partial^2 k_H/\partial q_{1,k}^2 = -\sum_h h^2 s_{kh}^2\cos(h\Delta_k)`. Checked by central finite differences in
 ``tests/measurement/test_discrepancy.py``.
 
+**Pose scale** (``scale``, :class:`~calib_oed.measurement.pose_scale.PoseScale`): the smooth
+part times :math:`m(q_1)\,m(q_2)`, the joint-space prior's standard deviation at the pose over
+its training-pose mean, blended with 1 by a fitted weight; :math:`\sigma` stays the RMS over the
+training poses, :meth:`DiscrepancyPrior.pose_variance` is the variance at a pose; the white part
+is not scaled. A scaled prior has no derivatives in :math:`q` (designs take a scene's stationary
+prior); :meth:`DiscrepancyPrior.from_dict` reads its stationary part
+(``calibration/joint_prior_choice.fitted_model_error`` restores the scale, which needs the robot).
+
 **Defaults for design time** (:meth:`DiscrepancyPrior.default_for`), when no data
 exist: :math:`\sigma` = :data:`SIGMA_PER_REACH` x reach (0.1 mm per metre, at least
 :data:`MIN_SIGMA`), length scales :data:`ARM_LENGTH_SCALE` for the first three
@@ -82,6 +90,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from calib_oed.exceptions import ParameterError, ShapeError
+from calib_oed.measurement.pose_scale import PoseScale
 
 __all__ = ["ARM_LENGTH_SCALE", "HARMONIC_KERNELS", "HARMONIC_SHARE", "KERNELS", "MIN_SIGMA", "SIGMA_PER_REACH", "WRIST_LENGTH_SCALE",
            "DiscrepancyPrior", "robot_reach"]
@@ -153,6 +162,8 @@ class DiscrepancyPrior:
         harmonic: Amplitudes :math:`s_{kh}` of the harmonic part [m], joint by joint, once
             then twice per revolution (2 nq,); only for :data:`HARMONIC_KERNELS` (empty:
             the default share, module docstring); 0 for a linear or ignored joint.
+        scale: The pose scale :math:`m(q)` of the smooth part (module docstring), or None
+            (stationary).
     """
 
     sigma: float
@@ -162,6 +173,7 @@ class DiscrepancyPrior:
     sigma_white: float = 0.0
     linear_joints: tuple[int, ...] = ()
     harmonic: tuple[float, ...] = ()
+    scale: PoseScale | None = None
 
     def __post_init__(self):
         for name in ("sigma", "sigma_white"):
@@ -243,22 +255,32 @@ class DiscrepancyPrior:
                 "source": self.source}
         if self.harmonic:
             out["harmonic_mm"] = (1e3 * np.reshape(self.harmonic, (-1, len(HARMONICS)))).tolist()
+        if self.scale is not None:
+            out["pose_scale"] = self.scale.to_dict()
         return out
 
     def with_values(self, sigma: float, length_scales, source: str,
-                    sigma_white: float | None = None, harmonic=None) -> DiscrepancyPrior:
-        """The same kernel with new hyperparameters (``sigma_white``, ``harmonic`` None: unchanged;
-        the harmonic part of a joint whose length scale became infinite is dropped)."""
+                    sigma_white: float | None = None, harmonic=None, weight: float | None = None
+                    ) -> DiscrepancyPrior:
+        """The same kernel with new hyperparameters (``sigma_white``, ``harmonic``, the pose scale's
+        ``weight`` None: unchanged; the harmonic part of a joint whose length scale became infinite
+        is dropped)."""
         white = self.sigma_white if sigma_white is None else sigma_white
         harm = self.harmonic if harmonic is None else tuple(np.ravel(harmonic))
+        scale = self.scale if weight is None or self.scale is None else self.scale.with_weight(weight)
         return DiscrepancyPrior(sigma, tuple(length_scales), self.kernel_name, source, white,
-                                self.linear_joints, harm)
+                                self.linear_joints, harm, scale)
+
+    def with_scale(self, scale: PoseScale | None) -> DiscrepancyPrior:
+        """The same prior with the pose scale ``scale`` (None: stationary)."""
+        return DiscrepancyPrior(self.sigma, self.length_scales, self.kernel_name, self.source,
+                                self.sigma_white, self.linear_joints, self.harmonic, scale)
 
     @property
     def n_kernel_hyperparameters(self) -> int:
-        """Length of :meth:`kernel_log_gradient`'s last axis: sigma, nq length scales and, for a
-        harmonic kernel, the 2 nq amplitudes."""
-        return 1 + self.nq + len(self.harmonic)
+        """Length of :meth:`kernel_log_gradient`'s last axis: sigma, nq length scales, for a
+        harmonic kernel the 2 nq amplitudes and, with a pose scale, its weight."""
+        return 1 + self.nq + len(self.harmonic) + (self.scale is not None)
 
     @property
     def nq(self) -> int:
@@ -273,8 +295,9 @@ class DiscrepancyPrior:
             harm = ", harmonic [" + ", ".join("-" if not ok else "/".join(f"{x:.4f}" for x in row)
                                                for ok, row in zip(self.harmonic_joints, per, strict=True)) \
                 + "] mm (once/twice per revolution)"
+        scaled = "" if self.scale is None else f", {self.scale.describe()}"
         return (f"model error {self.kernel_name}: sigma {self.sigma * 1e3:.4f} mm per axis, "
-                f"length scales [{ell}] deg{harm}, white part {self.sigma_white * 1e3:.4f} mm "
+                f"length scales [{ell}] deg{harm}, white part {self.sigma_white * 1e3:.4f} mm{scaled} "
                 f"({self.source})")
 
     # ------------------------------------------------------------- kernel
@@ -316,15 +339,32 @@ class DiscrepancyPrior:
         f = {0: np.cos(arg), 1: -np.sin(arg), 2: -np.cos(arg)}[order]
         return s2 * h**order * f
 
-    def kernel(self, q1, q2) -> np.ndarray:
-        r""":math:`k(q_{1,a}, q_{2,b})` (n1, n2) [m²] for configurations ``q1`` (n1, nq), ``q2`` (n2, nq)."""
+    def _stationary(self, q1, q2) -> np.ndarray:
         k = self._pieces(q1, q2)[2]
         if self.harmonic:
             k = k + self._harmonic_terms(q1, q2, 0).sum(axis=(2, 3))
         return k
 
+    def _scale_factor(self, q1, q2) -> np.ndarray | float:
+        r""":math:`m(q_{1,a})\,m(q_{2,b})` (n1, n2), or 1 without a pose scale."""
+        if self.scale is None:
+            return 1.0
+        return np.outer(self.scale.compute(self._check(q1, "Q1")), self.scale.compute(self._check(q2, "Q2")))
+
+    def kernel(self, q1, q2) -> np.ndarray:
+        r""":math:`k(q_{1,a}, q_{2,b})` (n1, n2) [m²] for configurations ``q1`` (n1, nq), ``q2`` (n2, nq)
+        (times the pose scale's :math:`m(q_1)m(q_2)` when there is one)."""
+        return self._stationary(q1, q2) * self._scale_factor(q1, q2)
+
+    def _no_scale(self, what: str) -> None:
+        if self.scale is not None:
+            raise ParameterError(f"{what}: a model error scaled by the joint prior pose by pose has no "
+                                 "configuration derivatives here; designs use the stationary prior "
+                                 "(with_scale(None))")
+
     def kernel_gradient(self, q1, q2) -> np.ndarray:
-        r""":math:`\partial k/\partial q_1` (n1, n2, nq) [m²/rad]."""
+        r""":math:`\partial k/\partial q_1` (n1, n2, nq) [m²/rad] (stationary priors only)."""
+        self._no_scale("kernel_gradient")
         u, _, _, g, _, _ = self._pieces(q1, q2)
         grad = g[:, :, None] * u
         if self.harmonic:
@@ -336,13 +376,21 @@ class DiscrepancyPrior:
         :attr:`n_kernel_hyperparameters`) [m²]: :math:`\partial k/\partial\log\sigma = 2k_{ARD}`,
         :math:`\partial k/\partial\log\ell_j = -g\,\delta_j^2/\ell_j^2` (0 for an ignored joint)
         and, harmonic kernels, :math:`\partial k/\partial\log s_{kh} = 2 s_{kh}^2\cos(h\Delta_k)`
-        (joint by joint), for the marginal likelihood's gradient."""
+        (joint by joint), each times :math:`m(q_1)m(q_2)`, and with a pose scale
+        :math:`\partial k/\partial\log\beta = \beta\,k_0\,\partial(m_1m_2)/\partial\beta`
+        (:math:`k_0` the stationary kernel), for the marginal likelihood's gradient."""
         _, _, k, g, _, scaled = self._pieces(q1, q2)
         parts = [2.0 * k[..., None], -g[..., None] * scaled]
         if self.harmonic:
             terms = self._harmonic_terms(q1, q2, 0)
             parts.append(2.0 * terms.reshape(*terms.shape[:2], -1))
-        return np.concatenate(parts, axis=-1)
+        out = np.concatenate(parts, axis=-1)
+        if self.scale is None:
+            return out
+        m1, d1 = self.scale.compute_weight_derivative(self._check(q1, "Q1"))
+        m2, d2 = self.scale.compute_weight_derivative(self._check(q2, "Q2"))
+        dw = self.scale.weight * self._stationary(q1, q2) * (np.outer(d1, m2) + np.outer(m1, d2))
+        return np.concatenate([out * np.outer(m1, m2)[..., None], dw[..., None]], axis=-1)
 
     def white_kernel(self, q1, q2) -> np.ndarray:
         r""":math:`\sigma_w^2\,[q_{1,a} = q_{2,b}]` (n1, n2) [m²] (module docstring)."""
@@ -361,8 +409,16 @@ class DiscrepancyPrior:
 
     @property
     def variance(self) -> float:
-        """:math:`k(q, q)` of one component, the smooth and the white part [m²]."""
+        """:math:`k(q, q)` of one component, the smooth and the white part [m²] (with a pose scale:
+        the mean over the training poses, :meth:`pose_variance` at a pose)."""
         return self.smooth_variance + self.sigma_white**2
+
+    def pose_variance(self, q) -> np.ndarray:
+        """:math:`k(q, q)` of one component at each configuration ``q`` (n, nq), the smooth and
+        the white part, (n,) [m²]."""
+        q = self._check(q, "Q")
+        m2 = 1.0 if self.scale is None else self.scale.compute(q) ** 2
+        return np.broadcast_to(m2 * self.smooth_variance + self.sigma_white**2, (q.shape[0],)).copy()
 
     def point_covariance(self, q) -> np.ndarray:
         r""":math:`K = k(Q, Q) + k_w(Q, Q)` (n, n) [m²]: the covariance of one Cartesian component

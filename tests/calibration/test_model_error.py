@@ -8,6 +8,7 @@ import scipy.linalg
 
 from calib_oed.calibration.hyper_uncertainty import prior_of, theta_of
 from calib_oed.calibration.identification import identify
+from calib_oed.calibration.joint_prior_choice import pose_scale
 from calib_oed.calibration.model_error import (
     fit_model_error,
     leave_one_out,
@@ -59,6 +60,18 @@ def test_restricted_likelihood_gradient_of_the_harmonic_kernel(fms):
     assert theta.size == 1 + 6 + 12 + 1
     _, grad = restricted_log_likelihood(lin, harm, gradient=True)
     num = central_difference(lambda t: restricted_log_likelihood(lin, prior_of(harm, t)), theta, 1e-5)
+    assert relative_error(grad, num) < 1e-5
+
+
+def test_restricted_likelihood_gradient_of_a_pose_scaled_kernel(fms):
+    """The weight of the joint prior's pose scale in the gradient (``theta_of`` order)."""
+    _, _, lin = _data(fms, 2, 30)
+    scale = pose_scale(fms.problem).normalised(np.unique(lin.q, axis=0)).with_weight(0.6)
+    scaled = TRUE.with_values(1.3e-4, np.array(TRUE.length_scales) * 1.2, "t", 3e-5).with_scale(scale)
+    theta = theta_of(scaled)
+    assert theta.size == 1 + 6 + 1 + 1
+    _, grad = restricted_log_likelihood(lin, scaled, gradient=True)
+    num = central_difference(lambda t: restricted_log_likelihood(lin, prior_of(scaled, t)), theta, 1e-5)
     assert relative_error(grad, num) < 1e-5
 
 

@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 
-from calib_oed.calibration.model_error import Linearisation
+from calib_oed.calibration.model_error import Linearisation, start_prior
 from calib_oed.calibration.pose_prediction import read_record
 from calib_oed.calibration.prediction import error_covariances, new_poses
 from calib_oed.calibration.realistic import sample_truth
@@ -35,7 +35,8 @@ def calibrated(tmp_path_factory):
     rng = np.random.default_rng(3)
     (b,) = measure(sample_truth(s, rng), pr.models, np.vstack([q, q_val]), rng).blocks
     train = [ObservationBlock(b.model, q, b.values[:60])]
-    rob = identify_robust(pr.space, train, pr.identifiability, model_error=s.scene.discrepancy())
+    rob = identify_robust(pr.space, train, pr.identifiability, model_error=start_prior(s.scene, pr))
+    assert rob.model_error.prior.scale is not None  # identify's model error, pose-scaled
     trust = assess(pr, rob)
     folder = tmp_path_factory.mktemp("cal")
     export_result(s, rob.result, folder)
@@ -51,9 +52,12 @@ def test_the_linearisation_round_trips_through_json(calibrated):
     back = Linearisation.from_dict(json.loads(json.dumps(data["prediction_data"])))
     for name in ("q", "position", "component", "measurement", "jac", "noise", "residual"):
         assert np.array_equal(getattr(back, name), getattr(lin, name)), name
-    record = read_record(data)
+    record = read_record(data, calibrated[0].problem.space)
     assert record is not None and record[2] == tuple(rob.result.free_names)
-    assert read_record({"model_error": data["model_error"]}) is None  # an older identification.json
+    q = rob.linearisation.q[:7]
+    assert np.allclose(record[1].covariance_kernel(q, q), rob.model_error.prior.covariance_kernel(q, q),
+                       rtol=1e-9, atol=0)  # the pose scale restored
+    assert read_record({"model_error": data["model_error"]}, calibrated[0].problem.space) is None  # an older identification.json
 
 
 @pytest.mark.parametrize("compensated", [False, True])

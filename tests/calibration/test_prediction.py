@@ -7,7 +7,8 @@ import pytest
 from scipy.stats import chi2
 
 from calib_oed.calibration.identification import identify
-from calib_oed.calibration.model_error import fit_model_error, linearise
+from calib_oed.calibration.joint_prior_choice import pose_scale
+from calib_oed.calibration.model_error import fit_model_error, linearise, start_prior
 from calib_oed.calibration.prediction import (
     FEASIBLE_POSES,
     UNIFORM_POSES,
@@ -74,6 +75,32 @@ def test_prediction_against_monte_carlo_with_the_true_model_error(fms, truth):
             sq, tr, inside, n = sq + a, tr + b, inside + c, n + e.shape[0]
         assert abs(np.sqrt(tr / sq) - 1) < 0.1, (compensate, np.sqrt(tr / sq))
         assert abs(inside / n - 0.95) < 0.025, (compensate, inside / n)
+
+
+def test_pose_scaled_prediction_follows_the_pose_against_monte_carlo(fms):
+    """A model error whose size follows the joint prior pose by pose (pose scale, weight 1): 10
+    truths x 100 new poses. Predicted with the true (scaled) model error, the mean squared error is
+    the Monte Carlo one within 10 % pooled and within 15 % in each tercile of the prior's variance
+    at the pose, the 95 % regions hold 95 +- 2.5 %; the stationary model error of the same
+    training-pose mean misses the terciles (the check can fail)."""
+    pr = fms.problem
+    scaled = TRUE.with_scale(pose_scale(pr).normalised(pr.robot.random_configurations(200, 99)))
+    sums = {"scaled": np.zeros((3, 3)), "stationary": np.zeros((3, 3))}  # [tercile, (sq, tr, inside)]
+    n = 0
+    for seed in range(10):
+        lin, q_new, jac, noise, e = _trial(fms, seed, truth=scaled)
+        v = scaled.scale.compute_variance(q_new)
+        bins = np.digitize(v, np.quantile(v, [1 / 3, 2 / 3]))
+        for name, prior in (("scaled", scaled), ("stationary", TRUE)):
+            cov = error_covariances(lin, prior, jac, q_new, noise)
+            for t in range(3):
+                sums[name][t] += _score(e[bins == t], cov[bins == t])
+        n += e.shape[0]
+    ratio = {k: np.sqrt(x[:, 1] / x[:, 0]) for k, x in sums.items()}
+    pooled = np.sqrt(sums["scaled"][:, 1].sum() / sums["scaled"][:, 0].sum())
+    assert abs(pooled - 1) < 0.1 and np.all(np.abs(ratio["scaled"] - 1) < 0.15), (pooled, ratio)
+    assert abs(sums["scaled"][:, 2].sum() / n - 0.95) < 0.025, sums["scaled"][:, 2].sum() / n
+    assert ratio["stationary"][0] > 1.2 and ratio["stationary"][2] < 0.85, ratio
 
 
 @pytest.mark.slow  # (the realistic simulator's test_trust.py covers fitted hyperparameters fast)
@@ -224,7 +251,7 @@ def _realistic_ratios(scene: str, truths: range, n_work: int = 10, n_val: int = 
         truth = sample_truth(s, np.random.default_rng([29, k]), settings)
         data = measure(truth, pr.models, np.vstack([q, q_val]), np.random.default_rng([29, k, 1]))
         train = [ObservationBlock(b.model, q, b.values[:60]) for b in data.blocks]
-        rob = identify_robust(pr.space, train, pr.identifiability, model_error=s.scene.discrepancy())
+        rob = identify_robust(pr.space, train, pr.identifiability, model_error=start_prior(s.scene, pr))
         acc = assess(work, rob, s.feasibility).predicted
         p = rob.result.p
         tcp = kpi.in_frame("tracker")
@@ -251,7 +278,7 @@ def test_realistic_tcp_and_new_pose_predictions_hold():
 def test_realistic_tcp_and_new_pose_predictions_over_eight_truths(scene):
     """The issue's target on the realistic simulator, pooled over 8 truths: predicted over achieved
     RMS within 0.8-1.25 for the TCP at ten feasible working configurations (tracker frame) and for
-    the measured position on 40 feasible validation poses (measured: fms_kr16 1.21 and 1.06,
-    ur5_table 1.21 and 1.11)."""
+    the measured position on 40 feasible validation poses (measured with identify's pose-scaled
+    model error: fms_kr16 1.16 and 1.11, ur5_table 1.14 and 1.15; stationary 1.21, 1.06, 1.21, 1.11)."""
     tcp, val = _realistic_ratios(scene, range(8))
     assert 0.8 < tcp < 1.25 and 0.8 < val < 1.25, (tcp, val)

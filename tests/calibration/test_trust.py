@@ -29,7 +29,7 @@ def _case(s, truth, n_train=60, n_new=200):
     blocks = measure(sample_truth(s, rng), pr.models, np.vstack([q, q_new]), rng).blocks
     train = [ObservationBlock(b.model, b.q[:n_train], b.values[:n_train]) for b in blocks]
     test = [ObservationBlock(b.model, b.q[n_train:], b.values[n_train:]) for b in blocks]
-    rob = identify_robust(pr.space, train, pr.identifiability, model_error=start_prior(s.scene))
+    rob = identify_robust(pr.space, train, pr.identifiability, model_error=start_prior(s.scene, pr))
     return rob, test, q_new
 
 
@@ -100,7 +100,7 @@ def _gp_case(s, truth, n_train=60, n_new=200):
                                    model_error=s.scene.discrepancy())
     train = [ObservationBlock(b.model, b.q[:n_train], b.values[:n_train]) for b in blocks]
     test = [ObservationBlock(b.model, b.q[n_train:], b.values[n_train:]) for b in blocks]
-    rob = identify_robust(pr.space, train, pr.identifiability, model_error=start_prior(s.scene))
+    rob = identify_robust(pr.space, train, pr.identifiability, model_error=start_prior(s.scene, pr))
     return rob, test, q_new
 
 
