@@ -176,7 +176,6 @@ def check_design_meshes(
     tracker_position: np.ndarray | None = None,
     reflector_offsets: np.ndarray | None = None,
     beam_radius: float = 0.005,
-    tool_frame: str | None = None,
     excluded_pairs: Sequence[tuple[str, str]] = (),
     clearance: float = 0.0,
     geometry_model: pin.GeometryModel | None = None,
@@ -189,9 +188,8 @@ def check_design_meshes(
         cell: World-fixed obstacles; ``None`` for an empty cell.
         tracker_position: Tracker position in the world (3,) [m]; with
             ``reflector_offsets``, the laser beams are checked.
-        reflector_offsets: Reflector centres in the tool frame (k, 3) [m].
+        reflector_offsets: Reflector centres in ``robot.tool_frame`` (k, 3) [m].
         beam_radius: Radius of the beam capsule [m].
-        tool_frame: Frame carrying the reflectors; ``robot.tool_frame`` by default.
         excluded_pairs: Link-name pairs never checked against each other.
         clearance: A pose is feasible if every distance exceeds this [m].
         geometry_model: Collision geometry from :func:`load_collision_model`
@@ -199,7 +197,6 @@ def check_design_meshes(
 
     Raises:
         ShapeError, NonFiniteError: bad ``q``, tracker position or reflector offsets.
-        UnknownFrameError: unknown ``tool_frame``.
         UnknownLinkError: ``excluded_pairs`` names an unknown link.
         ValueError: only one of ``tracker_position`` and ``reflector_offsets`` given,
             or a negative ``beam_radius``.
@@ -209,7 +206,7 @@ def check_design_meshes(
     cell = Cell() if cell is None else cell
     model = robot.model
     geom = load_collision_model(robot) if geometry_model is None else geometry_model
-    tool_id = robot.frame_id(tool_frame or robot.tool_frame)
+    tool_id = robot.frame_id(robot.tool_frame)
     tool_joint = int(model.frames[tool_id].parentJoint)
     beams = _beam_inputs(tracker_position, reflector_offsets, beam_radius)
 

@@ -73,6 +73,12 @@ class Proposal:
     seconds: float
 
 
+#: Feasible candidates the exchange start of a proposal chooses from.
+POOL = 300
+#: Half-width [rad] of the box around the current pose the near candidates are drawn from.
+NEIGHBOURHOOD_RAD = 0.5
+
+
 class SequentialDesigner:
     """Chooses the next batch of measurement configurations, step by step.
 
@@ -85,24 +91,18 @@ class SequentialDesigner:
             paper's ``kpi``).
         settings: SQP settings of a batch (default :data:`SEQUENTIAL_SQP`).
         seed: Seed of the candidate pools (proposal ``m`` uses ``seed + m``).
-        pool: Feasible candidates the exchange start chooses from.
-        neighbourhood_rad: Half-width [rad] of the box around the current
-            pose the near candidates are drawn from.
     """
 
     def __init__(self, setup: Setup, target_sigma_mm: float, *, batch: int = 5,
-                 criterion: str = "kpi", settings: SQPSettings | None = None, seed: int = 0,
-                 pool: int = 300, neighbourhood_rad: float = 0.5):
+                 criterion: str = "kpi", settings: SQPSettings | None = None, seed: int = 0):
         if not (np.isfinite(target_sigma_mm) and target_sigma_mm > 0):
             raise SequentialError("target_sigma_mm", target_sigma_mm, "must be finite and > 0 [mm]")
         if int(batch) != batch or batch < 1:
             raise SequentialError("batch", batch, "must be an integer >= 1")
         if criterion not in CRITERIA:
             raise SequentialError("criterion", criterion, f"must be one of {', '.join(CRITERIA)}")
-        if int(pool) < batch:
-            raise SequentialError("pool", pool, f"must be at least the batch size {batch}")
-        if not neighbourhood_rad > 0:
-            raise SequentialError("neighbourhood_rad", neighbourhood_rad, "must be > 0 [rad]")
+        if batch > POOL:
+            raise SequentialError("batch", batch, f"must be at most the candidate pool, {POOL}")
         self.setup = setup
         self.problem = setup.problem
         self.target_sigma_mm = float(target_sigma_mm)
@@ -110,8 +110,6 @@ class SequentialDesigner:
         self.criterion = criterion
         self.settings = settings or SEQUENTIAL_SQP
         self.seed = int(seed)
-        self.pool = int(pool)
-        self.neighbourhood_rad = float(neighbourhood_rad)
         self.n_proposals = 0
 
     # ------------------------------------------------------------ prediction
@@ -144,13 +142,13 @@ class SequentialDesigner:
 
     # ------------------------------------------------------------ candidates
     def near_candidates(self, pose, n: int, rng) -> np.ndarray:
-        """Up to ``n`` feasible configurations uniform in a box of ``neighbourhood_rad`` around ``pose``."""
+        """Up to ``n`` feasible configurations uniform in a box of :data:`NEIGHBOURHOOD_RAD` around ``pose``."""
         feas = self.setup.feasibility
         robot = feas.robot
         pose = robot.check_configurations(np.atleast_2d(pose), "current pose")[0]
         margin = feas.settings.margins.joint
-        lo = np.maximum(robot.lower + margin, pose - self.neighbourhood_rad)
-        hi = np.minimum(robot.upper - margin, pose + self.neighbourhood_rad)
+        lo = np.maximum(robot.lower + margin, pose - NEIGHBOURHOOD_RAD)
+        hi = np.minimum(robot.upper - margin, pose + NEIGHBOURHOOD_RAD)
         hi = np.maximum(hi, lo)
         found, count = [], 0
         for _ in range(20):
@@ -169,11 +167,11 @@ class SequentialDesigner:
     def candidates(self, current_pose=None, rng=None) -> np.ndarray:
         """The start pool: near the current pose if given (topped up uniformly), else uniform feasible."""
         rng = np.random.default_rng(rng)
-        near = (self.near_candidates(current_pose, self.pool, rng) if current_pose is not None
+        near = (self.near_candidates(current_pose, POOL, rng) if current_pose is not None
                 else np.zeros((0, self.problem.robot.nq)))
-        if len(near) >= max(2 * self.batch, self.pool // 2):
+        if len(near) >= max(2 * self.batch, POOL // 2):
             return near
-        uniform = sample_feasible(self.setup.feasibility, self.pool - len(near), rng)
+        uniform = sample_feasible(self.setup.feasibility, POOL - len(near), rng)
         return np.vstack([near, uniform])
 
     # ------------------------------------------------------------ proposal

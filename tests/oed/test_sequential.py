@@ -10,7 +10,7 @@ import pytest
 from calib_oed.calibration.workflow import heuristic_design, simulated_measurements
 from calib_oed.exceptions import SequentialError
 from calib_oed.feasibility.sampling import sample_feasible
-from calib_oed.oed.sequential import SequentialDesigner
+from calib_oed.oed.sequential import NEIGHBOURHOOD_RAD, SequentialDesigner
 from calib_oed.oed.sequential_run import measurements_needed, run_sequential
 from calib_oed.solver.sqp import SQPSettings
 
@@ -106,12 +106,12 @@ def test_propose_beats_random_batch(kr16):
 
 
 def test_propose_near_current_pose(kr16):
-    des = SequentialDesigner(kr16, TARGET, batch=3, settings=FAST, neighbourhood_rad=0.4)
+    des = SequentialDesigner(kr16, TARGET, batch=3, settings=FAST)
     q_meas = heuristic_design(kr16, 15, 0)
     pose = q_meas[-1]
     near = des.near_candidates(pose, 50, np.random.default_rng(0))
     assert len(near) > 0
-    assert np.all(np.abs(near - pose) <= 0.4 + 1e-12)
+    assert np.all(np.abs(near - pose) <= NEIGHBOURHOOD_RAD + 1e-12)
     assert kr16.feasibility.compute(near, jacobian=False).feasible.all()
     q = des.propose(q_meas, None, current_pose=pose)
     assert q.shape == (3, kr16.problem.robot.nq)
@@ -121,7 +121,7 @@ def test_propose_near_current_pose(kr16):
 
 @pytest.mark.parametrize("kwargs", [
     {"target_sigma_mm": 0.0}, {"target_sigma_mm": -1.0}, {"target_sigma_mm": float("nan")},
-    {"batch": 0}, {"batch": 2.5}, {"criterion": "nope"}, {"pool": 2},
+    {"batch": 0}, {"batch": 2.5}, {"batch": 301}, {"criterion": "nope"},
 ])
 def test_bad_designer_inputs(kr16, kwargs):
     args = {"target_sigma_mm": TARGET, **kwargs}
