@@ -261,6 +261,32 @@ def test_study_discussion_quotes_the_study(study):
     assert f"far more than 10–19 % ({whole_params[0]}–{whole_params[1]} % in √V)" in flat
 
 
+
+def test_study_text_on_the_colliding_design_quotes_table6(study):
+    """The design below the certified bound is the no-collision table's, the bound Table 6's."""
+    flat = " ".join(study.text.split())
+    found = re.search(r"The (\w+) KPI-optimal design without collision constraints \((\S+) mm²\) "
+                      r"is \*below\* the certified bound for feasible designs \((\S+) mm²\)", flat)
+    assert found, "docs/study.md: the sentence on the design below the certified bound not found"
+    arm, value, bound = found.group(1), float(found.group(2)), float(found.group(3))
+    without = {row[0]: row for row in table_after(study.text, "Without collision avoidance (the designs")}
+    assert value == number(without[arm][3]) and bound == study.kuka[arm]["bound"] and value < bound
+
+
+def test_study_solver_counts_add_up(study):
+    """The 90 arms' solver paragraph: its converged designs per (criterion, collisions) sum to the
+    total it states, and the C_p-optimal design's share of the heuristic's V is Table 8's."""
+    flat = " ".join(study.text.split())
+    paragraph = re.search(r"Solver \(of the 360 SQP designs \d+ converged\):(.*?)\. Every design", flat)
+    assert paragraph, "docs/study.md: the 90 arms' solver paragraph not found"
+    counts = [int(c) for c in re.findall(r"(\d+) (?:× `)?converged", paragraph.group(1))]
+    assert len(counts) == 4 and sum(counts) == study.arms_converged
+    table8 = {row[0]: row for row in table_after(study.text, "Table 8 analogue")}
+    params, heuristic = number(table8["C_p-optimal [mm²]"][1]), number(table8["heuristic (median) [mm²]"][1])
+    assert (f"KPI variance at {whole_percent(100 * params / heuristic)} % of the heuristic's "
+            f"(Table 8: {params:.4g} against {heuristic:.4g} mm²)") in flat
+
+
 def pages() -> list[str]:
     return ["README.md", "DEVELOPERS.md", *sorted(f"docs/{p.name}" for p in DOCS.glob("*.md"))]
 
