@@ -1,4 +1,4 @@
-"""The two design-SQP stalls of issue 16's fifth session, reproduced (docs/benchmarks.md).
+"""Two design-SQP stalls (a kinked row, the penalty), reproduced (docs/benchmarks.md).
 
 Usage::
 
