@@ -287,6 +287,21 @@ def test_study_solver_counts_add_up(study):
             f"(Table 8: {params:.4g} against {heuristic:.4g} mm²)") in flat
 
 
+
+def test_monte_carlo_check_is_of_table6s_designs(study):
+    """The Monte Carlo table's predicted tr C_s are 3 V of Table 6's kr16 designs (so a rerun of
+    the study without one of the Monte Carlo check shows), and its percentages follow from it."""
+    rows = {row[0].split(" (")[0]: row for row in table_after(study.text, "| design (kr16, with collision avoidance)")}
+    for name, key in (("C_p-optimal", "params"), ("KPI-optimal", "kpi")):
+        assert number(rows[name][3]) == pytest.approx(3 * study.kuka["kr16"][key], rel=5e-4), name
+    flat = " ".join(study.text.split())
+    kpi = rows["KPI-optimal"]
+    for other, name in (("heuristic", "the heuristic design's"), ("C_p-optimal", "the C_p-optimal design's")):
+        empirical = 100 * (1 - number(kpi[2]) / number(rows[other][2]))
+        predicted = 100 * (1 - number(kpi[3]) / number(rows[other][3]))
+        assert re.search(rf"\*\*{empirical:.1f} %\*\* below {name} \(predicted {predicted:.1f} %", flat), other
+
+
 def pages() -> list[str]:
     return ["README.md", "DEVELOPERS.md", *sorted(f"docs/{p.name}" for p in DOCS.glob("*.md"))]
 

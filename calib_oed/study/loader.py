@@ -23,7 +23,7 @@ are YAML files (shipped ones in ``calib_oed/study/shipped/``, see
     start: heuristic                         # heuristic | exchange
     enrich: true                             # exchange: pool + off-pool maxima (false: pool only)
     seed: 0                                  # seed of the start design
-    sqp: {max_iterations: 80, time_limit: 30}   # per SQP run; time_limit [s] or null
+    sqp: {max_iterations: 80, time_limit: null} # per SQP run; a time limit [s] makes results load-dependent
     certificate: {pool: 3000, seed: 0, local_starts: 32}   # optional: KPI lower bound per case
 
 Errors raise :class:`~calib_oed.exceptions.StudyConfigError` naming the
