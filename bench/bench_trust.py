@@ -166,6 +166,7 @@ def case(s, truth, source, n_train, n_new, kernel):
         "fitted": prior.describe(), "pred_over_achieved": float(np.sqrt(sq["pred"] / n) / ach),
         "noise_only_over_achieved": float(np.sqrt(sq["noise"] / n) / ach),
         "coverage95": inside / n, "coverage95_chi2": inside_chi2 / n, "region_threshold": limit,
+        "log_variance_sd": trust.predicted.log_variance_sd,
         "predicted_range_mm": list(trust.predicted.new_pose_rms_range_mm),
         "predicted_mm": trust.predicted.new_pose_rms_mm,
         "achieved_in_range": bool(trust.predicted.new_pose_rms_range_mm[0] <= ach * 1e3
@@ -401,7 +402,9 @@ def main():
                   f"{str(r['gross_flagged_alone'])[0] + '+' + str(r['gross_other_flags']):>5s} "
                   f"{r['cv_minus_achieved_in_se']:+7.2f} {r['ll_other_kernel_minus_this']:+9.1f} "
                   f"{r['identify_cpu_seconds']:5.1f}")
-            print(f"{'':16s} {r['fitted']}")
+            tau = r["log_variance_sd"]
+            print(f"{'':16s} {r['fitted']}; region threshold {r['region_threshold']:.2f}, tau "
+                  f"{'-' if tau is None else format(tau, '.3f')}")
     ratio = [r["pred_over_achieved"] for r in rows]
     cover = [r["coverage95"] for r in rows]
     print(f"pred/ach {min(ratio):.2f}..{max(ratio):.2f} (target 0.8-1.25); coverage "
