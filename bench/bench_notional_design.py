@@ -15,6 +15,10 @@ to the same iteration limit). Printed as one JSON line: process CPU
 of the SQP's QP subproblems (``solver.subproblem.QPSolver.solve`` called inside
 ``optimise_starts``, the retries included; the start's QPs apart), the SQP's
 iterations, status and value, ProxQP's inner iterations and build.
+The dense polish of the QP steps (``solver.polish.polish``, every step since
+96ef43f, before only steps of at most 1e-4) is timed apart (``polish_cpu_s``,
+inside ``sqp_cpu_s``, not in ``qp_cpu_s``); ``--polish-small-only`` restores
+the old rule by a monkeypatch here.
 ``--proxsuite-default`` imports ``proxsuite`` before ``calib_oed``, so that
 proxsuite picks its own build (AVX2 here) instead of the SSE2 build of
 ``solver/proxqp_build.py`` (3386afc); the same code, the other build.
@@ -44,6 +48,8 @@ def main() -> None:
     ap.add_argument("--criterion", default="params")
     ap.add_argument("--collisions", type=int, default=1)
     ap.add_argument("--no-reequilibrate", action="store_true")
+    ap.add_argument("--polish-small-only", action="store_true",
+                    help="polish only QP steps with |d|_inf <= 1e-4, as before 96ef43f")
     ap.add_argument("--proxsuite-default", action="store_true",
                     help="import proxsuite before calib_oed: its own build choice (AVX2 here), "
                          "not the SSE2 build solver/proxqp_build.py picks")
@@ -62,7 +68,7 @@ def main() -> None:
     from calib_oed.calibration.workflow import setup
     from calib_oed.study.loader import load_study_config
 
-    cpu = {"sqp": 0.0, "qp": 0.0, "start_qp": 0.0}
+    cpu = {"sqp": 0.0, "qp": 0.0, "start_qp": 0.0, "polish": 0.0, "start_polish": 0.0}
     calls = {"qp": 0, "refresh": 0, "proxqp_iterations": 0}
     inside = []  # non-empty while optimise_starts runs (the start's own QPs are counted apart)
 
@@ -76,7 +82,7 @@ def main() -> None:
             finally:
                 if key == "sqp":
                     inside.pop()
-                cpu[key if inside or key == "sqp" else "start_qp"] += time.process_time() - c
+                cpu[key if inside or key == "sqp" else "start_" + key] += time.process_time() - c
         return wrapper
 
     design_mod.optimise_starts = timed("sqp", design_mod.optimise_starts)
@@ -106,6 +112,14 @@ def main() -> None:
         return step
 
     subproblem.QPSolver.solve = timed("qp", counted)
+    polish = subproblem.polish
+
+    def polish_small(sub, step, *a, **kw):
+        if args.polish_small_only and float(abs(step.d).max(initial=0.0)) > 1e-4:
+            return None
+        return polish(sub, step, *a, **kw)
+
+    subproblem.polish = timed("polish", polish_small)
 
     config = load_study_config(args.study)
     case = config.cases()[args.case]
@@ -132,6 +146,8 @@ def main() -> None:
         "qp_inner_iterations": calls["proxqp_iterations"],
         "process_cpu_s": time.process_time() - C0, "design_cpu_s": c_design,
         "sqp_cpu_s": cpu["sqp"], "qp_cpu_s": cpu["qp"], "start_qp_cpu_s": cpu["start_qp"],
+        "polish_cpu_s": cpu["polish"], "start_polish_cpu_s": cpu["start_polish"],
+        "polish_small_only": args.polish_small_only,
         "sqp_cpu_per_iteration_s": cpu["sqp"] / max(its, 1),
         "qp_share_of_sqp": cpu["qp"] / cpu["sqp"] if cpu["sqp"] else None,
         "calib_oed": calib_oed.__file__}))
