@@ -138,6 +138,23 @@ class JointErrorPrior:
                 "length_deg": np.degrees(self.length).tolist(), "gain_urad_per_rad": (self.gain * 1e6).tolist(),
                 "compliance_urad_per_nm": (self.compliance * 1e6).tolist(), "source": self.source}
 
+    @classmethod
+    def from_dict(cls, data: dict, gravity: GravityLoad | None) -> JointErrorPrior:
+        """From :meth:`to_dict`'s form, ``gravity`` the nominal arm's load (KeyError, TypeError,
+        ValueError on a malformed mapping; :class:`ParameterError` on values out of range)."""
+        return cls(ARCSEC * np.asarray(data["once_arcsec"], float), ARCSEC * np.asarray(data["twice_arcsec"], float),
+                   ARCSEC * np.asarray(data["smooth_arcsec"], float), np.radians(np.asarray(data["length_deg"], float)),
+                   1e-6 * np.asarray(data["gain_urad_per_rad"], float),
+                   1e-6 * np.asarray(data["compliance_urad_per_nm"], float), gravity, str(data.get("source", "")))
+
+    def compute_own_variance(self, q: np.ndarray) -> np.ndarray:
+        r"""Each joint's angle-error variance :math:`k_k(q, q) = a_1^2 + a_2^2 + s^2 + \nu^2 q_k^2
+        + \gamma^2\tau_k(q)^2` (n, nq) [rad²] at the configurations ``q`` (n, nq)."""
+        own = self.once**2 + self.twice**2 + self.smooth**2 + self.gain**2 * q[:, :self.nq] ** 2
+        if self.gravity is not None and np.any(self.compliance > 0):
+            own = own + self.compliance**2 * self.gravity.torques(q)[:, :self.nq] ** 2
+        return own
+
     def describe(self) -> str:
         """One line in report units."""
         def fmt(a, s):

@@ -37,7 +37,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from calib_oed.exceptions import ParameterError
-from calib_oed.measurement.joint_prior import ARCSEC, JointErrorPrior, PointJacobians
+from calib_oed.measurement.joint_prior import JointErrorPrior, PointJacobians
 
 MM2_PER_M2 = 1e6
 #: Configuration sets whose v(q) a scale and its copies keep (the fit evaluates the same ones).
@@ -77,11 +77,8 @@ class PoseScale:
         q = np.asarray(q, dtype=float)
         key = (q.shape, q.tobytes())
         if key not in self._cache:
-            pr = self.prior
-            jac = self.points.compute(q)[0][:, 0, :, :pr.nq]  # (n, 3, nq)
-            own = pr.once**2 + pr.twice**2 + pr.smooth**2 + pr.gain**2 * q[:, :pr.nq] ** 2
-            if pr.gravity is not None and np.any(pr.compliance > 0):
-                own = own + pr.compliance**2 * pr.gravity.torques(q)[:, :pr.nq] ** 2
+            jac = self.points.compute(q)[0][:, 0, :, :self.prior.nq]  # (n, 3, nq)
+            own = self.prior.compute_own_variance(q)
             if len(self._cache) >= CACHED:
                 self._cache.pop(next(iter(self._cache)))
             self._cache[key] = np.einsum("nk,nk->n", own, np.sum(jac**2, axis=1))
@@ -125,13 +122,8 @@ class PoseScale:
             ParameterError: keys missing or values out of range.
         """
         try:
-            jp = data["joint_prior"]
             base = JointErrorPrior.default_for(space.robot, getattr(space, "compliance", None))
-            prior = JointErrorPrior(
-                ARCSEC * np.asarray(jp["once_arcsec"], float), ARCSEC * np.asarray(jp["twice_arcsec"], float),
-                ARCSEC * np.asarray(jp["smooth_arcsec"], float), np.radians(np.asarray(jp["length_deg"], float)),
-                1e-6 * np.asarray(jp["gain_urad_per_rad"], float),
-                1e-6 * np.asarray(jp["compliance_urad_per_nm"], float), base.gravity, str(jp.get("source", "")))
+            prior = JointErrorPrior.from_dict(data["joint_prior"], base.gravity)
             point = 1e-3 * np.asarray(data["point_mm"], dtype=float).reshape(1, 3)
             robot = space.robot
             return cls(prior, PointJacobians(robot.model, robot.tool_frame_id, point, np.eye(3)),
