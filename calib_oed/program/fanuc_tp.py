@@ -18,7 +18,13 @@ from __future__ import annotations
 
 import textwrap
 
-from calib_oed.program.format_common import degrees, header_lines, require_six_axes, steps
+from calib_oed.program.format_common import (
+    MeasureWords,
+    degrees,
+    header_lines,
+    require_six_axes,
+    steps,
+)
 from calib_oed.program.records import Program
 
 #: What a FANUC user must know about J3, in the header.
@@ -27,14 +33,9 @@ J2_J3_NOTE = ("J2/J3: J3 is the URDF angle relative to the upper arm, NOT the FA
               "or add a controller: block to the scene")
 
 
-def _measure(program: Program) -> list[str]:
-    """The statements at a measurement pose: the dwell, or the handshake (docs/program.md)."""
-    hs = program.handshake
-    if hs is None:
-        return [f"WAIT {program.dwell:6.2f}(sec) ;"]
-    if hs.routine is not None:
-        return [f"CALL {hs.routine.upper()} ;"]
-    return [f"DO[{hs.output}]=ON ;", f"WAIT DI[{hs.input}]=ON ;", f"DO[{hs.output}]=OFF ;"]
+#: The statements at a measurement pose (:class:`~calib_oed.program.format_common.MeasureWords`).
+MEASURE = MeasureWords("WAIT {dwell:6.2f}(sec) ;", "CALL {ROUTINE} ;",
+                       ("DO[{output}]=ON ;", "WAIT DI[{input}]=ON ;", "DO[{output}]=OFF ;"))
 
 
 def write_tp(program: Program, name: str) -> dict[str, str]:
@@ -64,7 +65,7 @@ def write_tp(program: Program, name: str) -> dict[str, str]:
         body.append(f"J P[{k}:{what}] 100% FINE ;")
         if step.kind == "pose":
             body.append(f"! measure pose {step.pose} ;")
-            body += _measure(program)
+            body += MEASURE.compute_lines(program, step.pose)
     lines = [f"/PROG  {prog}", "/ATTR", "COMMENT\t\t= \"calib_oed\";", "DEFAULT_GROUP\t= 1,*,*,*,*;",
              "/MN"]
     lines += [f"{i:4d}:  {text}" for i, text in enumerate(body, start=1)]

@@ -79,6 +79,34 @@ def _at_pose(program: Program) -> str:
             f"{hs.input}, reset the output (the tracker's handshake, no dwell)")
 
 
+@dataclass(frozen=True)
+class MeasureWords:
+    """How one controller language writes what happens at a measurement pose (docs/program.md).
+
+    Each attribute is a template (:meth:`str.format`) of the lines for one case: ``dwell``
+    the blind dwell (keys ``dwell`` [s], ``pose``), ``routine`` the call of the handshake
+    routine (keys ``routine``, ``ROUTINE`` its name upper-cased, ``pose``), ``signals`` the
+    signal handshake, one template a line (keys ``output``, ``input``: the signal numbers;
+    ``output_name``, ``input_name``: their names, :attr:`~calib_oed.program.settings.Handshake.signal_names`; ``pose``).
+    ``pose`` is the pose number (from 1).
+    """
+
+    dwell: str
+    routine: str
+    signals: tuple[str, ...]
+
+    def compute_lines(self, program: Program, pose: int) -> list[str]:
+        """The lines at measurement pose ``pose``: the dwell, or the program's handshake."""
+        hs = program.handshake
+        if hs is None:
+            return [self.dwell.format(dwell=program.dwell, pose=pose)]
+        if hs.routine is not None:
+            return [self.routine.format(routine=hs.routine, ROUTINE=hs.routine.upper(), pose=pose)]
+        output_name, input_name = hs.signal_names
+        return [line.format(output=hs.output, input=hs.input, output_name=output_name,
+                            input_name=input_name, pose=pose) for line in self.signals]
+
+
 def require_six_axes(program: Program, fmt: str) -> None:
     """Controller languages here take 6 robot axes; other robots get the CSV."""
     if len(program.joint_names) != 6:

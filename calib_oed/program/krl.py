@@ -23,6 +23,7 @@ import numpy as np
 
 from calib_oed.exceptions import ProgramError
 from calib_oed.program.format_common import (
+    MeasureWords,
     degrees,
     frame_values,
     header_lines,
@@ -77,15 +78,10 @@ def _declarations(program: Program) -> list[str]:
     return out
 
 
-def _measure(program: Program, pose: int) -> list[str]:
-    """The lines at a measurement pose: the dwell, or the handshake (docs/program.md)."""
-    hs = program.handshake
-    if hs is None:
-        return [f"  WAIT SEC {program.dwell:.2f} ; measure pose {pose}"]
-    if hs.routine is not None:
-        return [f"  {hs.routine.upper()}( ) ; measure pose {pose}"]
-    return [f"  $OUT[{hs.output}]=TRUE ; measure pose {pose}", f"  WAIT FOR $IN[{hs.input}]",
-            f"  $OUT[{hs.output}]=FALSE"]
+#: The lines at a measurement pose (:class:`~calib_oed.program.format_common.MeasureWords`).
+MEASURE = MeasureWords("  WAIT SEC {dwell:.2f} ; measure pose {pose}", "  {ROUTINE}( ) ; measure pose {pose}",
+                       ("  $OUT[{output}]=TRUE ; measure pose {pose}", "  WAIT FOR $IN[{input}]",
+                        "  $OUT[{output}]=FALSE"))
 
 
 def write_krl(program: Program, name: str) -> dict[str, str]:
@@ -102,7 +98,7 @@ def write_krl(program: Program, name: str) -> dict[str, str]:
         what = {"home": "home", "via": "via point (no measurement)"}.get(step.kind, f"pose {step.pose}")
         src.append(f"  PTP {TARGET_PREFIX}{step.name} ; {what}")
         if step.kind == "pose":
-            src += _measure(program, step.pose)
+            src += MEASURE.compute_lines(program, step.pose)
     src.append("END")
     dat = ["&ACCESS RVP", "&REL 1", f"DEFDAT {module}"]
     seen = set()

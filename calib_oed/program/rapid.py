@@ -15,7 +15,13 @@ import numpy as np
 import pinocchio as pin
 
 from calib_oed.exceptions import ProgramError
-from calib_oed.program.format_common import degrees, header_lines, require_six_axes, steps
+from calib_oed.program.format_common import (
+    MeasureWords,
+    degrees,
+    header_lines,
+    require_six_axes,
+    steps,
+)
 from calib_oed.program.records import Program
 
 #: Moves shorter than this [s] get no ``\\T`` (a zero time is not a RAPID move time).
@@ -57,15 +63,10 @@ def _declarations(program: Program, name: str) -> tuple[str, str, list[str]]:
     return tool, wobj, decl
 
 
-def _measure(program: Program, pose: int) -> list[str]:
-    """The lines at a measurement pose: the dwell, or the handshake (docs/program.md)."""
-    hs = program.handshake
-    if hs is None:
-        return [f"    WaitTime {program.dwell:.2f}; ! measure pose {pose}"]
-    if hs.routine is not None:
-        return [f"    {hs.routine}; ! measure pose {pose}"]
-    do, di = hs.output_name or f"do{hs.output}", hs.input_name or f"di{hs.input}"
-    return [f"    SetDO {do}, 1; ! measure pose {pose}", f"    WaitDI {di}, 1;", f"    SetDO {do}, 0;"]
+#: The lines at a measurement pose (:class:`~calib_oed.program.format_common.MeasureWords`).
+MEASURE = MeasureWords("    WaitTime {dwell:.2f}; ! measure pose {pose}", "    {routine}; ! measure pose {pose}",
+                       ("    SetDO {output_name}, 1; ! measure pose {pose}", "    WaitDI {input_name}, 1;",
+                        "    SetDO {output_name}, 0;"))
 
 
 def write_rapid(program: Program, name: str) -> dict[str, str]:
@@ -93,6 +94,6 @@ def write_rapid(program: Program, name: str) -> dict[str, str]:
         speed = "v1000" if not step.time or step.time < MIN_TIME else f"v1000\\T:={step.time:.3f}"
         lines.append(f"    MoveAbsJ j{step.name}\\NoEOffs, {speed}, fine, {tool}{wobj}; ! {what}")
         if step.kind == "pose":
-            lines += _measure(program, step.pose)
+            lines += MEASURE.compute_lines(program, step.pose)
     lines += ["  ENDPROC", "ENDMODULE"]
     return {f"{name}.mod": "\n".join(lines) + "\n"}

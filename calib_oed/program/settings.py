@@ -94,6 +94,12 @@ class Handshake:
         if self.routine is not None and not self.routine.isidentifier():
             raise ProgramError("handshake.routine", self.routine, "a routine name must be an identifier")
 
+    @property
+    def signal_names(self) -> tuple[str, str]:
+        """The output's and the input's names (RAPID's signals): ``output_name``/``input_name``,
+        default ``do<output>``/``di<input>``."""
+        return self.output_name or f"do{self.output}", self.input_name or f"di{self.input}"
+
 #: RRT-Connect iterations per blocked move (:func:`calib_oed.program.planner.plan_move`).
 DEFAULT_PLANNER_ITERATIONS = 20_000
 

@@ -12,7 +12,13 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
-from calib_oed.program.format_common import RAD_DECIMALS, header_lines, require_six_axes, steps
+from calib_oed.program.format_common import (
+    RAD_DECIMALS,
+    MeasureWords,
+    header_lines,
+    require_six_axes,
+    steps,
+)
 from calib_oed.program.records import Program
 
 
@@ -30,16 +36,11 @@ def _declarations(program: Program) -> list[str]:
     return out
 
 
-def _measure(program: Program, pose: int) -> list[str]:
-    """The lines at a measurement pose: the dwell, or the handshake (docs/program.md)."""
-    hs = program.handshake
-    if hs is None:
-        return [f"  sleep({program.dwell:.2f})  # measure pose {pose}"]
-    if hs.routine is not None:
-        return [f"  {hs.routine}()  # measure pose {pose}"]
-    return [f"  set_standard_digital_out({hs.output}, True)  # measure pose {pose}",
-            f"  while not get_standard_digital_in({hs.input}):", "    sync()", "  end",
-            f"  set_standard_digital_out({hs.output}, False)"]
+#: The lines at a measurement pose (:class:`~calib_oed.program.format_common.MeasureWords`).
+MEASURE = MeasureWords("  sleep({dwell:.2f})  # measure pose {pose}", "  {routine}()  # measure pose {pose}",
+                       ("  set_standard_digital_out({output}, True)  # measure pose {pose}",
+                        "  while not get_standard_digital_in({input}):", "    sync()", "  end",
+                        "  set_standard_digital_out({output}, False)"))
 
 
 def write_urscript(program: Program, name: str) -> dict[str, str]:
@@ -58,7 +59,7 @@ def write_urscript(program: Program, name: str) -> dict[str, str]:
         timed = f", t={step.time:.3f}" if step.time and step.time >= 1e-3 else ""
         lines.append(f"  movej([{values}], a={acceleration:.4f}, v={velocity:.4f}{timed})")
         if step.kind == "pose":
-            lines += _measure(program, step.pose)
+            lines += MEASURE.compute_lines(program, step.pose)
     lines.append("end")
     lines.append(f"{name}()")
     return {f"{name}.script": "\n".join(lines) + "\n"}

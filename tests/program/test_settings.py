@@ -56,6 +56,9 @@ def test_handshake_block(kr16_scene):
     assert read({"output": 1, "input": 2}).handshake == Handshake(output=1, input=2)
     assert read({"routine": "measure"}).handshake == Handshake(routine="measure")
     assert ProgramSettings().handshake is None
+    assert Handshake(output=1, input=2).signal_names == ("do1", "di2")
+    named = read({"output": 1, "input": 2, "output_name": "doMeasure", "input_name": "diDone"}).handshake
+    assert named.signal_names == ("doMeasure", "diDone")
     for bad in ({"output": 1}, {"output": 1, "input": 2, "routine": "x"}, {"routine": "a b"},
                 {"output": -1, "input": 2}, {"signal": 1}):
         with pytest.raises(SceneError, match="program.handshake"):
