@@ -133,11 +133,14 @@ class HalfSpace:
         return np.asarray(points) @ self.normal - self.offset
 
 
-def _check_placement(solid, what: str) -> None:
-    """Check and set a placed solid's ``center``, ``rotation`` and ``ignore_links`` (frozen record)."""
+def _check_placement(solid, kind: str) -> str:
+    """Check and set a placed solid's ``center``, ``rotation`` and ``ignore_links`` (frozen record);
+    returns its label in messages, ``kind`` and name (``box 'car'``)."""
+    what = f"{kind} {solid.name!r}"
     object.__setattr__(solid, "center", finite_vector(solid.center, f"{what} center", 3))
     object.__setattr__(solid, "rotation", _rotation(solid.rotation, f"{what} rotation"))
     object.__setattr__(solid, "ignore_links", _links(solid.ignore_links, what))
+    return what
 
 
 @dataclass(frozen=True, eq=False)
@@ -159,8 +162,7 @@ class Box:
     ignore_links: tuple[str, ...] = ()
 
     def __post_init__(self):
-        what = f"box {self.name!r}"
-        _check_placement(self, what)
+        what = _check_placement(self, "box")
         object.__setattr__(self, "size", finite_vector(self.size, f"{what} size", 3))
         if np.any(self.size <= 0):
             raise ValueError(f"{what}: size must be > 0 [m] along x, y, z, got {self.size.tolist()}")
@@ -192,8 +194,7 @@ class Cylinder:
     ignore_links: tuple[str, ...] = ()
 
     def __post_init__(self):
-        what = f"cylinder {self.name!r}"
-        _check_placement(self, what)
+        what = _check_placement(self, "cylinder")
         object.__setattr__(self, "radius", _positive(self.radius, f"{what}: radius"))
         object.__setattr__(self, "length", _positive(self.length, f"{what}: length"))
 
