@@ -30,6 +30,8 @@ from calib_oed.cli._common import (
     _position_tol_mm,
     _positive_int,
     _seed,
+    add_command,
+    add_json_quiet,
 )
 from calib_oed.cli._contract import (
     EXIT_INTERRUPTED,
@@ -77,13 +79,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--debug", action="store_true", help="show tracebacks on errors")
     sub = parser.add_subparsers(dest="command", required=True)
 
-    p = sub.add_parser("identifiability", help="which parameters are identifiable; KPI estimability")
-    p.add_argument("scene", help="shipped scene name or scene file path")
-    p.add_argument("--json", action="store_true", help="machine-readable output")
-    p.set_defaults(func=cmd_identifiability)
-
-    def scene_arg(p):
-        p.add_argument("scene", help="shipped scene name or scene file path")
+    p = add_command(sub, "identifiability", cmd_identifiability, "which parameters are identifiable; KPI estimability")
+    add_json_quiet(p)
 
     def design_args(p, positional=True):
         if positional:
@@ -95,8 +92,8 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("-n", type=_pose_count, default=60, help="random feasible poses (default 60)")
         p.add_argument("--seed", type=_seed, default=0, help="seed of the random design (default 0)")
 
-    p = sub.add_parser("demo", help="the whole job on a scene: design, simulated calibration, "
-                       "export, Monte Carlo")
+    p = add_command(sub, "demo", cmd_demo, "the whole job on a scene: design, simulated calibration, "
+                    "export, Monte Carlo", scene=False, outputs={"output": "dir"})
     p.add_argument("scene", nargs="?", default=DEFAULT_SCENE, help=f"default {DEFAULT_SCENE}")
     design_args(p, positional=False)
     p.add_argument("--truth-seed", type=_seed, default=1, help="seed of the simulated robot (default 1)")
@@ -111,13 +108,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help="candidate pool of the designs' exchange start and certificate (default 3000)")
     p.add_argument("--iterations", type=_positive_int, help="limit the SQP iterations")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
-    p.set_defaults(func=cmd_demo, outputs={"output": "dir"})
 
     from calib_oed.oed.criteria import CRITERIA
 
-    p = sub.add_parser("design", help="optimal measurement configurations: exchange start on a "
-                       "feasible pool, SQP refinement, efficiency against a certified bound")
-    scene_arg(p)
+    p = add_command(sub, "design", cmd_design, "optimal measurement configurations: exchange start on a "
+                    "feasible pool, SQP refinement, efficiency against a certified bound",
+                    outputs={"output": "dir"})
     p.add_argument("-n", type=_pose_count, help="number of measurements (default 60, or the rows "
                    "of a --start design file)")
     p.add_argument("--criterion", default=None, choices=CRITERIA,
@@ -166,12 +162,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", metavar="DIR", help="write DIR/design.yaml, DIR/design.csv and DIR/timing.yaml (the run's times)")
     p.add_argument("--controller", action="store_true", help="also write DIR/design_controller.csv "
                    "in the controller's joint values and angle unit (the scene's controller: block)")
-    p.add_argument("--json", action="store_true", help="machine-readable output")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
-    p.set_defaults(func=cmd_design, outputs={"output": "dir"})
+    add_json_quiet(p, "no progress bar")
 
-    p = sub.add_parser("evaluate", help="KPI sigma, criterion values, margins and mesh check of a design")
-    scene_arg(p)
+    p = add_command(sub, "evaluate", cmd_evaluate, "KPI sigma, criterion values, margins and mesh check of a design",
+                    outputs={"plot": "dir"})
     p.add_argument("design", metavar="DESIGN", help="design file: DIR/design.yaml or a CSV")
     p.add_argument("--criterion", default="kpi", choices=CRITERIA, help="criterion of the "
                    "contribution plot (default kpi); all criterion values are always reported")
@@ -186,27 +180,22 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--pool", type=_positive_int, default=3000,
                    help="feasible candidate poses of the certificate (default 3000)")
     p.add_argument("--seed", type=_seed, default=0, help="seed of the certificate's pool (default 0)")
-    p.add_argument("--json", action="store_true", help="machine-readable output")
-    p.add_argument("--quiet", action="store_true", help="no progress bars")
-    p.set_defaults(func=cmd_evaluate, outputs={"plot": "dir"})
+    add_json_quiet(p, "no progress bars")
 
-    p = sub.add_parser("compare", help="designs side by side: KPI variance, criteria, feasibility")
-    scene_arg(p)
+    p = add_command(sub, "compare", cmd_compare, "designs side by side: KPI variance, criteria, feasibility",
+                    outputs={"plot": "file"})
     p.add_argument("designs", nargs="+", metavar="DESIGN", help="design files (design.yaml or CSV)")
     p.add_argument("--plot", metavar="FILE", help="write the 95 %% KPI ellipsoid projections "
                    "(.png, .svg or .pdf)")
-    p.add_argument("--json", action="store_true", help="machine-readable output")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
-    p.set_defaults(func=cmd_compare, outputs={"plot": "file"})
+    add_json_quiet(p, "no progress bar")
 
-    p = sub.add_parser("validate", help="residuals of a calibration on separate validation measurements")
-    scene_arg(p)
+    p = add_command(sub, "validate", cmd_validate, "residuals of a calibration on separate validation measurements")
     p.add_argument("calibrated", metavar="CALIBRATED", help="the folder `identify -o DIR` wrote "
                    "(calibrated URDF and sensor YAML), or its URDF")
     p.add_argument("measurements", help="validation measurement CSV (docs/data_format.md)")
     p.add_argument("--length-unit", choices=("m", "mm"), help="if the file states no units")
     p.add_argument("--angle-unit", choices=("rad", "deg"), help="if the file states no units")
-    p.add_argument("--json", action="store_true", help="machine-readable output")
+    add_json_quiet(p)
     p.add_argument("--max-rms", type=float, metavar="MM", help="tolerance: fail (exit 3) above "
                    "this calibrated RMS position error [mm]")
     p.add_argument("--max-error", type=float, metavar="MM", help="tolerance: fail (exit 3) when "
@@ -215,10 +204,9 @@ def build_parser() -> argparse.ArgumentParser:
                    "(from identification.json) to the calibrated predictions")
     p.add_argument("--max-registration-rms", type=float, default=10.0, metavar="MM",
                    help="stop (exit 2) when the tracker pose fitted alone leaves more [mm] (default 10)")
-    p.set_defaults(func=cmd_validate)
 
-    p = sub.add_parser("view", help="the scene and a design in the browser (meshcat), or a static HTML")
-    scene_arg(p)
+    p = add_command(sub, "view", cmd_view, "the scene and a design in the browser (meshcat), or a static HTML",
+                    outputs={"html": "file"})
     p.add_argument("design", nargs="?", metavar="DESIGN", help="design file (design.yaml or CSV); "
                    "default: the scene alone")
     p.add_argument("--html", metavar="FILE", help="write a self-contained HTML page instead of serving")
@@ -233,18 +221,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--program", metavar="DIR", help="animate the measurement program written by "
                    "`calib-oed program SCENE DESIGN --format csv -o DIR` (its CSV, or the CSV file)")
     p.add_argument("--json", action="store_true", help="machine-readable output (with --html)")
-    p.set_defaults(func=cmd_view, outputs={"html": "file"})
 
-    p = sub.add_parser("feasibility", help="constraint pairs, a feasible design, margins, mesh check")
-    scene_arg(p)
+    p = add_command(sub, "feasibility", cmd_feasibility, "constraint pairs, a feasible design, margins, mesh check",
+                    outputs={"output": "file"})
     design_args(p)
     p.add_argument("-o", "--output", metavar="CSV", help="write the design (joint names, rad)")
     p.add_argument("--no-mesh-check", action="store_true", help="skip the URDF mesh check")
-    p.add_argument("--json", action="store_true", help="machine-readable output")
-    p.set_defaults(func=cmd_feasibility, outputs={"output": "file"})
+    add_json_quiet(p)
 
-    p = sub.add_parser("simulate", help="simulated tracker measurements of a random true robot")
-    scene_arg(p)
+    p = add_command(sub, "simulate", cmd_simulate, "simulated tracker measurements of a random true robot",
+                    outputs={"output": "file", "truth": "file"})
     design_args(p)
     p.add_argument("--truth-seed", type=_seed, default=1, help="seed of the simulated robot (default 1)")
     p.add_argument("-o", "--output", required=True, metavar="CSV", help="measurement file to write")
@@ -262,12 +248,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--thermal", action="store_true", help="with --realistic: add thermal drift")
     p.add_argument("--gross-errors", type=_non_negative_int, default=None, metavar="K",
                    help="with --realistic: K measurements with a 5 mm gross error")
-    p.add_argument("--json", action="store_true", help="machine-readable output")
-    p.add_argument("--quiet", action="store_true", help="print nothing")
-    p.set_defaults(func=cmd_simulate, outputs={"output": "file", "truth": "file"})
+    add_json_quiet(p, "print nothing")
 
-    p = sub.add_parser("identify", help="identify the parameters from a measurement file")
-    scene_arg(p)
+    p = add_command(sub, "identify", cmd_identify, "identify the parameters from a measurement file",
+                    outputs={"output": "dir", "plot": "file", "adopt_registration": "file"})
     p.add_argument("measurements", help="measurement CSV (docs/data_format.md)")
     p.add_argument("-o", "--output", metavar="DIR", help="write calibrated URDF, sensor YAML, report")
     p.add_argument("--loss", default="robust", choices=("robust", "linear"),
@@ -287,20 +271,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--adopt-registration", metavar="SCENE_FILE", help="fit the tracker pose and the "
                    "reflector offsets to the measurements, write the scene with them to SCENE_FILE "
                    "and identify with it")
-    p.add_argument("--json", action="store_true", help="machine-readable output")
-    p.set_defaults(func=cmd_identify, outputs={"output": "dir", "plot": "file", "adopt_registration": "file"})
+    add_json_quiet(p)
 
-    p = sub.add_parser("montecarlo", help="simulated calibrations against the predicted KPI covariance")
-    scene_arg(p)
+    p = add_command(sub, "montecarlo", cmd_montecarlo, "simulated calibrations against the predicted KPI covariance")
     design_args(p)
     p.add_argument("-N", "--runs", type=_positive_int, default=500, help="runs (default 500)")
     p.add_argument("--mc-seed", type=_seed, default=0, help="Monte Carlo seed (default 0)")
     p.add_argument("--jobs", type=_positive_int, default=2, help="parallel workers (default 2)")
-    p.add_argument("--json", action="store_true", help="machine-readable output")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
-    p.set_defaults(func=cmd_montecarlo)
+    add_json_quiet(p, "no progress bar")
 
-    p = sub.add_parser("study", help="a study over robots, scenes, criteria and seeds (the paper's tables)")
+    p = add_command(sub, "study", cmd_study, "a study over robots, scenes, criteria and seeds (the paper's tables)",
+                    scene=False, outputs={"output": "dir"})
     p.add_argument("config", metavar="CONFIG", help="study file (YAML), or a shipped study: "
                    "kuka, notional90, smoke")
     p.add_argument("-o", "--output", required=True, metavar="DIR",
@@ -310,13 +291,10 @@ def build_parser() -> argparse.ArgumentParser:
                    "(needs the calib_oed[dask] extra)")
     p.add_argument("--no-report", action="store_true", help="skip DIR/report.md and the figures")
     p.add_argument("--no-figures", action="store_true", help="report without figures")
-    p.add_argument("--json", action="store_true", help="machine-readable output")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
-    p.set_defaults(func=cmd_study, outputs={"output": "dir"})
+    add_json_quiet(p, "no progress bar")
 
-    p = sub.add_parser("sequential", help="sequential calibration of a simulated robot to a KPI "
-                       "precision target, next to fixed and heuristic designs")
-    scene_arg(p)
+    p = add_command(sub, "sequential", cmd_sequential, "sequential calibration of a simulated robot to a KPI "
+                    "precision target, next to fixed and heuristic designs", outputs={"output": "dir"})
     p.add_argument("--target-sigma", required=True, type=_length_mm, metavar="LENGTH",
                    help="stop when every working configuration's predicted KPI sigma is at most this: "
                    "0.02mm, 20um or 0.02 (mm)")
@@ -350,21 +328,17 @@ def build_parser() -> argparse.ArgumentParser:
                    "parameters up to --max-measurements (default 5)")
     p.add_argument("--iterations", type=_positive_int, help="limit the SQP iterations of every design")
     p.add_argument("-o", "--output", metavar="DIR", help="write DIR/measured.csv and DIR/sequential.json")
-    p.add_argument("--json", action="store_true", help="machine-readable output")
-    p.add_argument("--quiet", action="store_true", help="no progress lines")
-    p.set_defaults(func=cmd_sequential, outputs={"output": "dir"})
+    add_json_quiet(p, "no progress lines")
 
     add_program_parser(sub)
     add_compensate_parser(sub)
     add_import_parser(sub)
     add_table_parser(sub)
 
-    p = sub.add_parser("scenes", help="list the shipped scenes")
-    p.add_argument("--json", action="store_true", help="machine-readable output")
-    p.set_defaults(func=cmd_scenes)
-    p = sub.add_parser("robots", help="list the robots loadable by name")
-    p.add_argument("--json", action="store_true", help="machine-readable output")
-    p.set_defaults(func=cmd_robots)
+    p = add_command(sub, "scenes", cmd_scenes, "list the shipped scenes", scene=False)
+    add_json_quiet(p)
+    p = add_command(sub, "robots", cmd_robots, "list the robots loadable by name", scene=False)
+    add_json_quiet(p)
     for p in sub.choices.values():  # --quiet wherever --json is accepted
         dests = {a.dest for a in p._actions}
         if "json" in dests and "quiet" not in dests:

@@ -35,6 +35,26 @@ DEFAULT_SCENE = "fms_kr16"
 MAX_POSES = 10_000
 
 
+def add_command(sub, name: str, func, help: str, *, scene: bool = True,
+                outputs: dict[str, str] | None = None) -> argparse.ArgumentParser:
+    """The parser of subcommand ``name``, run by ``func(args)``; its first argument the
+    positional SCENE unless ``scene`` is False. ``outputs`` ``{dest: "file" | "dir"}`` names
+    the paths it writes, checked before any work (:func:`calib_oed.cli._contract.check_outputs`)."""
+    p = sub.add_parser(name, help=help)
+    p.set_defaults(func=func, **({} if outputs is None else {"outputs": outputs}))
+    if scene:
+        p.add_argument("scene", help="shipped scene name or scene file path")
+    return p
+
+
+def add_json_quiet(p: argparse.ArgumentParser, quiet: str | None = None) -> None:
+    """``--json`` (machine-readable output) and, when ``quiet`` says what it silences, ``--quiet``
+    (without it, ``build_parser`` adds a generic ``--quiet`` last)."""
+    p.add_argument("--json", action="store_true", help="machine-readable output")
+    if quiet is not None:
+        p.add_argument("--quiet", action="store_true", help=quiet)
+
+
 def _integer(text: str, what: str) -> int:
     try:
         return int(text)

@@ -5,15 +5,14 @@ from __future__ import annotations
 
 import json
 
-from calib_oed.cli._common import EXIT_OK, _say, _setup
+from calib_oed.cli._common import EXIT_OK, _say, _setup, add_command, add_json_quiet
 from calib_oed.cli.checks import ArgumentError
 
 
 def add_import_parser(sub) -> None:
     """Register ``calib-oed import SCENE EXPORT -o CSV [--layout] [--design] [--smrs] [--columns]``."""
-    p = sub.add_parser("import", help="a laser tracker's export (a pose array or a point export) "
-                       "into a measurement file for identify")
-    p.add_argument("scene", help="shipped scene name or scene file path")
+    p = add_command(sub, "import", cmd_import, "a laser tracker's export (a pose array or a point export) "
+                    "into a measurement file for identify", outputs={"output": "file"})
     p.add_argument("export", metavar="EXPORT", help="the tracker's export file")
     p.add_argument("-o", "--output", required=True, metavar="CSV", help="measurement file to write")
     p.add_argument("--layout", default="auto", choices=("auto", "poses", "points"),
@@ -37,9 +36,7 @@ def add_import_parser(sub) -> None:
     p.add_argument("--joints", choices=("controller", "urdf"), help="poses: the joint values are the "
                    "controller's (mapped by the scene's controller: block) or URDF joint values (default: "
                    "controller when the scene has the block, else urdf)")
-    p.add_argument("--json", action="store_true", help="machine-readable output")
-    p.add_argument("--quiet", action="store_true", help="print nothing")
-    p.set_defaults(func=cmd_import, outputs={"output": "file"})
+    add_json_quiet(p, "print nothing")
 
 
 def _pairs(text: str, option: str) -> dict[str, str]:

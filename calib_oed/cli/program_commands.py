@@ -7,7 +7,7 @@ import json
 
 import numpy as np
 
-from calib_oed.cli._common import EXIT_OK, _say
+from calib_oed.cli._common import EXIT_OK, _say, add_command, add_json_quiet
 from calib_oed.exceptions import ProgramError
 
 #: Formats of ``--format`` (those of :data:`calib_oed.program.formats.FORMATS`).
@@ -16,9 +16,8 @@ FORMAT_CHOICES = ("krl", "rapid", "tp", "urscript", "csv")
 
 def add_program_parser(sub) -> None:
     """Register ``calib-oed program SCENE DESIGN [--format F] [--home Q] [-o DIR]``."""
-    p = sub.add_parser("program", help="an ordered, collision-checked measurement program "
-                       "(KUKA KRL, ABB RAPID, FANUC TP, URScript or CSV)")
-    p.add_argument("scene", help="shipped scene name or scene file path")
+    p = add_command(sub, "program", cmd_program, "an ordered, collision-checked measurement program "
+                    "(KUKA KRL, ABB RAPID, FANUC TP, URScript or CSV)", outputs={"output": "dir"})
     p.add_argument("design", metavar="DESIGN", help="design file: DIR/design.yaml or a CSV")
     p.add_argument("--format", default="csv", choices=FORMAT_CHOICES,
                    help="controller language of the program (default csv)")
@@ -38,9 +37,7 @@ def add_program_parser(sub) -> None:
     p.add_argument("--name", default="calib_program", help="program/module name (default "
                    "calib_program)")
     p.add_argument("-o", "--output", metavar="DIR", help="write the program files into DIR")
-    p.add_argument("--json", action="store_true", help="machine-readable output")
-    p.add_argument("--quiet", action="store_true", help="no progress lines")
-    p.set_defaults(func=cmd_program, outputs={"output": "dir"})
+    add_json_quiet(p, "no progress lines")
 
 
 def _home(text: str | None, robot) -> np.ndarray | None:

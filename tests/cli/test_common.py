@@ -1,10 +1,13 @@
-"""Model flags shared by the commands (cli/_common.py): ``--joint-gains`` like ``--compliance``."""
+"""What the commands share (cli/_common.py): the parser of a subcommand, ``--json``/``--quiet``, and
+the model flags (``--joint-gains`` like ``--compliance``)."""
 
 from __future__ import annotations
 
+import argparse
 import json
 
 from calib_oed.cli import EXIT_OK, main
+from calib_oed.cli._common import add_command, add_json_quiet
 
 
 def _extra_parameters(capsys, *flags) -> list[str]:
@@ -21,3 +24,14 @@ def test_joint_gains_flag_models_the_gains_of_the_joints_named(capsys):
     assert _extra_parameters(capsys, "--joint-gains", "2,3") == ["joint2.gain", "joint3.gain"]
     both = _extra_parameters(capsys, "--joint-gains=5", "--compliance")
     assert "joint5.gain" in both and "joint2.c" in both and "joint1.gain" not in both
+
+
+def test_add_command_declares_scene_function_and_outputs():
+    sub = argparse.ArgumentParser().add_subparsers(dest="command")
+    p = add_command(sub, "write", len, "writes", outputs={"output": "dir"})
+    add_json_quiet(p, "print nothing")
+    args = p.parse_args(["cell.yaml", "--json"])
+    assert (args.scene, args.func, args.outputs, args.json, args.quiet) == ("cell.yaml", len, {"output": "dir"}, True, False)
+    bare = add_command(sub, "list", len, "lists", scene=False)
+    add_json_quiet(bare)
+    assert vars(bare.parse_args([])) == {"func": len, "json": False}
