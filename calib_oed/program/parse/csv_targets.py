@@ -12,7 +12,8 @@ from __future__ import annotations
 
 from calib_oed.exceptions import ProgramError
 from calib_oed.program.parse.poses import from_euler_mm_deg, in_order, to_euler_mm_deg
-from calib_oed.program.parse.targets import Language, Number, ParsedProgram, Target
+from calib_oed.program.parse.scan import Number
+from calib_oed.program.parse.targets import Language, ParsedProgram, Target
 
 POSE_COLUMNS = ("x_mm", "y_mm", "z_mm", "rx_deg", "ry_deg", "rz_deg")
 

@@ -30,15 +30,8 @@ import textwrap
 
 from calib_oed.exceptions import ProgramError
 from calib_oed.program.parse.poses import from_euler_mm_deg, in_order, to_euler_mm_deg
-from calib_oed.program.parse.targets import (
-    NUMBER,
-    Language,
-    Number,
-    ParsedProgram,
-    Target,
-    line_of,
-    skipped_move,
-)
+from calib_oed.program.parse.scan import NUMBER, Number, line_of, skipped_move
+from calib_oed.program.parse.targets import Language, ParsedProgram, Target
 
 _POS = re.compile(r"^[ \t]*P\[(\d+)(?::[^\]]*)?\][ \t]*\{", re.MULTILINE)
 _GP1 = re.compile(r"GP1[ \t]*:")

@@ -32,16 +32,8 @@ import pinocchio as pin
 
 from calib_oed.exceptions import ProgramError
 from calib_oed.program.parse.poses import from_euler_mm_deg, to_euler_mm_deg
-from calib_oed.program.parse.targets import (
-    NUMBER,
-    Language,
-    Number,
-    ParsedProgram,
-    Target,
-    indent_of,
-    line_of,
-    skipped_move,
-)
+from calib_oed.program.parse.scan import NUMBER, Number, line_of, skipped_move
+from calib_oed.program.parse.targets import Language, ParsedProgram, target_at
 
 _AGG = re.compile(r"\{([^{}]*)\}")
 _COMP = re.compile(rf"(?<![\w$])(A[1-6]|[XYZABCST])\s+({NUMBER})")
@@ -145,9 +137,8 @@ def parse(texts: dict[str, str]) -> ParsedProgram:
             if decl is not None and (kind == "joint") != decl.endswith("AXIS"):
                 raise ProgramError("program", file, f"{name}: a {decl} holds {kind} values")
             end = _AGG.match(text, brace).end()
-            targets.append(Target(what, kind, file, line_of(text, end), tuple(comps.values()),
-                                  indent_of(text, brace),
-                                  declared=_status(text, brace) if kind == "pose" else ()))
+            targets.append(target_at(text, brace, end, what, kind, file, comps.values(),
+                                     declared=_status(text, brace) if kind == "pose" else ()))
         for m in _FRAME.finditer(text):
             kind, comps = _aggregate(text, m.end() - 1, f"${m.group(1)}", file)
             if kind != "pose":

@@ -31,16 +31,8 @@ import pinocchio as pin
 
 from calib_oed.exceptions import ProgramError
 from calib_oed.program.parse.poses import from_quaternion_mm, in_order, to_quaternion_mm
-from calib_oed.program.parse.targets import (
-    Language,
-    ParsedProgram,
-    Target,
-    argument_starts,
-    indent_of,
-    line_of,
-    numbers_in,
-    skipped_move,
-)
+from calib_oed.program.parse.scan import argument_starts, line_of, numbers_in, skipped_move
+from calib_oed.program.parse.targets import Language, ParsedProgram, Target, target_at
 
 _DECL = re.compile(r"^[ \t]*(?:LOCAL[ \t]+|TASK[ \t]+)?(?:CONST|PERS|VAR)[ \t]+(jointtarget|robtarget|tooldata|wobjdata)"
                    r"[ \t]+(\w+)[ \t]*:=[ \t]*\[", re.IGNORECASE | re.MULTILINE)
@@ -92,8 +84,8 @@ def _target(text, start, file, name, kind) -> Target:
         if len(nums) != 7:
             raise ProgramError("program", file, f"{name}: a robtarget needs [[x, y, z], [q1, q2, q3, q4], ...]")
     end = text.find(";", _bracket_end(text, start, file))
-    return Target(name, kind, file, line_of(text, end if end >= 0 else start), tuple(nums), indent_of(text, start),
-                  declared=_confdata(text, groups, file, name) if kind == "pose" else ())
+    return target_at(text, start, end if end >= 0 else start, name, kind, file, nums,
+                     declared=_confdata(text, groups, file, name) if kind == "pose" else ())
 
 
 def _confdata(text: str, groups: list[tuple[int, int]], file: str, name: str) -> tuple[tuple[str, int], ...]:

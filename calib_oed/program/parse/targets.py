@@ -9,7 +9,6 @@ target (the language's :attr:`Language.comment`); every other byte stays.
 
 from __future__ import annotations
 
-import re
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -17,22 +16,7 @@ import numpy as np
 import pinocchio as pin
 
 from calib_oed.exceptions import ProgramError
-
-#: A decimal number as the controller languages write them (no exponent in target values).
-NUMBER = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
-
-
-@dataclass(frozen=True)
-class Number:
-    """A number in a file: its span ``[start, end)`` and its text."""
-
-    start: int
-    end: int
-    text: str
-
-    @property
-    def value(self) -> float:
-        return float(self.text)
+from calib_oed.program.parse.scan import Number, indent_of, line_of
 
 
 @dataclass(frozen=True)
@@ -113,57 +97,11 @@ class ParsedProgram:
     notes: tuple[str, ...] = field(default=())
 
 
-def numbers_in(text: str, start: int, end: int) -> list[Number]:
-    """The numbers of ``text[start:end]`` (not digits inside names such as ``A1``), spans in ``text``."""
-    return [Number(start + m.start(), start + m.end(), m.group())
-            for m in re.finditer(rf"(?<![\w.]){NUMBER}", text[start:end])]
-
-
-_LINE_STARTS: dict[int, tuple[str, np.ndarray]] = {}
-
-
-def argument_starts(text: str, start: int, end: str, skip: str | None = None) -> list[int]:
-    """Where each top-level, comma-separated argument from ``start`` to the closing ``end``
-    begins; arguments that open with ``skip`` are left out."""
-    args, depth, begin = [], 0, start
-    for k in range(start, len(text)):
-        c = text[k]
-        if depth == 0 and c in "," + end:
-            at = begin + len(text[begin:k]) - len(text[begin:k].lstrip())
-            if skip is None or not text.startswith(skip, at):
-                args.append(at)
-            begin = k + 1
-            if c == end:
-                break
-        depth += (c in "([") - (c in ")]")
-    return args
-
-
-def line_of(text: str, pos: int) -> int:
-    """0-based line index of character ``pos`` (line starts indexed once per text)."""
-    cached = _LINE_STARTS.get(id(text))
-    if cached is None or cached[0] is not text:
-        starts = np.array([0] + [m.end() for m in re.finditer("\n", text)])
-        _LINE_STARTS.clear()
-        _LINE_STARTS[id(text)] = cached = (text, starts)
-    return int(np.searchsorted(cached[1], pos, side="right") - 1)
-
-
-def skipped_move(file: str, text: str, pos: int, why: str) -> str:
-    """The note naming a move whose target the parser does not read, so it is left as written:
-    ``file:line: <the move's line>: NOT compensated: why`` (``pos``: a character of the move)."""
-    line = line_of(text, pos)
-    start = text.rfind("\n", 0, pos) + 1
-    end = text.find("\n", start)
-    code = " ".join(text[start:end if end >= 0 else len(text)].split())
-    code = code if len(code) <= 60 else code[:57] + "..."
-    return f"{file}:{line + 1}: {code}: NOT compensated: {why}"
-
-
-def indent_of(text: str, pos: int) -> str:
-    start = text.rfind("\n", 0, pos) + 1
-    line = text[start:pos]
-    return line[: len(line) - len(line.lstrip())]
+def target_at(text: str, start: int, end: int, name: str, kind: str, file: str, numbers,
+              declared: tuple[tuple[str, int], ...] = ()) -> Target:
+    """The target whose literal opens at character ``start`` of ``text`` and whose statement
+    ends at ``end``: its comment goes after the line of ``end``, indented as the line of ``start``."""
+    return Target(name, kind, file, line_of(text, end), tuple(numbers), indent_of(text, start), declared=declared)
 
 
 def format_number(value: float, original: str, decimals: int) -> str:
@@ -229,5 +167,4 @@ def insert_after_lines(text: str, comments: list[tuple[int, str]]) -> str:
     return "".join(out)
 
 
-__all__ = ["NUMBER", "Language", "Number", "ParsedProgram", "Target", "argument_starts", "format_number", "indent_of",
-           "insert_after_lines", "line_of", "numbers_in", "rewrite", "skipped_move"]
+__all__ = ["Language", "ParsedProgram", "Target", "format_number", "insert_after_lines", "rewrite", "target_at"]

@@ -19,16 +19,8 @@ import re
 
 from calib_oed.exceptions import ProgramError
 from calib_oed.program.parse.poses import from_rotvec_m, in_order, to_rotvec_m
-from calib_oed.program.parse.targets import (
-    Language,
-    ParsedProgram,
-    Target,
-    argument_starts,
-    indent_of,
-    line_of,
-    numbers_in,
-    skipped_move,
-)
+from calib_oed.program.parse.scan import argument_starts, line_of, numbers_in, skipped_move
+from calib_oed.program.parse.targets import Language, ParsedProgram, Target, target_at
 
 _MOVE = re.compile(r"\b(movej|movel|movep|movec|servoj|servoc)[ \t]*\(")
 _ASSIGN = re.compile(r"^[ \t]*(?:global[ \t]+|local[ \t]+)?(\w+)[ \t]*=[ \t]*(p?)\[", re.MULTILINE)
@@ -69,7 +61,7 @@ def _literal(text: str, bracket: int, file: str, name: str, pose: bool) -> Targe
     if len(nums) != 6:
         raise ProgramError("program", file, f"{name}: {'p[x, y, z, rx, ry, rz]' if pose else '[q1..q6]'} "
                            f"needs 6 numbers, has {len(nums)}")
-    return Target(name, "pose" if pose else "joint", file, line_of(text, end), tuple(nums), indent_of(text, bracket))
+    return target_at(text, bracket, end, name, "pose" if pose else "joint", file, nums)
 
 
 def parse(texts: dict[str, str]) -> ParsedProgram:
