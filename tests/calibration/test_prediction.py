@@ -100,7 +100,7 @@ def test_pose_scaled_prediction_follows_the_pose_against_monte_carlo(fms):
     pooled = np.sqrt(sums["scaled"][:, 1].sum() / sums["scaled"][:, 0].sum())
     assert abs(pooled - 1) < 0.1 and np.all(np.abs(ratio["scaled"] - 1) < 0.15), (pooled, ratio)
     assert abs(sums["scaled"][:, 2].sum() / n - 0.95) < 0.025, sums["scaled"][:, 2].sum() / n
-    assert ratio["stationary"][0] > 1.2 and ratio["stationary"][2] < 0.85, ratio
+    assert ratio["stationary"][0] > 1.2 and ratio["stationary"][2] < 0.9, ratio
 
 
 @pytest.mark.slow  # (the realistic simulator's test_trust.py covers fitted hyperparameters fast)
