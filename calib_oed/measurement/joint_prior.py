@@ -46,7 +46,9 @@ class of the arm's URDF mass and the published magnitudes of
 :mod:`calib_oed.model.size_class` (the same sources as the realistic simulator):
 transmission error RMS 21 and 11 arcsec (30 and 15 arcsec amplitude), a smooth part of 10 arcsec
 with :data:`SMOOTH_LENGTH`, gain errors 5e-5, compliance :math:`\gamma_k = 1/k_k` (the class's
-typical stiffness) with the scene's payload.
+typical stiffness) with the scene's payload; J2's times :math:`1 - b`, :math:`b` the class's
+``balancer_fraction`` (medium and large arms carry a J2 spring balancer that takes that share of
+the joint's gravity torque, as in the realistic simulator; small arms have none, :math:`b = 0`).
 """
 
 from __future__ import annotations
@@ -117,11 +119,13 @@ class JointErrorPrior:
         model = robot.model
         mass = arm_mass(model)
         size = size_class_of(mass)
-        stiffness = per_joint(TYPICAL[size].stiffness, model.nv)
+        compliance = 1.0 / per_joint(TYPICAL[size].stiffness, model.nv)
+        if model.nv >= 2:  # the J2 balancer carries its share of J2's gravity torque
+            compliance[1] *= 1.0 - TYPICAL[size].balancer_fraction
         gravity = GravityLoad(model, robot.tool_frame_id, payload if payload is not None else Compliance())
         nq = model.nq
         return cls(np.full(nq, PERIODIC_RMS[0]), np.full(nq, PERIODIC_RMS[1]), np.full(nq, SMOOTH_SIGMA),
-                   np.full(nq, SMOOTH_LENGTH), np.full(nq, GAIN_SIGMA), 1.0 / stiffness, gravity,
+                   np.full(nq, SMOOTH_LENGTH), np.full(nq, GAIN_SIGMA), compliance, gravity,
                    f"default ({size} arm, {mass:.0f} kg)")
 
     def scaled(self, factor: float) -> JointErrorPrior:

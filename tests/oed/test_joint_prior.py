@@ -17,6 +17,7 @@ from calib_oed.exceptions import DesignError, ParameterError
 from calib_oed.feasibility.sampling import sample_feasible
 from calib_oed.measurement.base import evaluate_setup
 from calib_oed.measurement.joint_prior import JointErrorPrior, point_jacobians
+from calib_oed.model.size_class import TYPICAL
 from calib_oed.oed.model_error import KRIGING, MODEL_ERROR
 from calib_oed.oed.objective import DesignObjective
 
@@ -184,6 +185,15 @@ def test_defaults_per_size_class_and_checks(kr16):
     assert "medium" in kr.source and "small" in ur.source
     assert np.all(kr.compliance < ur.compliance)  # a small arm's joints are softer
     assert kr.to_dict()["kind"] == "joint" and "arcsec" in kr.describe()
+    # J2's compliance: the class's 1/k times 1 - balancer_fraction (medium arm: a balancer; small: none)
+    for prior, size in ((kr, "medium"), (ur, "small")):
+        typical = TYPICAL[size]
+        want = 1.0 / typical.stiffness
+        want[1] *= 1.0 - typical.balancer_fraction
+        np.testing.assert_allclose(prior.compliance, want, rtol=1e-12)
+    assert TYPICAL["medium"].balancer_fraction > 0 and TYPICAL["small"].balancer_fraction == 0
+    assert kr.compliance[1] < 1.0 / TYPICAL["medium"].stiffness[1]  # the balancer lowers J2's
+    assert ur.compliance[1] == 1.0 / TYPICAL["small"].stiffness[1]
     with pytest.raises(ParameterError, match="length"):
         JointErrorPrior(kr.once, kr.twice, kr.smooth, np.zeros(6), kr.gain, kr.compliance, kr.gravity)
     with pytest.raises(ParameterError, match="gravity load"):
