@@ -16,6 +16,8 @@ import os
 import sys
 import traceback
 
+from threadpoolctl import threadpool_limits
+
 from calib_oed.cli._common import (
     COMPLIANCE_COMMANDS,
     DEFAULT_SCENE,
@@ -377,7 +379,10 @@ def main(argv: list[str] | None = None, *, as_command: bool | None = None) -> in
     args.argv = argv
     signals = sigterm_as_interrupt() if as_command else contextlib.nullcontext()
     try:
-        with signals, notes_as_lines():
+        # one BLAS thread for the whole command, not only inside the design driver: what a command
+        # writes after the solve (a design's criterion values, a fit's report) must not depend on
+        # OPENBLAS_NUM_THREADS or the core count (docs/benchmarks.md, "Reproducible designs")
+        with signals, notes_as_lines(), threadpool_limits(limits=1):
             check_outputs(args)  # before any work: a bad path costs nothing
             check_inputs(args)
             _apply_compliance(args)

@@ -13,7 +13,9 @@ from pathlib import Path
 
 import pytest
 import yaml
+from threadpoolctl import threadpool_info, threadpool_limits
 
+from calib_oed import cli
 from calib_oed.oed.result import TIMING_KEYS, split_timing
 
 
@@ -66,3 +68,20 @@ def test_split_timing_keeps_the_structure():
     assert timing == {"seconds": 1.5, "solver": {"times": {"qp": 0.1}, "history": [{"time": 0.2}, {"time": 0.3}]},
                       "certificate": {"cpu_seconds": 4.0}}
     assert not TIMING_KEYS & set(yaml.safe_dump(content).replace(":", " ").split())
+
+
+def test_a_command_runs_with_one_blas_thread(monkeypatch):
+    """What a command writes after its solve must not depend on the caller's thread count, so the
+    whole command runs with one BLAS thread (before, `design fms_kr16_program -n 60` under
+    OPENBLAS_NUM_THREADS=2 wrote a criterion value that differed in its last digit)."""
+    seen = []
+
+    def command(args):
+        seen.append({info["num_threads"] for info in threadpool_info() if info["user_api"] == "blas"})
+        return 0
+
+    monkeypatch.setattr(cli, "cmd_scenes", command)
+    with threadpool_limits(limits=2, user_api="blas"):
+        assert {info["num_threads"] for info in threadpool_info() if info["user_api"] == "blas"} == {2}
+        assert cli.main(["scenes"]) == 0
+    assert seen == [{1}]
