@@ -99,23 +99,31 @@ def gravity_hessians(load, q: np.ndarray) -> np.ndarray:
     return np.einsum("i,x,sixkmp->skmp", mass, g, dd)
 
 
-def kernel_second(prior, q1, q2, grav=None):
+def kernel_second(prior, q1, q2, grav=None, mixed: bool = True):
     r""":math:`\partial^2 k_\kappa/\partial x_m\partial x_p` and :math:`\partial^2 k_\kappa/\partial x_m\partial y_p`
     at :math:`(x, y) = (q_{1a}, q_{2b})`, each (K, n1, n2, nv, nv). ``grav``: (torques at q1, at q2,
-    their derivatives at q1, at q2, second derivatives at q1), or None without a compliance part."""
+    their derivatives at q1, at q2 (unused without ``mixed``), second derivatives at q1), or None
+    without a compliance part. ``mixed`` False: the second is None (not built)."""
     nk = prior.nq
     own = np.moveaxis(prior.compute_own_second(q1, q2), 2, 0)  # (K, n1, n2)
     d11 = np.zeros((nk, len(q1), len(q2), nk, nk))
-    d12 = np.zeros_like(d11)
+    d12 = np.zeros_like(d11) if mixed else None
     idx = np.arange(nk)
     d11[idx, :, :, idx, idx] = own
-    d12[idx, :, :, idx, idx] = -own + (prior.gain**2)[:, None, None]
+    if mixed:
+        d12[idx, :, :, idx, idx] = -own + (prior.gain**2)[:, None, None]
     if grav is not None:
         t1, t2, dt1, dt2, ddt1 = grav
         c2 = (prior.compliance**2)[:, None, None, None, None]
-        d11 += c2 * np.einsum("akmp,bk->kabmp", ddt1, t2)
-        d12 += c2 * np.einsum("akm,bkp->kabmp", dt1, dt2)
+        d11 += _scaled(c2, np.einsum("akmp,bk->kabmp", ddt1, t2))
+        if mixed:
+            d12 += _scaled(c2, np.einsum("akm,bkp->kabmp", dt1, dt2))
     return d11, d12
+
+
+def _scaled(c, a: np.ndarray) -> np.ndarray:
+    """``c * a`` written into ``a`` (the same bits as ``c * a``, no second array of its size)."""
+    return np.multiply(c, a, out=a)
 
 
 def covers(criterion) -> bool:
@@ -206,8 +214,8 @@ def compute_hessian(crit, rows, q, z, d_rows, dd_rows, d_z=None, dd_z=None) -> n
     dk1 = prior.compute_kernel_gradients(q, q, None if grav is None else (tau, tau, dt))
     dkw1 = prior.compute_kernel_gradients(q, crit.working, None if grav is None else (tau, tau_w[0], dt))
     d11, d12 = kernel_second(prior, q, q, None if grav is None else (tau, tau, dt, dt, ddt))
-    d11w = kernel_second(prior, q, crit.working, None if grav is None else
-                         (tau, tau_w[0], dt, np.zeros((len(crit.working), nv, nv)), ddt))[0]
+    d11w = kernel_second(prior, q, crit.working, None if grav is None else (tau, tau_w[0], dt, None, ddt),
+                         mixed=False)[0]
 
     # first derivatives of F, M, Y, V along every direction a = (j, m)
     a_rows = np.moveaxis(d_rows, 3, 1)  # (n, nv, d, nf)
@@ -249,14 +257,18 @@ def compute_hessian(crit, rows, q, z, d_rows, dd_rows, d_z=None, dd_z=None) -> n
     udb_r = np.einsum("jak,jalkp->kjlp", b, w1, optimize=True)  # U with B left, dB right
     udb_l = np.swapaxes(udb_r, 1, 2)
     udbdb = np.einsum("jakm,jalkp->kjlmp", db, w1, optimize=True)
-    pair_h = (np.einsum("kjlmp,kjl->jmlp", d12, ub)
-              + np.einsum("kjlm,kjlp->jmlp", dk1, udb_r)
-              + np.einsum("kjlp,kjlm->jmlp", np.swapaxes(dk1, 1, 2), udb_l)
+    del w1
+    # the 2nd term with (j, m) and (l, p) exchanged is the 3rd (the same products, summed alike)
+    dk_udb = np.einsum("kjlm,kjlp->jmlp", dk1, udb_r)
+    pair_h = (np.einsum("kjlmp,kjl->jmlp", d12, ub) + dk_udb + dk_udb.transpose(2, 3, 0, 1)
               + np.einsum("kjl,kjlmp->jmlp", kk, udbdb))
+    del d12, udbdb, dk_udb
     h += 2.0 * pair_h.reshape(big, big)
+    del pair_h
     uddb = np.einsum("jaib,jakmp,ibk->kjimp", u4, ddb, b, optimize=True)
-    own = (np.einsum("kjimp,kji->jmp", d11, ub) + np.einsum("kjim,kjip->jmp", dk1, udb_l)
-           + np.einsum("kjip,kjim->jmp", dk1, udb_l) + np.einsum("kji,kjimp->jmp", kk, uddb))
+    dk_udb = np.einsum("kjim,kjip->jmp", dk1, udb_l)  # its transpose in (m, p) is the 3rd term
+    own = (np.einsum("kjimp,kji->jmp", d11, ub) + dk_udb
+           + np.swapaxes(dk_udb, 1, 2) + np.einsum("kji,kjimp->jmp", kk, uddb))
     blocks += 2.0 * own
     xwj = np.einsum("jaic,ick->jaik", x_w.reshape(n, d, -1, 3), jw) * _MM
     blocks += (np.einsum("jaik,kjimp,jak->jmp", xwj, d11w, b, optimize=True)
