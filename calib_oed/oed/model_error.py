@@ -235,6 +235,9 @@ class ModelErrorCriterion(Criterion):
             kww = self.prior.compute_kernels(self.working, self.working, tau)  # (nv, t, t)
             k_ww = np.einsum("kii,ick,ick->ic", kww, jw, jw).ravel() * _MM**2  # (3t,) [mm^2]
             object.__setattr__(self, "_joint_work", (jw, tau, k_ww))
+        # the joint-space pieces of the last design (the SQP asks for the gradient and the exact
+        # Hessian at the same configurations): key -> value, keyed on the inputs' exact bytes
+        object.__setattr__(self, "_memo", {})
 
     @property
     def joint_space(self) -> bool:
@@ -269,6 +272,10 @@ class ModelErrorCriterion(Criterion):
             k_w = np.einsum("ji,jac->jaic", kw, z).reshape(n * d, -1)
             return s, k_w, self.prior.smooth_variance * _MM**2, (kq, kw)
         jw, tau_w, k_ww = self._joint_work
+        key = ("covariances", rows.shape, q.dtype.str, q.shape, q.tobytes(), z.dtype.str, z.shape, z.tobytes())
+        hit = self._memo.get(key)
+        if hit is not None and (hit[3][4] is not None or not gradient):  # built with d_jac, or not needed
+            return hit
         jac, d_jac = self.points.compute(q, gradient)  # (n, r, 3, nv), (n, r, 3, nv, nv)
         b = np.einsum("jrxy,jryk->jrxk", z.reshape(n, -1, 3, 3), jac).reshape(n, d, -1)
         grav = self.prior.gravity
@@ -278,7 +285,31 @@ class ModelErrorCriterion(Criterion):
         s = np.einsum("kjl,jak,lbk->jalb", kk, b, b).reshape(n * d, n * d)
         s[np.diag_indices_from(s)] += 1.0
         k_w = np.einsum("kji,jak,ick->jaic", kwk, b, jw).reshape(n * d, -1) * _MM
-        return s, k_w, k_ww, (kk, kwk, b, jac, d_jac, tau)
+        return self._remember(key, (s, k_w, k_ww, (kk, kwk, b, jac, d_jac, tau)))
+
+    def _remember(self, key, value):
+        """``value`` kept under ``key`` in place of the earlier entry of its kind (read-only arrays)."""
+        for old in [k for k in list(self._memo) if k[0] == key[0]]:
+            del self._memo[old]
+        for a in _arrays(value):
+            a.flags.writeable = False
+        self._memo[key] = value
+        return value
+
+    def _kernel_gradients(self, q, tau):
+        r"""The gravity torques' derivatives at ``q`` (n, nv, nv) (None without gravity) and
+        :math:`\partial k_\kappa/\partial q_{1}` at (q, q) and at (q, working) (joint-space prior;
+        ``tau`` the torques at ``q``), for the gradient and the exact Hessian alike."""
+        key = ("kernel_gradients", q.dtype.str, q.shape, q.tobytes())
+        hit = self._memo.get(key)
+        if hit is not None:
+            return hit
+        grav = self.prior.gravity
+        d_tau = None if grav is None else grav.torque_derivatives(q)
+        dk = self.prior.compute_kernel_gradients(q, q, None if grav is None else (tau, tau, d_tau))
+        dkw = self.prior.compute_kernel_gradients(q, self.working, None if grav is None else
+                                                  (tau, self._joint_work[1][0], d_tau))
+        return self._remember(key, (d_tau, dk, dkw))
 
     def _solve(self, rows, q, z, gradient: bool):
         r""":math:`C_{cc}` [mm²] (3t,), and with ``gradient`` the kernels, :math:`V` (m, 3t) and
@@ -350,24 +381,27 @@ class ModelErrorCriterion(Criterion):
         kk, kwk, b, jac, d_jac, tau = kernels
         n, d = b.shape[:2]
         jw = self._joint_work[0]
-        grav = self.prior.gravity
-        d_tau = None if grav is None else grav.torque_derivatives(q)
+        _, dk, dkw = self._kernel_gradients(q, tau)
         ub = np.einsum("jalb,lbk->jalk", u, b)                   # (n, d, n, nv)
         t_s = np.einsum("jalk,jak->kjl", ub, b)
-        grad = 2.0 * np.einsum("kjl,kjlm->jm", t_s, self.prior.compute_kernel_gradients(
-            q, q, None if grav is None else (tau, tau, d_tau)))
+        grad = 2.0 * np.einsum("kjl,kjlm->jm", t_s, dk)
         g_b = 2.0 * np.einsum("jalk,kjl->jak", ub, kk)            # dphi/dB through S
         xw = np.einsum("jaic,ick->jaik", x_w, jw) * _MM          # (n, d, t, nv)
         t_w = np.einsum("jaik,jak->kji", xw, b)
-        tau_w = self._joint_work[1]
-        grad += np.einsum("kji,kjim->jm", t_w, self.prior.compute_kernel_gradients(
-            q, self.working, None if grav is None else (tau, tau_w[0], d_tau)))
+        grad += np.einsum("kji,kjim->jm", t_w, dkw)
         g_b += np.einsum("jaik,kji->jak", xw, kwk)                # dphi/dB through k_w
         zr = z.reshape(n, -1, 3, 3)
         d_b = np.einsum("jrxy,jrykm->jrxkm", zr, d_jac)
         if d_z is not None:
             d_b += np.einsum("jrxym,jryk->jrxkm", d_z.reshape(n, -1, 3, 3, d_z.shape[-1]), jac)
         return grad + np.einsum("jak,jakm->jm", g_b, d_b.reshape(n, d, b.shape[2], -1))
+
+
+def _arrays(value):
+    """The arrays in ``value`` (nested tuples)."""
+    if isinstance(value, np.ndarray):
+        return [value]
+    return [a for v in value for a in _arrays(v)] if isinstance(value, tuple) else []
 
 
 def _cho(m: np.ndarray):

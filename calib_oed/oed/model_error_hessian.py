@@ -208,11 +208,9 @@ def compute_hessian(crit, rows, q, z, d_rows, dd_rows, d_z=None, dd_z=None) -> n
     # kernels and their derivatives
     jw, tau_w, _ = crit._joint_work
     grav = prior.gravity if prior.gravity is not None and np.any(prior.compliance > 0) else None
+    dt, dk1, dkw1 = crit._kernel_gradients(q, tau)
     if grav is not None:
-        dt = grav.torque_derivatives(q)
         ddt = gravity_hessians(grav, q)
-    dk1 = prior.compute_kernel_gradients(q, q, None if grav is None else (tau, tau, dt))
-    dkw1 = prior.compute_kernel_gradients(q, crit.working, None if grav is None else (tau, tau_w[0], dt))
     d11, d12 = kernel_second(prior, q, q, None if grav is None else (tau, tau, dt, dt, ddt))
     d11w = kernel_second(prior, q, crit.working, None if grav is None else (tau, tau_w[0], dt, None, ddt),
                          mixed=False)[0]

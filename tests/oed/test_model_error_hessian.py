@@ -78,3 +78,24 @@ def test_criteria_it_does_not_cover(case):
     assert has_exact_hessian(objective.criterion)
     assert not has_exact_hessian(scene_criterion(s, "kpi_kriging"))
     assert not has_exact_hessian(scene_criterion(s, "kpi_model", s.scene.discrepancy()))  # isotropic
+
+
+def test_pieces_shared_with_the_gradient_change_no_bit(case, monkeypatch):
+    """The Hessian reuses the gradient's covariances and kernel gradients at the same design
+    (kept by the criterion): the same bits as a fresh criterion's, none stale once the design moves."""
+    s, objective, q = case
+    seen = []
+    exact = meh.compute_hessian
+    monkeypatch.setattr(meh, "compute_hessian", lambda *a, **k: seen.append(exact(*a, **k)) or seen[-1])
+    q2 = q.copy()
+    q2[3, 1] += 0.05
+    fresh = DesignObjective(s.problem, scene_criterion(s, "kpi_model"))
+    fresh.compute_hessian(q)  # nothing kept yet: every piece computed here
+    grad_fresh = fresh.compute(q2).gradient  # q2 before q on this one
+    objective.compute(q2)
+    objective.compute(q)  # the gradient at q fills what the Hessian then reuses
+    objective.compute_hessian(q)
+    assert np.array_equal(seen[1], seen[0])
+    assert np.array_equal(objective.compute(q2).gradient, grad_fresh)
+    kept = [v for k, v in objective.criterion._memo.items() if k[0] == "covariances"]
+    assert len(kept) == 1 and not kept[0][0].flags.writeable  # kept arrays cannot be changed by a caller
