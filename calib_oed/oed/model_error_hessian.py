@@ -211,9 +211,6 @@ def compute_hessian(crit, rows, q, z, d_rows, dd_rows, d_z=None, dd_z=None) -> n
     dt, dk1, dkw1 = crit._kernel_gradients(q, tau)
     if grav is not None:
         ddt = gravity_hessians(grav, q)
-    d11, d12 = kernel_second(prior, q, q, None if grav is None else (tau, tau, dt, dt, ddt))
-    d11w = kernel_second(prior, q, crit.working, None if grav is None else (tau, tau_w[0], dt, None, ddt),
-                         mixed=False)[0]
 
     # first derivatives of F, M, Y, V along every direction a = (j, m)
     a_rows = np.moveaxis(d_rows, 3, 1)  # (n, nv, d, nf)
@@ -228,7 +225,9 @@ def compute_hessian(crit, rows, q, z, d_rows, dd_rows, d_z=None, dd_z=None) -> n
 
     # through the adjoints: Psi_FF, Psi_FS, Psi_Fk
     sdv = (s @ np.moveaxis(dv, 0, 1).reshape(n * d, -1)).reshape(n * d, big, t3)
-    h = 2.0 * (dv * om).reshape(big, -1) @ np.moveaxis(sdv, 1, 0).reshape(big, -1).T
+    sdv = np.moveaxis(sdv, 1, 0).reshape(big, -1)  # a copy: the (n d, n nv, T3) one is freed here
+    h = 2.0 * (dv * om).reshape(big, -1) @ sdv.T
+    del sdv
     rw = (r * om).reshape(n, d, t3)
     p_a = np.einsum("jmdf,jdc->jmfc", a_rows, rw).reshape(big, -1)
     cross = p_a @ dy.reshape(big, -1).T
@@ -247,8 +246,13 @@ def compute_hessian(crit, rows, q, z, d_rows, dd_rows, d_z=None, dd_z=None) -> n
     hfs = 2.0 * (np.einsum("Nlac,lpac->Nlp", dvr, xv).reshape(big, big) + dv.reshape(big, -1) @ xtv.T)
     hfk = -2.0 * np.einsum("Nlac,lpac->Nlp", dvr * om, xk).reshape(big, big)
     h += hfs + hfs.T + hfk + hfk.T
+    del dv, dvr, x, xv, xtv, xk, hfs, hfk
 
-    # second derivatives of the pieces: rows, S (all pairs of poses), k_w (per pose)
+    # second derivatives of the pieces: rows, S (all pairs of poses), k_w (per pose); the kernels'
+    # (K, n, n, nv, nv) second derivatives built only now, after the adjoints' arrays are freed
+    d11, d12 = kernel_second(prior, q, q, None if grav is None else (tau, tau, dt, dt, ddt))
+    d11w = kernel_second(prior, q, crit.working, None if grav is None else (tau, tau_w[0], dt, None, ddt),
+                         mixed=False)[0]
     blocks += np.einsum("jdf,jdfmp->jmp", d_f.reshape(n, d, nf), dd_rows)
     ub = np.einsum("jalb,jak,lbk->kjl", u4, b, b, optimize=True)
     w1 = np.einsum("jalb,lbkp->jalkp", u4, db, optimize=True)
