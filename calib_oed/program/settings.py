@@ -100,6 +100,7 @@ class Handshake:
         default ``do<output>``/``di<input>``."""
         return self.output_name or f"do{self.output}", self.input_name or f"di{self.input}"
 
+
 #: RRT-Connect iterations per blocked move (:func:`calib_oed.program.planner.plan_move`).
 DEFAULT_PLANNER_ITERATIONS = 20_000
 

@@ -77,6 +77,7 @@ def skipped_move(file: str, text: str, pos: int, why: str) -> str:
 
 
 def indent_of(text: str, pos: int) -> str:
+    """The whitespace that opens the line of character ``pos``."""
     start = text.rfind("\n", 0, pos) + 1
     line = text[start:pos]
     return line[: len(line) - len(line.lstrip())]
