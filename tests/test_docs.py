@@ -287,7 +287,6 @@ def test_study_solver_counts_add_up(study):
             f"(Table 8: {params:.4g} against {heuristic:.4g} mm²)") in flat
 
 
-
 def test_monte_carlo_check_is_of_table6s_designs(study):
     """The Monte Carlo table's predicted tr C_s are 3 V of Table 6's kr16 designs (so a rerun of
     the study without one of the Monte Carlo check shows), and its percentages follow from it."""

@@ -112,9 +112,9 @@ def test_realistic_world_frame_new_pose_prediction_over_four_truths(scene):
     """The realistic simulator, truths 0-3 (as ``bench/bench_trust.py --frame world``): 60 random
     training poses, 200 new poses in the training ranges; identify's world-frame expected RMS on new
     poses against the true reflector centres' RMS error in the world frame: pooled within 0.8-1.25,
-    per truth within 0.8-1.35 (with the pose-scaled model error, fms_kr16 over truths 0-29:
-    0.83-1.39 per truth, 24 of 30 within 1.25, pooled 1.12; truth 1 at 1.32, the stationary one
-    1.25; one truth's gauge move is one draw)."""
+    per truth within 0.8-1.35 (with the pose-scaled model error and the balancer-aware joint prior,
+    fms_kr16 over truths 0-29: 0.75-1.27 per truth, 27 of 30 within 0.8-1.25, pooled 1.01;
+    bench/bench_trust_pool.py; one truth's gauge move is one draw)."""
     from calib_oed.calibration.model_error import start_prior
     from calib_oed.calibration.prediction import new_poses
     from calib_oed.calibration.realistic import sample_truth
