@@ -74,10 +74,18 @@ class SQPSettings:
             variables on, lifted below. Both solve the same QP to the same
             residual test; the lifted one grows faster than linearly (0.11 s per
             QP at 60 poses, 5.9 s at 250, 43 s at 500; block: 0.03, 0.10, 0.24 s cold,
-            0.01-0.04 s warm-started from a right active set, ``bench/bench_block_qp.py``).
+            0.01-0.04 s warm-started from a right active set, ``bench/bench_block_qp.py``)
+            and needs the dense polish on top.
         block_qp_min_size: Number of variables from which ``structured_qp="auto"``
-            uses the block QP (600: 100 poses of 6 joints; the shipped scenes' 60
-            poses stay on the lifted QP).
+            uses the block QP (240: 40 poses of 6 joints, so every shipped scene's
+            60-pose design takes it). Measured in the design SQP (fms_kr16,
+            ``--criterion kpi``, process CPU, one machine shared, side by side): at
+            60 poses the QPs with their polish and second-order corrections took
+            0.10 s per SQP iteration on the lifted QP, 0.05 s on the block QP, the
+            same iterations and value; at 120 poses 0.65 s against 0.09 s. On the
+            seeded random QPs of ``bench/bench_block_qp.py`` (rank 10-40) the two
+            cost the same at 40 poses and the lifted QP less at 20 (0.01 s
+            against 0.02 s, before its polish).
         qp_eps_abs: ProxQP absolute tolerance (its default 1e-3 is lax).
         qp_max_iterations: ProxQP ``max_iter``; bounds the time lost on an infeasible QP.
         qp_polish: Refine every QP step (up to ``max_dense_qp_size`` variables) on its active
@@ -112,7 +120,7 @@ class SQPSettings:
     bfgs_damping: float = 0.2
     qp_backend: str = "dense"
     structured_qp: str = "auto"
-    block_qp_min_size: int = 600
+    block_qp_min_size: int = 240
     qp_eps_abs: float = 1e-9
     qp_max_iterations: int = 100
     qp_polish: bool = True

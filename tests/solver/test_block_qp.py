@@ -144,14 +144,15 @@ def test_infeasible_qp_is_not_solved_by_either():
     assert block.status != "solved" and reference.status != "solved"
 
 
-@pytest.mark.parametrize("settings", [
-    SQPSettings(structured_qp="lifted"), SQPSettings(structured_qp="block"),
-    SQPSettings(block_qp_min_size=60), SQPSettings(block_qp_min_size=61), SQPSettings(),
+@pytest.mark.parametrize(("settings", "backend"), [
+    (SQPSettings(structured_qp="lifted"), "lifted"), (SQPSettings(structured_qp="block"), "block"),
+    (SQPSettings(block_qp_min_size=60), "block"), (SQPSettings(block_qp_min_size=61), "lifted"),
+    (SQPSettings(), "block" if 60 >= SQPSettings().block_qp_min_size else "lifted"),
 ], ids=["lifted", "block", "auto-block", "auto-lifted", "default"])
-def test_every_structured_qp_setting_gives_the_sqp_the_same_optimum(settings):
+def test_every_structured_qp_setting_gives_the_sqp_the_same_optimum(settings, backend):
     """The SQP on a QP (f = d^T H d / 2 + g^T d, rows C d >= l, the box; n = 60 variables) with its exact
-    structured Hessian: whichever QP ``structured_qp`` and ``block_qp_min_size`` choose, the SQP's point and
-    multipliers are the QP's KKT point, ProxQP's dense answer."""
+    structured Hessian: whichever QP ``structured_qp`` and ``block_qp_min_size`` choose (every QP goes to
+    that one), the SQP's point and multipliers are the QP's KKT point, ProxQP's dense answer."""
     rng = np.random.default_rng(3)
     sub, dense_sub = _instance(rng)
     reference = DenseQPWorkspace(sub.g.size, 1e-11, 1000).solve(dense_sub)
@@ -163,5 +164,6 @@ def test_every_structured_qp_setting_gives_the_sqp_the_same_optimum(settings):
                     lagrangian_hessian=lambda d, lam: sub.H, settings=settings)
     assert res.status is SQPStatus.CONVERGED and res.check(), res.summary()
     assert res.hessian_fallbacks == 0
+    assert {r.qp_backend for r in res.history if r.qp_backend} == {backend}
     np.testing.assert_allclose(res.x, reference.d, atol=1e-7)
     np.testing.assert_allclose(res.multipliers, reference.lam, atol=1e-6)
