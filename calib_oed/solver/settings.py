@@ -79,10 +79,10 @@ class SQPSettings:
         block_qp_min_size: Number of variables from which ``structured_qp="auto"``
             uses the block QP (240: 40 poses of 6 joints, so every shipped scene's
             60-pose design takes it). Measured in the design SQP (fms_kr16,
-            ``--criterion kpi``, process CPU, one machine shared, side by side): at
-            60 poses the QPs with their polish and second-order corrections took
-            0.10 s per SQP iteration on the lifted QP, 0.05 s on the block QP, the
-            same iterations and value; at 120 poses 0.65 s against 0.09 s. On the
+            ``--criterion kpi``, process CPU on a shared machine, side by side):
+            the QP solves with the lifted QP's polish took 0.15 s per SQP iteration
+            at 60 poses on the lifted QP, 0.045 s on the block QP (the same 32
+            iterations and value); at 120 poses 0.63 s against 0.047 s. On the
             seeded random QPs of ``bench/bench_block_qp.py`` (rank 10-40) the two
             cost the same at 40 poses and the lifted QP less at 20 (0.01 s
             against 0.02 s, before its polish).
