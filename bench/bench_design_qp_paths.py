@@ -10,8 +10,9 @@ Each case is one ``calib-oed design fms_kr16 -n N --no-certificate`` process
 replaced in every SQP (``default``: left as it is; ``100000``: the lifted QP at
 any n; ``1``: the block QP for every structured Hessian). The cases of one n
 alternate (A B A B ...), so their ratios hold on a shared machine. Timed in
-process CPU (``time.process_time``) inside the child, only for the SQP of the
-design's own size (6 n variables; the column generation's SQPs are left out):
+process CPU (``time.process_time``) inside the child, only for the SQPs of the
+design's own size (6 n variables: for ``kpi_model`` its ``kpi`` start's SQP and its own;
+the column generation's SQPs are left out):
 the whole SQP, the QP solves (:meth:`calib_oed.solver.subproblem.QPSolver.solve`,
 the block QP's own polish included), the dense polish of the other paths
 (:func:`calib_oed.solver.polish.polish`) and the second-order corrections (their
@@ -69,7 +70,8 @@ def timed_sqp(*a, **k):
     t0 = time.process_time()
     res = solve_sqp(*a, **k)
     add("sqp", res.x.size, time.process_time() - t0, res.iterations)
-    t[f"{res.x.size}:backends"] = sorted({r.qp_backend for r in res.history if r.qp_backend})
+    used = {r.qp_backend for r in res.history if r.qp_backend}
+    t[f"{res.x.size}:backends"] = sorted(used.union(t.get(f"{res.x.size}:backends", [])))
     return res
 refine.solve_sqp = timed_sqp
 from calib_oed.cli import main
