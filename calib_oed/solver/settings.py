@@ -81,9 +81,9 @@ class SQPSettings:
             60-pose design takes it). Measured in the design SQP
             (``bench/bench_design_qp_paths.py``: fms_kr16, ``--criterion kpi``, process
             CPU on a shared machine, side by side): the QP solves with the lifted
-            QP's polish took 0.11 s per SQP iteration at 60 poses on the lifted QP,
-            0.073 s on the block QP (the same iterations and value); at 120 poses
-            0.35 s against 0.053 s. On the seeded random QPs of
+            QP's polish took 0.145 s per SQP iteration at 60 poses on the lifted QP,
+            0.045 s on the block QP (the same iterations and value); at 120 poses
+            0.63 s against 0.048 s. On the seeded random QPs of
             ``bench/bench_block_qp.py`` (rank 10-40) the two cost the same at 40
             poses and the lifted QP less at 20 (0.01 s against 0.02 s, before its
             polish).
