@@ -99,31 +99,36 @@ def gravity_hessians(load, q: np.ndarray) -> np.ndarray:
     return np.einsum("i,x,sixkmp->skmp", mass, g, dd)
 
 
-def kernel_second(prior, q1, q2, grav=None, mixed: bool = True):
-    r""":math:`\partial^2 k_\kappa/\partial x_m\partial x_p` and :math:`\partial^2 k_\kappa/\partial x_m\partial y_p`
-    at :math:`(x, y) = (q_{1a}, q_{2b})`, each (K, n1, n2, nv, nv). ``grav``: (torques at q1, at q2,
-    their derivatives at q1, at q2 (unused without ``mixed``), second derivatives at q1), or None
-    without a compliance part. ``mixed`` False: the second is None (not built)."""
+def kernel_second_own(prior, q1, q2, e, grav=None):
+    r""":math:`\sum_{\kappa, i} e_{\kappa j i}\,\partial^2 k_\kappa(x, y)/\partial x_m\partial x_p` at
+    :math:`(x, y) = (q_{1j}, q_{2i})`, (n1, nv, nv), for weights ``e`` (K, n1, n2); the second
+    derivatives never formed (K, n1, n2, nv, nv): the own angle's :math:`k''` sits on
+    :math:`m = p = \kappa`, the compliance part is :math:`\gamma_\kappa^2\,\partial^2\tau_\kappa(x)\,\tau_\kappa(y)`.
+    ``grav``: (torques at q2, second derivatives of the torques at q1), or None without a compliance part."""
     nk = prior.nq
     own = np.moveaxis(prior.compute_own_second(q1, q2), 2, 0)  # (K, n1, n2)
-    d11 = np.zeros((nk, len(q1), len(q2), nk, nk))
-    d12 = np.zeros_like(d11) if mixed else None
+    out = np.zeros((len(q1), nk, nk))
     idx = np.arange(nk)
-    d11[idx, :, :, idx, idx] = own
-    if mixed:
-        d12[idx, :, :, idx, idx] = -own + (prior.gain**2)[:, None, None]
+    out[:, idx, idx] = np.einsum("kji,kji->jk", own, e)
     if grav is not None:
-        t1, t2, dt1, dt2, ddt1 = grav
-        c2 = (prior.compliance**2)[:, None, None, None, None]
-        d11 += _scaled(c2, np.einsum("akmp,bk->kabmp", ddt1, t2))
-        if mixed:
-            d12 += _scaled(c2, np.einsum("akm,bkp->kabmp", dt1, dt2))
-    return d11, d12
+        t2, ddt1 = grav
+        out += np.einsum("jkmp,jk->jmp", ddt1, (prior.compliance**2) * np.einsum("ik,kji->jk", t2, e))
+    return out
 
 
-def _scaled(c, a: np.ndarray) -> np.ndarray:
-    """``c * a`` written into ``a`` (the same bits as ``c * a``, no second array of its size)."""
-    return np.multiply(c, a, out=a)
+def kernel_second_mixed(prior, q, e, grav):
+    r""":math:`e_{\kappa jl}\,\partial^2 k_\kappa(x, y)/\partial x_m\partial y_p` at
+    :math:`(x, y) = (q_j, q_l)` summed over :math:`\kappa`, (n, nv, n, nv), for weights ``e``
+    (K, n, n): own angle :math:`-k'' + \nu^2` on :math:`m = p = \kappa`, compliance
+    :math:`\gamma^2\,\partial\tau(x)\,\partial\tau(y)^\top`. ``grav``: the torques' derivatives at q, or None."""
+    nk = prior.nq
+    own = np.moveaxis(prior.compute_own_second(q, q), 2, 0)
+    out = np.zeros((len(q), nk, len(q), nk))
+    idx = np.arange(nk)
+    out[:, idx, :, idx] = (prior.gain**2)[:, None, None] * e - own * e  # [k, j, l]
+    if grav is not None:
+        out += np.einsum("kjl,jkm,lkp->jmlp", (prior.compliance**2)[:, None, None] * e, grav, grav, optimize=True)
+    return out
 
 
 def covers(criterion) -> bool:
@@ -212,27 +217,35 @@ def compute_hessian(crit, rows, q, z, d_rows, dd_rows, d_z=None, dd_z=None) -> n
     if grav is not None:
         ddt = gravity_hessians(grav, q)
 
-    # first derivatives of F, M, Y, V along every direction a = (j, m)
+    # first derivatives of F, M, Y along every direction a = (j, m). dV_a = F dY_a + E_j A_a Y is
+    # not formed ((n nv, n d, T3), and S dV an O(n^3) product): each product with it splits into
+    # the part through F (nf columns) and the part in pose j's rows
     a_rows = np.moveaxis(d_rows, 3, 1)  # (n, nv, d, nf)
     atf = np.einsum("jmdf,jdg->jmfg", a_rows, rows)
     dm = (atf + np.swapaxes(atf, 2, 3)).reshape(big, nf, nf)
     dy = -scipy.linalg.cho_solve(factor, np.moveaxis(dm @ y, 0, 1).reshape(nf, -1),
                                  check_finite=False).reshape(nf, big, t3).transpose(1, 0, 2)
-    ay = a_rows @ y  # (n, nv, d, T3)
-    dv = np.einsum("xf,Nfc->Nxc", flat, dy).reshape(n, nv, n, d, t3)
-    dv[np.arange(n), :, np.arange(n)] += ay
-    dv = dv.reshape(big, n * d, t3)
+    ay = a_rows @ y  # (n, nv, d, T3): A_a Y
+    dyf = dy.reshape(big, -1)
+    dyw = (dy * om).reshape(big, -1)
+    flat3 = flat.reshape(n, d, nf)
 
-    # through the adjoints: Psi_FF, Psi_FS, Psi_Fk
-    sdv = (s @ np.moveaxis(dv, 0, 1).reshape(n * d, -1)).reshape(n * d, big, t3)
-    sdv = np.moveaxis(sdv, 1, 0).reshape(big, -1)  # a copy: the (n d, n nv, T3) one is freed here
-    h = 2.0 * (dv * om).reshape(big, -1) @ sdv.T
-    del sdv
+    # through the adjoints: Psi_FF, Psi_FS, Psi_Fk. 2 tr(Omega dV_a^T S dV_b) =
+    # 2 [<dY_a, F^T S F dY_b> + <dY_a, (SF)_l^T A_b Y> + <(SF)_j^T A_a Y, dY_b> + <A_a Y, S_jl A_b Y>]_Omega
+    sf = s @ flat  # (n d, nf)
+    p_s = np.einsum("lbf,lpbc->lpfc", sf.reshape(n, d, nf), ay).reshape(big, -1)
+    t2 = dyw @ p_s.T
+    h = dyw @ np.einsum("fg,Ngc->Nfc", flat.T @ sf, dy).reshape(big, -1).T + t2 + t2.T
+    del p_s, t2
+    s_ay = np.einsum("jalb,lpbc->jalpc", s.reshape(n, d, n, d), ay)
+    h += np.einsum("jmac,jalpc->jmlp", ay * om, s_ay).reshape(big, big)
+    h *= 2.0
+    del s_ay
     rw = (r * om).reshape(n, d, t3)
     p_a = np.einsum("jmdf,jdc->jmfc", a_rows, rw).reshape(big, -1)
-    cross = p_a @ dy.reshape(big, -1).T
+    cross = p_a @ dyf.T
     lam = scipy.linalg.cho_solve(factor, flat.T @ (r * om), check_finite=False)  # M^-1 F^T R Omega
-    gm = dm.reshape(big, -1) @ np.einsum("fc,Ngc->Nfg", lam, dy).reshape(big, -1).T
+    gm = np.einsum("Nfg,fc->Ngc", dm, lam).reshape(big, -1) @ dyf.T
     h += 2.0 * (cross + cross.T) - 2.0 * (gm + gm.T)
     blocks = -2.0 * np.einsum("jmdc,jpdc->jmp", a_rows @ lam, ay)
     blocks = blocks + np.swapaxes(blocks, 1, 2)
@@ -240,40 +253,41 @@ def compute_hessian(crit, rows, q, z, d_rows, dd_rows, d_z=None, dd_z=None) -> n
          + np.einsum("kji,jakm,ibk->jmaib", kk, db, b, optimize=True)).reshape(n, nv, d, n * d)
     xk = _MM * (np.einsum("kjim,jak,ick->jmaic", dkw1, b, jw, optimize=True)
                 + np.einsum("kji,jakm,ick->jmaic", kwk, db, jw, optimize=True)).reshape(n, nv, d, t3)
-    dvr = dv.reshape(big, n, d, t3)
-    xv = np.einsum("lpax,xc->lpac", x, v * om)
-    xtv = np.einsum("lpax,lac->lpxc", x, (v * om).reshape(n, d, t3)).reshape(big, -1)
-    hfs = 2.0 * (np.einsum("Nlac,lpac->Nlp", dvr, xv).reshape(big, big) + dv.reshape(big, -1) @ xtv.T)
-    hfk = -2.0 * np.einsum("Nlac,lpac->Nlp", dvr * om, xk).reshape(big, big)
-    h += hfs + hfs.T + hfk + hfk.T
-    del dv, dvr, x, xv, xtv, xk, hfs, hfk
+    # <dV_a, X_b Omega V^T-weighted>: W_b (pose l's rows of dV_a) and the rows of X_b^T V Omega (all rows)
+    w_l = np.einsum("lpax,xc->lpac", x, v * om) - xk * om
+    xtv = np.einsum("lpax,lac->lpxc", x, (v * om).reshape(n, d, t3))  # (n, nv, n d, T3)
+    f_xtv = (np.moveaxis(xtv, 3, 2).reshape(-1, n * d) @ flat).reshape(n, nv, t3, nf)  # F^T (X_b^T V Omega)
+    hfs = dyf @ (np.einsum("laf,lpac->lpfc", flat3, w_l) + np.swapaxes(f_xtv, 2, 3)).reshape(big, -1).T
+    hfs += np.einsum("jmac,lpjac->jmlp", ay, xtv.reshape(n, nv, n, d, t3)).reshape(big, big)
+    hfs4 = hfs.reshape(n, nv, n, nv)
+    hfs4[np.arange(n), :, np.arange(n)] += np.einsum("jmac,jpac->jmp", ay, w_l)
+    h += 2.0 * (hfs + hfs.T)
+    del x, xk, w_l, xtv, f_xtv, hfs, hfs4
 
     # second derivatives of the pieces: rows, S (all pairs of poses), k_w (per pose); the kernels'
-    # (K, n, n, nv, nv) second derivatives built only now, after the adjoints' arrays are freed
-    d11, d12 = kernel_second(prior, q, q, None if grav is None else (tau, tau, dt, dt, ddt))
-    d11w = kernel_second(prior, q, crit.working, None if grav is None else (tau, tau_w[0], dt, None, ddt),
-                         mixed=False)[0]
+    # second derivatives contracted in factored form (kernel_second_own, kernel_second_mixed)
     blocks += np.einsum("jdf,jdfmp->jmp", d_f.reshape(n, d, nf), dd_rows)
     ub = np.einsum("jalb,jak,lbk->kjl", u4, b, b, optimize=True)
     w1 = np.einsum("jalb,lbkp->jalkp", u4, db, optimize=True)
     udb_r = np.einsum("jak,jalkp->kjlp", b, w1, optimize=True)  # U with B left, dB right
     udb_l = np.swapaxes(udb_r, 1, 2)
-    udbdb = np.einsum("jakm,jalkp->kjlmp", db, w1, optimize=True)
-    del w1
     # the 2nd term with (j, m) and (l, p) exchanged is the 3rd (the same products, summed alike)
     dk_udb = np.einsum("kjlm,kjlp->jmlp", dk1, udb_r)
-    pair_h = (np.einsum("kjlmp,kjl->jmlp", d12, ub) + dk_udb + dk_udb.transpose(2, 3, 0, 1)
-              + np.einsum("kjl,kjlmp->jmlp", kk, udbdb))
-    del d12, udbdb, dk_udb
+    pair_h = kernel_second_mixed(prior, q, ub, None if grav is None else dt)
+    pair_h += dk_udb + dk_udb.transpose(2, 3, 0, 1)
+    w1 *= np.moveaxis(kk, 0, 2)[:, None, :, :, None]  # k_kappa(q_j, q_l) U_jl dB_l
+    pair_h += np.einsum("jakm,jalkp->jmlp", db, w1, optimize=True)
+    del w1, dk_udb
     h += 2.0 * pair_h.reshape(big, big)
     del pair_h
-    uddb = np.einsum("jaib,jakmp,ibk->kjimp", u4, ddb, b, optimize=True)
+    g_dd = np.einsum("jaib,ibk,kji->jak", u4, b, kk, optimize=True)  # U with B right, weighted by k
     dk_udb = np.einsum("kjim,kjip->jmp", dk1, udb_l)  # its transpose in (m, p) is the 3rd term
-    own = (np.einsum("kjimp,kji->jmp", d11, ub) + dk_udb
-           + np.swapaxes(dk_udb, 1, 2) + np.einsum("kji,kjimp->jmp", kk, uddb))
+    own = (kernel_second_own(prior, q, q, ub, None if grav is None else (tau, ddt)) + dk_udb
+           + np.swapaxes(dk_udb, 1, 2) + np.einsum("jakmp,jak->jmp", ddb, g_dd))
     blocks += 2.0 * own
     xwj = np.einsum("jaic,ick->jaik", x_w.reshape(n, d, -1, 3), jw) * _MM
-    blocks += (np.einsum("jaik,kjimp,jak->jmp", xwj, d11w, b, optimize=True)
+    blocks += (kernel_second_own(prior, q, crit.working, np.einsum("jaik,jak->kji", xwj, b),
+                                 None if grav is None else (tau_w[0], ddt))
                + np.einsum("jaik,kjim,jakp->jmp", xwj, dkw1, db, optimize=True)
                + np.einsum("jaik,kjip,jakm->jmp", xwj, dkw1, db, optimize=True)
                + np.einsum("jaik,kji,jakmp->jmp", xwj, kwk, ddb, optimize=True))
