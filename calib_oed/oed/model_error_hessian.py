@@ -249,8 +249,8 @@ def compute_hessian(crit, rows, q, z, d_rows, dd_rows, d_z=None, dd_z=None) -> n
     h += 2.0 * (cross + cross.T) - 2.0 * (gm + gm.T)
     blocks = -2.0 * np.einsum("jmdc,jpdc->jmp", a_rows @ lam, ay)
     blocks = blocks + np.swapaxes(blocks, 1, 2)
-    x = (np.einsum("kjim,jak,ibk->jmaib", dk1, b, b, optimize=True)
-         + np.einsum("kji,jakm,ibk->jmaib", kk, db, b, optimize=True)).reshape(n, nv, d, n * d)
+    x = np.einsum("jmaki,ibk->jmaib", np.einsum("kjim,jak->jmaki", dk1, b) + np.einsum("kji,jakm->jmaki", kk, db),
+                  b).reshape(n, nv, d, n * d)
     xk = _MM * (np.einsum("kjim,jak,ick->jmaic", dkw1, b, jw, optimize=True)
                 + np.einsum("kji,jakm,ick->jmaic", kwk, db, jw, optimize=True)).reshape(n, nv, d, t3)
     # <dV_a, X_b Omega V^T-weighted>: W_b (pose l's rows of dV_a) and the rows of X_b^T V Omega (all rows)
