@@ -19,6 +19,7 @@ import json
 import os
 import subprocess
 import sys
+import tempfile
 
 _CHILD = """
 import json, resource, sys, time
@@ -48,9 +49,12 @@ def main(argv=None) -> None:
     ap.add_argument("--iterations", type=int, default=0, help="SQP iteration cap (default: the design's)")
     args = ap.parse_args(argv)
     env = dict(os.environ, OPENBLAS_NUM_THREADS="1")
+    if env.get("PYTHONPATH"):  # absolute: the child runs elsewhere
+        env["PYTHONPATH"] = os.pathsep.join(os.path.abspath(p) for p in env["PYTHONPATH"].split(os.pathsep))
     for n in (int(v) for v in args.growth.split(",") if v):
+        # cwd: ``-c`` puts the working directory first on sys.path, which would shadow PYTHONPATH
         out = subprocess.run([sys.executable, "-c", _CHILD, args.scene, str(n), str(args.seed), str(args.iterations)],
-                             env=env, capture_output=True, text=True, check=True)
+                             env=env, capture_output=True, text=True, check=True, cwd=tempfile.gettempdir())
         print(json.dumps(json.loads(out.stdout.strip().splitlines()[-1])), flush=True)
 
 
