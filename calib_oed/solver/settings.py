@@ -78,15 +78,11 @@ class SQPSettings:
             and needs the dense polish on top.
         block_qp_min_size: Number of variables from which ``structured_qp="auto"``
             uses the block QP (240: 40 poses of 6 joints, so every shipped scene's
-            60-pose design takes it). Measured in the design SQP
-            (``bench/bench_design_qp_paths.py``: fms_kr16, ``--criterion kpi``, process
-            CPU on a shared machine, side by side): the QP solves with the lifted
-            QP's polish took 0.145 s per SQP iteration at 60 poses on the lifted QP,
-            0.045 s on the block QP (the same iterations and value); at 120 poses
-            0.63 s against 0.048 s. On the seeded random QPs of
-            ``bench/bench_block_qp.py`` (rank 10-40) the two cost the same at 40
-            poses and the lifted QP less at 20 (0.01 s against 0.02 s, before its
-            polish).
+            60-pose design takes it). In the design SQP (fms_kr16, ``--criterion
+            kpi``, ``bench/bench_design_qp_paths.py``, ``docs/benchmarks.md``) the QP
+            with the lifted path's polish took 0.138 s per SQP iteration at 60 poses
+            on the lifted QP and 0.049 s on the block QP, the same iterations and
+            value; at 120 poses 0.676 s against 0.049 s.
         qp_eps_abs: ProxQP absolute tolerance (its default 1e-3 is lax).
         qp_max_iterations: ProxQP ``max_iter``; bounds the time lost on an infeasible QP.
         qp_polish: Refine every QP step (up to ``max_dense_qp_size`` variables) on its active

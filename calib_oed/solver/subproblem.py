@@ -56,9 +56,9 @@ from calib_oed.solver.settings import SQPSettings
 # not only the small ones: besides ProxQP's ~1e-9 error, its last bits depend on where its
 # buffers lie in memory (the same QP twice in one process can differ by 1e-16), and the SQP
 # amplifies that into another design. The polish solves the KKT system of ProxQP's active set
-# with LAPACK, the same bits in every process (issue 31). Its cost, when the 60-pose designs still
-# took the lifted QP: about 20 % more CPU on fms_kr16 -n 60, 1.25x the process CPU of a notional90
-# design (bench/bench_notional_design.py); the block QP (from block_qp_min_size on) polishes its own.
+# with LAPACK, the same bits in every process (issue 31). On the lifted path it is about a quarter
+# of the SQP's CPU at 60 poses of fms_kr16 (1.53 of 6.38 s, bench/bench_design_qp_paths.py); the
+# block QP (from block_qp_min_size on) polishes its own active set.
 
 CRASHED = ("error", "too_large", "non_finite")
 """QP statuses of a solver that did not return a usable answer (not ProxQP's own)."""
