@@ -54,6 +54,9 @@ from calib_oed.solver.result import StructuredHessian
 _MM = 1e3
 #: Eigenvalues of the Hessian below this times the largest are raised to it (:func:`structured_hessian`).
 EIGENVALUE_FLOOR = 1e-8
+#: Largest size of the Hessian (poses times joints) kept whole (:func:`design_hessian`); above it, the
+#: largest :math:`|\theta|` times :data:`~calib_oed.solver.hessian.LIFTED_MAX_RANK_RATIO` of the size.
+FULL_COUPLING_MAX_SIZE = 720
 
 
 def point_derivatives(axes: np.ndarray, jac: np.ndarray):
@@ -167,7 +170,8 @@ def design_hessian(objective, q: np.ndarray) -> StructuredHessian | None:
         dd_z.append(pieces.dd_w)
     h = compute_hessian(crit, rows, np.asarray(q, dtype=float), np.concatenate(z, axis=1), d_rows, dd_rows,
                         np.concatenate(d_z, axis=1), np.concatenate(dd_z, axis=1))
-    return structured_hessian(h, nv, int(LIFTED_MAX_RANK_RATIO * h.shape[0]))
+    full = h.shape[0] <= FULL_COUPLING_MAX_SIZE
+    return structured_hessian(h, nv, None if full else int(LIFTED_MAX_RANK_RATIO * h.shape[0]))
 
 
 def compute_hessian(crit, rows, q, z, d_rows, dd_rows, d_z=None, dd_z=None) -> np.ndarray:

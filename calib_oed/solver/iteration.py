@@ -24,6 +24,7 @@ from calib_oed.solver.bfgs import damped_bfgs_update
 from calib_oed.solver.nlp import _Point, _Problem
 from calib_oed.solver.pieces import RowPieces, check_pieces
 from calib_oed.solver.polish import polish
+from calib_oed.solver.qp import matvec
 from calib_oed.solver.restoration import _RestorationMixin
 from calib_oed.solver.result import IterationRecord, QPUse, SQPSettings, SQPStatus, kkt_residuals
 from calib_oed.solver.subproblem import CRASHED, QPSolver, _SubproblemMixin
@@ -259,7 +260,9 @@ class _Run(_SubproblemMixin, _RestorationMixin):
             return self._record(k, stat, 0.0, delta, n_rows, step.status, qp_iter, backtracks, False)
         step_norm = float(np.max(np.abs(new.x - pt.x), initial=0.0))
         self._accept(new, self.lam)
-        if backtracks:  # the model failed at this radius: shrink it as a failed search does,
+        if s.trust_update == "ratio":
+            self.delta = self._ratio_update(pt, new, step.d, delta, d_norm, backtracks)
+        elif backtracks:  # the model failed at this radius: shrink it as a failed search does,
             # but not below the step accepted (halving the cut step instead collapsed the box
             # to 1e-4 rad on curved collision rows, and regrowing it cost ~7 iterations a time)
             self.delta = max(s.min_step_bound, 0.5 * step_norm, 0.1 * min(delta, d_norm))
@@ -269,6 +272,29 @@ class _Run(_SubproblemMixin, _RestorationMixin):
             self.delta = max(s.min_step_bound, min(delta, s.step_bound_ratio * step_norm))
         return self._record(k, stat, step_norm, delta, n_rows, step.status, qp_iter, backtracks,
                             False, soc)
+
+    def _ratio_update(self, old: _Point, new: _Point, d, delta, d_norm, backtracks) -> float:
+        r""":math:`\Delta_{k+1}` of ``trust_update="ratio"`` after the accepted point ``new``.
+
+        :math:`\rho = (\phi_\mu(x_k) - \phi_\mu(x_{k+1})) / (-g^\top d - \tfrac12 d^\top B d
+        + \mu v_1(x_k))`, the merit's actual over the QP model's predicted reduction
+        (:math:`v_1` the :math:`\ell_1` violation, which the QP's linearisation removes);
+        a backtracked step counts as :math:`\rho < 0`. :math:`\rho < \tfrac14`:
+        :math:`\tfrac12\|d\|_\infty`; :math:`\rho > \tfrac34` with :math:`\|d\|_\infty \ge
+        0.99\Delta`: :math:`2\Delta`; else :math:`\Delta` (Nocedal & Wright 2006, Algorithm 4.1,
+        in the :math:`\infty`-norm of the box)."""
+        s = self.s
+        if backtracks:
+            rho = -1.0
+        else:
+            h = self._sub[0].H
+            predicted = -(float(old.g @ d) + 0.5 * float(d @ matvec(h, d))) + self.mu * old.violation_l1
+            rho = (self._merit(old) - self._merit(new)) / predicted if predicted > 0 else -1.0
+        if rho < 0.25:
+            return max(s.min_step_bound, 0.5 * d_norm)
+        if rho > 0.75 and d_norm >= 0.99 * delta:
+            return min(s.max_step_bound, 2.0 * delta)
+        return delta
 
     def _line_search(self, rows, step):
         r"""Armijo backtracking on :math:`\phi_\mu` along the QP step, with one SOC try.

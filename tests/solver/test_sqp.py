@@ -307,6 +307,36 @@ def test_rosenbrock_with_bounds(bounds, x_star, nu):
     assert res.multipliers.shape == (0,)
 
 
+@pytest.mark.parametrize("name", sorted(HS))
+def test_ratio_trust_update_reaches_the_same_optimum(name):
+    objective, constraints, x0, bounds, x_star, f_star = HS[name]()
+    res = solve_sqp(objective, np.array(x0, dtype=float), constraints=constraints, bounds=bounds,
+                    settings=SQPSettings(trust_update="ratio"))
+    assert res.status is SQPStatus.CONVERGED and res.check(), res.summary()
+    np.testing.assert_allclose(res.x, x_star, atol=1e-5 * max(1.0, np.abs(np.asarray(x_star)).max()))
+    assert abs(res.fun - f_star) <= 1e-7 * max(1.0, abs(f_star))
+
+
+def test_ratio_trust_update_follows_its_rule():
+    """Rosenbrock (no rows, so the box is never enlarged within an iteration): after a
+    backtracked step the box is at most half the last one, otherwise it is kept or doubled."""
+    res = solve_sqp(_rosenbrock, np.array([-1.2, 1.0]),
+                    settings=SQPSettings(max_iterations=200, trust_update="ratio", step_bound=1.0))
+    assert res.status is SQPStatus.CONVERGED and res.check(), res.summary()
+    np.testing.assert_allclose(res.x, [1.0, 1.0], atol=1e-6)
+    h = [r for r in res.history if r.step_norm > 0]
+    kinds = set()
+    for a, b in zip(h[:-1], h[1:], strict=True):
+        if a.backtracks:
+            assert b.step_bound <= 0.5 * a.step_bound * (1 + 1e-12)
+            kinds.add("halved")
+        else:
+            ratio = b.step_bound / a.step_bound
+            assert ratio <= 0.5 * (1 + 1e-12) or ratio in (1.0, 2.0), ratio
+            kinds.add({1.0: "kept", 2.0: "doubled"}.get(ratio, "halved"))
+    assert {"halved", "kept"} <= kinds  # the rule was exercised, not only one branch
+
+
 def test_max_iterations_is_reported():
     res = solve_sqp(_rosenbrock, np.array([-1.2, 1.0]), settings=SQPSettings(max_iterations=3))
     assert res.status is SQPStatus.MAX_ITERATIONS and res.iterations == 3 and not res.check()
@@ -359,13 +389,13 @@ def test_agrees_with_scipy_slsqp_on_a_random_smooth_problem():
     ("tol_feasibility", float("nan")), ("step_bound", 2.0), ("min_step_bound", 0.0),
     ("active_margin", -0.1), ("bfgs_damping", 1.0), ("armijo", 0.6), ("backtrack", 1.5),
     ("max_backtracks", -1), ("qp_polish", "yes"), ("step_bound_ratio", 0.5),
-    ("qp_eps_abs", 0.0), ("qp_backend", "osqp"),
+    ("qp_eps_abs", 0.0), ("qp_backend", "osqp"), ("trust_update", "nocedal"),
 ])
 def test_bad_settings_raise_clear_errors(field, value):
     with pytest.raises(SQPSettingsError, match=field) as info:
         SQPSettings(**{field: value})
     assert isinstance(info.value, ValueError) and info.value.name == field
-    if field == "qp_backend":
+    if field in ("qp_backend", "trust_update"):
         assert info.value.valid and all(repr(v) in str(info.value) for v in info.value.valid)
 
 
