@@ -23,10 +23,15 @@ design CPU time (``solver.cpu_seconds``, one BLAS thread).
 
     nice -n 10 python bench/bench_model_error_design.py [--scenes fms_kr16 ur5_table bench/scenes/ur10_cell.yaml]
         [--model rigid|extended] [-n 60] [--truths 40] [--noise 1] [--seed 0] [--compensate] [--out DIR]
-        [--prior-scale F]
+        [--prior-scale F] [--converged]
 
 ``--prior-scale F`` designs ``kpi_model`` with every amplitude of its prior times F (the
 length scales kept): how much a misjudged prior costs.
+
+``--converged`` adds a third design, ``kpi_model`` run to convergence: the SQP's own iteration limit
+(300), ``trust_update="ratio"`` and the whole exact Hessian
+(:data:`calib_oed.oed.model_error_hessian.FULL_COUPLING_MAX_SIZE` raised to its size for that
+design); its ratio is paired with both ``kpi`` and the default ``kpi_model`` design.
 
 ``--out DIR`` also writes ``DIR/<scene>_<model>_designs.npz`` (both designs and the working
 configurations) for the figure of docs/oed.md (``--figure SCENE`` draws it from there).
@@ -42,6 +47,7 @@ from pathlib import Path
 import numpy as np
 from threadpoolctl import threadpool_limits
 
+import calib_oed.oed.model_error_hessian as meh
 from calib_oed import load_scene
 from calib_oed.calibration.identification import identify
 from calib_oed.calibration.joint_prior_choice import joint_prior
@@ -57,6 +63,7 @@ from calib_oed.oed.design import design
 from calib_oed.oed.model_error import design_prior, scene_criterion
 from calib_oed.oed.positions import reflector_positions
 from calib_oed.scene.records import ComplianceSpec
+from calib_oed.solver.settings import SQPSettings
 
 MODELS = ("rigid", "extended")
 BOOTSTRAP = 2000
@@ -124,8 +131,22 @@ def rms_with_error(mse: np.ndarray) -> tuple[float, float]:
     return rms, float(per_truth.std(ddof=1) / np.sqrt(per_truth.size) / (2 * rms))
 
 
+CONVERGED = "kpi_model_converged"
+
+
+def converged_design(s, n: int, criterion, seed: int):
+    """The ``kpi_model`` design run to convergence (``--converged``, module docstring)."""
+    old = meh.FULL_COUPLING_MAX_SIZE
+    meh.FULL_COUPLING_MAX_SIZE = n * s.problem.robot.nq
+    try:
+        return design(s, n, criterion, seed=seed, certificate=False, settings=SQPSettings(trust_update="ratio"))
+    finally:
+        meh.FULL_COUPLING_MAX_SIZE = old
+
+
 def run_scene(scene_ref: str, model: str, n: int, truths: int, noise: int, seed: int, compensate: bool,
-              out: Path | None, prior_scale: float = 1.0, frame: str | None = None) -> dict:
+              out: Path | None, prior_scale: float = 1.0, frame: str | None = None,
+              converged: bool = False) -> dict:
     scene = load_scene(scene_ref)
     s = setup(extended_scene(scene) if model == "extended" else scene)
     prior = s.scene.model_error if s.scene.model_error is not None else joint_prior(s.problem)
@@ -134,8 +155,11 @@ def run_scene(scene_ref: str, model: str, n: int, truths: int, noise: int, seed:
     row = {"scene": s.scene.name, "model": model, "n": n, "truths": truths, "noise_draws": noise,
            "prior": prior.describe(), "frame": frame or s.problem.kpi.frame}
     designs, errors = {}, {}
-    for crit in ("kpi", "kpi_model"):
-        d = design(s, n, scene_criterion(s, crit, prior), seed=seed, certificate=False)
+    for crit in ("kpi", "kpi_model") + ((CONVERGED,) if converged else ()):
+        if crit == CONVERGED:
+            d = converged_design(s, n, scene_criterion(s, "kpi_model", prior), seed)
+        else:
+            d = design(s, n, scene_criterion(s, crit, prior), seed=seed, certificate=False)
         designs[crit] = d
         errors[crit] = achieved_errors(s, d.q, truths, noise, seed, compensate, frame)
         row[crit] = {
@@ -151,6 +175,10 @@ def run_scene(scene_ref: str, model: str, n: int, truths: int, noise: int, seed:
             row[crit][pred] = {"achieved_rms_mm": rms, "se_mm": se, "ratio_to_kpi_fit": ratio,
                                "ratio_se": ratio_se,
                                "better_share": float(np.mean(mse.mean(axis=1) < errors["kpi"]["fit"].mean(axis=1)))}
+            if crit == CONVERGED:
+                ratio, ratio_se = paired_ratio(mse, errors["kpi_model"][pred], seed)
+                row[crit][pred].update(ratio_to_kpi_model=ratio, ratio_to_kpi_model_se=ratio_se, better_than_kpi_model=float(
+                    np.mean(mse.mean(axis=1) < errors["kpi_model"][pred].mean(axis=1))))
     row["design_cpu_ratio"] = row["kpi_model"]["design_cpu_s"] / row["kpi"]["design_cpu_s"]
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
@@ -159,7 +187,8 @@ def run_scene(scene_ref: str, model: str, n: int, truths: int, noise: int, seed:
                  model_error=designs["kpi_model"].q, working=s.problem.kpi.configurations,
                  p_noise_only=reflector_positions(space, designs["kpi"].q)[:, 0],
                  p_model_error=reflector_positions(space, designs["kpi_model"].q)[:, 0],
-                 p_working=reflector_positions(space, s.problem.kpi.configurations)[:, 0])
+                 p_working=reflector_positions(space, s.problem.kpi.configurations)[:, 0],
+                 **({"model_error_converged": designs[CONVERGED].q} if converged else {}))
     return row
 
 
@@ -205,6 +234,8 @@ def main() -> None:
     ap.add_argument("--frame", choices=("tracker", "world"), default=None,
                     help="where the achieved KPI error is taken (default: the KPI's own frame, the one "
                          "the design criterion predicts; tracker: as identify predicts it)")
+    ap.add_argument("--converged", action="store_true",
+                    help="also the kpi_model design run to convergence, paired with the default one")
     ap.add_argument("--out", type=Path)
     ap.add_argument("--figure", metavar="SCENE", help="only draw the figure of SCENE from --out")
     args = ap.parse_args()
@@ -214,7 +245,8 @@ def main() -> None:
     with threadpool_limits(limits=1, user_api="blas"):
         for scene in args.scenes:
             print(json.dumps(run_scene(scene, args.model, args.n, args.truths, args.noise, args.seed,
-                                       args.compensate, args.out, args.prior_scale, args.frame)), flush=True)
+                                       args.compensate, args.out, args.prior_scale, args.frame,
+                                       args.converged)), flush=True)
 
 
 if __name__ == "__main__":

@@ -95,11 +95,9 @@ PREDICTORS = ("fit", "kriging")
 #: within 1.5x of the noise-only design's.
 MODEL_ERROR_ITERATIONS = 60
 #: SQP iterations of a model-error design with the exact Hessian (``kpi_model``,
-#: :mod:`calib_oed.oed.model_error_hessian`, trust region by ``trust_update="ratio"``): the SQP's
-#: own limit, so the design converges. On fms_kr16 at n = 60 (seeds 0, 1, 2) it converged in 132,
-#: 275 and 180 iterations to values 27 %, 30 % and 21 % below the 25-iteration cap it replaces
-#: (``docs/benchmarks.md``).
-MODEL_ERROR_EXACT_ITERATIONS = 300
+#: :mod:`calib_oed.oed.model_error_hessian`): at n = 60 on fms_kr16 and ur5_table at most the CPU of
+#: :data:`MODEL_ERROR_ITERATIONS` BFGS iterations, with a lower value (``docs/benchmarks.md``).
+MODEL_ERROR_EXACT_ITERATIONS = 25
 #: Relative point motion [1] below which a joint counts as moving no point (:func:`design_prior`).
 STILL_TOL = 1e-9
 _MM = 1e3
@@ -135,9 +133,7 @@ def design_settings(objective, settings, exact: bool = False):
         return settings
     from calib_oed.solver.sqp import SQPSettings
 
-    if exact:
-        return SQPSettings(max_iterations=MODEL_ERROR_EXACT_ITERATIONS, trust_update="ratio")
-    return SQPSettings(max_iterations=MODEL_ERROR_ITERATIONS)
+    return SQPSettings(max_iterations=MODEL_ERROR_EXACT_ITERATIONS if exact else MODEL_ERROR_ITERATIONS)
 
 
 def scene_criterion(s, criterion, prior=None):

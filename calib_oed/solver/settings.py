@@ -49,9 +49,10 @@ class SQPSettings:
             Wright 2006, Algorithm 4.1; :mod:`calib_oed.solver.iteration`): halved
             to :math:`\tfrac12\|d\|_\infty` when :math:`\rho < \tfrac14` (a
             backtracked step counts as :math:`\rho < 0`), doubled when
-            :math:`\rho > \tfrac34` at the box, else kept. The model-error design takes
-            ``"ratio"``: under ``"edge"`` a step whose model was poor still doubled the
-            box and the next failure cut it tenfold (``docs/oed.md``).
+            :math:`\rho > \tfrac34` at the box, else kept. A ``kpi_model`` design run to
+            convergence takes ``"ratio"``: under ``"edge"`` a step whose model was poor
+            still doubled the box and the next failure cut it tenfold, and the design crept
+            (``docs/oed.md``, "Run to convergence").
         active_margin: :math:`m_a \ge 0` of the row selection (:mod:`calib_oed.solver.rows`).
         max_qp_rows: Most constraint rows in any QP, whatever :math:`\Delta`
             (:mod:`calib_oed.solver.rows`); ``None``: :math:`\max(200, 4n)`.

@@ -191,7 +191,7 @@ def test_a_kpi_model_design_has_no_certificate(kr16):
     s, _ = kr16
     assert design_settings(DesignObjective(s.problem, MODEL_ERROR), None).max_iterations == MODEL_ERROR_ITERATIONS
     exact = design_settings(DesignObjective(s.problem, MODEL_ERROR), None, True)
-    assert exact.max_iterations == MODEL_ERROR_EXACT_ITERATIONS and exact.trust_update == "ratio"
+    assert exact.max_iterations == MODEL_ERROR_EXACT_ITERATIONS
     assert design_settings(DesignObjective(s.problem, "kpi"), None) is None
     d = design(s, 12, MODEL_ERROR, pool=300, seed=0, enrich=False, settings=SQPSettings(max_iterations=3))
     assert d.criterion == MODEL_ERROR and d.value <= d.start_value

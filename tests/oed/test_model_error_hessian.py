@@ -41,18 +41,15 @@ def test_exact_hessian_matches_central_differences_of_the_gradient(case, monkeyp
     assert np.abs(h[off]).max() > 1e-3 * np.abs(h).max()  # the kernel couples the poses
     theta = np.linalg.eigvalsh(h)
     assert theta[0] < 0 < theta[-1]  # indefinite: the SQP gets |H|
-    # up to FULL_COUPLING_MAX_SIZE the whole |H|, its eigenvalues floored
-    assert len(h) <= meh.FULL_COUPLING_MAX_SIZE and structured.low_rank.shape[1] == len(h)
-    assert not np.any(structured.blocks)
-    theta_vec = np.linalg.eigh(h)
-    mag = np.maximum(np.abs(theta_vec[0]), meh.EIGENVALUE_FLOOR * np.abs(theta).max())
-    np.testing.assert_allclose(structured.dense(), (theta_vec[1] * mag) @ theta_vec[1].T,
-                               atol=1e-9 * np.abs(theta).max())
-    # above it, the lifted QP's form: the n/3 largest |theta| as a factor, the rest by pose blocks
-    monkeypatch.setattr(meh, "FULL_COUPLING_MAX_SIZE", len(h) - 1)
-    structured = objective.compute_hessian(q)
     rank = structured.low_rank.shape[1]
-    assert rank == len(h) // 3
+    assert rank == len(h) // 3  # the solver's lifted QP, not a dense one
+    # up to FULL_COUPLING_MAX_SIZE, the whole |H|, its eigenvalues floored
+    monkeypatch.setattr(meh, "FULL_COUPLING_MAX_SIZE", len(h))
+    whole = objective.compute_hessian(q)
+    assert whole.low_rank.shape[1] == len(h) and not np.any(whole.blocks)
+    vals, vecs = np.linalg.eigh(h)
+    mag = np.maximum(np.abs(vals), meh.EIGENVALUE_FLOOR * np.abs(vals).max())
+    np.testing.assert_allclose(whole.dense(), (vecs * mag) @ vecs.T, atol=1e-9 * np.abs(vals).max())
     kept = np.linalg.eigvalsh(structured.low_rank.T @ structured.low_rank)
     np.testing.assert_allclose(kept, np.sort(np.abs(theta))[-rank:], rtol=1e-8, atol=1e-8 * np.abs(theta).max())
     assert np.linalg.eigvalsh(structured.blocks).min() >= -1e-10 * np.abs(theta).max()
