@@ -96,7 +96,10 @@ PREDICTORS = ("fit", "kriging")
 MODEL_ERROR_ITERATIONS = 60
 #: SQP iterations of a model-error design with the exact Hessian (``kpi_model``,
 #: :mod:`calib_oed.oed.model_error_hessian`): at n = 60 on fms_kr16 and ur5_table at most the CPU of
-#: :data:`MODEL_ERROR_ITERATIONS` BFGS iterations, with a lower value (``docs/benchmarks.md``).
+#: :data:`MODEL_ERROR_ITERATIONS` BFGS iterations, with a lower value (``docs/benchmarks.md``). Run to
+#: convergence instead (124-275 iterations), the criterion fell 18-30 % but the realistic simulator's
+#: error only 4 % on the mean, at 3-5x the CPU, with repeated configurations and a prediction further
+#: below the achieved error (``docs/oed.md``, "Run to convergence").
 MODEL_ERROR_EXACT_ITERATIONS = 25
 #: Relative point motion [1] below which a joint counts as moving no point (:func:`design_prior`).
 STILL_TOL = 1e-9
