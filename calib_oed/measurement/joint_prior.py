@@ -41,6 +41,14 @@ fit the criterion models; the rest is what the design must average at the workin
 :math:`\omega` the joint axes in the tracker frame). Checked against central differences in
 ``tests/oed/test_joint_prior.py``.
 
+**Motor-side harmonics** (optional, off by default: ``motor`` = 0): a second Matérn 5/2 part
+:math:`m_k^2\,m_{5/2}(|2\sin(\Delta/2)|/\ell_{m,k})` of short length :math:`\ell_m`
+(:data:`MOTOR_LENGTH`), for the transmission errors once and twice per *motor* revolution (at
+gear ratios :math:`N` of 50-200 their period :math:`2\pi/N` is 0.03-0.13 rad of joint angle; with
+:math:`N` unknown their covariance decays within about :math:`1/N`). Poses more than a few
+:math:`\ell_m` apart see independent values, a repeated pose the same one: a repeat does not
+average it. Measured on the realistic simulator in ``docs/oed.md`` ("Run to convergence").
+
 **Defaults per robot size** (:meth:`JointErrorPrior.default_for`, ``docs/scenes.md``): the size
 class of the arm's URDF mass and the published magnitudes of
 :mod:`calib_oed.model.size_class` (the same sources as the realistic simulator):
@@ -71,8 +79,10 @@ SMOOTH_SIGMA = 10.0 * ARCSEC
 SMOOTH_LENGTH = float(np.radians(60.0))
 #: Default standard deviation of the joint gain errors [rad/rad].
 GAIN_SIGMA = 5e-5
+#: Default length scale of the optional motor-side part [rad] (:class:`JointErrorPrior` ``motor``).
+MOTOR_LENGTH = 0.015
 _A = np.sqrt(5.0)
-_FIELDS = ("once", "twice", "smooth", "length", "gain", "compliance")
+_FIELDS = ("once", "twice", "smooth", "length", "gain", "compliance", "motor", "motor_length")
 
 
 @dataclass(frozen=True, eq=False)
@@ -86,6 +96,7 @@ class JointErrorPrior:
         compliance: :math:`\gamma` [rad/(N·m)]; needs ``gravity`` when any is > 0.
         gravity: The nominal arm's gravity load (None: no compliance part).
         source: Where the numbers come from.
+        motor: RMS :math:`m` of the motor-side part [rad] (0: none); ``motor_length`` :math:`\ell_m` [rad].
     """
 
     once: np.ndarray
@@ -96,14 +107,16 @@ class JointErrorPrior:
     compliance: np.ndarray
     gravity: GravityLoad | None = field(default=None, repr=False)
     source: str = "given"
+    motor: np.ndarray | float = 0.0
+    motor_length: np.ndarray | float = MOTOR_LENGTH
 
     def __post_init__(self):
         nq = np.atleast_1d(np.asarray(self.once)).size
         for name in _FIELDS:
             arr = np.broadcast_to(np.asarray(getattr(self, name), dtype=float), (nq,)).copy()
-            if not np.all(np.isfinite(arr)) or np.any(arr < 0) or (name == "length" and np.any(arr <= 0)):
+            if not np.all(np.isfinite(arr)) or np.any(arr < 0) or (name.endswith("length") and np.any(arr <= 0)):
                 raise ParameterError(f"joint model error {name}: one finite value >= 0 per joint "
-                                     f"({'> 0 ' if name == 'length' else ''}{nq} joints), got {arr.tolist()}")
+                                     f"({'> 0 ' if name.endswith('length') else ''}{nq} joints), got {arr.tolist()}")
             arr.setflags(write=False)
             object.__setattr__(self, name, arr)
         if np.any(self.compliance > 0) and self.gravity is None:
@@ -133,14 +146,28 @@ class JointErrorPrior:
         size of the arm's errors."""
         f = float(factor)
         return JointErrorPrior(self.once * f, self.twice * f, self.smooth * f, self.length, self.gain * f,
-                               self.compliance * f, self.gravity, f"{self.source}, x{f:g}")
+                               self.compliance * f, self.gravity, f"{self.source}, x{f:g}",
+                               self.motor * f, self.motor_length)
+
+    def with_motor(self, rms: float, length: float = MOTOR_LENGTH) -> JointErrorPrior:
+        """This prior with the motor-side part of RMS ``rms`` [rad] and length ``length`` [rad] on every joint."""
+        return JointErrorPrior(self.once, self.twice, self.smooth, self.length, self.gain, self.compliance,
+                               self.gravity, f"{self.source}, motor {rms / ARCSEC:.3g} arcsec / {length:g} rad",
+                               rms, length)
+
+    @property
+    def has_motor(self) -> bool:
+        """Whether the motor-side part is there (``motor`` > 0 on some joint)."""
+        return bool(np.any(self.motor > 0))
 
     def to_dict(self) -> dict:
         """Report units: arcsec, deg, µrad/rad, µrad/(N·m)."""
         return {"kind": "joint", "once_arcsec": (self.once / ARCSEC).tolist(),
                 "twice_arcsec": (self.twice / ARCSEC).tolist(), "smooth_arcsec": (self.smooth / ARCSEC).tolist(),
                 "length_deg": np.degrees(self.length).tolist(), "gain_urad_per_rad": (self.gain * 1e6).tolist(),
-                "compliance_urad_per_nm": (self.compliance * 1e6).tolist(), "source": self.source}
+                "compliance_urad_per_nm": (self.compliance * 1e6).tolist(), "source": self.source,
+                **({"motor_arcsec": (self.motor / ARCSEC).tolist(), "motor_length_mrad": (self.motor_length * 1e3).tolist()}
+                   if self.has_motor else {})}
 
     @classmethod
     def from_dict(cls, data: dict, gravity: GravityLoad | None) -> JointErrorPrior:
@@ -149,7 +176,9 @@ class JointErrorPrior:
         return cls(ARCSEC * np.asarray(data["once_arcsec"], float), ARCSEC * np.asarray(data["twice_arcsec"], float),
                    ARCSEC * np.asarray(data["smooth_arcsec"], float), np.radians(np.asarray(data["length_deg"], float)),
                    1e-6 * np.asarray(data["gain_urad_per_rad"], float),
-                   1e-6 * np.asarray(data["compliance_urad_per_nm"], float), gravity, str(data.get("source", "")))
+                   1e-6 * np.asarray(data["compliance_urad_per_nm"], float), gravity, str(data.get("source", "")),
+                   ARCSEC * np.asarray(data.get("motor_arcsec", 0.0), float),
+                   1e-3 * np.asarray(data.get("motor_length_mrad", MOTOR_LENGTH * 1e3), float))
 
     def compute_own_variance(self, q: np.ndarray) -> np.ndarray:
         r"""Each joint's angle-error variance :math:`k_k(q, q) = a_1^2 + a_2^2 + s^2 + \nu^2 q_k^2
@@ -157,6 +186,8 @@ class JointErrorPrior:
         own = self.once**2 + self.twice**2 + self.smooth**2 + self.gain**2 * q[:, :self.nq] ** 2
         if self.gravity is not None and np.any(self.compliance > 0):
             own = own + self.compliance**2 * self.gravity.torques(q)[:, :self.nq] ** 2
+        if self.has_motor:
+            own = own + self.motor**2
         return own
 
     def describe(self) -> str:
@@ -165,8 +196,9 @@ class JointErrorPrior:
             return "/".join(f"{x:.3g}" for x in a * s)
         return (f"joint model error: RMS once {fmt(self.once, 1 / ARCSEC)} arcsec, twice "
                 f"{fmt(self.twice, 1 / ARCSEC)} arcsec, smooth {fmt(self.smooth, 1 / ARCSEC)} arcsec, "
-                f"gain {fmt(self.gain, 1e6)} urad/rad, compliance {fmt(self.compliance, 1e6)} urad/(N m) "
-                f"({self.source})")
+                f"gain {fmt(self.gain, 1e6)} urad/rad, compliance {fmt(self.compliance, 1e6)} urad/(N m)"
+                + (f", motor-side {fmt(self.motor, 1 / ARCSEC)} arcsec" if self.has_motor else "")
+                + f" ({self.source})")
 
     # ------------------------------------------------------------ kernels
     def _own(self, q1, q2, gradient: bool):
@@ -176,10 +208,12 @@ class JointErrorPrior:
         e = np.exp(-_A * r)
         if not gradient:
             k = a1 * np.cos(d) + a2 * np.cos(2 * d) + s2 * (1 + _A * r + 5.0 * r**2 / 3) * e
-            return k + self.gain**2 * q1[:, None, :] * q2[None, :, :]
+            k = k + self.gain**2 * q1[:, None, :] * q2[None, :, :]
+            return k + _matern(d, self.motor**2, 1.0 / self.motor_length**2, 0) if self.has_motor else k
         g = -s2 * (5.0 / 3) * (1 + _A * r) * e
         dk = -a1 * np.sin(d) - 2 * a2 * np.sin(2 * d) + g * np.sin(d) * inv
-        return dk + self.gain**2 * q2[None, :, :]
+        dk = dk + self.gain**2 * q2[None, :, :]
+        return dk + _matern(d, self.motor**2, 1.0 / self.motor_length**2, 1) if self.has_motor else dk
 
     def compute_own_second(self, q1: np.ndarray, q2: np.ndarray) -> np.ndarray:
         r""":math:`k''_\kappa(\Delta)` of the own-angle parts, without the gain and compliance
@@ -191,7 +225,8 @@ class JointErrorPrior:
         e = np.exp(-_A * r)
         g = -(5.0 / 3.0) * (1 + _A * r) * e
         matern = (25.0 / 3.0) * e * np.sin(d) ** 2 * inv**2 + g * np.cos(d) * inv
-        return -a1 * np.cos(d) - 4.0 * a2 * np.cos(2 * d) + s2 * matern
+        out = -a1 * np.cos(d) - 4.0 * a2 * np.cos(2 * d) + s2 * matern
+        return out + _matern(d, self.motor**2, 1.0 / self.motor_length**2, 2) if self.has_motor else out
 
     def compute_kernels(self, q1: np.ndarray, q2: np.ndarray, tau=None) -> np.ndarray:
         r""":math:`k_k(q_{1,a}, q_{2,b})` (nq, n1, n2) [rad²]; ``tau`` the torques at (q1, q2) if known."""
@@ -215,6 +250,19 @@ class JointErrorPrior:
             _, t2, dt1 = tau  # dt1 (n1, nv, nv): [a, k, m] = d tau_k / d q_m
             out += (self.compliance**2)[:, None, None, None] * np.einsum("akm,bk->kabm", dt1, t2)
         return out
+
+
+def _matern(d, s2, inv, order: int):
+    r""":math:`s^2 m_{5/2}(r)`, :math:`r = |2\sin(\Delta/2)|/\ell` (``inv`` :math:`1/\ell^2`), or its
+    first (``order`` 1) or second (2) derivative in the first argument; ``d`` :math:`\Delta` (n1, n2, nq)."""
+    r = np.abs(2.0 * np.sin(0.5 * d)) * np.sqrt(inv)
+    e = np.exp(-_A * r)
+    if order == 0:
+        return s2 * (1 + _A * r + 5.0 * r**2 / 3) * e
+    g = -(5.0 / 3.0) * (1 + _A * r) * e
+    if order == 1:
+        return s2 * g * np.sin(d) * inv
+    return s2 * ((25.0 / 3.0) * e * np.sin(d) ** 2 * inv**2 + g * np.cos(d) * inv)
 
 
 @dataclass(frozen=True, eq=False)

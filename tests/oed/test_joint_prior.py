@@ -16,7 +16,7 @@ from calib_oed.calibration.workflow import setup
 from calib_oed.exceptions import DesignError, ParameterError
 from calib_oed.feasibility.sampling import sample_feasible
 from calib_oed.measurement.base import evaluate_setup
-from calib_oed.measurement.joint_prior import JointErrorPrior, point_jacobians
+from calib_oed.measurement.joint_prior import ARCSEC, JointErrorPrior, point_jacobians
 from calib_oed.model.size_class import TYPICAL
 from calib_oed.oed.model_error import KRIGING, MODEL_ERROR
 from calib_oed.oed.objective import DesignObjective
@@ -201,3 +201,51 @@ def test_defaults_per_size_class_and_checks(kr16):
     short = JointErrorPrior(kr.once[:5], kr.twice[:5], kr.smooth[:5], kr.length[:5], kr.gain[:5], np.zeros(5))
     with pytest.raises(DesignError, match="one value per joint"):
         DesignObjective(s.problem, MODEL_ERROR, model_error=short)
+
+
+def test_motor_side_part_derivatives_and_record(kr16):
+    """The optional short-length part: its kernel gradient and own-angle second derivative against
+    central differences (close and far pose pairs), off by default, in the record only when on."""
+    s, q = kr16
+    base = default_prior(s.problem)
+    assert not base.has_motor and "motor_arcsec" not in base.to_dict()
+    motor = base.with_motor(4.0 * ARCSEC, 0.05)
+    nq = motor.nq
+    z = np.zeros(nq)
+    alone = JointErrorPrior(z, z, z, np.ones(nq), z, z, motor=motor.motor, motor_length=motor.motor_length)
+    q1 = q[:3]
+    q2 = np.vstack([q[3:6], q1 + 0.01])  # far pairs, and pairs within the length scale
+    grad = alone.compute_kernel_gradients(q1, q2)
+    second = alone.compute_own_second(q1, q2)  # (n1, n2, nq)
+    for a in range(len(q1)):
+        def fun(x, a=a):
+            qq = q1.copy()
+            qq[a] = x
+            return alone.compute_kernels(qq, q2)[:, a, :]
+        num = central_difference(fun, q1[a])  # (nq, n2, nv)
+        assert np.allclose(grad[:, a], num, rtol=1e-6, atol=1e-6 * np.abs(num).max())
+        for k in range(nq):
+            def own_grad(x, a=a, k=k):
+                qq = q1.copy()
+                qq[a, k] = x[0]
+                return alone.compute_kernel_gradients(qq, q2)[k, a, :, k]
+            num2 = central_difference(own_grad, q1[a, k:k + 1])[:, 0]
+            assert np.allclose(second[a, :, k], num2, rtol=1e-5, atol=1e-6 * np.abs(num2).max())
+    np.testing.assert_allclose(motor.compute_own_variance(q1) - base.compute_own_variance(q1),
+                               np.broadcast_to(motor.motor**2, (len(q1), nq)), rtol=1e-9)
+    back = JointErrorPrior.from_dict(motor.to_dict(), motor.gravity)
+    np.testing.assert_allclose(back.motor, motor.motor)
+    np.testing.assert_allclose(back.motor_length, motor.motor_length)
+    assert "motor-side" in motor.describe()
+
+
+def test_the_criterion_with_the_motor_side_part_is_the_monte_carlo_error(kr16):
+    s, q = kr16
+    obj = DesignObjective(s.problem, MODEL_ERROR, model_error=default_prior(s.problem).with_motor(4.0 * ARCSEC))
+    assert obj.compute_value(q) == pytest.approx(monte_carlo(obj, q, 4000, 2), rel=0.05)
+    # a repeated pose does not average the motor-side part: a repeat is worth less with it
+    plain = DesignObjective(s.problem, MODEL_ERROR)
+    twice = np.vstack([q, q])
+    gain_with = obj.compute_value(twice) / obj.compute_value(q)
+    gain_without = plain.compute_value(twice) / plain.compute_value(q)
+    assert gain_with > gain_without

@@ -106,3 +106,22 @@ def test_pieces_shared_with_the_gradient_change_no_bit(case, monkeypatch):
     assert np.array_equal(objective.compute(q2).gradient, grad_fresh)
     kept = [v for k, v in objective.criterion._memo.items() if k[0] == "covariances"]
     assert len(kept) == 1 and not kept[0][0].flags.writeable  # kept arrays cannot be changed by a caller
+
+
+def test_exact_hessian_with_the_motor_side_part(monkeypatch):
+    """The optional short-length part of the joint prior (calib_oed.measurement.joint_prior) in the
+    exact Hessian, against central differences of the exact gradient (fms_kr16; poses near each other)."""
+    from calib_oed.calibration.joint_prior_choice import joint_prior
+    from calib_oed.measurement.joint_prior import ARCSEC
+
+    s = setup(load_scene("fms_kr16"))
+    prior = joint_prior(s.problem).with_motor(20.0 * ARCSEC, 0.05)
+    objective = DesignObjective(s.problem, scene_criterion(s, "kpi_model", prior))
+    q = s.problem.robot.random_configurations(10, 3)
+    q = np.vstack([q, q[:3] + 0.02])  # pairs within the length scale
+    seen = {}
+    exact = meh.compute_hessian
+    monkeypatch.setattr(meh, "compute_hessian", lambda *a, **k: seen.setdefault("h", exact(*a, **k)))
+    objective.compute_hessian(q)
+    fd = central_difference(lambda x: objective.compute(x.reshape(q.shape)).gradient.ravel(), q.ravel())
+    assert np.abs(seen["h"] - fd).max() <= 1e-6 * np.abs(fd).max()
