@@ -36,10 +36,8 @@ def strong_prior(problem) -> JointErrorPrior:
                            np.full(nq, 1e-4), d.compliance * 3, d.gravity, "test")
 
 
-def test_kernel_gradients_match_central_differences(kr16):
-    s, q = kr16
-    prior = strong_prior(s.problem)
-    q1, q2 = q[:4], q[4:9]
+def assert_kernel_gradients(prior: JointErrorPrior, q1: np.ndarray, q2: np.ndarray) -> None:
+    """``compute_kernel_gradients`` against central differences of ``compute_kernels``."""
     grad = prior.compute_kernel_gradients(q1, q2)  # (nq, n1, n2, nv)
     for a in range(len(q1)):
         def fun(x, a=a):
@@ -48,6 +46,12 @@ def test_kernel_gradients_match_central_differences(kr16):
             return prior.compute_kernels(qq, q2)[:, a, :]
         num = central_difference(fun, q1[a])  # (nq, n2, nv)
         assert np.allclose(grad[:, a], num, rtol=1e-6, atol=1e-6 * np.abs(num).max())
+
+
+def test_kernel_gradients_match_central_differences(kr16):
+    s, q = kr16
+    prior = strong_prior(s.problem)
+    assert_kernel_gradients(prior, q[:4], q[4:9])
     # symmetric, positive semidefinite per joint, and the variance of one joint is its parts' sum
     k = prior.compute_kernels(q, q)
     assert np.allclose(k, np.swapaxes(k, 1, 2))
@@ -215,15 +219,9 @@ def test_motor_side_part_derivatives_and_record(kr16):
     alone = JointErrorPrior(z, z, z, np.ones(nq), z, z, motor=motor.motor, motor_length=motor.motor_length)
     q1 = q[:3]
     q2 = np.vstack([q[3:6], q1 + 0.01])  # far pairs, and pairs within the length scale
-    grad = alone.compute_kernel_gradients(q1, q2)
+    assert_kernel_gradients(alone, q1, q2)
     second = alone.compute_own_second(q1, q2)  # (n1, n2, nq)
     for a in range(len(q1)):
-        def fun(x, a=a):
-            qq = q1.copy()
-            qq[a] = x
-            return alone.compute_kernels(qq, q2)[:, a, :]
-        num = central_difference(fun, q1[a])  # (nq, n2, nv)
-        assert np.allclose(grad[:, a], num, rtol=1e-6, atol=1e-6 * np.abs(num).max())
         for k in range(nq):
             def own_grad(x, a=a, k=k):
                 qq = q1.copy()
