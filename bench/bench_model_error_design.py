@@ -23,7 +23,7 @@ design CPU time (``solver.cpu_seconds``, one BLAS thread).
 
     nice -n 10 python bench/bench_model_error_design.py [--scenes fms_kr16 ur5_table bench/scenes/ur10_cell.yaml]
         [--model rigid|extended] [-n 60] [--truths 40] [--noise 1] [--seed 0] [--compensate] [--out DIR]
-        [--prior-scale F] [--converged] [--motor ARCSEC] [--motor-length RAD]
+        [--prior-scale F] [--converged] [--motor ARCSEC] [--motor-length RAD] [--smooth-scale F]
 
 ``--prior-scale F`` designs ``kpi_model`` with every amplitude of its prior times F (the
 length scales kept): how much a misjudged prior costs.
@@ -36,6 +36,8 @@ design); its ratio is paired with both ``kpi`` and the default ``kpi_model`` des
 ``--motor ARCSEC`` gives both ``kpi_model`` designs the prior with its optional motor-side part of
 that RMS (:meth:`~calib_oed.measurement.joint_prior.JointErrorPrior.with_motor`, length
 ``--motor-length``, default :data:`~calib_oed.measurement.joint_prior.MOTOR_LENGTH`).
+``--smooth-scale F``: their prior's smooth own-angle part times F (0 drops it; the realistic
+simulator has no such part).
 
 ``--out DIR`` also writes ``DIR/<scene>_<model>_designs.npz`` (both designs and the working
 configurations) for the figure of docs/oed.md (``--figure SCENE`` draws it from there).
@@ -61,7 +63,7 @@ from calib_oed.calibration.realistic import sample_truth
 from calib_oed.calibration.realistic_defaults import realistic_settings_from_scene
 from calib_oed.calibration.realistic_measure import measure
 from calib_oed.calibration.workflow import setup
-from calib_oed.measurement.joint_prior import ARCSEC, MOTOR_LENGTH
+from calib_oed.measurement.joint_prior import ARCSEC, MOTOR_LENGTH, JointErrorPrior
 from calib_oed.model.compliance import Compliance
 from calib_oed.model.joint_map import JointGains
 from calib_oed.oed.design import design
@@ -151,7 +153,8 @@ def converged_design(s, n: int, criterion, seed: int):
 
 def run_scene(scene_ref: str, model: str, n: int, truths: int, noise: int, seed: int, compensate: bool,
               out: Path | None, prior_scale: float = 1.0, frame: str | None = None,
-              converged: bool = False, motor: float = 0.0, motor_length: float = MOTOR_LENGTH) -> dict:
+              converged: bool = False, motor: float = 0.0, motor_length: float = MOTOR_LENGTH,
+              smooth_scale: float = 1.0) -> dict:
     scene = load_scene(scene_ref)
     s = setup(extended_scene(scene) if model == "extended" else scene)
     prior = s.scene.model_error if s.scene.model_error is not None else joint_prior(s.problem)
@@ -159,6 +162,12 @@ def run_scene(scene_ref: str, model: str, n: int, truths: int, noise: int, seed:
         prior = prior.scaled(prior_scale)
     if motor > 0:
         prior = prior.with_motor(motor * ARCSEC, motor_length)
+    if smooth_scale != 1.0:
+        if not isinstance(prior, JointErrorPrior):
+            raise SystemExit("--smooth-scale needs the joint-space prior")
+        prior = JointErrorPrior(prior.once, prior.twice, prior.smooth * smooth_scale, prior.length, prior.gain,
+                                prior.compliance, prior.gravity, f"{prior.source}, smooth x{smooth_scale:g}",
+                                prior.motor, prior.motor_length)
     row = {"scene": s.scene.name, "model": model, "n": n, "truths": truths, "noise_draws": noise,
            "prior": prior.describe(), "frame": frame or s.problem.kpi.frame}
     designs, errors = {}, {}
@@ -246,6 +255,8 @@ def main() -> None:
     ap.add_argument("--motor", type=float, default=0.0, metavar="ARCSEC",
                     help="the kpi_model designs' prior with a motor-side part of this RMS [arcsec]")
     ap.add_argument("--motor-length", type=float, default=MOTOR_LENGTH, metavar="RAD")
+    ap.add_argument("--smooth-scale", type=float, default=1.0, metavar="F",
+                    help="the kpi_model designs' prior with its smooth own-angle part times F (0: none)")
     ap.add_argument("--out", type=Path)
     ap.add_argument("--figure", metavar="SCENE", help="only draw the figure of SCENE from --out")
     args = ap.parse_args()
@@ -256,7 +267,8 @@ def main() -> None:
         for scene in args.scenes:
             print(json.dumps(run_scene(scene, args.model, args.n, args.truths, args.noise, args.seed,
                                        args.compensate, args.out, args.prior_scale, args.frame,
-                                       args.converged, args.motor, args.motor_length)), flush=True)
+                                       args.converged, args.motor, args.motor_length, args.smooth_scale)),
+                  flush=True)
 
 
 if __name__ == "__main__":
