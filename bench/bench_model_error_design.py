@@ -160,14 +160,13 @@ def run_scene(scene_ref: str, model: str, n: int, truths: int, noise: int, seed:
     prior = s.scene.model_error if s.scene.model_error is not None else joint_prior(s.problem)
     if prior_scale != 1.0:
         prior = prior.scaled(prior_scale)
+    if (motor > 0 or smooth_scale != 1.0) and not isinstance(prior, JointErrorPrior):
+        raise SystemExit("--motor and --smooth-scale need the joint-space prior (the scene has another)")
     if motor > 0:
         prior = prior.with_motor(motor * ARCSEC, motor_length)
     if smooth_scale != 1.0:
-        if not isinstance(prior, JointErrorPrior):
-            raise SystemExit("--smooth-scale needs the joint-space prior")
-        prior = JointErrorPrior(prior.once, prior.twice, prior.smooth * smooth_scale, prior.length, prior.gain,
-                                prior.compliance, prior.gravity, f"{prior.source}, smooth x{smooth_scale:g}",
-                                prior.motor, prior.motor_length)
+        prior = dataclasses.replace(prior, smooth=prior.smooth * smooth_scale,
+                                    source=f"{prior.source}, smooth x{smooth_scale:g}")
     row = {"scene": s.scene.name, "model": model, "n": n, "truths": truths, "noise_draws": noise,
            "prior": prior.describe(), "frame": frame or s.problem.kpi.frame}
     designs, errors = {}, {}

@@ -61,7 +61,7 @@ the joint's gravity torque, as in the realistic simulator; small arms have none,
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -145,15 +145,13 @@ class JointErrorPrior:
         """Every amplitude times ``factor`` (the length scales kept): a prior that misjudges the
         size of the arm's errors."""
         f = float(factor)
-        return JointErrorPrior(self.once * f, self.twice * f, self.smooth * f, self.length, self.gain * f,
-                               self.compliance * f, self.gravity, f"{self.source}, x{f:g}",
-                               self.motor * f, self.motor_length)
+        return replace(self, once=self.once * f, twice=self.twice * f, smooth=self.smooth * f, gain=self.gain * f,
+                       compliance=self.compliance * f, motor=self.motor * f, source=f"{self.source}, x{f:g}")
 
     def with_motor(self, rms: float, length: float = MOTOR_LENGTH) -> JointErrorPrior:
         """This prior with the motor-side part of RMS ``rms`` [rad] and length ``length`` [rad] on every joint."""
-        return JointErrorPrior(self.once, self.twice, self.smooth, self.length, self.gain, self.compliance,
-                               self.gravity, f"{self.source}, motor {rms / ARCSEC:.3g} arcsec / {length:g} rad",
-                               rms, length)
+        return replace(self, motor=rms, motor_length=length,
+                       source=f"{self.source}, motor {rms / ARCSEC:.3g} arcsec / {length:g} rad")
 
     @property
     def has_motor(self) -> bool:
