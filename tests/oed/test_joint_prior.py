@@ -235,6 +235,10 @@ def test_motor_side_part_derivatives_and_record(kr16):
     np.testing.assert_allclose(back.motor, motor.motor)
     np.testing.assert_allclose(back.motor_length, motor.motor_length)
     assert "motor-side" in motor.describe()
+    with pytest.raises(ParameterError, match="motor_length"):
+        base.with_motor(4.0 * ARCSEC, 0.0)
+    with pytest.raises(ParameterError, match="motor"):
+        base.with_motor(-1.0)
 
 
 def test_the_criterion_with_the_motor_side_part_is_the_monte_carlo_error(kr16):
