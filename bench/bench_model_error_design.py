@@ -23,21 +23,24 @@ design CPU time (``solver.cpu_seconds``, one BLAS thread).
 
     nice -n 10 python bench/bench_model_error_design.py [--scenes fms_kr16 ur5_table bench/scenes/ur10_cell.yaml]
         [--model rigid|extended] [-n 60] [--truths 40] [--noise 1] [--seed 0] [--compensate] [--out DIR]
-        [--prior-scale F] [--converged] [--motor ARCSEC] [--motor-length RAD] [--smooth-scale F]
+        [--prior-scale F] [--budgets 25,60,300] [--motor ARCSEC] [--motor-length RAD] [--smooth ARCSEC]
 
 ``--prior-scale F`` designs ``kpi_model`` with every amplitude of its prior times F (the
 length scales kept): how much a misjudged prior costs.
 
-``--converged`` adds a third design, ``kpi_model`` run to convergence: the SQP's own iteration limit
-(300), ``trust_update="ratio"`` and the whole exact Hessian
-(:data:`calib_oed.oed.model_error_hessian.FULL_COUPLING_MAX_SIZE` raised to its size for that
-design); its ratio is paired with both ``kpi`` and the default ``kpi_model`` design.
+``--budgets 25,60,300`` adds ``kpi_model`` designs with these SQP iteration limits instead of the
+default's (:data:`calib_oed.oed.model_error.MODEL_ERROR_EXACT_ITERATIONS`), the rest of its settings
+the default's (the ratio trust rule) and the whole exact Hessian
+(:data:`calib_oed.oed.model_error_hessian.FULL_COUPLING_MAX_SIZE` raised to its size, as the default
+has it at n = 60); each is paired with both ``kpi`` and the default ``kpi_model`` design. 300 is the
+SQP's own limit: the design run to convergence.
 
-``--motor ARCSEC`` gives both ``kpi_model`` designs the prior with its optional motor-side part of
-that RMS (:meth:`~calib_oed.measurement.joint_prior.JointErrorPrior.with_motor`, length
-``--motor-length``, default :data:`~calib_oed.measurement.joint_prior.MOTOR_LENGTH`).
-``--smooth-scale F``: their prior's smooth own-angle part times F (0 drops it; the realistic
-simulator has no such part).
+``--motor ARCSEC`` sets the RMS of the ``kpi_model`` designs' motor-side part
+(:class:`~calib_oed.measurement.joint_prior.JointErrorPrior` ``motor``, length ``--motor-length``,
+default :data:`~calib_oed.measurement.joint_prior.MOTOR_LENGTH`; 0 drops it), ``--smooth ARCSEC``
+that of their smooth own-angle part (length 60 deg unless the prior has another; the default prior
+has none, and the realistic simulator has no such part). ``--motor 0 --smooth 10`` is the default
+prior before its motor-side part.
 
 ``--out DIR`` also writes ``DIR/<scene>_<model>_designs.npz`` (both designs and the working
 configurations) for the figure of docs/oed.md (``--figure SCENE`` draws it from there).
@@ -67,7 +70,7 @@ from calib_oed.measurement.joint_prior import ARCSEC, MOTOR_LENGTH, JointErrorPr
 from calib_oed.model.compliance import Compliance
 from calib_oed.model.joint_map import JointGains
 from calib_oed.oed.design import design
-from calib_oed.oed.model_error import design_prior, scene_criterion
+from calib_oed.oed.model_error import MODEL_ERROR_TRUST_UPDATE, design_prior, scene_criterion
 from calib_oed.oed.positions import reflector_positions
 from calib_oed.scene.records import ComplianceSpec
 from calib_oed.solver.settings import SQPSettings
@@ -138,41 +141,45 @@ def rms_with_error(mse: np.ndarray) -> tuple[float, float]:
     return rms, float(per_truth.std(ddof=1) / np.sqrt(per_truth.size) / (2 * rms))
 
 
-CONVERGED = "kpi_model_converged"
-
-
-def converged_design(s, n: int, criterion, seed: int):
-    """The ``kpi_model`` design run to convergence (``--converged``, module docstring)."""
+def budget_design(s, n: int, criterion, seed: int, iterations: int):
+    """The ``kpi_model`` design with an SQP limit of ``iterations`` and the whole Hessian (``--budgets``)."""
     old = meh.FULL_COUPLING_MAX_SIZE
     meh.FULL_COUPLING_MAX_SIZE = n * s.problem.robot.nq
     try:
-        return design(s, n, criterion, seed=seed, certificate=False, settings=SQPSettings(trust_update="ratio"))
+        return design(s, n, criterion, seed=seed, certificate=False,
+                      settings=SQPSettings(max_iterations=iterations, trust_update=MODEL_ERROR_TRUST_UPDATE))
     finally:
         meh.FULL_COUPLING_MAX_SIZE = old
 
 
+def with_parts(prior, motor: float | None, motor_length: float, smooth: float | None):
+    """``prior`` with its motor-side and smooth parts' RMS set [arcsec] (None: kept)."""
+    if (motor is not None or smooth is not None) and not isinstance(prior, JointErrorPrior):
+        raise SystemExit("--motor and --smooth need the joint-space prior (the scene has another)")
+    if motor is not None:
+        prior = prior.with_motor(motor * ARCSEC, motor_length)
+    if smooth is not None:
+        prior = dataclasses.replace(prior, smooth=np.full(prior.nq, smooth * ARCSEC),
+                                    source=f"{prior.source}, smooth {smooth:g} arcsec")
+    return prior
+
+
 def run_scene(scene_ref: str, model: str, n: int, truths: int, noise: int, seed: int, compensate: bool,
               out: Path | None, prior_scale: float = 1.0, frame: str | None = None,
-              converged: bool = False, motor: float = 0.0, motor_length: float = MOTOR_LENGTH,
-              smooth_scale: float = 1.0) -> dict:
+              budgets: tuple[int, ...] = (), motor: float | None = None, motor_length: float = MOTOR_LENGTH,
+              smooth: float | None = None) -> dict:
     scene = load_scene(scene_ref)
     s = setup(extended_scene(scene) if model == "extended" else scene)
     prior = s.scene.model_error if s.scene.model_error is not None else joint_prior(s.problem)
     if prior_scale != 1.0:
         prior = prior.scaled(prior_scale)
-    if (motor > 0 or smooth_scale != 1.0) and not isinstance(prior, JointErrorPrior):
-        raise SystemExit("--motor and --smooth-scale need the joint-space prior (the scene has another)")
-    if motor > 0:
-        prior = prior.with_motor(motor * ARCSEC, motor_length)
-    if smooth_scale != 1.0:
-        prior = dataclasses.replace(prior, smooth=prior.smooth * smooth_scale,
-                                    source=f"{prior.source}, smooth x{smooth_scale:g}")
+    prior = with_parts(prior, motor, motor_length, smooth)
     row = {"scene": s.scene.name, "model": model, "n": n, "truths": truths, "noise_draws": noise,
            "prior": prior.describe(), "frame": frame or s.problem.kpi.frame}
     designs, errors = {}, {}
-    for crit in ("kpi", "kpi_model") + ((CONVERGED,) if converged else ()):
-        if crit == CONVERGED:
-            d = converged_design(s, n, scene_criterion(s, "kpi_model", prior), seed)
+    for crit in ("kpi", "kpi_model") + tuple(f"kpi_model_{b}" for b in budgets):
+        if crit.startswith("kpi_model_"):
+            d = budget_design(s, n, scene_criterion(s, "kpi_model", prior), seed, int(crit.rsplit("_", 1)[1]))
         else:
             d = design(s, n, scene_criterion(s, crit, prior), seed=seed, certificate=False)
         designs[crit] = d
@@ -190,7 +197,7 @@ def run_scene(scene_ref: str, model: str, n: int, truths: int, noise: int, seed:
             row[crit][pred] = {"achieved_rms_mm": rms, "se_mm": se, "ratio_to_kpi_fit": ratio,
                                "ratio_se": ratio_se,
                                "better_share": float(np.mean(mse.mean(axis=1) < errors["kpi"]["fit"].mean(axis=1)))}
-            if crit == CONVERGED:
+            if crit.startswith("kpi_model_"):
                 ratio, ratio_se = paired_ratio(mse, errors["kpi_model"][pred], seed)
                 row[crit][pred].update(ratio_to_kpi_model=ratio, ratio_to_kpi_model_se=ratio_se, better_than_kpi_model=float(
                     np.mean(mse.mean(axis=1) < errors["kpi_model"][pred].mean(axis=1))))
@@ -203,7 +210,7 @@ def run_scene(scene_ref: str, model: str, n: int, truths: int, noise: int, seed:
                  p_noise_only=reflector_positions(space, designs["kpi"].q)[:, 0],
                  p_model_error=reflector_positions(space, designs["kpi_model"].q)[:, 0],
                  p_working=reflector_positions(space, s.problem.kpi.configurations)[:, 0],
-                 **({"model_error_converged": designs[CONVERGED].q} if converged else {}))
+                 **{f"model_error_{b}": designs[f"kpi_model_{b}"].q for b in budgets})
     return row
 
 
@@ -235,6 +242,16 @@ def figure(out: Path, scene: str, model: str) -> Path:
     return path
 
 
+def _budgets(text: str) -> tuple[int, ...]:
+    try:
+        out = tuple(int(x) for x in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected iteration limits like 25,60,300, got {text!r}") from None
+    if any(b < 1 for b in out):
+        raise argparse.ArgumentTypeError(f"iteration limits must be >= 1, got {text!r}")
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scenes", nargs="+", default=["fms_kr16", "ur5_table", "bench/scenes/ur10_cell.yaml"])
@@ -249,13 +266,13 @@ def main() -> None:
     ap.add_argument("--frame", choices=("tracker", "world"), default=None,
                     help="where the achieved KPI error is taken (default: the KPI's own frame, the one "
                          "the design criterion predicts; tracker: as identify predicts it)")
-    ap.add_argument("--converged", action="store_true",
-                    help="also the kpi_model design run to convergence, paired with the default one")
-    ap.add_argument("--motor", type=float, default=0.0, metavar="ARCSEC",
-                    help="the kpi_model designs' prior with a motor-side part of this RMS [arcsec]")
+    ap.add_argument("--budgets", type=_budgets, default=(), metavar="N,N,...",
+                    help="also kpi_model designs with these SQP iteration limits, paired with the default one")
+    ap.add_argument("--motor", type=float, default=None, metavar="ARCSEC",
+                    help="the kpi_model designs' prior with its motor-side part of this RMS [arcsec] (0: none)")
     ap.add_argument("--motor-length", type=float, default=MOTOR_LENGTH, metavar="RAD")
-    ap.add_argument("--smooth-scale", type=float, default=1.0, metavar="F",
-                    help="the kpi_model designs' prior with its smooth own-angle part times F (0: none)")
+    ap.add_argument("--smooth", type=float, default=None, metavar="ARCSEC",
+                    help="the kpi_model designs' prior with a smooth own-angle part of this RMS [arcsec] (0: none)")
     ap.add_argument("--out", type=Path)
     ap.add_argument("--figure", metavar="SCENE", help="only draw the figure of SCENE from --out")
     args = ap.parse_args()
@@ -266,7 +283,7 @@ def main() -> None:
         for scene in args.scenes:
             print(json.dumps(run_scene(scene, args.model, args.n, args.truths, args.noise, args.seed,
                                        args.compensate, args.out, args.prior_scale, args.frame,
-                                       args.converged, args.motor, args.motor_length, args.smooth_scale)),
+                                       args.budgets, args.motor, args.motor_length, args.smooth)),
                   flush=True)
 
 

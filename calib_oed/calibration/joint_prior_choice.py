@@ -43,7 +43,7 @@ def joint_prior(problem, spec=None) -> JointErrorPrior:
     if spec is None:
         return base
     parts = {name: np.array(getattr(base, name), dtype=float)
-             for name in ("once", "twice", "smooth", "length", "gain", "compliance")}
+             for name in ("once", "twice", "smooth", "length", "gain", "compliance", "motor", "motor_length")}
     for name, values in spec.values.items():
         given = np.asarray(values, dtype=float)
         parts[name] = np.where(np.isnan(given), parts[name], given)
@@ -60,7 +60,7 @@ def joint_prior(problem, spec=None) -> JointErrorPrior:
             total = float(np.sum(lever[shared] ** 2))
             parts["smooth"] = np.where(shared, s * np.sqrt(3.0 / total) if total > 0 else 0.0, 0.0)
     f = spec.scale
-    for name in ("once", "twice", "smooth", "gain", "compliance"):
+    for name in ("once", "twice", "smooth", "gain", "compliance", "motor"):
         parts[name] = parts[name] * f
     return JointErrorPrior(**parts, gravity=base.gravity, source=f"{spec.source} ({base.source})")
 

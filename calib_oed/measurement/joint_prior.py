@@ -41,22 +41,26 @@ fit the criterion models; the rest is what the design must average at the workin
 :math:`\omega` the joint axes in the tracker frame). Checked against central differences in
 ``tests/oed/test_joint_prior.py``.
 
-**Motor-side harmonics** (optional, off by default: ``motor`` = 0): a second Matérn 5/2 part
+**Motor-side harmonics**: a second Matérn 5/2 part
 :math:`m_k^2\,m_{5/2}(|2\sin(\Delta/2)|/\ell_{m,k})` of short length :math:`\ell_m`
 (:data:`MOTOR_LENGTH`), for the transmission errors once and twice per *motor* revolution (at
 gear ratios :math:`N` of 50-200 their period :math:`2\pi/N` is 0.03-0.13 rad of joint angle; with
 :math:`N` unknown their covariance decays within about :math:`1/N`). Poses more than a few
 :math:`\ell_m` apart see independent values, a repeated pose the same one: a repeat does not
-average it. Measured on the realistic simulator in ``docs/oed.md`` ("Run to convergence").
+average it, and a pose that shares one joint's angle with a working configuration measures that
+joint's part of the working configuration's error.
 
 **Defaults per robot size** (:meth:`JointErrorPrior.default_for`, ``docs/scenes.md``): the size
 class of the arm's URDF mass and the published magnitudes of
-:mod:`calib_oed.model.size_class` (the same sources as the realistic simulator):
-transmission error RMS 21 and 11 arcsec (30 and 15 arcsec amplitude), a smooth part of 10 arcsec
-with :data:`SMOOTH_LENGTH`, gain errors 5e-5, compliance :math:`\gamma_k = 1/k_k` (the class's
+:mod:`calib_oed.model.size_class` (the same sources as the realistic simulator,
+:mod:`calib_oed.calibration.realistic_defaults`): transmission error RMS 21 and 11 arcsec (30 and
+15 arcsec amplitude), the motor-side part :data:`MOTOR_RMS` (the motor's own harmonics and
+those of the input stage at the joint, 5 and 3 arcsec amplitude, as one RMS), no smooth part
+(:data:`SMOOTH_SIGMA`), gain errors 5e-5, compliance :math:`\gamma_k = 1/k_k` (the class's
 typical stiffness) with the scene's payload; J2's times :math:`1 - b`, :math:`b` the class's
 ``balancer_fraction`` (medium and large arms carry a J2 spring balancer that takes that share of
 the joint's gravity torque, as in the realistic simulator; small arms have none, :math:`b = 0`).
+Measured on the realistic simulator in ``docs/oed.md`` ("The default prior and iteration budget").
 """
 
 from __future__ import annotations
@@ -73,13 +77,20 @@ from calib_oed.model.size_class import TYPICAL, arm_mass, per_joint, size_class_
 ARCSEC = np.pi / (180.0 * 3600.0)
 #: Default RMS of the once- and twice-per-revolution transmission errors [rad] (amplitude / sqrt 2).
 PERIODIC_RMS = (30.0 * ARCSEC / np.sqrt(2.0), 15.0 * ARCSEC / np.sqrt(2.0))
-#: Default amplitude of the smooth part of a joint's own-angle error [rad] (10 arcsec).
-SMOOTH_SIGMA = 10.0 * ARCSEC
-#: Default length scale of the smooth part [rad] (60 deg).
+#: Default amplitude of the smooth part of a joint's own-angle error [rad]: none. The realistic
+#: simulator has no smooth own-angle error; a smooth part of 10 arcsec (length 60 deg) stood in for
+#: the motor-side part and, beside it, counted that error twice (``docs/benchmarks.md``, "The
+#: motor part instead of the smooth part"). A scene or an identification can set one.
+SMOOTH_SIGMA = 0.0
+#: Default length scale of the smooth part [rad] (60 deg), for a scene or identification that sets one.
 SMOOTH_LENGTH = float(np.radians(60.0))
 #: Default standard deviation of the joint gain errors [rad/rad].
 GAIN_SIGMA = 5e-5
-#: Default length scale of the optional motor-side part [rad] (:class:`JointErrorPrior` ``motor``).
+#: Default RMS of the motor-side part [rad]: amplitudes 5 and 3 arcsec once and twice per motor
+#: revolution at the joint (:mod:`calib_oed.calibration.realistic_defaults`), sqrt((5² + 3²)/2) = 4.12 arcsec.
+MOTOR_RMS = float(np.sqrt((5.0**2 + 3.0**2) / 2.0)) * ARCSEC
+#: Default length scale of the motor-side part [rad] (:class:`JointErrorPrior` ``motor``), about
+#: 1/N for the gear ratios N of 50-200.
 MOTOR_LENGTH = 0.015
 _A = np.sqrt(5.0)
 _FIELDS = ("once", "twice", "smooth", "length", "gain", "compliance", "motor", "motor_length")
@@ -139,7 +150,7 @@ class JointErrorPrior:
         nq = model.nq
         return cls(np.full(nq, PERIODIC_RMS[0]), np.full(nq, PERIODIC_RMS[1]), np.full(nq, SMOOTH_SIGMA),
                    np.full(nq, SMOOTH_LENGTH), np.full(nq, GAIN_SIGMA), compliance, gravity,
-                   f"default ({size} arm, {mass:.0f} kg)")
+                   f"default ({size} arm, {mass:.0f} kg)", np.full(nq, MOTOR_RMS), np.full(nq, MOTOR_LENGTH))
 
     def scaled(self, factor: float) -> JointErrorPrior:
         """Every amplitude times ``factor`` (the length scales kept): a prior that misjudges the
@@ -179,13 +190,11 @@ class JointErrorPrior:
                    1e-3 * np.asarray(data.get("motor_length_mrad", MOTOR_LENGTH * 1e3), float))
 
     def compute_own_variance(self, q: np.ndarray) -> np.ndarray:
-        r"""Each joint's angle-error variance :math:`k_k(q, q) = a_1^2 + a_2^2 + s^2 + \nu^2 q_k^2
+        r"""Each joint's angle-error variance :math:`k_k(q, q) = a_1^2 + a_2^2 + s^2 + m^2 + \nu^2 q_k^2
         + \gamma^2\tau_k(q)^2` (n, nq) [rad²] at the configurations ``q`` (n, nq)."""
-        own = self.once**2 + self.twice**2 + self.smooth**2 + self.gain**2 * q[:, :self.nq] ** 2
+        own = self.once**2 + self.twice**2 + self.smooth**2 + self.motor**2 + self.gain**2 * q[:, :self.nq] ** 2
         if self.gravity is not None and np.any(self.compliance > 0):
             own = own + self.compliance**2 * self.gravity.torques(q)[:, :self.nq] ** 2
-        if self.has_motor:
-            own = own + self.motor**2
         return own
 
     def describe(self) -> str:
@@ -201,30 +210,26 @@ class JointErrorPrior:
     # ------------------------------------------------------------ kernels
     def _own(self, q1, q2, gradient: bool):
         d = q1[:, None, :] - q2[None, :, :]  # (n1, n2, nq)
-        a1, a2, s2, inv = self.once**2, self.twice**2, self.smooth**2, 1.0 / self.length**2
-        r = np.abs(2.0 * np.sin(0.5 * d)) * np.sqrt(inv)
-        e = np.exp(-_A * r)
+        a1, a2 = self.once**2, self.twice**2
         if not gradient:
-            k = a1 * np.cos(d) + a2 * np.cos(2 * d) + s2 * (1 + _A * r + 5.0 * r**2 / 3) * e
-            k = k + self.gain**2 * q1[:, None, :] * q2[None, :, :]
-            return k + _matern(d, self.motor**2, 1.0 / self.motor_length**2, 0) if self.has_motor else k
-        g = -s2 * (5.0 / 3) * (1 + _A * r) * e
-        dk = -a1 * np.sin(d) - 2 * a2 * np.sin(2 * d) + g * np.sin(d) * inv
-        dk = dk + self.gain**2 * q2[None, :, :]
-        return dk + _matern(d, self.motor**2, 1.0 / self.motor_length**2, 1) if self.has_motor else dk
+            k = a1 * np.cos(d) + a2 * np.cos(2 * d) + self.gain**2 * q1[:, None, :] * q2[None, :, :]
+        else:
+            k = -a1 * np.sin(d) - 2 * a2 * np.sin(2 * d) + self.gain**2 * q2[None, :, :]
+        return self._matern_parts(d, k, int(gradient))
+
+    def _matern_parts(self, d, k, order: int):
+        """``k`` plus the Matérn parts' (smooth, motor-side) ``order``-th derivative at ``d``."""
+        for s, length in ((self.smooth, self.length), (self.motor, self.motor_length)):
+            if np.any(s > 0):
+                k = k + _matern(d, s**2, 1.0 / length**2, order)
+        return k
 
     def compute_own_second(self, q1: np.ndarray, q2: np.ndarray) -> np.ndarray:
         r""":math:`k''_\kappa(\Delta)` of the own-angle parts, without the gain and compliance
         parts, (n1, n2, nq) [rad²/rad²] (for the criterion's exact Hessian,
         :mod:`calib_oed.oed.model_error_hessian`)."""
         d = q1[:, None, :] - q2[None, :, :]
-        a1, a2, s2, inv = self.once**2, self.twice**2, self.smooth**2, 1.0 / self.length**2
-        r = np.abs(2.0 * np.sin(0.5 * d)) * np.sqrt(inv)
-        e = np.exp(-_A * r)
-        g = -(5.0 / 3.0) * (1 + _A * r) * e
-        matern = (25.0 / 3.0) * e * np.sin(d) ** 2 * inv**2 + g * np.cos(d) * inv
-        out = -a1 * np.cos(d) - 4.0 * a2 * np.cos(2 * d) + s2 * matern
-        return out + _matern(d, self.motor**2, 1.0 / self.motor_length**2, 2) if self.has_motor else out
+        return self._matern_parts(d, -self.once**2 * np.cos(d) - 4.0 * self.twice**2 * np.cos(2 * d), 2)
 
     def compute_kernels(self, q1: np.ndarray, q2: np.ndarray, tau=None) -> np.ndarray:
         r""":math:`k_k(q_{1,a}, q_{2,b})` (nq, n1, n2) [rad²]; ``tau`` the torques at (q1, q2) if known."""

@@ -95,14 +95,14 @@ PREDICTORS = ("fit", "kriging")
 #: within 1.5x of the noise-only design's.
 MODEL_ERROR_ITERATIONS = 60
 #: SQP iterations of a model-error design with the exact Hessian (``kpi_model``,
-#: :mod:`calib_oed.oed.model_error_hessian`): at n = 60 on fms_kr16 and ur5_table at most the CPU of
-#: :data:`MODEL_ERROR_ITERATIONS` BFGS iterations, with a lower value (``docs/benchmarks.md``). Run to
-#: convergence instead (124-275 iterations), the criterion fell 18-30 % but the realistic simulator's
-#: error only 4 % on the mean, at 3-5x the CPU, with repeated configurations and a prediction further
-#: below the achieved error (``docs/oed.md``, "Run to convergence"). That is with today's prior; with
-#: the motor-side part instead of its smooth part, the converged design halved the realistic error
-#: of this default, its prediction kept (same section): the next default, not yet made.
-MODEL_ERROR_EXACT_ITERATIONS = 25
+#: :mod:`calib_oed.oed.model_error_hessian`), with the ratio trust rule and, up to
+#: :data:`~calib_oed.oed.model_error_hessian.FULL_COUPLING_MAX_SIZE`, the whole Hessian. Chosen on the
+#: realistic simulator (``docs/oed.md``, "The default prior and iteration budget"): with the default
+#: prior's motor-side part, the realistic error falls with the iterations up to about 100 and stalls
+#: after, while the prediction keeps falling below it; the designs keep 56-60 distinct poses.
+MODEL_ERROR_EXACT_ITERATIONS = 100
+#: The trust rule of a ``kpi_model`` design (:class:`~calib_oed.solver.settings.SQPSettings` ``trust_update``).
+MODEL_ERROR_TRUST_UPDATE = "ratio"
 #: Relative point motion [1] below which a joint counts as moving no point (:func:`design_prior`).
 STILL_TOL = 1e-9
 _MM = 1e3
@@ -133,12 +133,19 @@ def default_criterion(scene) -> str:
 def design_settings(objective, settings, exact: bool = False):
     """``settings``, or for a criterion of the whole design the SQP defaults capped at
     :data:`MODEL_ERROR_EXACT_ITERATIONS` with the exact Hessian (``exact``: ``kpi_model``),
-    :data:`MODEL_ERROR_ITERATIONS` with damped BFGS (``docs/oed.md``)."""
-    if settings is not None or not getattr(objective, "needs_design", False):
+    :data:`MODEL_ERROR_ITERATIONS` with damped BFGS (``docs/oed.md``). With the exact Hessian, a
+    ``trust_update`` left to the caller (None) is :data:`MODEL_ERROR_TRUST_UPDATE`."""
+    if not getattr(objective, "needs_design", False):
         return settings
+    from dataclasses import replace
+
     from calib_oed.solver.sqp import SQPSettings
 
-    return SQPSettings(max_iterations=MODEL_ERROR_EXACT_ITERATIONS if exact else MODEL_ERROR_ITERATIONS)
+    if settings is None:
+        settings = SQPSettings(max_iterations=MODEL_ERROR_EXACT_ITERATIONS if exact else MODEL_ERROR_ITERATIONS)
+    if exact and settings.trust_update is None:
+        settings = replace(settings, trust_update=MODEL_ERROR_TRUST_UPDATE)
+    return settings
 
 
 def scene_criterion(s, criterion, prior=None):

@@ -57,12 +57,10 @@ EIGENVALUE_FLOOR = 1e-8
 #: Largest size of the Hessian (poses times joints) given to the SQP whole, :math:`|H|` with every
 #: eigenpair (:func:`design_hessian`); above it, the lifted QP's form (the largest :math:`|\theta|`,
 #: :data:`~calib_oed.solver.hessian.LIFTED_MAX_RANK_RATIO` of the size, as a factor, the rest by
-#: pose blocks). 0 (default): always the lifted form, the one the default design (25 iterations,
-#: :data:`calib_oed.oed.model_error.MODEL_ERROR_EXACT_ITERATIONS`) was measured with on the
-#: realistic simulator. The truncation leaves out the remainder's coupling between poses (along
-#: late SQP steps 0.36-0.57 of the true curvature on fms_kr16), so a design run to convergence
-#: takes the whole |H|: ``bench/bench_model_error_design.py --converged`` (``docs/oed.md``).
-FULL_COUPLING_MAX_SIZE = 0
+#: pose blocks). The truncation leaves out the remainder's coupling between poses (along late SQP
+#: steps 0.36-0.57 of the true curvature on fms_kr16), and the QP overshoots; up to this size the
+#: whole |H| costs no more per iteration (``docs/benchmarks.md``, "kpi_model's iteration budget").
+FULL_COUPLING_MAX_SIZE = 360
 
 
 def point_derivatives(axes: np.ndarray, jac: np.ndarray):

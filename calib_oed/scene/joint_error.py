@@ -11,6 +11,8 @@ of one per joint, in the units their names say (not the file's ``units:``)::
         twice_arcsec: 10.6       # RMS of the twice-per-revolution one
         smooth_arcsec: 10        # smooth own-angle part, and its length scale:
         length_deg: 60
+        motor_arcsec: 4.12       # motor-side part (once and twice per motor revolution), and its length:
+        motor_length_mrad: 15
         gain: 5.0e-5             # standard deviation of the gain (scale) errors [rad/rad]
         stiffness_knm_per_rad: [150, 150, 100, 30, 30, 20]   # or compliance_urad_per_nm
         scale: 1.0               # every amplitude times this
@@ -48,6 +50,8 @@ JOINT_KEYS = {
     "twice_arcsec": ("twice", ARCSEC, False),
     "smooth_arcsec": ("smooth", ARCSEC, False),
     "length_deg": ("length", np.pi / 180.0, True),
+    "motor_arcsec": ("motor", ARCSEC, False),
+    "motor_length_mrad": ("motor_length", 1e-3, True),
     "gain": ("gain", 1.0, False),
     "compliance_urad_per_nm": ("compliance", 1e-6, False),
     "stiffness_knm_per_rad": ("compliance", 1e3, True),  # inverted below

@@ -287,8 +287,9 @@ class JointErrorSpec:
     every other part keeps its default for the robot's size class.
 
     Attributes:
-        values: Part name (``once``, ``twice``, ``smooth``, ``length``, ``gain``, ``compliance``)
-            -> one value per joint, SI (rad, rad, rad, rad, rad/rad, rad/(N·m)); NaN keeps
+        values: Part name (``once``, ``twice``, ``smooth``, ``length``, ``gain``, ``compliance``,
+            ``motor``, ``motor_length``) -> one value per joint, SI (rad, rad, rad, rad, rad/rad,
+            rad/(N·m), rad, rad); NaN keeps
             that joint's default.
         at_point: ``once``, ``twice``, ``smooth`` given as an RMS per Cartesian axis at the
             measured points [m] (an identification's fitted kernel), turned into joint angles by

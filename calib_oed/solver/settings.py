@@ -41,7 +41,9 @@ class SQPSettings:
             :math:`\Delta \le \kappa \|x_{k+1} - x_k\|_\infty`, so the box, and with
             it the rows kept, follows the steps being taken (``inf`` disables).
             Used by ``trust_update="edge"``.
-        trust_update: How :math:`\Delta` changes after a step: ``"edge"`` (default)
+        trust_update: How :math:`\Delta` changes after a step: ``None`` (default) leaves
+            the choice to the caller (the design: ``"ratio"`` for ``kpi_model``,
+            :func:`calib_oed.oed.model_error.design_settings`; otherwise ``"edge"``). ``"edge"``
             doubles it after a full step that reaches the box and cuts it to
             :math:`\max(\tfrac12\|\alpha d\|_\infty, \tfrac1{10}\min(\Delta, \|d\|_\infty))`
             after a backtracked one; ``"ratio"`` follows the agreement
@@ -49,10 +51,10 @@ class SQPSettings:
             Wright 2006, Algorithm 4.1; :mod:`calib_oed.solver.iteration`): halved
             to :math:`\tfrac12\|d\|_\infty` when :math:`\rho < \tfrac14` (a
             backtracked step counts as :math:`\rho < 0`), doubled when
-            :math:`\rho > \tfrac34` at the box, else kept. A ``kpi_model`` design run to
-            convergence takes ``"ratio"``: under ``"edge"`` a step whose model was poor
-            still doubled the box and the next failure cut it tenfold, and the design crept
-            (``docs/oed.md``, "Run to convergence").
+            :math:`\rho > \tfrac34` at the box, else kept. A ``kpi_model`` design takes
+            ``"ratio"``: under ``"edge"`` a step whose model was poor still doubled the box
+            and the next failure cut it tenfold, and the design crept (``docs/oed.md``,
+            "Run to convergence").
         active_margin: :math:`m_a \ge 0` of the row selection (:mod:`calib_oed.solver.rows`).
         max_qp_rows: Most constraint rows in any QP, whatever :math:`\Delta`
             (:mod:`calib_oed.solver.rows`); ``None``: :math:`\max(200, 4n)`.
@@ -122,7 +124,7 @@ class SQPSettings:
     min_step_bound: float = 1e-8
     max_step_bound: float = 1.0
     step_bound_ratio: float = 10.0
-    trust_update: str = "edge"
+    trust_update: str | None = None
     active_margin: float = 0.05
     max_qp_rows: int | None = None
     max_dense_qp_size: int = 3000
@@ -185,9 +187,9 @@ class SQPSettings:
         if self.qp_backend not in QP_BACKENDS:
             raise SQPSettingsError("qp_backend", self.qp_backend,
                                    f"valid values are {', '.join(map(repr, QP_BACKENDS))}", QP_BACKENDS)
-        if self.trust_update not in TRUST_UPDATES:
+        if self.trust_update is not None and self.trust_update not in TRUST_UPDATES:
             raise SQPSettingsError("trust_update", self.trust_update,
-                                   f"valid values are {', '.join(map(repr, TRUST_UPDATES))}", TRUST_UPDATES)
+                                   f"valid values are None, {', '.join(map(repr, TRUST_UPDATES))}", TRUST_UPDATES)
         if self.structured_qp not in STRUCTURED_QPS:
             raise SQPSettingsError("structured_qp", self.structured_qp,
                                    f"valid values are {', '.join(map(repr, STRUCTURED_QPS))}", STRUCTURED_QPS)

@@ -71,7 +71,7 @@ far from active; :math:`f` scaled by the caller to O(1). One iteration at
    full step that reached the edge, :math:`\Delta \leftarrow \min(2\Delta, \Delta_\max)`;
    after any other accepted step :math:`\Delta \leftarrow \min(\Delta, \kappa \|\alpha d\|_\infty)`
    (``step_bound_ratio``), so the box, and the rows kept, shrink with the steps.
-   That is ``trust_update="edge"`` (default); ``"ratio"`` follows the agreement of the
+   That is ``trust_update="edge"`` (the default, ``None``); ``"ratio"`` follows the agreement of the
    merit's actual and predicted reduction instead
    (:meth:`~calib_oed.solver.iteration._Run._ratio_update`). When the full step is rejected, a second-order correction is tried first
    (:meth:`~calib_oed.solver.iteration._Run._second_order_correction`, against the Maratos effect of

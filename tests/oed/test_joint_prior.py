@@ -3,6 +3,8 @@ criterion's gradient, a Monte Carlo of joint-angle errors under the prior's own 
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from conftest import central_difference
@@ -16,7 +18,7 @@ from calib_oed.calibration.workflow import setup
 from calib_oed.exceptions import DesignError, ParameterError
 from calib_oed.feasibility.sampling import sample_feasible
 from calib_oed.measurement.base import evaluate_setup
-from calib_oed.measurement.joint_prior import ARCSEC, JointErrorPrior, point_jacobians
+from calib_oed.measurement.joint_prior import ARCSEC, MOTOR_RMS, JointErrorPrior, point_jacobians
 from calib_oed.model.size_class import TYPICAL
 from calib_oed.oed.model_error import KRIGING, MODEL_ERROR
 from calib_oed.oed.objective import DesignObjective
@@ -208,11 +210,16 @@ def test_defaults_per_size_class_and_checks(kr16):
 
 
 def test_motor_side_part_derivatives_and_record(kr16):
-    """The optional short-length part: its kernel gradient and own-angle second derivative against
-    central differences (close and far pose pairs), off by default, in the record only when on."""
+    """The short-length part: its kernel gradient and own-angle second derivative against central
+    differences (close and far pose pairs), on by default instead of the smooth part, in the record
+    only when on."""
     s, q = kr16
-    base = default_prior(s.problem)
+    default = default_prior(s.problem)
+    np.testing.assert_allclose(default.motor, MOTOR_RMS)
+    assert MOTOR_RMS / ARCSEC == pytest.approx(4.123, abs=1e-3) and not np.any(default.smooth)
+    base = replace(default, motor=0.0)
     assert not base.has_motor and "motor_arcsec" not in base.to_dict()
+    assert "motor_arcsec" in default.to_dict()
     motor = base.with_motor(4.0 * ARCSEC, 0.05)
     nq = motor.nq
     z = np.zeros(nq)
@@ -246,7 +253,7 @@ def test_the_criterion_with_the_motor_side_part_is_the_monte_carlo_error(kr16):
     obj = DesignObjective(s.problem, MODEL_ERROR, model_error=default_prior(s.problem).with_motor(4.0 * ARCSEC))
     assert obj.compute_value(q) == pytest.approx(monte_carlo(obj, q, 4000, 2), rel=0.05)
     # a repeated pose does not average the motor-side part: a repeat is worth less with it
-    plain = DesignObjective(s.problem, MODEL_ERROR)
+    plain = DesignObjective(s.problem, MODEL_ERROR, model_error=replace(default_prior(s.problem), motor=0.0))
     twice = np.vstack([q, q])
     gain_with = obj.compute_value(twice) / obj.compute_value(q)
     gain_without = plain.compute_value(twice) / plain.compute_value(q)

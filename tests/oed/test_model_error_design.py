@@ -19,6 +19,7 @@ from calib_oed.oed.model_error import (
     MODEL_ERROR,
     MODEL_ERROR_EXACT_ITERATIONS,
     MODEL_ERROR_ITERATIONS,
+    MODEL_ERROR_TRUST_UPDATE,
     default_criterion,
     design_prior,
     design_settings,
@@ -191,7 +192,13 @@ def test_a_kpi_model_design_has_no_certificate(kr16):
     s, _ = kr16
     assert design_settings(DesignObjective(s.problem, MODEL_ERROR), None).max_iterations == MODEL_ERROR_ITERATIONS
     exact = design_settings(DesignObjective(s.problem, MODEL_ERROR), None, True)
-    assert exact.max_iterations == MODEL_ERROR_EXACT_ITERATIONS
+    assert exact.max_iterations == MODEL_ERROR_EXACT_ITERATIONS and exact.trust_update == MODEL_ERROR_TRUST_UPDATE
+    # a limit the user gives (`--iterations`) keeps the design's trust rule; a rule the user gives is kept
+    given = design_settings(DesignObjective(s.problem, MODEL_ERROR), SQPSettings(max_iterations=7), True)
+    assert (given.max_iterations, given.trust_update) == (7, MODEL_ERROR_TRUST_UPDATE)
+    edge = design_settings(DesignObjective(s.problem, MODEL_ERROR), SQPSettings(trust_update="edge"), True)
+    assert edge.trust_update == "edge"
+    assert design_settings(DesignObjective(s.problem, MODEL_ERROR), None).trust_update is None  # BFGS: the SQP's own
     assert design_settings(DesignObjective(s.problem, "kpi"), None) is None
     d = design(s, 12, MODEL_ERROR, pool=300, seed=0, enrich=False, settings=SQPSettings(max_iterations=3))
     assert d.criterion == MODEL_ERROR and d.value <= d.start_value

@@ -11,6 +11,8 @@ import numpy as np
 import pytest
 import yaml
 
+from calib_oed.calibration.joint_prior_choice import joint_prior
+from calib_oed.calibration.workflow import setup
 from calib_oed.exceptions import IdentificationFileError, SceneError
 from calib_oed.measurement.joint_prior import ARCSEC
 from calib_oed.scene.joint_error import spec_from_identification
@@ -48,11 +50,18 @@ def test_joint_keys_in_their_units_and_defaults_elsewhere():
     assert set(spec.values) == {"once", "length", "compliance", "gain"}  # twice, smooth: defaults
     direct = scene_from_dict(_scene_dict({"kind": "joint", "compliance_urad_per_nm": 5}))
     np.testing.assert_allclose(direct.joint_error.values["compliance"], np.full(6, 5e-6))
+    motor = scene_from_dict(_scene_dict({"kind": "joint", "motor_arcsec": 0, "motor_length_mrad": 30,
+                                         "smooth_arcsec": 10}))
+    np.testing.assert_allclose(motor.joint_error.values["motor"], np.zeros(6))
+    np.testing.assert_allclose(motor.joint_error.values["motor_length"], np.full(6, 0.03))
+    prior = joint_prior(setup(motor).problem, motor.joint_error)  # the default before its motor-side part
+    assert not prior.has_motor and np.allclose(prior.smooth, 10 * ARCSEC)
 
 
 @pytest.mark.parametrize("error, key, says", [
     ({"kind": "joint", "once_arcsec": -1}, "robot.model_error.once_arcsec[0]", ">= 0"),
     ({"kind": "joint", "length_deg": 0}, "robot.model_error.length_deg[0]", "> 0"),
+    ({"kind": "joint", "motor_length_mrad": 0}, "robot.model_error.motor_length_mrad[0]", "> 0"),
     ({"kind": "joint", "twice_arcsec": [1, 2]}, "robot.model_error.twice_arcsec", "6 (one per joint)"),
     ({"kind": "joint", "gain": "big"}, "robot.model_error.gain[0]", "expected a number"),
     ({"kind": "joint", "compliance_urad_per_nm": 5, "stiffness_knm_per_rad": 100},
