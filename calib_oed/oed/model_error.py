@@ -90,17 +90,19 @@ MODEL_ERROR = "kpi_model"
 KRIGING = "kpi_kriging"
 #: The predictors of :class:`ModelErrorCriterion`, in the order of the names above.
 PREDICTORS = ("fit", "kriging")
-#: SQP iterations of a model-error design by default: on fms_kr16 (60 poses, kpi_kriging) the value at 60
-#: iterations is within 5 % of the value at 120-270 (``docs/oed.md``); keeps the design time
-#: within 1.5x of the noise-only design's.
+#: SQP iterations of a model-error design on damped BFGS: on fms_kr16 (60 poses, kpi_kriging) the value
+#: at 60 iterations is within 5 % of the value at 120-270 (``docs/oed.md``).
 MODEL_ERROR_ITERATIONS = 60
-#: SQP iterations of a model-error design with the exact Hessian (``kpi_model``,
-#: :mod:`calib_oed.oed.model_error_hessian`), with the ratio trust rule and, up to
-#: :data:`~calib_oed.oed.model_error_hessian.FULL_COUPLING_MAX_SIZE`, the whole Hessian. Chosen on the
-#: realistic simulator (``docs/oed.md``, "The default prior and iteration budget"): with the default
-#: prior's motor-side part, the realistic error falls with the iterations up to about 100 and stalls
-#: after, while the prediction keeps falling below it; the designs keep 56-60 distinct poses.
-MODEL_ERROR_EXACT_ITERATIONS = 100
+#: SQP iterations of a ``kpi_model`` design of n poses: this over n (:func:`exact_iterations`), with the
+#: ratio trust rule and, up to :data:`~calib_oed.oed.model_error_hessian.FULL_COUPLING_MAX_SIZE`, the
+#: whole Hessian. At n = 60, 300 (the SQP's own limit): on the realistic simulator the error falls up to
+#: it, the prediction held (``docs/oed.md``, "The default prior and iteration budget"); above, a cost
+#: rule (an iteration costs about n² at large n), not measured on the simulator.
+MODEL_ERROR_POSE_ITERATIONS = 18000
+#: Most SQP iterations of a ``kpi_model`` design.
+MODEL_ERROR_EXACT_ITERATIONS = 300
+#: Fewest SQP iterations of a large ``kpi_model`` design (its cap before the motor-side part).
+MODEL_ERROR_MIN_ITERATIONS = 25
 #: The trust rule of a ``kpi_model`` design (:class:`~calib_oed.solver.settings.SQPSettings` ``trust_update``).
 MODEL_ERROR_TRUST_UPDATE = "ratio"
 #: Relative point motion [1] below which a joint counts as moving no point (:func:`design_prior`).
@@ -117,22 +119,20 @@ MODEL_ERROR_NO_CERTIFICATE = (
 def default_criterion(scene) -> str:
     """The default design criterion: ``kpi_model`` when it applies (reflector positions, the
     mean KPI aggregate), with the scene's ``robot.model_error`` or else the joint-space prior
-    (the size-class default, :func:`~calib_oed.calibration.joint_prior_choice.joint_prior`); else the paper's ``kpi``.
-
-    Measured on the realistic simulator (``docs/oed.md``, ``bench/bench_model_error_design.py``,
-    60 poses, 40 truths, paired with the ``kpi`` design of the same seed): the ``kpi_model``
-    design with the default joint-space prior missed the working configurations by 0.20x
-    (``fms_kr16`` rigid), 0.23x (with compliance and gains identified) and 0.34x (``ur5_table``
-    with compliance and gains) the ``kpi`` design's error; 0.12x (rigid ``ur5_table``) and 0.28x
-    (UR10 cell with compliance and gains; these two with 20 truths).
-    """
+    (the size-class default, :func:`~calib_oed.calibration.joint_prior_choice.joint_prior`); else the
+    paper's ``kpi``. Measured against ``kpi`` on the realistic simulator in ``docs/oed.md``."""
     applies = scene.measurement == "position" and scene.kpi.aggregate == "mean"
     return MODEL_ERROR if applies else "kpi"
 
 
-def design_settings(objective, settings, exact: bool = False):
-    """``settings``, or for a criterion of the whole design the SQP defaults capped at
-    :data:`MODEL_ERROR_EXACT_ITERATIONS` with the exact Hessian (``exact``: ``kpi_model``),
+def exact_iterations(n: int) -> int:
+    """SQP iterations of a ``kpi_model`` design of ``n`` poses (:data:`MODEL_ERROR_POSE_ITERATIONS`)."""
+    return min(MODEL_ERROR_EXACT_ITERATIONS, max(MODEL_ERROR_MIN_ITERATIONS, MODEL_ERROR_POSE_ITERATIONS // max(int(n), 1)))
+
+
+def design_settings(objective, settings, exact: bool = False, n: int = 60):
+    """``settings``, or for a criterion of the whole design of ``n`` poses the SQP defaults capped at
+    :func:`exact_iterations` with the exact Hessian (``exact``: ``kpi_model``),
     :data:`MODEL_ERROR_ITERATIONS` with damped BFGS (``docs/oed.md``). With the exact Hessian, a
     ``trust_update`` left to the caller (None) is :data:`MODEL_ERROR_TRUST_UPDATE`."""
     if not getattr(objective, "needs_design", False):
@@ -142,7 +142,7 @@ def design_settings(objective, settings, exact: bool = False):
     from calib_oed.solver.sqp import SQPSettings
 
     if settings is None:
-        settings = SQPSettings(max_iterations=MODEL_ERROR_EXACT_ITERATIONS if exact else MODEL_ERROR_ITERATIONS)
+        settings = SQPSettings(max_iterations=exact_iterations(n) if exact else MODEL_ERROR_ITERATIONS)
     if exact and settings.trust_update is None:
         settings = replace(settings, trust_update=MODEL_ERROR_TRUST_UPDATE)
     return settings

@@ -9,7 +9,7 @@ of one per joint, in the units their names say (not the file's ``units:``)::
         kind: joint
         once_arcsec: 21.2        # RMS of the once-per-revolution transmission error
         twice_arcsec: 10.6       # RMS of the twice-per-revolution one
-        smooth_arcsec: 10        # smooth own-angle part, and its length scale:
+        smooth_arcsec: 0         # smooth own-angle part (none by default), and its length scale:
         length_deg: 60
         motor_arcsec: 4.12       # motor-side part (once and twice per motor revolution), and its length:
         motor_length_mrad: 15

@@ -120,8 +120,8 @@ def test_evaluate_names_the_unit_of_every_criterion(capsys, tmp_path):
 
 def test_the_default_call_keeps_the_model_error_criterion_s_iteration_cap(capsys, monkeypatch):
     """Without --iterations/--time-limit the command gives the design its own defaults: for
-    kpi_model (exact Hessian) the capped SQP, not the 300 iterations of the exact-Hessian criteria
-    (the default fms_kr16 call stalled after 259 iterations in 73 s where the cap ends in 20 s)."""
+    kpi_model (exact Hessian) its iteration budget (``oed.model_error.exact_iterations``), not the
+    SQP's own limit; with --iterations, that limit."""
     import calib_oed.oed.model_error as model_error
 
     monkeypatch.setattr(model_error, "MODEL_ERROR_ITERATIONS", 2)

@@ -19,10 +19,12 @@ from calib_oed.oed.model_error import (
     MODEL_ERROR,
     MODEL_ERROR_EXACT_ITERATIONS,
     MODEL_ERROR_ITERATIONS,
+    MODEL_ERROR_MIN_ITERATIONS,
     MODEL_ERROR_TRUST_UPDATE,
     default_criterion,
     design_prior,
     design_settings,
+    exact_iterations,
 )
 from calib_oed.oed.objective import DesignObjective
 from calib_oed.solver.sqp import SQPSettings
@@ -192,7 +194,10 @@ def test_a_kpi_model_design_has_no_certificate(kr16):
     s, _ = kr16
     assert design_settings(DesignObjective(s.problem, MODEL_ERROR), None).max_iterations == MODEL_ERROR_ITERATIONS
     exact = design_settings(DesignObjective(s.problem, MODEL_ERROR), None, True)
-    assert exact.max_iterations == MODEL_ERROR_EXACT_ITERATIONS and exact.trust_update == MODEL_ERROR_TRUST_UPDATE
+    assert exact.max_iterations == MODEL_ERROR_EXACT_ITERATIONS == 300 and exact.trust_update == MODEL_ERROR_TRUST_UPDATE
+    # the budget per pose: 300 up to 60 poses, fewer above, never below the floor
+    assert [exact_iterations(n) for n in (12, 60, 120, 250, 500, 2000)] == [300, 300, 150, 72, 36, MODEL_ERROR_MIN_ITERATIONS]
+    assert design_settings(DesignObjective(s.problem, MODEL_ERROR), None, True, 500).max_iterations == 36
     # a limit the user gives (`--iterations`) keeps the design's trust rule; a rule the user gives is kept
     given = design_settings(DesignObjective(s.problem, MODEL_ERROR), SQPSettings(max_iterations=7), True)
     assert (given.max_iterations, given.trust_update) == (7, MODEL_ERROR_TRUST_UPDATE)
