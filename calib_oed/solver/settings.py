@@ -54,7 +54,7 @@ class SQPSettings:
             :math:`\rho > \tfrac34` at the box, else kept. A ``kpi_model`` design takes
             ``"ratio"``: under ``"edge"`` a step whose model was poor still doubled the box
             and the next failure cut it tenfold, and the design crept (``docs/oed.md``,
-            "Run to convergence").
+            "The default prior and iteration budget").
         active_margin: :math:`m_a \ge 0` of the row selection (:mod:`calib_oed.solver.rows`).
         max_qp_rows: Most constraint rows in any QP, whatever :math:`\Delta`
             (:mod:`calib_oed.solver.rows`); ``None``: :math:`\max(200, 4n)`.
