@@ -9,7 +9,7 @@ clock (``time.perf_counter``) is the process CPU clock, so its phases (objective
 Hessian, QP) are CPU seconds, comparable side by side on a shared machine. Reports per n the SQP
 status and iterations, the value [mm²], the process CPU and peak memory, the SQP's phases and its
 CPU per iteration. ``PYTHONPATH=/other/checkout`` runs that checkout's package. ``--iterations``
-overrides the design's SQP iteration cap (:data:`calib_oed.oed.model_error.MODEL_ERROR_EXACT_ITERATIONS`),
+sets the design's SQP iterations at every n (instead of :func:`calib_oed.oed.model_error.exact_iterations`),
 ``--full-coupling`` the largest Hessian given to the SQP whole
 (:data:`calib_oed.oed.model_error_hessian.FULL_COUPLING_MAX_SIZE`; 0: always the lifted form).
 """
@@ -33,7 +33,7 @@ from calib_oed.calibration.workflow import setup
 from calib_oed.oed.design import design
 scene, n, seed, cap, full = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), int(sys.argv[4]), int(sys.argv[5])
 if cap > 0:
-    me.MODEL_ERROR_EXACT_ITERATIONS = me.MODEL_ERROR_ITERATIONS = cap
+    me.MODEL_ERROR_EXACT_ITERATIONS = me.MODEL_ERROR_MIN_ITERATIONS = me.MODEL_ERROR_ITERATIONS = cap
 if full >= 0:
     meh.FULL_COUPLING_MAX_SIZE = full
 d = design(setup(load_scene(scene)), n, None, seed=seed, certificate=False)
