@@ -58,8 +58,10 @@ EIGENVALUE_FLOOR = 1e-8
 #: eigenpair (:func:`design_hessian`); above it, the lifted QP's form (the largest :math:`|\theta|`,
 #: :data:`~calib_oed.solver.hessian.LIFTED_MAX_RANK_RATIO` of the size, as a factor, the rest by
 #: pose blocks). The truncation leaves out the remainder's coupling between poses (along late SQP
-#: steps 0.36-0.57 of the true curvature on fms_kr16), and the QP overshoots; up to this size the
-#: whole |H| costs no more per iteration (``docs/benchmarks.md``, "kpi_model's iteration budget").
+#: steps 0.36-0.57 of the true curvature on fms_kr16), and the QP overshoots. Up to this size (60
+#: poses of 6 joints, where the default design was measured on the realistic simulator with it) the
+#: whole |H| costs 1.3x the lifted form's SQP CPU per iteration, at 120 poses 2.1x (``docs/benchmarks.md``,
+#: "kpi_model's iteration budget").
 FULL_COUPLING_MAX_SIZE = 360
 
 
