@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from calib_oed.measurement.discrepancy import DiscrepancyPrior
-from calib_oed.measurement.joint_prior import JointErrorPrior, point_jacobians
+from calib_oed.measurement.joint_prior import AMPLITUDES, PARTS, JointErrorPrior, point_jacobians
 from calib_oed.measurement.pose_scale import PoseScale
 
 #: Relative lever arm [1] below which a joint moves no point (as :data:`calib_oed.oed.model_error.STILL_TOL`).
@@ -42,8 +42,7 @@ def joint_prior(problem, spec=None) -> JointErrorPrior:
     base = JointErrorPrior.default_for(problem.robot, getattr(problem.space, "compliance", None))
     if spec is None:
         return base
-    parts = {name: np.array(getattr(base, name), dtype=float)
-             for name in ("once", "twice", "smooth", "length", "gain", "compliance", "motor", "motor_length")}
+    parts = {name: np.array(getattr(base, name), dtype=float) for name in PARTS}
     for name, values in spec.values.items():
         given = np.asarray(values, dtype=float)
         parts[name] = np.where(np.isnan(given), parts[name], given)
@@ -60,7 +59,7 @@ def joint_prior(problem, spec=None) -> JointErrorPrior:
             total = float(np.sum(lever[shared] ** 2))
             parts["smooth"] = np.where(shared, s * np.sqrt(3.0 / total) if total > 0 else 0.0, 0.0)
     f = spec.scale
-    for name in ("once", "twice", "smooth", "gain", "compliance", "motor"):
+    for name in AMPLITUDES:
         parts[name] = parts[name] * f
     return JointErrorPrior(**parts, gravity=base.gravity, source=f"{spec.source} ({base.source})")
 

@@ -93,7 +93,9 @@ MOTOR_RMS = float(np.sqrt((5.0**2 + 3.0**2) / 2.0)) * ARCSEC
 #: 1/N for the gear ratios N of 50-200.
 MOTOR_LENGTH = 0.015
 _A = np.sqrt(5.0)
-_FIELDS = ("once", "twice", "smooth", "length", "gain", "compliance", "motor", "motor_length")
+#: The per-joint parts of :class:`JointErrorPrior`, and those of them that are amplitudes (scaled together).
+PARTS = ("once", "twice", "smooth", "length", "gain", "compliance", "motor", "motor_length")
+AMPLITUDES = ("once", "twice", "smooth", "gain", "compliance", "motor")
 
 
 @dataclass(frozen=True, eq=False)
@@ -123,7 +125,7 @@ class JointErrorPrior:
 
     def __post_init__(self):
         nq = np.atleast_1d(np.asarray(self.once)).size
-        for name in _FIELDS:
+        for name in PARTS:
             arr = np.broadcast_to(np.asarray(getattr(self, name), dtype=float), (nq,)).copy()
             if not np.all(np.isfinite(arr)) or np.any(arr < 0) or (name.endswith("length") and np.any(arr <= 0)):
                 raise ParameterError(f"joint model error {name}: one finite value >= 0 per joint "
@@ -156,8 +158,8 @@ class JointErrorPrior:
         """Every amplitude times ``factor`` (the length scales kept): a prior that misjudges the
         size of the arm's errors."""
         f = float(factor)
-        return replace(self, once=self.once * f, twice=self.twice * f, smooth=self.smooth * f, gain=self.gain * f,
-                       compliance=self.compliance * f, motor=self.motor * f, source=f"{self.source}, x{f:g}")
+        return replace(self, **{name: getattr(self, name) * f for name in AMPLITUDES},
+                       source=f"{self.source}, x{f:g}")
 
     def with_motor(self, rms: float, length: float = MOTOR_LENGTH) -> JointErrorPrior:
         """This prior with the motor-side part of RMS ``rms`` [rad] and length ``length`` [rad] on every joint."""

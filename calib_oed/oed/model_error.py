@@ -72,7 +72,7 @@ it would count as a new, independent measurement.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import scipy.linalg
@@ -137,8 +137,6 @@ def design_settings(objective, settings, exact: bool = False, n: int = 60):
     ``trust_update`` left to the caller (None) is :data:`MODEL_ERROR_TRUST_UPDATE`."""
     if not getattr(objective, "needs_design", False):
         return settings
-    from dataclasses import replace
-
     from calib_oed.solver.sqp import SQPSettings
 
     if settings is None:
