@@ -4,7 +4,7 @@ Run from the repository root:
 
     .venv/bin/python bench/bench_design_pipeline.py [--scenes all] [--poses 60]
         [--growth 30,60,120,250,500] [--no-certificate] [--replicates 1,2,3,5]
-        [--structured-qp lifted,block] [--criterion kpi]
+        [--structured-qp lifted,block] [--hessian-modification tangent,block] [--criterion kpi]
 
 Each case runs in its own process (``python -m calib_oed design SCENE -n N -o DIR
 --json``), as a user would run it: from the scene file to the written design.
@@ -26,7 +26,9 @@ structured Hessian (``SQPSettings.structured_qp``; the child sets it on
 number of QPs, the QP's and the whole SQP's CPU time per SQP iteration and the
 start's share of the design's CPU (column generation and exchange), for
 side-by-side figures on a shared machine (``auto``, the default, for the
-default call with these timings).
+default call with these timings). ``--hessian-modification tangent,block`` runs
+every case once per rule of the SQP's Hessian modification
+(``SQPSettings.hessian_modification``), with the same timings.
 
 Scenes: the five shipped ones and ``bench/scenes/ur10_cell.yaml``,
 ``bench/scenes/panda_cell.yaml`` (example-robot-data arms in cells of our
@@ -67,9 +69,10 @@ def with_feasibility(scene: str, overrides: dict, folder: Path) -> str:
 
 _WITH_QP = """
 import dataclasses, json, sys, time
-qp, out = sys.argv.pop(1), sys.argv.pop(1)
+qp, rule, out = sys.argv.pop(1), sys.argv.pop(1), sys.argv.pop(1)
 import calib_oed.oed.design as design, calib_oed.oed.refine as refine, calib_oed.solver.subproblem as sub
-refine.DESIGN_SQP = design.DESIGN_SQP = dataclasses.replace(refine.DESIGN_SQP, structured_qp=qp)
+changes = {k: v for k, v in (("structured_qp", qp), ("hessian_modification", rule)) if v}
+refine.DESIGN_SQP = design.DESIGN_SQP = dataclasses.replace(refine.DESIGN_SQP, **changes)
 solve, used = sub.QPSolver.solve, [0.0, 0]
 def timed(self, *a, **k):
     t = time.process_time()
@@ -96,17 +99,18 @@ code = main(sys.argv[1:])
 json.dump({"qp_cpu_s": used[0], "qps": used[1], "phases": phases}, open(out, "w"))
 sys.exit(code)
 """
-"""Child that sets ``DESIGN_SQP.structured_qp`` and times the QPs and the phases in process CPU
+"""Child that sets ``DESIGN_SQP.structured_qp`` and ``hessian_modification`` (either may be
+empty: the default) and times the QPs and the phases in process CPU
 (``--structured-qp``): the pool, the column generation, the exchange, the SQP (as
 ``bench/bench_design_phases.py`` names them)."""
 
 
-def run_case(scene: str, n: int, certificate: bool, extra=(), structured_qp: str = "") -> dict:
+def run_case(scene: str, n: int, certificate: bool, extra=(), structured_qp: str = "", rule: str = "") -> dict:
     """One ``calib-oed design`` process: its record, CPU seconds and peak memory (``os.wait4``)."""
     with tempfile.TemporaryDirectory() as tmp:
         head = [sys.executable, "-m", "calib_oed"]
-        if structured_qp:
-            head = [sys.executable, "-c", _WITH_QP, structured_qp, str(Path(tmp) / "qp.json")]
+        if structured_qp or rule:
+            head = [sys.executable, "-c", _WITH_QP, structured_qp, rule, str(Path(tmp) / "qp.json")]
         argv = [*head, "design", scene, "-n", str(n), "-o", tmp, "--json", *extra]
         if not certificate:
             argv.append("--no-certificate")
@@ -122,7 +126,7 @@ def run_case(scene: str, n: int, certificate: bool, extra=(), structured_qp: str
             return {"scene": Path(scene).stem, "n": n, "process_cpu_s": cpu, "peak_rss_mb": peak,
                     "error": err_path.read_text().strip().splitlines()[-1:]}
         record = json.loads(out_path.read_text())
-        qp = json.loads((Path(tmp) / "qp.json").read_text()) if structured_qp else {}
+        qp = json.loads((Path(tmp) / "qp.json").read_text()) if structured_qp or rule else {}
     solver, cert = record["solver"], record["certificate"]
     approx = solver.get("approximate") or {}
     return {
@@ -132,6 +136,7 @@ def run_case(scene: str, n: int, certificate: bool, extra=(), structured_qp: str
         "efficiency": record.get("efficiency"), "design_cpu_s": solver.get("cpu_seconds"),
         "design_wall_s": record["seconds"], "certificate_cpu_s": cert.get("cpu_seconds"),
         "process_cpu_s": cpu, "peak_rss_mb": peak, "structured_qp": structured_qp or None,
+        "hessian_modification": rule or None,
         "qp_cpu_s": qp.get("qp_cpu_s"), "qps": qp.get("qps"), "phases_cpu_s": qp.get("phases"),
     }
 
@@ -151,8 +156,11 @@ def main(argv=None) -> int:
                     help="override scene feasibility keys, e.g. link_fit=single,joint_window=full")
     ap.add_argument("--structured-qp", default="",
                     help="run every case once per QP path, e.g. lifted,block (SQPSettings.structured_qp)")
+    ap.add_argument("--hessian-modification", default="",
+                    help="run every case once per rule, e.g. tangent,block (SQPSettings.hessian_modification)")
     args = ap.parse_args(argv)
     qps = [q for q in args.structured_qp.split(",") if q] or [""]
+    rules = [r for r in args.hessian_modification.split(",") if r] or [""]
     crit = ("--criterion", args.criterion) if args.criterion else ()
     reps = [int(k) for k in args.replicates.split(",") if k]
     overrides = dict(kv.split("=", 1) for kv in args.feasibility.split(",") if kv)
@@ -166,21 +174,23 @@ def main(argv=None) -> int:
     for scene in scenes:
         for k in reps:
             for qp in qps:
-                row = run_case(scene, args.poses, not args.no_certificate,
-                               crit + (() if k == 1 else ("--replicates", str(k))), qp)
-                row["replicates"] = k
-                rows.append(row)
-                print(json.dumps(row), flush=True)
+                for rule in rules:
+                    row = run_case(scene, args.poses, not args.no_certificate,
+                                   crit + (() if k == 1 else ("--replicates", str(k))), qp, rule)
+                    row["replicates"] = k
+                    rows.append(row)
+                    print(json.dumps(row), flush=True)
     for n in [int(k) for k in args.growth.split(",") if k]:
         for qp in qps:
-            row = run_case("fms_kr16", n, n <= 120 and not args.no_certificate, crit, qp)
-            row["growth"] = True
-            rows.append(row)
-            print(json.dumps(row), flush=True)
+            for rule in rules:
+                row = run_case("fms_kr16", n, n <= 120 and not args.no_certificate, crit, qp, rule)
+                row["growth"] = True
+                rows.append(row)
+                print(json.dumps(row), flush=True)
     print()
     print(f"{'scene':18s} {'n':>4s} {'K':>3s} {'distinct':>8s} {'status':>15s} {'it':>4s} {'value':>11s} "
           f"{'eff':>6s} {'design cpu':>10s} {'approx cpu':>10s} {'cert cpu':>8s} {'proc cpu':>8s} "
-          f"{'peak MB':>8s} {'qp':>6s} {'qp cpu/it':>9s} {'sqp cpu/it':>10s} {'start %':>7s}")
+          f"{'peak MB':>8s} {'qp':>6s} {'rule':>7s} {'qp cpu/it':>9s} {'sqp cpu/it':>10s} {'start %':>7s}")
     for r in rows:
         if "error" in r:
             print(f"{r['scene']:18s} {r['n']:4d} ERROR {r['error']}")
@@ -197,7 +207,8 @@ def main(argv=None) -> int:
         print(f"{r['scene']:18s} {r['n']:4d} {r.get('replicates', 1):3d} {r['distinct_poses']:8d} "
               f"{r['status']:>15s} {r['iterations']:4d} {r['value']:11.4e} {eff:>6s} "
               f"{r['design_cpu_s']:10.1f} {approx:>10s} {cert:>8s} {r['process_cpu_s']:8.1f} "
-              f"{r['peak_rss_mb']:8.0f} {r.get('structured_qp') or '-':>6s} {per_it:>9s} {sqp_it:>10s} "
+              f"{r['peak_rss_mb']:8.0f} {r.get('structured_qp') or '-':>6s} "
+              f"{r.get('hessian_modification') or '-':>7s} {per_it:>9s} {sqp_it:>10s} "
               f"{start:>7s}")
     return 0
 

@@ -37,7 +37,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from calib_oed.solver.block_qp import BlockQPWorkspace
-from calib_oed.solver.hessian import check_structured, positive_definite
+from calib_oed.solver.hessian import active_normals, check_structured, positive_definite
 from calib_oed.solver.lifted import LiftedQPWorkspace
 from calib_oed.solver.polish import polish
 from calib_oed.solver.qp import (
@@ -62,6 +62,11 @@ from calib_oed.solver.settings import SQPSettings
 
 CRASHED = ("error", "too_large", "non_finite")
 """QP statuses of a solver that did not return a usable answer (not ProxQP's own)."""
+
+BOUND_TOL = 1e-10
+"""A variable within this of a bound (units of x) counts as on it, for the tangent rule of the
+Hessian's modification (:func:`~calib_oed.solver.hessian.active_normals`); a step the QP takes
+to a bound lands on it to rounding."""
 
 _MISSED_ROUNDS = 2
 """Re-solves per QP with the dropped rows its step violates (:mod:`calib_oed.solver.rows`)."""
@@ -173,11 +178,19 @@ class _SubproblemMixin:
             else:
                 h = check_structured(h, pt.x.size)
                 self._init_bfgs(h.blocks.shape[1])
-                self._exact = positive_definite(h, s.hessian_eigenvalue_floor)
+                self._exact = positive_definite(h, s.hessian_eigenvalue_floor, self._normals(h.blocks.shape))
         except Exception as exc:  # noqa: BLE001 (the caller's function: any failure means "use BFGS")
             self._fallback(f"lagrangian_hessian failed: {type(exc).__name__}: {exc}")
         self.p.times["hessian"] += time.perf_counter() - t
         return self._exact
+
+    def _normals(self, shape):
+        """The active constraints' normals per block for ``hessian_modification="tangent"``, else None."""
+        if self.s.hessian_modification != "tangent":
+            return None
+        x = self.pt.x
+        at_bound = (x - self.lb <= BOUND_TOL) | (self.ub - x <= BOUND_TOL)
+        return active_normals(self.pt.A, np.flatnonzero(self.lam > 0), at_bound, shape[0], shape[1])
 
     def _dense_bfgs(self):
         r""":math:`B = \mathrm{blkdiag}(R_1..R_b)` (one block: the BFGS matrix itself), cached."""

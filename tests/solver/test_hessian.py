@@ -13,9 +13,10 @@ import re
 
 import numpy as np
 import pytest
+import scipy.sparse as sps
 
 from calib_oed.solver.block_qp import BlockQPWorkspace
-from calib_oed.solver.hessian import modify_blocks
+from calib_oed.solver.hessian import active_normals, modify_blocks
 from calib_oed.solver.lifted import LiftedQPWorkspace
 from calib_oed.solver.result import StructuredHessian
 from calib_oed.solver.sqp import SQPSettings, SQPSettingsError, SQPStatus, solve_sqp
@@ -44,6 +45,105 @@ def test_indefinite_block_is_made_positive_definite():
     assert np.linalg.eigvalsh(out).min() > 0
 
 
+def _tangent_case(rng, s=5, r=2, tangent=(0.3, 1.0, 2.0), schur=(-4.0, 1.5)):
+    """A block with given tangent eigenvalues and Schur complement, and its r constraint normals."""
+    q = _orthogonal(rng, s)
+    y, z = q[:, :r], q[:, r:]
+    o = _orthogonal(rng, s - r)
+    rr = o @ np.diag(tangent) @ o.T
+    rr = 0.5 * (rr + rr.T)
+    c = rng.standard_normal((s - r, r))
+    sc = np.diag(schur)
+    m = np.block([[rr, c], [c.T, sc + c.T @ np.linalg.solve(rr, c)]])
+    normals = rng.standard_normal((r, r)) @ y.T  # any basis of the span of y
+    return q[:, list(range(r, s)) + list(range(r))] @ m @ q[:, list(range(r, s)) + list(range(r))].T, z, y, normals
+
+
+def test_tangent_rule_keeps_the_curvature_the_step_moves_along():
+    """Positive tangent curvature kept exactly (the whole-block rule inflates it); the result is definite."""
+    rng = np.random.default_rng(1)
+    d, z, y, normals = _tangent_case(rng)
+    assert np.linalg.eigvalsh(d).min() < -1  # indefinite
+    tangent, n_mod = modify_blocks(d[None], 1e-8, normals[None])
+    whole, _ = modify_blocks(d[None], 1e-8)
+    tangent, whole = tangent[0], whole[0]
+    np.testing.assert_allclose(z.T @ tangent @ z, z.T @ d @ z, atol=1e-12)  # tangent part as it was
+    np.testing.assert_allclose(z.T @ tangent @ y, z.T @ d @ y, atol=1e-12)  # and its coupling
+    assert np.linalg.eigvalsh(tangent).min() > 0 and n_mod == 1  # the one negative Schur eigenvalue
+    w = z.T @ d @ y
+    schur = y.T @ tangent @ y - w.T @ np.linalg.solve(z.T @ d @ z, w)
+    np.testing.assert_allclose(np.linalg.eigvalsh(schur), [1.5, 4.0], atol=1e-10)  # |S - W|
+    # the whole-block rule: no less curvature along any tangent direction, more along some
+    excess = np.linalg.eigvalsh(z.T @ (whole - d) @ z)
+    assert excess.min() > -1e-12 and excess.max() > 0.1  # against 0.3, the least tangent curvature
+
+
+def test_tangent_rule_flips_negative_tangent_curvature():
+    rng = np.random.default_rng(2)
+    d, z, _, normals = _tangent_case(rng, tangent=(-0.5, 1.0, 2.0), schur=(1.0, 3.0))
+    out, n_mod = modify_blocks(d[None], 1e-8, normals[None])
+    np.testing.assert_allclose(np.linalg.eigvalsh(z.T @ out[0] @ z), [0.5, 1.0, 2.0], atol=1e-10)
+    assert np.linalg.eigvalsh(out[0]).min() > 0 and n_mod >= 1
+
+
+def test_tangent_rule_falls_back_to_the_whole_block_and_leaves_definite_blocks():
+    """No normals (zero rows) or all directions constrained: the whole-block rule, bit for bit; a definite block as given."""
+    rng = np.random.default_rng(3)
+    d, _, _, normals = _tangent_case(rng)
+    q = _orthogonal(rng, 5)
+    pd = q @ np.diag([1.0, 2.0, 3.0, 4.0, 5.0]) @ q.T
+    blocks = np.stack([d, d, pd])
+    normals_all = np.zeros((3, 5, 5))
+    normals_all[1] = _orthogonal(rng, 5)  # every direction constrained
+    normals_all[2, :2] = normals
+    out, _ = modify_blocks(blocks, 1e-8, normals_all)
+    ref, _ = modify_blocks(blocks, 1e-8)
+    np.testing.assert_array_equal(out[:2], ref[:2])
+    np.testing.assert_array_equal(out[2], 0.5 * (pd + pd.T))
+
+
+def test_active_normals_per_block_from_rows_and_bounds():
+    """Rows within one block give their part; a row over two blocks none; a bound its unit vector."""
+    a = np.zeros((4, 6))
+    a[0, 0:3] = [1.0, 2.0, 0.0]  # block 0
+    a[1, 3:6] = [0.0, 0.0, 5.0]  # block 1
+    a[2, 2:4] = [1.0, 1.0]  # blocks 0 and 1: left out
+    a[3, 4] = 7.0  # block 1, not active
+    at_bound = np.zeros(6, dtype=bool)
+    at_bound[4] = True
+    for jac in (a, sps.csr_matrix(a), sps.csc_matrix(a)):
+        out = active_normals(jac, np.array([0, 1, 2]), at_bound, 2, 3)
+        assert out.shape == (2, 2, 3)
+        np.testing.assert_array_equal(out[0], [[1.0, 2.0, 0.0], [0.0, 0.0, 0.0]])
+        np.testing.assert_array_equal(out[1], [[0.0, 0.0, 5.0], [0.0, 1.0, 0.0]])
+    assert active_normals(a, np.array([], dtype=int), np.zeros(6, dtype=bool), 2, 3).shape == (2, 0, 3)
+
+
+def test_the_tangent_rule_ends_a_linear_tail_along_a_bound():
+    r"""f = 0.005 (u - 2)^2 + u v - v^2/2 + v, v >= 0 (active, multiplier 3 at u* = 2).
+
+    The block [[0.01, 1], [1, -1]] is indefinite; flipping its negative eigenvalue puts
+    curvature 0.90 on u, 90 times the true 0.01, so each step is 1/90 of Newton's: a linear
+    tail the iteration limit cuts. On the bound's tangent space (u) the true curvature is kept.
+    """
+    def objective(x):
+        u, v = x
+        return 0.005 * (u - 2) ** 2 + u * v - v**2 / 2 + v, np.array([0.01 * (u - 2) + v, u - v + 1])
+
+    def hessian(x, lam):
+        return StructuredHessian(np.array([[[0.01, 1.0], [1.0, -1.0]]]))
+
+    x0, bounds = np.array([0.0, 0.0]), ([-np.inf, 0.0], [np.inf, np.inf])
+    runs = {rule: solve_sqp(objective, x0, bounds=bounds, lagrangian_hessian=hessian,
+                            settings=SQPSettings(hessian_modification=rule, max_iterations=100))
+            for rule in ("tangent", "block")}
+    tangent, block = runs["tangent"], runs["block"]
+    assert tangent.status is SQPStatus.CONVERGED and tangent.check(), tangent.summary()
+    np.testing.assert_allclose(tangent.x, [2.0, 0.0], atol=1e-6)
+    assert tangent.iterations <= 10
+    assert block.status is SQPStatus.MAX_ITERATIONS and abs(block.x[0] - 2.0) > 0.1
+
+
 @pytest.mark.parametrize("bad, match", [
     (lambda h: "nope", "StructuredHessian"),
     (lambda h: (np.zeros((2, 5, 5)), None), "b \\* s = n"),
@@ -62,9 +162,12 @@ def test_a_malformed_exact_hessian_is_named_and_bfgs_takes_over(bad, match):
 
 
 def test_hessian_settings_are_validated():
-    for field, value in (("hessian_eigenvalue_floor", 0.0), ("hessian_eigenvalue_floor", 1.0)):
+    for field, value in (("hessian_eigenvalue_floor", 0.0), ("hessian_eigenvalue_floor", 1.0),
+                         ("hessian_modification", "whole")):
         with pytest.raises(SQPSettingsError, match=field):
             SQPSettings(**{field: value})
+    with pytest.raises(SQPSettingsError, match="'tangent', 'block'"):
+        SQPSettings(hessian_modification="reduced")
 
 
 def _double_well(b=10, s=6, r=3, seed=0):
