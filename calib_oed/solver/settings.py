@@ -83,10 +83,10 @@ class SQPSettings:
             modified on the tangent space of its active rows and bounds, and its Schur
             complement across them, so the curvature the step moves along stays the true
             one where it is positive; ``"block"``: the whole block's eigenvalues
-            (:mod:`calib_oed.solver.hessian`). On the shipped scenes' 60-pose ``kpi``
-            designs ``"tangent"`` ends the linear tails: 14-71 SQP iterations against 29-232,
-            the same values (``docs/benchmarks.md``, "The Hessian on the active constraints'
-            tangent space").
+            (:mod:`calib_oed.solver.hessian`). On seven scenes' 60-pose ``kpi`` designs
+            ``"tangent"`` ends the linear tails: 16-87 SQP iterations against 29-300, half the
+            SQP's CPU, every value the same to 0.03 % (``docs/benchmarks.md``, "The Hessian on
+            the active constraints' tangent space").
         initial_hessian_scale: :math:`\beta` of :math:`B_0 = \beta I`.
         bfgs_damping: Powell's :math:`\delta \in (0, 1)`: :math:`s^\top r \ge \delta\, s^\top B s`.
         qp_backend: ``"dense"`` (default) or ``"sparse"`` for QPs with a dense
