@@ -17,7 +17,7 @@ from calib_oed.exceptions import SQPSettingsError
 QP_BACKENDS = ("dense", "sparse")
 STRUCTURED_QPS = ("auto", "lifted", "block")
 TRUST_UPDATES = ("edge", "ratio")
-HESSIAN_MODIFICATIONS = ("tangent", "block")
+HESSIAN_MODIFICATIONS = ("auto", "tangent", "block")
 
 
 @dataclass(frozen=True)
@@ -79,14 +79,19 @@ class SQPSettings:
             that makes an exact Hessian positive definite
             (:mod:`calib_oed.solver.hessian`): the smallest eigenvalue kept is
             :math:`\epsilon = \epsilon_r \max(1, \max|\theta|)`.
-        hessian_modification: ``"tangent"`` (default): each pose block's eigenvalues are
-            modified on the tangent space of its active rows and bounds, and its Schur
-            complement across them, so the curvature the step moves along stays the true
-            one where it is positive; ``"block"``: the whole block's eigenvalues
-            (:mod:`calib_oed.solver.hessian`). On seven scenes' 60-pose ``kpi`` designs
-            ``"tangent"`` ends the linear tails: 16-87 SQP iterations against 29-300, half the
-            SQP's CPU, every value the same to 0.03 % (``docs/benchmarks.md``, "The Hessian on
-            the active constraints' tangent space").
+        hessian_modification: ``"tangent"``: each pose block's eigenvalues are modified on
+            the tangent space of its active rows and bounds, and its Schur complement across
+            them, so the curvature the step moves along stays the true one where it is
+            positive; ``"block"``: the whole block's eigenvalues
+            (:mod:`calib_oed.solver.hessian`); ``"auto"`` (default): tangent up to
+            ``tangent_max_size`` variables, block above. On seven scenes' 60-pose ``kpi``
+            designs ``"tangent"`` ends the linear tails: 16-87 SQP iterations against 29-300,
+            half the SQP's CPU, every value the same to 0.03 %; at 250 and 500 poses it takes
+            37-48 % more iterations for a 0.03-0.26 % lower value (``docs/benchmarks.md``,
+            "The Hessian on the active constraints' tangent space", "Growth with n").
+        tangent_max_size: Largest number of variables for which ``hessian_modification="auto"``
+            takes the tangent rule (1000: 166 poses of 6 joints; ``fms_kr16``'s ``kpi`` design
+            took fewer iterations with it at 30-120 poses, more at 250-1000).
         initial_hessian_scale: :math:`\beta` of :math:`B_0 = \beta I`.
         bfgs_damping: Powell's :math:`\delta \in (0, 1)`: :math:`s^\top r \ge \delta\, s^\top B s`.
         qp_backend: ``"dense"`` (default) or ``"sparse"`` for QPs with a dense
@@ -139,7 +144,8 @@ class SQPSettings:
     max_dense_qp_size: int = 3000
     max_qp_nonzeros: int = 10_000_000
     hessian_eigenvalue_floor: float = 1e-8
-    hessian_modification: str = "tangent"
+    hessian_modification: str = "auto"
+    tangent_max_size: int = 1000
     initial_hessian_scale: float = 1.0
     bfgs_damping: float = 0.2
     qp_backend: str = "dense"
@@ -169,7 +175,7 @@ class SQPSettings:
             return lambda v: isinstance(v, (int, np.integer)) and v >= low
 
         for name in ("max_iterations", "qp_max_iterations", "max_dense_qp_size", "max_qp_nonzeros",
-                     "block_qp_min_size"):
+                     "block_qp_min_size", "tangent_max_size"):
             need(name, integer(1), "must be an integer >= 1")
         need("max_backtracks", integer(0), "must be an integer >= 0")
         need("max_qp_rows", lambda v: v is None or integer(1)(v), "must be None (automatic) or an integer >= 1")

@@ -185,10 +185,10 @@ class _SubproblemMixin:
         return self._exact
 
     def _normals(self, shape):
-        """The active constraints' normals per block for ``hessian_modification="tangent"``, else None."""
-        if self.s.hessian_modification != "tangent":
+        """The active constraints' normals per block for the tangent rule, else None (the block rule)."""
+        x, rule = self.pt.x, self.s.hessian_modification
+        if rule == "block" or (rule == "auto" and x.size > self.s.tangent_max_size):
             return None
-        x = self.pt.x
         at_bound = (x - self.lb <= BOUND_TOL) | (self.ub - x <= BOUND_TOL)
         return active_normals(self.pt.A, np.flatnonzero(self.lam > 0), at_bound, shape[0], shape[1])
 

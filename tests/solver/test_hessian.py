@@ -134,14 +134,19 @@ def test_the_tangent_rule_ends_a_linear_tail_along_a_bound():
         return StructuredHessian(np.array([[[0.01, 1.0], [1.0, -1.0]]]))
 
     x0, bounds = np.array([0.0, 0.0]), ([-np.inf, 0.0], [np.inf, np.inf])
-    runs = {rule: solve_sqp(objective, x0, bounds=bounds, lagrangian_hessian=hessian,
-                            settings=SQPSettings(hessian_modification=rule, max_iterations=100))
-            for rule in ("tangent", "block")}
-    tangent, block = runs["tangent"], runs["block"]
-    assert tangent.status is SQPStatus.CONVERGED and tangent.check(), tangent.summary()
-    np.testing.assert_allclose(tangent.x, [2.0, 0.0], atol=1e-6)
-    assert tangent.iterations <= 10
-    assert block.status is SQPStatus.MAX_ITERATIONS and abs(block.x[0] - 2.0) > 0.1
+    runs = {name: solve_sqp(objective, x0, bounds=bounds, lagrangian_hessian=hessian,
+                            settings=SQPSettings(max_iterations=100, **kw))
+            for name, kw in (("tangent", dict(hessian_modification="tangent")),
+                             ("block", dict(hessian_modification="block")),
+                             ("auto", {}),  # 2 variables: tangent
+                             ("auto, large", dict(tangent_max_size=1)))}  # above the size: block
+    for name in ("tangent", "auto"):
+        res = runs[name]
+        assert res.status is SQPStatus.CONVERGED and res.check(), res.summary()
+        np.testing.assert_allclose(res.x, [2.0, 0.0], atol=1e-6)
+        assert res.iterations <= 10
+    for name in ("block", "auto, large"):
+        assert runs[name].status is SQPStatus.MAX_ITERATIONS and abs(runs[name].x[0] - 2.0) > 0.1
 
 
 @pytest.mark.parametrize("bad, match", [
@@ -163,10 +168,10 @@ def test_a_malformed_exact_hessian_is_named_and_bfgs_takes_over(bad, match):
 
 def test_hessian_settings_are_validated():
     for field, value in (("hessian_eigenvalue_floor", 0.0), ("hessian_eigenvalue_floor", 1.0),
-                         ("hessian_modification", "whole")):
+                         ("hessian_modification", "whole"), ("tangent_max_size", 0)):
         with pytest.raises(SQPSettingsError, match=field):
             SQPSettings(**{field: value})
-    with pytest.raises(SQPSettingsError, match="'tangent', 'block'"):
+    with pytest.raises(SQPSettingsError, match="'auto', 'tangent', 'block'"):
         SQPSettings(hessian_modification="reduced")
 
 
