@@ -44,8 +44,8 @@ has none, and the realistic simulator has no such part). ``--motor 0 --smooth 10
 prior before its motor-side part.
 
 ``--rules block`` adds the default ``kpi_model`` design with that rule of the SQP's Hessian
-modification (``SQPSettings.hessian_modification``; the default is ``tangent``), paired with the
-default one as the budgets are.
+modification (``SQPSettings.hessian_modification``; the default ``auto`` is the tangent rule at
+60 poses), paired with the default one as the budgets are.
 
 ``--out DIR`` also writes ``DIR/<scene>_<model>_designs.npz`` (both designs and the working
 configurations) for the figure of docs/oed.md (``--figure SCENE`` draws it from there).
