@@ -316,7 +316,7 @@ def design(
         if not refine:
             best = _best_start(objective, starts, aggregate)
         else:
-            sqp = model_error.design_settings(objective, settings, exact, n)
+            sqp = model_error.design_settings(objective, settings, exact, n, DESIGN_SQP)
             best = (optimise_worst_case(s, starts, criterion, collisions, sqp, callback)
                     if aggregate == "max"
                     else optimise_starts(s, starts, criterion, collisions, sqp, callback, hessian, runs))

@@ -130,18 +130,18 @@ def exact_iterations(n: int) -> int:
     return min(MODEL_ERROR_EXACT_ITERATIONS, max(MODEL_ERROR_MIN_ITERATIONS, MODEL_ERROR_POSE_ITERATIONS // max(int(n), 1)))
 
 
-def design_settings(objective, settings, exact: bool = False, n: int = 60):
-    """``settings``, or for a criterion of the whole design of ``n`` poses the design's SQP settings
-    (:data:`~calib_oed.oed.refine.DESIGN_SQP`) capped at
+def design_settings(objective, settings, exact: bool = False, n: int = 60, base=None):
+    """``settings``, or for a criterion of the whole design of ``n`` poses ``base`` (the design's
+    SQP settings, :data:`~calib_oed.oed.refine.DESIGN_SQP`; None: the SQP's defaults) capped at
     :func:`exact_iterations` with the exact Hessian (``exact``: ``kpi_model``),
     :data:`MODEL_ERROR_ITERATIONS` with damped BFGS (``docs/oed.md``). With the exact Hessian, a
     ``trust_update`` left to the caller (None) is :data:`MODEL_ERROR_TRUST_UPDATE`."""
     if not getattr(objective, "needs_design", False):
         return settings
-    from calib_oed.oed.refine import DESIGN_SQP
+    from calib_oed.solver.sqp import SQPSettings
 
     if settings is None:
-        settings = replace(DESIGN_SQP, max_iterations=exact_iterations(n) if exact else MODEL_ERROR_ITERATIONS)
+        settings = replace(base or SQPSettings(), max_iterations=exact_iterations(n) if exact else MODEL_ERROR_ITERATIONS)
     if exact and settings.trust_update is None:
         settings = replace(settings, trust_update=MODEL_ERROR_TRUST_UPDATE)
     return settings

@@ -12,7 +12,6 @@ from calib_oed.exceptions import CertificateError
 from calib_oed.feasibility.sampling import sample_feasible
 from calib_oed.measurement.base import evaluate_setup
 from calib_oed.measurement.discrepancy import DiscrepancyPrior
-from calib_oed.oed import refine
 from calib_oed.oed.criteria import CRITERIA
 from calib_oed.oed.design import design
 from calib_oed.oed.model_error import (
@@ -191,7 +190,7 @@ def test_it_is_registered_and_not_a_function_of_m(kr16):
         obj.criterion.compute_value(obj.compute_information(q))
 
 
-def test_a_kpi_model_design_has_no_certificate(kr16, monkeypatch):
+def test_a_kpi_model_design_has_no_certificate(kr16):
     s, _ = kr16
     assert design_settings(DesignObjective(s.problem, MODEL_ERROR), None).max_iterations == MODEL_ERROR_ITERATIONS
     exact = design_settings(DesignObjective(s.problem, MODEL_ERROR), None, True)
@@ -212,9 +211,9 @@ def test_a_kpi_model_design_has_no_certificate(kr16, monkeypatch):
     assert d.criteria[MODEL_ERROR] >= d.criteria["kpi"]  # never below the noise-only criterion
     assert d.certificate["skipped"].startswith("no certificate for the model-error criteria")
     assert d.solver["model_error"]["kind"] == "joint"  # the record names the prior it was made for
-    # the rest of the settings are the design's own (DESIGN_SQP), not the SQP's bare defaults
-    monkeypatch.setattr(refine, "DESIGN_SQP", SQPSettings(hessian_modification="block", step_bound=0.2))
-    own = design_settings(DesignObjective(s.problem, MODEL_ERROR), None, True)
+    # the rest of the settings are the design's own (DESIGN_SQP, which design() passes), not the SQP's defaults
+    own = design_settings(DesignObjective(s.problem, MODEL_ERROR), None, True,
+                          base=SQPSettings(hessian_modification="block", step_bound=0.2))
     assert (own.hessian_modification, own.step_bound, own.max_iterations) == ("block", 0.2, 300)
 
 
