@@ -135,15 +135,16 @@ def design_settings(objective, settings, exact: bool = False, n: int = 60, base=
     SQP settings, :data:`~calib_oed.oed.refine.DESIGN_SQP`; None: the SQP's defaults) capped at
     :func:`exact_iterations` with the exact Hessian (``exact``: ``kpi_model``),
     :data:`MODEL_ERROR_ITERATIONS` with damped BFGS (``docs/oed.md``). With the exact Hessian, a
-    ``trust_update`` left to the caller (None) is :data:`MODEL_ERROR_TRUST_UPDATE`."""
+    ``trust_update`` left to the caller (None) is :data:`MODEL_ERROR_TRUST_UPDATE`, ``"auto"``
+    Hessian modification the tangent rule at every size (``docs/benchmarks.md``, "Growth with n")."""
     if not getattr(objective, "needs_design", False):
         return settings
     from calib_oed.solver.sqp import SQPSettings
-
     if settings is None:
         settings = replace(base or SQPSettings(), max_iterations=exact_iterations(n) if exact else MODEL_ERROR_ITERATIONS)
-    if exact and settings.trust_update is None:
-        settings = replace(settings, trust_update=MODEL_ERROR_TRUST_UPDATE)
+    if exact:  # a trust rule or Hessian modification left to the SQP ("auto"): the ratio and tangent rules
+        rule = "tangent" if settings.hessian_modification == "auto" else settings.hessian_modification
+        settings = replace(settings, trust_update=settings.trust_update or MODEL_ERROR_TRUST_UPDATE, hessian_modification=rule)
     return settings
 
 

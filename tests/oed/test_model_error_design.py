@@ -195,6 +195,7 @@ def test_a_kpi_model_design_has_no_certificate(kr16):
     assert design_settings(DesignObjective(s.problem, MODEL_ERROR), None).max_iterations == MODEL_ERROR_ITERATIONS
     exact = design_settings(DesignObjective(s.problem, MODEL_ERROR), None, True)
     assert exact.max_iterations == MODEL_ERROR_EXACT_ITERATIONS == 300 and exact.trust_update == MODEL_ERROR_TRUST_UPDATE
+    assert exact.hessian_modification == "tangent"  # at every size, not "auto"
     # the budget per pose: 300 up to 60 poses, fewer above, never below the floor
     assert [exact_iterations(n) for n in (12, 60, 120, 250, 500, 2000)] == [300, 300, 150, 72, 36, MODEL_ERROR_MIN_ITERATIONS]
     assert design_settings(DesignObjective(s.problem, MODEL_ERROR), None, True, 500).max_iterations == 36
