@@ -107,20 +107,16 @@ def modify_blocks(blocks, rel_floor: float = 1e-8, normals=None) -> tuple[np.nda
         return blocks, 0
     blocks = blocks.copy()
     s = blocks.shape[1]
-    rank = np.zeros(len(blocks), dtype=int)
+    rank = np.zeros(bad.size, dtype=int)  # constrained directions of each block in bad
     if normals is not None and np.shape(normals)[1]:
         basis, rank = _active_bases(np.asarray(normals, dtype=float)[bad])
-        rank_bad = rank
-        rank = np.zeros(len(blocks), dtype=int)
-        rank[bad] = rank_bad
-    n_mod = 0
-    whole = bad[(rank[bad] == 0) | (rank[bad] == s)]
+    whole = bad[(rank == 0) | (rank == s)]
+    n_mod = int(changed[whole].sum())
     if whole.size:
         qb = q[whole]
         blocks[whole] = np.einsum("jab,jb,jcb->jac", qb, new[whole], qb)
-        n_mod += int(changed[whole].sum())
     for r in range(1, s):
-        sel = np.flatnonzero(rank[bad] == r)
+        sel = np.flatnonzero(rank == r)
         if sel.size:
             n_mod += _modify_tangent(blocks, bad[sel], basis[sel], r, eps)
     return blocks, n_mod
