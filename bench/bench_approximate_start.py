@@ -5,9 +5,11 @@ Run from the repository root:
     OPENBLAS_NUM_THREADS=1 .venv/bin/python bench/bench_approximate_start.py
         [--scenes fms_kr16,fms_kr500] [--grid 0:0,8:5,8:30,16:10,32:8,16:20] [--replicates 1,3]
         [--feasibility link_fit=single,joint_window=full]
+        [--local-hessian exact,bfgs] [--seeds 0]
 
-For each scene (pool 3000, seed 0, 60 poses, KPI) and each ``starts:rounds``
-of ``--grid``: the column generation (:func:`calib_oed.oed.approximate_pool.approximate_pool`
+For each scene and pool seed of ``--seeds`` (pool 3000, 60 poses, KPI), each
+curvature of the local maximisations of ``--local-hessian`` (``exact``, the
+default, or ``bfgs``) and each ``starts:rounds`` of ``--grid``: the column generation (:func:`calib_oed.oed.approximate_pool.approximate_pool`
 with that many local maximisations per round and rounds; ``0:0`` is the
 approximate design on the pool alone), its approximate value scaled to n
 [mm²], then for each K of ``--replicates`` the start (rounded approximate
@@ -20,6 +22,7 @@ default pipeline uses 16:10. Results: docs/benchmarks.md.
 from __future__ import annotations
 
 import argparse
+import itertools
 import tempfile
 import time
 from pathlib import Path
@@ -41,6 +44,8 @@ def main(argv=None) -> int:
     ap.add_argument("--grid", default="0:0,8:5,8:30,16:10,32:8,16:20")
     ap.add_argument("--replicates", default="1,3")
     ap.add_argument("--poses", type=int, default=60)
+    ap.add_argument("--local-hessian", default="exact", help="exact, bfgs or both: exact,bfgs")
+    ap.add_argument("--seeds", default="0", help="pool seeds, e.g. 0,1,2")
     ap.add_argument("--feasibility", default="",
                     help="override scene feasibility keys, e.g. link_fit=single,joint_window=full")
     args = ap.parse_args(argv)
@@ -49,22 +54,26 @@ def main(argv=None) -> int:
     tmp = tempfile.TemporaryDirectory()
     grid = [tuple(int(x) for x in g.split(":")) for g in args.grid.split(",") if g]
     reps = [int(k) for k in args.replicates.split(",") if k]
-    print(f"{'scene':10s} {'starts:rounds':>13s} {'maxima':>6s} {'approx/n':>11s} {'cpu':>5s} {'K':>2s} "
+    curvatures = [c for c in args.local_hessian.split(",") if c]
+    seeds = [int(x) for x in args.seeds.split(",") if x]
+    print(f"{'scene':10s} {'seed':>4s} {'hessian':>7s} {'starts:rounds':>13s} {'maxima':>6s} {'approx/n':>11s} {'cpu':>5s} {'K':>2s} "
           f"{'start':>11s} {'final':>11s} {'status':>15s} {'it':>4s} {'distinct':>8s} {'sqp cpu':>7s}")
     for scene in args.scenes.split(","):
         s = setup(load_scene(with_feasibility(scene, overrides, Path(tmp.name)) if overrides else scene))
-        pool = candidate_pool(s, 3000, 0)
         objective = DesignObjective(s.problem, "kpi")
-        for starts, rounds in grid:
+        pools = {seed: candidate_pool(s, 3000, seed) for seed in seeds}
+        for seed, curvature, (starts, rounds) in itertools.product(seeds, curvatures, grid):
+            pool = pools[seed]
             with threadpool_limits(limits=1, user_api="blas"):
                 t = time.process_time()
-                enriched = approximate_pool(s, objective, pool.q, starts=starts, rounds=rounds)
+                enriched = approximate_pool(s, objective, pool.q, starts=starts, rounds=rounds,
+                                            local_hessian=curvature)
                 t_approx = time.process_time() - t
                 for k in reps:
                     q0, ex = approximate_start(objective, enriched, n, None, k)
                     t = time.process_time()
                     value, q, _, res = optimise_from(objective, s.feasibility, q0)
-                    print(f"{scene:10s} {f'{starts}:{rounds}':>13s} {enriched.n_added:6d} "
+                    print(f"{scene:10s} {seed:4d} {curvature:>7s} {f'{starts}:{rounds}':>13s} {enriched.n_added:6d} "
                           f"{enriched.approx.value / n:11.5e} {t_approx:5.1f} {k:2d} {ex.value:11.5e} "
                           f"{value:11.5e} {res.status.value:>15s} {res.iterations:4d} "
                           f"{len(multiplicities(q)):8d} {time.process_time() - t:7.1f}", flush=True)

@@ -31,7 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from calib_oed.exceptions import NotIdentifiableError
+from calib_oed.exceptions import DesignError, NotIdentifiableError
 from calib_oed.oed.approximate import ApproximateDesign, solve_approximate
 from calib_oed.oed.exchange import ExchangeResult
 from calib_oed.oed.objective import DesignObjective
@@ -39,7 +39,7 @@ from calib_oed.oed.rounding import efficient_rounding
 from calib_oed.oed.sensitivity_maxima import _local_search, _Search
 from calib_oed.oed.starts import check_pool_size, exchange_poses
 
-__all__ = ["ENRICH_ROUNDS", "ENRICH_STARTS", "ApproximatePool", "approximate_pool",
+__all__ = ["ENRICH_ROUNDS", "ENRICH_STARTS", "LOCAL_HESSIANS", "ApproximatePool", "approximate_pool",
            "approximate_start", "rounded_start"]
 
 #: Local maximisations of the sensitivity per round of the column generation. On fms_kr16
@@ -51,6 +51,8 @@ ENRICH_STARTS = 16
 ENRICH_ROUNDS = 10
 #: Relative duality gap of the approximate design on the candidates.
 APPROXIMATE_TOL = 1e-4
+#: Curvatures of the local maximisations (:func:`approximate_pool`'s ``local_hessian``).
+LOCAL_HESSIANS = ("exact", "bfgs")
 #: A local maximum joins the candidates when :math:`d > \bar d(1 + \text{this})`.
 LOCAL_TOL = 1e-3
 
@@ -93,7 +95,7 @@ class ApproximatePool:
 
 def approximate_pool(s, objective: DesignObjective, pool_q: np.ndarray, *, starts: int = ENRICH_STARTS,
                      rounds: int = ENRICH_ROUNDS, collisions: bool = True,
-                     local_iterations: int = 80) -> ApproximatePool:
+                     local_iterations: int = 80, local_hessian: str = "exact") -> ApproximatePool:
     r"""The approximate design on ``pool_q`` (N, nq) [rad], enriched by up to ``rounds`` rounds of local maxima.
 
     Args:
@@ -104,11 +106,15 @@ def approximate_pool(s, objective: DesignObjective, pool_q: np.ndarray, *, start
         rounds: Most re-solves with added maxima.
         collisions: Maximise under the collision rows too (as the design).
         local_iterations: SQP iterations per local maximisation.
+        local_hessian: Curvature of the local maximisations: ``"exact"`` (default) or ``"bfgs"``
+            (per-pose BFGS blocks; :func:`~calib_oed.oed.sensitivity_maxima.maximise_sensitivity`).
 
     Raises:
         calib_oed.exceptions.CertificateError: a criterion without an approximate design.
         calib_oed.exceptions.NotIdentifiableError: the pool does not identify the parameters.
     """
+    if local_hessian not in LOCAL_HESSIANS:
+        raise DesignError("local_hessian", local_hessian, f"valid choices are: {', '.join(LOCAL_HESSIANS)}")
     t0, cpu0 = time.perf_counter(), time.process_time()
     crit = objective.criterion
     blocks = objective.compute_blocks(pool_q)
@@ -118,7 +124,8 @@ def approximate_pool(s, objective: DesignObjective, pool_q: np.ndarray, *, start
         search = _local_search(s, objective, search, starts=int(starts), verify_starts=int(starts),
                                rounds=int(rounds), iterations=int(local_iterations),
                                collisions=collisions, tol=APPROXIMATE_TOL, local_tol=LOCAL_TOL,
-                               max_iterations=500, final_maximisation=False)
+                               max_iterations=500, final_maximisation=False,
+                               exact=local_hessian == "exact")
     return ApproximatePool(search.cand, search.blocks, len(pool_q), search.approx, search,
                            time.perf_counter() - t0, time.process_time() - cpu0)
 

@@ -118,12 +118,26 @@ class DesignProblem:
         if obj is None:
             return None
         blocks = obj.blocks / self.scale
-        lam = np.asarray(lam, dtype=float)
-        if lam.size and np.any(lam):
-            blocks = blocks - self.feasibility.compute_lagrangian_hessian(
-                q, lam.reshape(self.n, -1), kinds=self.kinds, states=self._body_states(q, compute=False))
+        curvature = self.compute_constraint_curvature(x, lam)
+        if curvature is not None:
+            blocks = blocks - curvature
         low = None if obj.low_rank is None else obj.low_rank / np.sqrt(self.scale)
         return StructuredHessian(blocks, low)
+
+    def compute_constraint_curvature(self, x: np.ndarray, lam: np.ndarray) -> np.ndarray | None:
+        r""":math:`\sum_i \lambda_{ji}\nabla^2 g_{ji}` per pose, (n, nq, nq), or None when every :math:`\lambda = 0`.
+
+        Args:
+            x: The design (n·nq,) [rad].
+            lam: Multipliers of the stacked rows (n·m,), >= 0, in the order of
+                :meth:`compute_constraints` (units of the objective per row unit).
+        """
+        lam = np.asarray(lam, dtype=float)
+        if not (lam.size and np.any(lam)):
+            return None
+        q = self.configurations(x)
+        return self.feasibility.compute_lagrangian_hessian(
+            q, lam.reshape(self.n, -1), kinds=self.kinds, states=self._body_states(q, compute=False))
 
     def compute_constraint_rows(self, x: np.ndarray, jacobian: bool = True):
         """Constraint values (n, m) and Jacobian (n, m, nq) or None."""
