@@ -8,8 +8,8 @@ Run from the repository root:
         [--local-hessian exact,bfgs] [--seeds 0]
 
 For each scene and pool seed of ``--seeds`` (pool 3000, 60 poses, KPI), each
-curvature of the local maximisations of ``--local-hessian`` (``exact``, the
-default, or ``bfgs``) and each ``starts:rounds`` of ``--grid``: the column generation (:func:`calib_oed.oed.approximate_pool.approximate_pool`
+curvature of the local maximisations of ``--local-hessian`` (``bfgs``, the
+design start's default, or ``exact``, the certificate's) and each ``starts:rounds`` of ``--grid``: the column generation (:func:`calib_oed.oed.approximate_pool.approximate_pool`
 with that many local maximisations per round and rounds; ``0:0`` is the
 approximate design on the pool alone), its approximate value scaled to n
 [mm²], then for each K of ``--replicates`` the start (rounded approximate
@@ -31,7 +31,7 @@ from bench_design_pipeline import with_feasibility  # this folder is on sys.path
 from threadpoolctl import threadpool_limits
 
 from calib_oed.calibration.workflow import setup
-from calib_oed.oed.approximate_pool import approximate_pool, approximate_start
+from calib_oed.oed.approximate_pool import START_LOCAL_HESSIAN, approximate_pool, approximate_start
 from calib_oed.oed.objective import DesignObjective
 from calib_oed.oed.refine import optimise_from
 from calib_oed.oed.starts import candidate_pool, multiplicities
@@ -44,7 +44,8 @@ def main(argv=None) -> int:
     ap.add_argument("--grid", default="0:0,8:5,8:30,16:10,32:8,16:20")
     ap.add_argument("--replicates", default="1,3")
     ap.add_argument("--poses", type=int, default=60)
-    ap.add_argument("--local-hessian", default="exact", help="exact, bfgs or both: exact,bfgs")
+    ap.add_argument("--local-hessian", default=START_LOCAL_HESSIAN,
+                    help=f"exact, bfgs or both: exact,bfgs (default {START_LOCAL_HESSIAN}, the design's start)")
     ap.add_argument("--seeds", default="0", help="pool seeds, e.g. 0,1,2")
     ap.add_argument("--feasibility", default="",
                     help="override scene feasibility keys, e.g. link_fit=single,joint_window=full")

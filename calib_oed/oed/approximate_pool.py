@@ -39,7 +39,8 @@ from calib_oed.oed.rounding import efficient_rounding
 from calib_oed.oed.sensitivity_maxima import _local_search, _Search
 from calib_oed.oed.starts import check_pool_size, exchange_poses
 
-__all__ = ["ENRICH_ROUNDS", "ENRICH_STARTS", "LOCAL_HESSIANS", "ApproximatePool", "approximate_pool",
+__all__ = ["ENRICH_ROUNDS", "ENRICH_STARTS", "LOCAL_HESSIANS", "START_LOCAL_HESSIAN", "ApproximatePool",
+           "approximate_pool",
            "approximate_start", "rounded_start"]
 
 #: Local maximisations of the sensitivity per round of the column generation. On fms_kr16
@@ -53,6 +54,13 @@ ENRICH_ROUNDS = 10
 APPROXIMATE_TOL = 1e-4
 #: Curvatures of the local maximisations (:func:`approximate_pool`'s ``local_hessian``).
 LOCAL_HESSIANS = ("exact", "bfgs")
+#: The start's model. The exact one (the certificate's) takes 34 % less CPU in the column
+#: generation of seven scenes x eight pool seeds (209 against 315 s; with the SQP 447 against
+#: 564 s), but its maxima lead the exchange and the SQP to other local optima: the final designs
+#: moved by -1.2 to +1.3 %, +0.07 +- 0.06 % (s.e.) on average, better in 23 of 56
+#: (bench/bench_approximate_start.py --local-hessian exact,bfgs --seeds 0,...,7; docs/benchmarks.md).
+#: Not better, so the start keeps BFGS and every design stays what it was.
+START_LOCAL_HESSIAN = "bfgs"
 #: A local maximum joins the candidates when :math:`d > \bar d(1 + \text{this})`.
 LOCAL_TOL = 1e-3
 
@@ -95,7 +103,8 @@ class ApproximatePool:
 
 def approximate_pool(s, objective: DesignObjective, pool_q: np.ndarray, *, starts: int = ENRICH_STARTS,
                      rounds: int = ENRICH_ROUNDS, collisions: bool = True,
-                     local_iterations: int = 80, local_hessian: str = "exact") -> ApproximatePool:
+                     local_iterations: int = 80,
+                     local_hessian: str = START_LOCAL_HESSIAN) -> ApproximatePool:
     r"""The approximate design on ``pool_q`` (N, nq) [rad], enriched by up to ``rounds`` rounds of local maxima.
 
     Args:
@@ -106,8 +115,10 @@ def approximate_pool(s, objective: DesignObjective, pool_q: np.ndarray, *, start
         rounds: Most re-solves with added maxima.
         collisions: Maximise under the collision rows too (as the design).
         local_iterations: SQP iterations per local maximisation.
-        local_hessian: Curvature of the local maximisations: ``"exact"`` (default) or ``"bfgs"``
-            (per-pose BFGS blocks; :func:`~calib_oed.oed.sensitivity_maxima.maximise_sensitivity`).
+        local_hessian: Model of the local maximisations: ``"bfgs"`` (default,
+            :data:`START_LOCAL_HESSIAN`: per-pose BFGS blocks) or ``"exact"`` (the exact
+            Lagrangian Hessian and the row pieces at kinks, the certificate's;
+            :func:`~calib_oed.oed.sensitivity_maxima.maximise_sensitivity`).
 
     Raises:
         calib_oed.exceptions.CertificateError: a criterion without an approximate design.

@@ -124,13 +124,20 @@ def maximise_sensitivity(setup, objective: DesignObjective, gamma: np.ndarray, s
 
     Maximises :math:`\sum_j d(x_j)/\text{scale}` over the K poses at once
     (:func:`calib_oed.solver.sqp.solve_sqp`): the poses share nothing, so this
-    is K independent local maximisations. ``exact`` (default): the exact
-    Lagrangian Hessian, per pose :func:`sensitivity_hessian` and the active
-    rows' curvature (:meth:`~calib_oed.oed.problem.DesignProblem.compute_constraint_curvature`),
-    made definite as in the design SQP; on ``fms_kr16``'s column generation 7-17
-    SQP iterations per round against 25-60 with per-pose BFGS blocks
-    (``exact=False``), for the same maxima up to the local optimum found
-    (``bench/bench_approximate_start.py --local-hessian``).
+    is K independent local maximisations.
+
+    ``exact`` (default; the certificate's search) gives the SQP the design
+    SQP's model of the problem: the exact Lagrangian Hessian (per pose
+    :func:`sensitivity_hessian` and the active rows' curvature,
+    :meth:`~calib_oed.oed.problem.DesignProblem.compute_constraint_curvature`,
+    made definite as in the design SQP) and the smooth pieces of kinked
+    convex-piece rows (:meth:`~calib_oed.oed.problem.DesignProblem.compute_row_pieces`).
+    ``exact=False``: per-pose BFGS blocks and no pieces (the design's start,
+    :data:`~calib_oed.oed.approximate_pool.START_LOCAL_HESSIAN`). From the same
+    starts both reach the same maxima where both converge; on ``fms_kr16`` the
+    exact model takes 7-17 SQP iterations per round against 25-60, and on
+    ``panda_cell`` its rounds converge where BFGS without the pieces stalls at the
+    kinks (``bench/bench_approximate_start.py --local-hessian exact,bfgs``).
     """
     t0 = time.perf_counter()
     starts = np.atleast_2d(np.asarray(starts, dtype=float))
@@ -167,7 +174,8 @@ def maximise_sensitivity(setup, objective: DesignObjective, gamma: np.ndarray, s
 
     res = solve_sqp(negative, starts.ravel(), constraints=constraints, bounds=nlp.bounds,
                     settings=SQPSettings(max_iterations=max_iterations, step_bound=0.2),
-                    block_size=nq, lagrangian_hessian=curvature if exact else None)
+                    block_size=nq, lagrangian_hessian=curvature if exact else None,
+                    row_pieces=nlp.compute_row_pieces if exact else None)
     if res.status is SQPStatus.INTERRUPTED:  # Ctrl-C ends the certificate, not just this search
         raise KeyboardInterrupt
     q = res.x.reshape(k, nq)

@@ -6,11 +6,17 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from calib_oed.exceptions import DesignError
 from calib_oed.feasibility.constraints import FEASIBILITY_TOL
 from calib_oed.feasibility.sampling import sample_feasible
 from calib_oed.oed import certificate as cert
 from calib_oed.oed.approximate import solve_approximate
-from calib_oed.oed.approximate_pool import approximate_pool, approximate_start, rounded_start
+from calib_oed.oed.approximate_pool import (
+    START_LOCAL_HESSIAN,
+    approximate_pool,
+    approximate_start,
+    rounded_start,
+)
 from calib_oed.oed.design import evaluate_design
 from calib_oed.oed.objective import DesignObjective
 
@@ -77,6 +83,38 @@ def test_certificate_continues_the_column_generation(kr16, objective, enriched):
     assert c.holds() and c.pool_size >= len(enriched.q) + N
     assert c.n_local_added >= enriched.n_added
     assert c.bound <= objective.compute_value(q)
+
+
+def test_start_searches_with_bfgs_and_the_certificate_with_the_exact_hessian(kr16, objective, pool,
+                                                                             monkeypatch):
+    """The start's maximisations keep per-pose BFGS without row pieces (START_LOCAL_HESSIAN: the designs
+    stay what they were), the certificate's continuation takes the exact Hessian and the row pieces;
+    both as asked when told."""
+    from calib_oed.oed import sensitivity_maxima as sm
+
+    used = []
+    real = sm.solve_sqp
+
+    def spy(*args, **kwargs):
+        exact, pieces = (kwargs.get(k) is not None for k in ("lagrangian_hessian", "row_pieces"))
+        assert exact == pieces
+        used.append(exact)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(sm, "solve_sqp", spy)
+    assert START_LOCAL_HESSIAN == "bfgs"
+    ap = approximate_pool(kr16, objective, pool, starts=4, rounds=1, local_iterations=20)
+    assert used and not any(used)
+    used.clear()
+    q, _ = approximate_start(objective, ap, N)
+    cert.certify(kr16, q, "kpi", approximate=ap, local_starts=4, verify_starts=4, local_rounds=1,
+                 local_iterations=20)
+    assert used and all(used)
+    used.clear()
+    approximate_pool(kr16, objective, pool, starts=4, rounds=1, local_iterations=20, local_hessian="exact")
+    assert used and all(used)
+    with pytest.raises(DesignError, match="local_hessian.*valid choices are: exact, bfgs"):
+        approximate_pool(kr16, objective, pool, local_hessian="newton")
 
 
 def test_replicated_start_and_the_record_of_its_multiplicity(kr16, objective, enriched):
