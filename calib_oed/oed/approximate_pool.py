@@ -54,9 +54,9 @@ ENRICH_ROUNDS = 10
 APPROXIMATE_TOL = 1e-4
 #: Curvatures of the local maximisations (:func:`approximate_pool`'s ``local_hessian``).
 LOCAL_HESSIANS = ("exact", "bfgs")
-#: The start's model. The exact one (the certificate's) takes 34 % less CPU in the column
-#: generation of seven scenes x eight pool seeds (209 against 315 s; with the SQP 447 against
-#: 564 s), but its maxima lead the exchange and the SQP to other local optima: the final designs
+#: The start's model. The exact one (the certificate's) takes 32 % less CPU in the column
+#: generation of seven scenes x eight pool seeds (199 against 293 s; with the SQP 431 against
+#: 530 s), but its maxima lead the exchange and the SQP to other local optima: the final designs
 #: moved by -1.2 to +1.3 %, +0.07 +- 0.06 % (s.e.) on average, better in 23 of 56
 #: (bench/bench_approximate_start.py --local-hessian exact,bfgs --seeds 0,...,7; docs/benchmarks.md).
 #: Not better, so the start keeps BFGS and every design stays what it was.
