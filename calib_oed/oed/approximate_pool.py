@@ -40,8 +40,7 @@ from calib_oed.oed.sensitivity_maxima import _local_search, _Search
 from calib_oed.oed.starts import check_pool_size, exchange_poses
 
 __all__ = ["ENRICH_ROUNDS", "ENRICH_STARTS", "LOCAL_HESSIANS", "START_LOCAL_HESSIAN", "ApproximatePool",
-           "approximate_pool",
-           "approximate_start", "rounded_start"]
+           "approximate_pool", "approximate_start", "rounded_start"]
 
 #: Local maximisations of the sensitivity per round of the column generation. On fms_kr16
 #: (hull link geometry) 16 x 10 rounds reach the approximate value of 8 x 30 (9.57e-6 against

@@ -27,7 +27,7 @@ from calib_oed.oed.problem import DesignProblem
 from calib_oed.solver.result import StructuredHessian
 from calib_oed.solver.sqp import SQPSettings, SQPStatus, solve_sqp
 
-#: Starts per SQP of the local maximisation (its dense QP grows with the square of the starts).
+#: Starts per SQP of the local maximisation (with BFGS its dense QP grows with the square of the starts).
 #: 16 rather than 8: the chunk's poses share the iterations, so the 16 starts of a column
 #: generation round take 10 % less CPU in one SQP than in two (fms_kr16, fms_kr500).
 LOCAL_CHUNK = 16
@@ -134,10 +134,10 @@ def maximise_sensitivity(setup, objective: DesignObjective, gamma: np.ndarray, s
     convex-piece rows (:meth:`~calib_oed.oed.problem.DesignProblem.compute_row_pieces`).
     ``exact=False``: per-pose BFGS blocks and no pieces (the design's start,
     :data:`~calib_oed.oed.approximate_pool.START_LOCAL_HESSIAN`). From the same
-    starts both reach the same maxima where both converge; on ``fms_kr16`` the
-    exact model takes 7-17 SQP iterations per round against 25-60, and on
-    ``panda_cell`` its rounds converge where BFGS without the pieces stalls at the
-    kinks (``bench/bench_approximate_start.py --local-hessian exact,bfgs``).
+    starts both reach the same largest maximum; the exact model takes a third to
+    a half of the SQP iterations, and on ``ur5_table`` and ``panda_cell`` it
+    converges where BFGS without the pieces stalls at the kinks
+    (``bench/bench_sensitivity_maxima.py``, ``docs/benchmarks.md``).
     """
     t0 = time.perf_counter()
     starts = np.atleast_2d(np.asarray(starts, dtype=float))
