@@ -201,10 +201,22 @@ def _concatenate(parts: list[LocalMaxima]) -> LocalMaxima:
 
 
 def _maximise_in_chunks(setup, objective, gamma, starts, scale, chunk, **kwargs) -> LocalMaxima:
-    """:func:`maximise_sensitivity` on chunks of ``chunk`` starts (the dense QP grows as K²), concatenated."""
-    return _concatenate([maximise_sensitivity(setup, objective, gamma, starts[i:i + chunk], scale,
-                                              **kwargs)
-                         for i in range(0, len(starts), chunk)])
+    """:func:`maximise_sensitivity` on chunks of ``chunk`` starts (the dense QP grows as K²), concatenated.
+
+    A chunk whose SQP stopped without moving any start and without converging (its first QP
+    failed: one pose's degenerate rows stop the other poses too) is run again one start at a
+    time, so the poses that can move do; otherwise the round would end as if no better
+    maximum existed.
+    """
+    parts = []
+    for i in range(0, len(starts), chunk):
+        part = starts[i:i + chunk]
+        loc = maximise_sensitivity(setup, objective, gamma, part, scale, **kwargs)
+        if len(part) > 1 and loc.status != "converged" and np.array_equal(loc.q, part):
+            loc = _concatenate([maximise_sensitivity(setup, objective, gamma, part[j:j + 1], scale, **kwargs)
+                                for j in range(len(part))])
+        parts.append(loc)
+    return _concatenate(parts)
 
 
 @dataclass(frozen=True, eq=False)

@@ -3,6 +3,8 @@ may reuse one."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from conftest import central_difference, relative_error
@@ -134,3 +136,27 @@ def test_exact_curvature_reaches_the_maxima_in_fewer_iterations(kr16, objective,
         assert loc.status == "converged" and np.all(loc.feasible)
         assert np.all(loc.values >= loc.start_values)
     assert exact.iterations < bfgs.iterations
+
+
+def test_a_chunk_that_could_not_move_is_run_again_one_start_at_a_time(kr16, objective, search_start,
+                                                                     monkeypatch):
+    """A chunk's SQP that stops at its starts without converging (its first QP failed) is split: each
+    start alone finds its maximum, as it does on its own, instead of the round ending on the starts."""
+    pool, blocks, approx = search_start
+    gamma = objective.criterion.compute_gradient(information(blocks, approx.weights))
+    starts = pool[sm.spread_starts(pool, approx.sensitivities, 3)]
+    real = sm.solve_sqp
+
+    def failing_first_qp(objective_fn, x0, **kwargs):  # several poses: stopped where it began
+        if x0.size == starts.shape[1]:
+            return real(objective_fn, x0, **kwargs)
+        res = real(objective_fn, x0, **{**kwargs, "settings": sm.SQPSettings(max_iterations=1)})
+        return dataclasses.replace(res, x=np.array(x0, dtype=float), status=sm.SQPStatus.STALLED)
+
+    alone = [sm.maximise_sensitivity(kr16, objective, gamma, q[None], approx.mean_sensitivity) for q in starts]
+    monkeypatch.setattr(sm, "solve_sqp", failing_first_qp)
+    loc = sm._maximise_in_chunks(kr16, objective, gamma, starts, approx.mean_sensitivity, sm.LOCAL_CHUNK)
+    assert loc.q.shape == starts.shape and not np.array_equal(loc.q, starts)
+    for j, one in enumerate(alone):
+        np.testing.assert_array_equal(loc.q[j], one.q[0])
+        assert loc.values[j] == one.values[0] >= one.start_values[0]
