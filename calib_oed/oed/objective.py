@@ -148,7 +148,7 @@ class DesignObjective:
         # asks for value, gradient and curvature at the same point
         self._cache: dict[bytes, tuple] = {}
         self._noise_memo: dict = {}  # whitening pieces of the last state (:meth:`_whitening`)
-        self._row_memo: tuple | None = None  # the last state of compute_row_derivatives/_hessians
+        self._row_memo: tuple | None = None  # (key, state, rows) of compute_row_derivatives/_hessians
 
     @property
     def n_free(self) -> int:
@@ -260,8 +260,13 @@ class DesignObjective:
             :class:`RowDerivatives`: ``rows`` (n, d, n_f) [1/mm, 1/mrad per
             column] and ``derivatives`` (n, d, n_f, nv) [the same per rad].
         """
-        state = self._row_state(q)
-        return RowDerivatives(self._rows(state), self._row_derivatives(state))
+        key, state = self._row_state(q)
+        if self._row_memo[2] is None:  # kept with the state: the gradient and the Hessian both use them
+            rows, derivatives = self._rows(state), self._row_derivatives(state)
+            rows.setflags(write=False)
+            derivatives.setflags(write=False)
+            self._row_memo = (key, state, RowDerivatives(rows, derivatives))
+        return self._row_memo[2]
 
     def compute_row_hessians(self, q: np.ndarray) -> np.ndarray | None:
         r""":math:`\partial^2\tilde F_j/\partial q_{j,k}\,\partial q_{j,l}`, (n, d, n_f, nv, nv), or None.
@@ -270,16 +275,18 @@ class DesignObjective:
         and stacked as :meth:`compute_row_derivatives`; None when a model
         does not provide it (or with joint compliance modelled).
         """
-        return self._row_hessians(self._row_state(q))
+        return self._row_hessians(self._row_state(q)[1])
 
     def _row_state(self, q: np.ndarray):
-        """The second-order state of ``q``, kept for the last ``q``: :meth:`compute_row_derivatives` and
-        :meth:`compute_row_hessians` at one point (a Newton step's gradient and Hessian) evaluate it once."""
+        """``(key, state)``: the second-order state of ``q``, kept for the last ``q`` with its rows
+        and their derivatives (read-only, once asked for): :meth:`compute_row_derivatives` and
+        :meth:`compute_row_hessians` at one point (a Newton step's gradient and Hessian) evaluate
+        the models once."""
         q = np.asarray(q, dtype=float)
         key = (q.shape, q.tobytes())
         if self._row_memo is None or self._row_memo[0] != key:
-            self._row_memo = (key, self._state(q, second_order=True))
-        return self._row_memo[1]
+            self._row_memo = (key, self._state(q, second_order=True), None)
+        return self._row_memo[0], self._row_memo[1]
 
     def check_design_size(self, n: int) -> None:
         """Refuse ``n`` poses that give fewer measured values than free parameters (no prior),

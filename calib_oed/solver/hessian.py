@@ -80,11 +80,16 @@ def _floor(theta, rel_floor: float) -> float:
     return rel_floor * max(1.0, float(np.max(np.abs(theta), initial=0.0)))
 
 
+def _recompose(q: np.ndarray, theta: np.ndarray) -> np.ndarray:
+    r""":math:`Q\,\mathrm{diag}(\theta)\,Q^\top` per matrix of (k, p, p) ``q`` and (k, p) ``theta``."""
+    return np.einsum("jab,jb,jcb->jac", q, theta, q)
+
+
 def _abs_floor(m: np.ndarray, eps: float) -> tuple[np.ndarray, np.ndarray]:
     r""":math:`Q\max(|\Theta|, \epsilon)Q^\top` of symmetric (k, p, p) ``m``, and the eigenvalues changed per matrix."""
     theta, q = np.linalg.eigh(m)
     new = np.maximum(np.abs(theta), eps)
-    return np.einsum("jab,jb,jcb->jac", q, new, q), (new != theta).sum(axis=1)
+    return _recompose(q, new), (new != theta).sum(axis=1)
 
 
 def modify_blocks(blocks, rel_floor: float = 1e-8, normals=None) -> tuple[np.ndarray, int]:
@@ -113,8 +118,7 @@ def modify_blocks(blocks, rel_floor: float = 1e-8, normals=None) -> tuple[np.nda
     whole = bad[(rank == 0) | (rank == s)]
     n_mod = int(changed[whole].sum())
     if whole.size:
-        qb = q[whole]
-        blocks[whole] = np.einsum("jab,jb,jcb->jac", qb, new[whole], qb)
+        blocks[whole] = _recompose(q[whole], new[whole])
     for r in range(1, s):
         sel = np.flatnonzero(rank == r)
         if sel.size:
