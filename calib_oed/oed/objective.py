@@ -262,10 +262,10 @@ class DesignObjective:
         """
         key, state = self._row_state(q)
         if self._row_memo[2] is None:  # kept with the state: the gradient and the Hessian both use them
-            rows, derivatives = self._rows(state), self._row_derivatives(state)
-            rows.setflags(write=False)
-            derivatives.setflags(write=False)
-            self._row_memo = (key, state, RowDerivatives(rows, derivatives))
+            kept = RowDerivatives(self._rows(state), self._row_derivatives(state))
+            for array in kept:
+                array.setflags(write=False)
+            self._row_memo = (key, state, kept)
         return self._row_memo[2]
 
     def compute_row_hessians(self, q: np.ndarray) -> np.ndarray | None:
@@ -278,10 +278,8 @@ class DesignObjective:
         return self._row_hessians(self._row_state(q)[1])
 
     def _row_state(self, q: np.ndarray):
-        """``(key, state)``: the second-order state of ``q``, kept for the last ``q`` with its rows
-        and their derivatives (read-only, once asked for): :meth:`compute_row_derivatives` and
-        :meth:`compute_row_hessians` at one point (a Newton step's gradient and Hessian) evaluate
-        the models once."""
+        """``(key, state)``: the second-order state of the last ``q``, kept with its read-only rows once
+        asked for: a Newton step's gradient and Hessian at one point evaluate the models once."""
         q = np.asarray(q, dtype=float)
         key = (q.shape, q.tobytes())
         if self._row_memo is None or self._row_memo[0] != key:
