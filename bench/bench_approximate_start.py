@@ -53,7 +53,7 @@ def main(argv=None) -> int:
     n = args.poses
     overrides = dict(kv.split("=", 1) for kv in args.feasibility.split(",") if kv)
     tmp = tempfile.TemporaryDirectory()
-    grid = [tuple(int(x) for x in g.split(":")) for g in args.grid.split(",") if g]
+    grid = [(tuple(int(x) for x in g.split(":")) + (80,))[:3] for g in args.grid.split(",") if g]
     reps = [int(k) for k in args.replicates.split(",") if k]
     curvatures = [c for c in args.local_hessian.split(",") if c]
     seeds = [int(x) for x in args.seeds.split(",") if x]
@@ -63,18 +63,18 @@ def main(argv=None) -> int:
         s = setup(load_scene(with_feasibility(scene, overrides, Path(tmp.name)) if overrides else scene))
         objective = DesignObjective(s.problem, "kpi")
         pools = {seed: candidate_pool(s, 3000, seed) for seed in seeds}
-        for seed, curvature, (starts, rounds) in itertools.product(seeds, curvatures, grid):
+        for seed, curvature, (starts, rounds, its) in itertools.product(seeds, curvatures, grid):
             pool = pools[seed]
             with threadpool_limits(limits=1, user_api="blas"):
                 t = time.process_time()
                 enriched = approximate_pool(s, objective, pool.q, starts=starts, rounds=rounds,
-                                            local_hessian=curvature)
+                                            local_iterations=its, local_hessian=curvature)
                 t_approx = time.process_time() - t
                 for k in reps:
                     q0, ex = approximate_start(objective, enriched, n, None, k)
                     t = time.process_time()
                     value, q, _, res = optimise_from(objective, s.feasibility, q0)
-                    print(f"{scene:10s} {seed:4d} {curvature:>7s} {f'{starts}:{rounds}':>13s} {enriched.n_added:6d} "
+                    print(f"{scene:10s} {seed:4d} {curvature:>7s} {f'{starts}:{rounds}:{its}':>13s} {enriched.n_added:6d} "
                           f"{enriched.approx.value / n:11.5e} {t_approx:5.1f} {k:2d} {ex.value:11.5e} "
                           f"{value:11.5e} {res.status.value:>15s} {res.iterations:4d} "
                           f"{len(multiplicities(q)):8d} {time.process_time() - t:7.1f}", flush=True)

@@ -63,12 +63,15 @@ from calib_oed.oed.starts import candidate_pool
 
 __all__ = [
     # this module
-    "Certificate", "certify",
+    "SEARCH_COMPLETE", "Certificate", "certify",
     # re-exported from calib_oed.oed.approximate
     "CERTIFIABLE", "DROP_WEIGHT", "NEWTON_REGULARISATION", "ApproximateDesign", "criterion_kind",
     "efficiency", "information", "lower_bound", "mean_sensitivity", "scale_to_poses",
     "sensitivities", "solve_approximate",
 ]
+
+#: :meth:`Certificate.search_end` when the search for better poses ended by finding none.
+SEARCH_COMPLETE = "no better pose found"
 
 
 @dataclass(frozen=True, eq=False)
@@ -139,6 +142,20 @@ class Certificate:
     converged: bool
     tol: float
     scope: str
+
+    def search_end(self, round_limit: int) -> str:
+        """Why the search for better poses ended: :data:`SEARCH_COMPLETE`, or what stopped it.
+
+        Complete only when the last local maximisation found no better pose *and* converged
+        (a round whose SQP stopped early, at its iteration limit or a failed QP, did not
+        look everywhere it started), before ``round_limit`` re-solves (``certify``'s
+        ``local_rounds``).
+        """
+        if self.local_rounds >= round_limit:
+            return f"round limit ({round_limit} re-solves)"
+        if self.local_status != "converged":
+            return f"its last local maximisation did not converge ({self.local_status})"
+        return SEARCH_COMPLETE
 
     @property
     def design_gap_pct(self) -> float:

@@ -388,7 +388,7 @@ def _approximate(s: Setup, objective: DesignObjective, cands: CandidatePool, n: 
 def _certificate(s: Setup, q: np.ndarray, criterion, aggregate: str, cands: CandidatePool,
                  seed: int, collisions: bool, approx: ApproximatePool | None = None) -> dict:
     """The certificate of design ``q`` on the pool already drawn, as a record (or why not)."""
-    from calib_oed.oed.certificate import certify
+    from calib_oed.oed.certificate import SEARCH_COMPLETE, certify
 
     if aggregate == "max":
         return {"skipped": "no certificate for the worst-case KPI aggregate 'max' (mean only)"}
@@ -400,10 +400,9 @@ def _certificate(s: Setup, q: np.ndarray, criterion, aggregate: str, cands: Cand
                     collisions=collisions, approximate=approx)
     except CertificateError as exc:
         return {"skipped": str(exc)}
+    end = c.search_end(CERTIFICATE_ROUNDS)  # else the bound is only as good as the maxima found
     return {"efficiency": float(c.efficiency), "lower_bound": float(c.bound),
-            # the search ended by finding no better local maximum (else: at its round limit,
-            # and the bound is only as good as the maxima found so far)
-            "search_complete": bool(c.local_rounds < CERTIFICATE_ROUNDS),
+            "search_complete": end == SEARCH_COMPLETE, "search_end": end, "local_status": c.local_status,
             "lower_bound_pool": float(c.bound_pool), "kind": c.kind, "scope": c.scope,
             "pool_size": int(c.pool_size), "local_starts": starts,
             "verify_starts": CERTIFICATE_VERIFY,

@@ -177,8 +177,8 @@ class Design:
                     f"{cert['lower_bound']:.4g} against {self.value:.4g}, criterion "
                     f"{self.criterion!r}; certificate {cert.get('seconds', 0.0):.1f} s"
                     + ("" if cert.get("search_complete", True) else
-                       "; its search for better poses hit its round limit, so the bound is only "
-                       "as good as the poses it found") + ")")
+                       f"; its search for better poses ended early ({cert.get('search_end', 'round limit')}), "
+                       "so the bound is only as good as the poses it found") + ")")
         gap = cert.get("multistart")
         if gap and len(gap["starts"]) > 1:  # a criterion without a bound: the best of several starts
             return (f"  efficiency: not certified (no lower bound for {self.criterion!r}); the best of "

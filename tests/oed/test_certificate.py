@@ -3,6 +3,7 @@ sensitivity gradient off the pool, errors, the re-exported approximate-design na
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -52,6 +53,12 @@ def test_certificate_is_below_random_exchange_and_sqp_designs(kr16, kr16_pool):
     json.dumps(data)
     assert data["residual"] == c.check() and data["n"] == n and data["criterion"] == "kpi"
     assert "as good as the local maximisation" in c.summary()
+    # why the search ended: complete only if the last maximisation converged below the round limit
+    done = dataclasses.replace(c, local_rounds=2, local_status="converged")
+    assert done.search_end(4) == cert.SEARCH_COMPLETE
+    assert done.search_end(2) == "round limit (2 re-solves)"
+    assert "did not converge (max_iterations)" in dataclasses.replace(
+        done, local_status="max_iterations").search_end(4)
 
 
 def test_pool_only_certificate_says_so(kr16, kr16_pool):

@@ -14,6 +14,7 @@ from calib_oed.cli import EXIT_BAD_INPUT, EXIT_OK, main
 from calib_oed.exceptions import DesignError, DesignMemoryError
 from calib_oed.io.design_file import write_design_csv
 from calib_oed.oed import memory
+from calib_oed.oed.certificate import SEARCH_COMPLETE
 from calib_oed.oed.design import design, exchange_baseline
 from calib_oed.oed.starts import multiplicities
 from calib_oed.solver.sqp import SQPSettings
@@ -42,6 +43,9 @@ def test_default_is_exchange_refined_and_certified(kr16, default):
     # the enriched pool, reused (plus the design's poses and further maxima)
     assert cert["pool_size"] >= approx["candidates"] + N
     assert ex.value >= cert["lower_bound"]  # the exchange design cannot beat it either
+    # complete only when the last round found no better pose and its maximisation converged
+    assert cert["search_complete"] == (cert["search_end"] == SEARCH_COMPLETE)
+    assert cert["search_complete"] <= (cert["local_status"] == "converged")
     assert "efficiency:" in default.summary() and f"{N}-pose" in default.summary()
     data = default.to_dict()
     assert data["efficiency"] == default.efficiency and data["distinct_poses"] == N
