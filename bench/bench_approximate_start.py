@@ -3,14 +3,15 @@
 Run from the repository root:
 
     OPENBLAS_NUM_THREADS=1 .venv/bin/python bench/bench_approximate_start.py
-        [--scenes fms_kr16,fms_kr500] [--grid 0:0,8:5,8:30,16:10,32:8,16:20] [--replicates 1,3]
+        [--scenes fms_kr16,fms_kr500] [--grid 0:0,8:5,8:30,16:10,32:8,16:20,16:10:12] [--replicates 1,3]
         [--feasibility link_fit=single,joint_window=full]
         [--local-hessian exact,bfgs] [--seeds 0]
 
 For each scene and pool seed of ``--seeds`` (pool 3000, 60 poses, KPI), each
 curvature of the local maximisations of ``--local-hessian`` (``bfgs``, the
-design start's default, or ``exact``, the certificate's) and each ``starts:rounds`` of ``--grid``: the column generation (:func:`calib_oed.oed.approximate_pool.approximate_pool`
-with that many local maximisations per round and rounds; ``0:0`` is the
+design start's default, or ``exact``, the certificate's) and each ``starts:rounds[:iterations]`` of ``--grid``: the column generation (:func:`calib_oed.oed.approximate_pool.approximate_pool`
+with that many local maximisations per round and rounds, each maximisation's SQP stopped after
+``iterations``, default 80 as the design's; ``0:0`` is the
 approximate design on the pool alone), its approximate value scaled to n
 [mm²], then for each K of ``--replicates`` the start (rounded approximate
 design, exchange on the enriched candidates repeated K times) refined by the

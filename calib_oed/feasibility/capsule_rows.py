@@ -19,6 +19,14 @@ for :math:`b`. Together they say the same as
 :math:`\min(n^\top a, n^\top b) - c_0 - r - m_d \ge 0`, without its kink when
 the segment is parallel to the plane; the two rows are one pair
 (``kind:segment|half-space``), their labels mark the end (``segment.a|``).
+A segment shorter than :data:`POINT_LENGTH` on one body (a sphere, as the
+capsule fit makes of a wrist link: 0 to 4e-7 m on the shipped arms) has one
+row, labelled without an end (``segment|half-space``),
+:math:`n^\top a - c_0 - r - m_d - \lVert b - a\rVert \ge 0`: it implies both
+ends' rows, and with the two nearly the same function both active made the
+QP's KKT matrix singular or nearly (singular values 1e-10 of the largest),
+which sent the polish of the QP step to least squares
+(:mod:`calib_oed.solver.polish`).
 """
 
 from __future__ import annotations
@@ -33,6 +41,9 @@ from calib_oed.feasibility.curvature import (
 )
 from calib_oed.feasibility.row_family import FIXED, RowFamily, RowSides
 from calib_oed.feasibility.segments import closest_parameters
+
+#: A segment on one body shorter than this [m] has one half-space row (module docstring).
+POINT_LENGTH = 1e-6
 
 
 def _ends(seg, i):
@@ -109,7 +120,7 @@ class CapsulePairRows(RowFamily):
 
 class HalfspaceRows(RowFamily):
     """Two rows (end points a, b) per ``(segment, half-space)`` pair ((H, 2) indices into the
-    segment table and ``cell.halfspaces``) of kinds ``kinds``."""
+    segment table and ``cell.halfspaces``) of kinds ``kinds``; one for a zero-length segment."""
 
     def __init__(self, segments, cell, pairs, kinds, clearance: float):
         self.segments, self.cell = segments, cell
@@ -119,14 +130,23 @@ class HalfspaceRows(RowFamily):
         hs = cell.halfspaces
         self.normal = np.array([hs[h].normal for h in self.pairs[:, 1]]).reshape(-1, 3)
         self.offset = np.array([hs[h].offset for h in self.pairs[:, 1]], dtype=float)
-        names = segments.names
-        self.kinds = tuple(k for k in self.pair_kind for _ in "ab")
-        self.labels = tuple(f"{k}:{names[i]}.{end}|{hs[h].name}"
-                            for (i, h), k in zip(self.pairs, self.pair_kind, strict=True) for end in "ab")
+        names, i = segments.names, self.pairs[:, 0]
+        length = np.linalg.norm(segments.b_local[i] - segments.a_local[i], axis=1)
+        point = (segments.body_a[i] == segments.body_b[i]) & (length < POINT_LENGTH)
+        #: Per row its pair and end (0: a, 1: b); a zero-length segment has only its end a.
+        self._pair = np.array([p for p in range(len(self.pairs)) for _ in range(1 if point[p] else 2)],
+                              dtype=int)
+        self._end = np.array([e for p in range(len(self.pairs)) for e in range(1 if point[p] else 2)],
+                             dtype=int)
+        #: Per row what the one row of a short segment gives away for its end b [m] (else 0).
+        self._slack = np.where(point, length, 0.0)[self._pair]
+        self.kinds = tuple(self.pair_kind[p] for p in self._pair)
+        self.labels = tuple(f"{self.pair_kind[p]}:{names[i[p]]}{'' if point[p] else '.' + 'ab'[e]}"
+                            f"|{hs[self.pairs[p, 1]].name}" for p, e in zip(self._pair, self._end, strict=True))
 
     @property
     def pair_of_row(self):
-        return np.repeat(np.arange(len(self.pairs)), 2)
+        return self._pair.copy()
 
     @property
     def pair_labels(self):
@@ -144,16 +164,17 @@ class HalfspaceRows(RowFamily):
         base = self.offset + seg.radius[i] + self.clearance
         va = np.einsum("nhi,hi->nh", a, self.normal) - base
         vb = np.einsum("nhi,hi->nh", b, self.normal) - base
-        values = np.stack([va, vb], axis=2).reshape(n, -1)
+        values = np.stack([va, vb], axis=2)[:, self._pair, self._end] - self._slack
         if not jacobian:
             return values, None
         u = np.broadcast_to(self.normal, a.shape)
         ja = states.directional_jacobian(seg.body_a[i], a, u)
         jb = states.directional_jacobian(seg.body_b[i], b, u)
-        return values, np.stack([ja, jb], axis=2).reshape(n, -1, q.shape[1])
+        return values, np.stack([ja, jb], axis=2)[:, self._pair, self._end]
 
     def _end_points(self, rows):
-        h, end = divmod(np.asarray(rows, dtype=int), 2)
+        rows = np.asarray(rows, dtype=int)
+        h, end = self._pair[rows], self._end[rows]
         i, seg = self.pairs[h, 0], self.segments
         body = np.where(end == 0, seg.body_a[i], seg.body_b[i])
         local = np.where((end == 0)[:, None], seg.a_local[i], seg.b_local[i])
@@ -165,8 +186,8 @@ class HalfspaceRows(RowFamily):
         return point_hessian_along(omega, jx, self.normal[h])
 
     def sides(self):
-        return RowSides(np.stack([np.repeat(self.pairs[:, 0], 2), np.full(len(self), FIXED)], axis=1)
-                        .reshape(-1, 2), (None,) * len(self))
+        return RowSides(np.stack([self.pairs[self._pair, 0], np.full(len(self), FIXED)], axis=1),
+                        (None,) * len(self))
 
     def subset(self, keep):
         keep = np.asarray(keep, dtype=bool)

@@ -211,3 +211,37 @@ def test_excluded_pair_is_not_checked():
 
     with pytest.raises(UnknownLinkError, match="link_9"):
         model_for(robot, excluded_pairs=(("link_1", "link_9"),))
+
+
+@pytest.mark.parametrize("length", [0.0, 3e-7])
+def test_zero_length_capsule_has_one_halfspace_row(robot, length):
+    """A sphere (capsule shorter than POINT_LENGTH) against a half-space: one row, not two (nearly)
+    equal ones (both active make the QP's KKT matrix singular), with its value and gradient;
+    the row gives away the length, so it implies both ends' rows."""
+    caps = skeleton_capsules(robot)
+    sphere = caps[-1]
+    end = np.asarray(sphere.a, dtype=float) + length * np.array([0.6, 0.0, 0.8])
+    caps[-1] = Capsule(sphere.a, end, sphere.radius, sphere.frame, sphere.name)
+    cell, reach = cell_for(robot)
+    fm, _ = build_feasibility_model(
+        robot, cell, FeasibilitySettings(), np.array([0.5 * reach, -2.0 * reach, 0.6 * reach]),
+        np.array([[0.0, 0.0, 0.05]]), ["smr0"], capsules=caps, prune=False)
+    rows = [k for k, lbl in enumerate(fm.labels) if lbl.startswith(f"obstacle:{sphere.name}")
+            and not lbl.endswith("|box")]
+    assert [fm.labels[k] for k in rows] == [f"obstacle:{sphere.name}|floor", f"obstacle:{sphere.name}|wall"]
+    other = caps[0].name
+    assert {f"obstacle:{other}.a|floor", f"obstacle:{other}.b|floor"} <= set(fm.labels)
+    q = robot.random_configurations(4, 3)
+    res = fm.compute(q)
+    data = robot.model.createData()
+    clearance = fm.settings.margins.clearance
+    for k, qk in enumerate(q):
+        pin.framesForwardKinematics(robot.model, data, qk)
+        frame = data.oMf[robot.frame_id(sphere.frame)]
+        a, b = frame.act(np.asarray(sphere.a, dtype=float)), frame.act(end)
+        for row, hs in zip(rows, cell.halfspaces, strict=True):
+            assert res.values[k, row] == pytest.approx(hs.normal @ a - hs.offset - sphere.radius - clearance
+                                                       - length, abs=1e-12)
+            assert res.values[k, row] <= min(hs.normal @ a, hs.normal @ b) - hs.offset - sphere.radius - clearance + 1e-12
+        num = central_difference(lambda x: fm.compute_values(x[None])[0][rows], qk, eps=1e-6)
+        assert np.allclose(res.jacobian[k][rows], num, atol=1e-7)
