@@ -91,7 +91,7 @@ class PairReport:
     def summary(self) -> str:
         lines = [f"checked pairs per pose: {len(self.checked)}; constraint rows per pose: "
                  + ", ".join(f"{k} {v}" for k, v in self.counts.items())
-                 + " (a half-space pair gives a row per capsule end)",
+                 + " (a half-space pair gives a row per capsule end, one for a capsule of zero length)",
                  f"paper formula n(n-1)/2-(n-1) for n={self.n_links} links: {self.paper_count} self pairs"]
         if self.window:
             lines.append(self.window)
