@@ -133,11 +133,10 @@ class HalfspaceRows(RowFamily):
         names, i = segments.names, self.pairs[:, 0]
         length = np.linalg.norm(segments.b_local[i] - segments.a_local[i], axis=1)
         point = (segments.body_a[i] == segments.body_b[i]) & (length < POINT_LENGTH)
-        #: Per row its pair and end (0: a, 1: b); a zero-length segment has only its end a.
-        self._pair = np.array([p for p in range(len(self.pairs)) for _ in range(1 if point[p] else 2)],
-                              dtype=int)
-        self._end = np.array([e for p in range(len(self.pairs)) for e in range(1 if point[p] else 2)],
-                             dtype=int)
+        ends = np.ones((len(self.pairs), 2), dtype=bool)
+        ends[point, 1] = False  # a zero-length segment has only its end a
+        #: Per row its pair and end (0: a, 1: b), in pair order.
+        self._pair, self._end = np.nonzero(ends)
         #: Per row what the one row of a short segment gives away for its end b [m] (else 0).
         self._slack = np.where(point, length, 0.0)[self._pair]
         self.kinds = tuple(self.pair_kind[p] for p in self._pair)
