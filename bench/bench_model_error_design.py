@@ -75,8 +75,9 @@ from calib_oed.measurement.joint_prior import ARCSEC, MOTOR_LENGTH, JointErrorPr
 from calib_oed.model.compliance import Compliance
 from calib_oed.model.joint_map import JointGains
 from calib_oed.oed.design import design
-from calib_oed.oed.model_error import MODEL_ERROR_TRUST_UPDATE, design_prior, scene_criterion
+from calib_oed.oed.model_error import design_prior, scene_criterion
 from calib_oed.oed.positions import reflector_positions
+from calib_oed.oed.refine import EXACT_TRUST_UPDATE
 from calib_oed.scene.records import ComplianceSpec
 from calib_oed.solver.settings import SQPSettings
 
@@ -152,7 +153,7 @@ def budget_design(s, n: int, criterion, seed: int, iterations: int):
     meh.FULL_COUPLING_MAX_SIZE = n * s.problem.robot.nq
     try:
         return design(s, n, criterion, seed=seed, certificate=False,
-                      settings=SQPSettings(max_iterations=iterations, trust_update=MODEL_ERROR_TRUST_UPDATE))
+                      settings=SQPSettings(max_iterations=iterations, trust_update=EXACT_TRUST_UPDATE))
     finally:
         meh.FULL_COUPLING_MAX_SIZE = old
 

@@ -103,8 +103,6 @@ MODEL_ERROR_POSE_ITERATIONS = 18000
 MODEL_ERROR_EXACT_ITERATIONS = 300
 #: Fewest SQP iterations of a large ``kpi_model`` design (its cap before the motor-side part).
 MODEL_ERROR_MIN_ITERATIONS = 25
-#: The trust rule of a ``kpi_model`` design (:class:`~calib_oed.solver.settings.SQPSettings` ``trust_update``).
-MODEL_ERROR_TRUST_UPDATE = "ratio"
 #: Relative point motion [1] below which a joint counts as moving no point (:func:`design_prior`).
 STILL_TOL = 1e-9
 _MM = 1e3
@@ -134,17 +132,17 @@ def design_settings(objective, settings, exact: bool = False, n: int = 60, base=
     """``settings``, or for a criterion of the whole design of ``n`` poses ``base`` (the design's
     SQP settings, :data:`~calib_oed.oed.refine.DESIGN_SQP`; None: the SQP's defaults) capped at
     :func:`exact_iterations` with the exact Hessian (``exact``: ``kpi_model``),
-    :data:`MODEL_ERROR_ITERATIONS` with damped BFGS (``docs/oed.md``). With the exact Hessian, a
-    ``trust_update`` left to the caller (None) is :data:`MODEL_ERROR_TRUST_UPDATE`, ``"auto"``
-    Hessian modification the tangent rule at every size (``docs/benchmarks.md``, "Growth with n")."""
+    :data:`MODEL_ERROR_ITERATIONS` with damped BFGS (``docs/oed.md``). With the exact Hessian, an
+    ``"auto"`` Hessian modification is the tangent rule at every size (``docs/benchmarks.md``,
+    "Growth with n"); the trust rule is that of every exact-Hessian design
+    (:data:`~calib_oed.oed.refine.EXACT_TRUST_UPDATE`)."""
     if not getattr(objective, "needs_design", False):
         return settings
     from calib_oed.solver.sqp import SQPSettings
     if settings is None:
         settings = replace(base or SQPSettings(), max_iterations=exact_iterations(n) if exact else MODEL_ERROR_ITERATIONS)
-    if exact:  # a trust rule or Hessian modification left to the SQP ("auto"): the ratio and tangent rules
-        rule = "tangent" if settings.hessian_modification == "auto" else settings.hessian_modification
-        settings = replace(settings, trust_update=settings.trust_update or MODEL_ERROR_TRUST_UPDATE, hessian_modification=rule)
+    if exact and settings.hessian_modification == "auto":  # left to the SQP: the tangent rule
+        settings = replace(settings, hessian_modification="tangent")
     return settings
 
 

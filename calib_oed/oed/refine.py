@@ -11,6 +11,8 @@ and ends a multi-start: the driver then returns the best design so far.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from calib_oed.exceptions import DesignError
@@ -22,6 +24,13 @@ from calib_oed.solver.sqp import SQPResult, SQPSettings, SQPStatus, solve_sqp
 
 #: SQP settings of the design problem (objective scaled to 1 at the start, x in rad).
 DESIGN_SQP = SQPSettings()
+
+#: The trust rule of a design SQP with the exact Hessian when the settings leave it to the caller
+#: (``trust_update=None``): the model's agreement decides the box (``SQPSettings.trust_update``).
+#: Against ``"edge"`` on 19 notional arms' four designs each (``docs/benchmarks.md``, "The trust
+#: rule of the design SQP"): 24 % less CPU, every run converged, the mean value of each kind of
+#: design moved by -0.01 to +0.10 %.
+EXACT_TRUST_UPDATE = "ratio"
 
 #: Curvature models of the design SQP: the exact Lagrangian Hessian (default), or damped BFGS.
 HESSIANS = ("exact", "bfgs")
@@ -107,8 +116,11 @@ def optimise_from(objective: DesignObjective, feasibility, q0: np.ndarray, *, co
     if hessian not in HESSIANS:
         raise DesignError("hessian", hessian, "how the SQP models curvature", HESSIANS)
     exact = hessian == "exact" and has_exact_hessian(objective.criterion)
+    settings = settings or DESIGN_SQP
+    if exact and settings.trust_update is None:
+        settings = replace(settings, trust_update=EXACT_TRUST_UPDATE)
     result = solve_sqp(nlp.compute_objective, q0.ravel(), constraints=nlp.compute_constraints,
-                       bounds=nlp.bounds, settings=settings or DESIGN_SQP, callback=callback,
+                       bounds=nlp.bounds, settings=settings, callback=callback,
                        block_size=nlp.nq,
                        lagrangian_hessian=nlp.compute_lagrangian_hessian if exact else None,
                        row_pieces=nlp.compute_row_pieces)

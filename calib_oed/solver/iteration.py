@@ -284,17 +284,17 @@ class _Run(_SubproblemMixin, _RestorationMixin):
         0.99\Delta`: :math:`2\Delta`; else :math:`\Delta` (Nocedal & Wright 2006, Algorithm 4.1,
         in the :math:`\infty`-norm of the box)."""
         s = self.s
-        if backtracks:
-            rho = -1.0
-        else:
-            h = self._sub[0].H
-            predicted = -(float(old.g @ d) + 0.5 * float(d @ matvec(h, d))) + self.mu * old.violation_l1
-            rho = (self._merit(old) - self._merit(new)) / predicted if predicted > 0 else -1.0
+        rho = -1.0 if backtracks else self._agreement(old, new, d)
         if rho < 0.25:
             return max(s.min_step_bound, 0.5 * d_norm)
         if rho > 0.75 and d_norm >= 0.99 * delta:
             return min(s.max_step_bound, 2.0 * delta)
         return delta
+
+    def _agreement(self, old: _Point, new: _Point, d) -> float:
+        r""":math:`\rho` of :meth:`_ratio_update` for a full step (-1 when the model predicts no decrease)."""
+        predicted = -(float(old.g @ d) + 0.5 * float(d @ matvec(self._sub[0].H, d))) + self.mu * old.violation_l1
+        return (self._merit(old) - self._merit(new)) / predicted if predicted > 0 else -1.0
 
     def _line_search(self, rows, step):
         r"""Armijo backtracking on :math:`\phi_\mu` along the QP step, with one SOC try.

@@ -20,7 +20,6 @@ from calib_oed.oed.model_error import (
     MODEL_ERROR_EXACT_ITERATIONS,
     MODEL_ERROR_ITERATIONS,
     MODEL_ERROR_MIN_ITERATIONS,
-    MODEL_ERROR_TRUST_UPDATE,
     default_criterion,
     design_prior,
     design_settings,
@@ -194,17 +193,16 @@ def test_a_kpi_model_design_has_no_certificate(kr16):
     s, _ = kr16
     assert design_settings(DesignObjective(s.problem, MODEL_ERROR), None).max_iterations == MODEL_ERROR_ITERATIONS
     exact = design_settings(DesignObjective(s.problem, MODEL_ERROR), None, True)
-    assert exact.max_iterations == MODEL_ERROR_EXACT_ITERATIONS == 300 and exact.trust_update == MODEL_ERROR_TRUST_UPDATE
+    assert exact.max_iterations == MODEL_ERROR_EXACT_ITERATIONS == 300 and exact.trust_update is None
     assert exact.hessian_modification == "tangent"  # at every size, not "auto"
     # the budget per pose: 300 up to 60 poses, fewer above, never below the floor
     assert [exact_iterations(n) for n in (12, 60, 120, 250, 500, 2000)] == [300, 300, 150, 72, 36, MODEL_ERROR_MIN_ITERATIONS]
     assert design_settings(DesignObjective(s.problem, MODEL_ERROR), None, True, 500).max_iterations == 36
-    # a limit the user gives (`--iterations`) keeps the design's trust rule; a rule the user gives is kept
+    # a limit the user gives (`--iterations`) is kept, and so is a Hessian rule the user gives
     given = design_settings(DesignObjective(s.problem, MODEL_ERROR), SQPSettings(max_iterations=7), True)
-    assert (given.max_iterations, given.trust_update) == (7, MODEL_ERROR_TRUST_UPDATE)
-    edge = design_settings(DesignObjective(s.problem, MODEL_ERROR), SQPSettings(trust_update="edge"), True)
-    assert edge.trust_update == "edge"
-    assert design_settings(DesignObjective(s.problem, MODEL_ERROR), None).trust_update is None  # BFGS: the SQP's own
+    assert (given.max_iterations, given.hessian_modification) == (7, "tangent")
+    block = design_settings(DesignObjective(s.problem, MODEL_ERROR), SQPSettings(hessian_modification="block"), True)
+    assert block.hessian_modification == "block"
     assert design_settings(DesignObjective(s.problem, "kpi"), None) is None
     d = design(s, 12, MODEL_ERROR, pool=300, seed=0, enrich=False, settings=SQPSettings(max_iterations=3))
     assert d.criterion == MODEL_ERROR and d.value <= d.start_value

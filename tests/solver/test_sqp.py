@@ -337,6 +337,47 @@ def test_ratio_trust_update_follows_its_rule():
     assert {"halved", "kept"} <= kinds  # the rule was exercised, not only one branch
 
 
+def test_ratio_trust_update_follows_the_agreement(monkeypatch):
+    """Each accepted step's agreement rho decides the next box: half the step below 1/4 (a
+    backtracked step counts as rho < 0), doubled above 3/4 when the step reached the box, else
+    kept (HS problems with rows, each update as the SQP made it)."""
+    from calib_oed.solver import iteration
+    rhos, updates = [], []
+    agreement, update = iteration._Run._agreement, iteration._Run._ratio_update
+
+    def record_rho(self, *a):
+        rhos.append(agreement(self, *a))
+        return rhos[-1]
+
+    def record_update(self, old, new, d, delta, d_norm, backtracks):
+        n = len(rhos)
+        out = update(self, old, new, d, delta, d_norm, backtracks)
+        updates.append((rhos[-1] if len(rhos) > n else -1.0, delta, d_norm, bool(backtracks), out))
+        return out
+
+    monkeypatch.setattr(iteration._Run, "_agreement", record_rho)
+    monkeypatch.setattr(iteration._Run, "_ratio_update", record_update)
+    for name in sorted(HS):
+        objective, constraints, x0, bounds, x_star, f_star = HS[name]()
+        res = solve_sqp(objective, np.array(x0, dtype=float), constraints=constraints, bounds=bounds,
+                        settings=SQPSettings(trust_update="ratio", step_bound=0.05))
+        assert res.status is SQPStatus.CONVERGED and abs(res.fun - f_star) <= 1e-7 * max(1.0, abs(f_star))
+    kinds = set()
+    for rho, delta, d_norm, backtracked, out in updates:
+        assert not backtracked or rho == -1.0
+        if rho < 0.25:
+            assert out == pytest.approx(max(1e-8, 0.5 * d_norm)), (rho, delta, d_norm)
+            kinds.add("halved")
+        elif rho > 0.75 and d_norm >= 0.99 * delta:
+            assert out == pytest.approx(min(1.0, 2 * delta))
+            kinds.add("doubled")
+        else:
+            assert out == delta
+            kinds.add("kept at the box" if d_norm >= 0.99 * delta else "kept")
+    # every branch was exercised, a step at the box with rho in [1/4, 3/4] among them
+    assert {"halved", "doubled", "kept at the box"} <= kinds
+
+
 def test_max_iterations_is_reported():
     res = solve_sqp(_rosenbrock, np.array([-1.2, 1.0]), settings=SQPSettings(max_iterations=3))
     assert res.status is SQPStatus.MAX_ITERATIONS and res.iterations == 3 and not res.check()

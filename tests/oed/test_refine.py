@@ -1,0 +1,36 @@
+"""The design SQP's settings (:mod:`calib_oed.oed.refine`)."""
+
+from __future__ import annotations
+
+import pytest
+
+import calib_oed.oed.refine as refine
+from calib_oed.oed.design import heuristic_designs
+from calib_oed.oed.objective import DesignObjective
+from calib_oed.solver.sqp import SQPSettings
+
+
+@pytest.mark.parametrize("criterion, hessian, given, used", [
+    ("kpi", "exact", None, refine.EXACT_TRUST_UPDATE),
+    ("params", "exact", None, refine.EXACT_TRUST_UPDATE),
+    ("kpi", "exact", "edge", "edge"),  # a rule the caller gives is kept
+    ("kpi", "bfgs", None, None),  # damped BFGS: the SQP's own rule
+])
+def test_an_exact_hessian_design_takes_the_ratio_trust_rule(kr16_setup, monkeypatch, criterion, hessian,
+                                                            given, used):
+    seen = []
+    solve = refine.solve_sqp
+
+    def spy(*args, settings, **kwargs):
+        seen.append(settings)
+        return solve(*args, settings=settings, **kwargs)
+
+    monkeypatch.setattr(refine, "solve_sqp", spy)
+    s = kr16_setup
+    q0 = heuristic_designs(s, 12, [0])[0].q
+    value, q, phi0, result = refine.optimise_from(
+        DesignObjective(s.problem, criterion), s.feasibility, q0,
+        settings=SQPSettings(max_iterations=2, trust_update=given), hessian=hessian)
+    design_run = seen[0]  # a later run, if any, is the projection onto the feasible set
+    assert design_run.trust_update == used
+    assert design_run.max_iterations == 2 and result.iterations <= 2 and q.shape == q0.shape
