@@ -4,6 +4,7 @@ Run from any directory with the checkout to time on ``PYTHONPATH``:
 
     OPENBLAS_NUM_THREADS=1 PYTHONPATH=CHECKOUT python bench/bench_notional_design.py \
         [--case 0] [--criterion params] [--collisions 1] [--no-reequilibrate] [--proxsuite-default]
+        [--trust-update edge|ratio]
 
 The case is the ``notional90`` study's ``--case``-th arm (the first: lambda 650,
 mu 600 mm in the scaled ``fms_kr16`` paper cell), set up as
@@ -22,6 +23,10 @@ the old rule by a monkeypatch here.
 ``--proxsuite-default`` imports ``proxsuite`` before ``calib_oed``, so that
 proxsuite picks its own build (AVX2 here) instead of the SSE2 build of
 ``solver/proxqp_build.py`` (3386afc); the same code, the other build.
+
+``--trust-update`` sets the design SQP's trust rule (``SQPSettings.trust_update``); by
+default it is left to the design (``"ratio"`` with the exact Hessian since
+``calib_oed.oed.refine.EXACT_TRUST_UPDATE``, ``"edge"`` before).
 
 ``--no-reequilibrate`` switches off, by a monkeypatch here (not in the library),
 what dd25508 added: a reused dense ProxQP object recomputing its equilibration
@@ -53,6 +58,8 @@ def main() -> None:
     ap.add_argument("--proxsuite-default", action="store_true",
                     help="import proxsuite before calib_oed: its own build choice (AVX2 here), "
                          "not the SSE2 build solver/proxqp_build.py picks")
+    ap.add_argument("--trust-update", choices=("edge", "ratio"), default=None,
+                    help="the design SQP's trust rule (default: the design's own)")
     args = ap.parse_args()
     if args.proxsuite_default:
         import warnings
@@ -125,7 +132,7 @@ def main() -> None:
     case = config.cases()[args.case]
     plan = case.plan
     settings = plan.sqp_settings()
-    settings = dataclasses.replace(settings, time_limit=math.inf)
+    settings = dataclasses.replace(settings, time_limit=math.inf, trust_update=args.trust_update)
     with threadpool_limits(limits=1):
         s = setup(case.spec.load_scene())
         c_design = time.process_time()
@@ -139,6 +146,7 @@ def main() -> None:
     its = int(solver.get("iterations", 0))
     print(json.dumps({
         "case": case.spec.case_id, "criterion": args.criterion, "collisions": bool(args.collisions),
+        "trust_update": args.trust_update,
         "reequilibrate_patched_off": patched, "proxqp_build": getattr(loaded, "__name__", "unknown"),
         "status": str(solver.get("status", "")), "iterations": its, "value": float(d.value),
         "kpi_mm2": float(d.kpi_variance), "feasible": bool(d.feasible),

@@ -43,8 +43,8 @@ class SQPSettings:
             it the rows kept, follows the steps being taken (``inf`` disables).
             Used by ``trust_update="edge"``.
         trust_update: How :math:`\Delta` changes after a step: ``None`` (default) leaves
-            the choice to the caller (the design: ``"ratio"`` for ``kpi_model``,
-            :func:`calib_oed.oed.model_error.design_settings`; otherwise ``"edge"``). ``"edge"``
+            the choice to the caller (the design: ``"ratio"`` with the exact Hessian,
+            :data:`calib_oed.oed.refine.EXACT_TRUST_UPDATE`; otherwise ``"edge"``). ``"edge"``
             doubles it after a full step that reaches the box and cuts it to
             :math:`\max(\tfrac12\|\alpha d\|_\infty, \tfrac1{10}\min(\Delta, \|d\|_\infty))`
             after a backtracked one; ``"ratio"`` follows the agreement
@@ -52,10 +52,9 @@ class SQPSettings:
             Wright 2006, Algorithm 4.1; :mod:`calib_oed.solver.iteration`): halved
             to :math:`\tfrac12\|d\|_\infty` when :math:`\rho < \tfrac14` (a
             backtracked step counts as :math:`\rho < 0`), doubled when
-            :math:`\rho > \tfrac34` at the box, else kept. A ``kpi_model`` design takes
-            ``"ratio"``: under ``"edge"`` a step whose model was poor still doubled the box
-            and the next failure cut it tenfold, and the design crept (``docs/oed.md``,
-            "The default prior and iteration budget").
+            :math:`\rho > \tfrac34` at the box, else kept. The design takes ``"ratio"``:
+            under ``"edge"`` a step whose model was poor still doubled the box and the next
+            failure cut it tenfold, and the design crept (``docs/oed.md``, item 4 of the SQP).
         active_margin: :math:`m_a \ge 0` of the row selection (:mod:`calib_oed.solver.rows`).
         max_qp_rows: Most constraint rows in any QP, whatever :math:`\Delta`
             (:mod:`calib_oed.solver.rows`); ``None``: :math:`\max(200, 4n)`.
