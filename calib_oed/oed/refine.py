@@ -27,9 +27,9 @@ DESIGN_SQP = SQPSettings()
 
 #: The trust rule of a design SQP with the exact Hessian when the settings leave it to the caller
 #: (``trust_update=None``): the model's agreement decides the box (``SQPSettings.trust_update``).
-#: Against ``"edge"`` on 19 notional arms' four designs each (``docs/benchmarks.md``, "The trust
-#: rule of the design SQP"): 24 % less CPU, every run converged, the mean value of each kind of
-#: design moved by -0.01 to +0.10 %.
+#: Against ``"edge"`` on 20 notional arms' four designs each (``docs/benchmarks.md``, "The trust
+#: rule of the design SQP"): 22 % less design CPU, the mean value of each kind of design moved by
+#: -0.004 to +0.1 %; the notional90 study 27 % less CPU.
 EXACT_TRUST_UPDATE = "ratio"
 
 #: Curvature models of the design SQP: the exact Lagrangian Hessian (default), or damped BFGS.
