@@ -42,6 +42,7 @@ from calib_oed.calibration.workflow import setup
 from calib_oed.oed.design import DESIGN_SQP
 from calib_oed.oed.objective import DesignObjective
 from calib_oed.oed.problem import DesignProblem
+from calib_oed.oed.refine import EXACT_TRUST_UPDATE
 from calib_oed.oed.starts import candidate_pool, exchange_start
 from calib_oed.scene.reader import load_scene
 from calib_oed.solver.sqp import solve_sqp
@@ -74,9 +75,10 @@ def run_sqp(nlp, x0, exact: bool, time_limit: float):
     from dataclasses import replace
 
     trace = Trace(nlp)
-    settings = replace(DESIGN_SQP, time_limit=time_limit)
+    # as the design runs it (calib_oed.oed.refine.optimise_from): the exact Hessian's trust rule,
+    # per-pose blocks, kinked rows' pieces
+    settings = replace(DESIGN_SQP, time_limit=time_limit, trust_update=EXACT_TRUST_UPDATE if exact else None)
     kwargs = {"lagrangian_hessian": nlp.compute_lagrangian_hessian} if exact else {}
-    # as the design runs it (calib_oed.oed.refine.optimise_from): per-pose blocks, kinked rows' pieces
     res = solve_sqp(trace.objective, x0, constraints=nlp.compute_constraints, bounds=nlp.bounds,
                     settings=settings, block_size=nlp.nq, row_pieces=nlp.compute_row_pieces, **kwargs)
     return res.x, trace, f"{res.status.value}, {res.iterations} it"
