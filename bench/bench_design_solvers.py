@@ -42,7 +42,7 @@ from calib_oed.calibration.workflow import setup
 from calib_oed.oed.design import DESIGN_SQP
 from calib_oed.oed.objective import DesignObjective
 from calib_oed.oed.problem import DesignProblem
-from calib_oed.oed.refine import EXACT_TRUST_UPDATE
+from calib_oed.oed.refine import sqp_settings
 from calib_oed.oed.starts import candidate_pool, exchange_start
 from calib_oed.scene.reader import load_scene
 from calib_oed.solver.sqp import solve_sqp
@@ -77,7 +77,7 @@ def run_sqp(nlp, x0, exact: bool, time_limit: float):
     trace = Trace(nlp)
     # as the design runs it (calib_oed.oed.refine.optimise_from): the exact Hessian's trust rule,
     # per-pose blocks, kinked rows' pieces
-    settings = replace(DESIGN_SQP, time_limit=time_limit, trust_update=EXACT_TRUST_UPDATE if exact else None)
+    settings = sqp_settings(replace(DESIGN_SQP, time_limit=time_limit), exact)
     kwargs = {"lagrangian_hessian": nlp.compute_lagrangian_hessian} if exact else {}
     res = solve_sqp(trace.objective, x0, constraints=nlp.compute_constraints, bounds=nlp.bounds,
                     settings=settings, block_size=nlp.nq, row_pieces=nlp.compute_row_pieces, **kwargs)

@@ -35,6 +35,15 @@ EXACT_TRUST_UPDATE = "ratio"
 #: Curvature models of the design SQP: the exact Lagrangian Hessian (default), or damped BFGS.
 HESSIANS = ("exact", "bfgs")
 
+
+def sqp_settings(settings: SQPSettings | None, exact: bool) -> SQPSettings:
+    """The settings a design SQP runs with: ``settings`` (default :data:`DESIGN_SQP`), with
+    :data:`EXACT_TRUST_UPDATE` when it has the exact Hessian and the trust rule is left open."""
+    settings = settings or DESIGN_SQP
+    if exact and settings.trust_update is None:
+        settings = replace(settings, trust_update=EXACT_TRUST_UPDATE)
+    return settings
+
 def project_feasible(nlp: DesignProblem, x: np.ndarray, max_iterations: int = 50) -> np.ndarray:
     r"""The nearest feasible design: :math:`\min_y \tfrac12\|y - x\|^2` s.t. the design constraints.
 
@@ -116,11 +125,8 @@ def optimise_from(objective: DesignObjective, feasibility, q0: np.ndarray, *, co
     if hessian not in HESSIANS:
         raise DesignError("hessian", hessian, "how the SQP models curvature", HESSIANS)
     exact = hessian == "exact" and has_exact_hessian(objective.criterion)
-    settings = settings or DESIGN_SQP
-    if exact and settings.trust_update is None:
-        settings = replace(settings, trust_update=EXACT_TRUST_UPDATE)
     result = solve_sqp(nlp.compute_objective, q0.ravel(), constraints=nlp.compute_constraints,
-                       bounds=nlp.bounds, settings=settings, callback=callback,
+                       bounds=nlp.bounds, settings=sqp_settings(settings, exact), callback=callback,
                        block_size=nlp.nq,
                        lagrangian_hessian=nlp.compute_lagrangian_hessian if exact else None,
                        row_pieces=nlp.compute_row_pieces)
