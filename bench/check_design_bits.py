@@ -5,7 +5,7 @@ Run from the repository root:
     PYTHONPATH=/other/checkout .venv/bin/python bench/check_design_bits.py --out REF
     PYTHONPATH=. .venv/bin/python bench/check_design_bits.py --out NEW --reference REF
 
-Runs ``calib-oed design`` (one process each, the code on ``PYTHONPATH``) for four cases: the
+Runs ``calib-oed design`` (one process each, in ``OUT``, the code on ``PYTHONPATH``) for four cases: the
 default call ``fms_kr16 -n 60 --seed 0``, ``--criterion kpi -n 60``, ``--criterion kpi -n 250
 --no-certificate`` and ``ur5_table -n 60``, each into ``OUT/<case>``. With ``--reference`` it
 compares ``design.csv`` byte for byte and every value of ``design.yaml`` (floats by their exact
@@ -49,10 +49,13 @@ def differences(a, b, path: str = "") -> list[str]:
 
 def run(case: str, out: Path) -> float:
     """One design of ``case`` into ``out/case``; its process CPU time [s]."""
-    target = out / case
+    target = (out / case).resolve()
+    target.parent.mkdir(parents=True, exist_ok=True)
     before = os.times()
+    # run in `out`, not here: `python -m` puts its working directory first on sys.path, so from a
+    # checkout's root the package of that checkout would run whatever PYTHONPATH says
     subprocess.run([sys.executable, "-m", "calib_oed", "design", *CASES[case], "-o", str(target), "--quiet"],
-                   check=True, stdout=subprocess.DEVNULL)
+                   check=True, stdout=subprocess.DEVNULL, cwd=target.parent)
     after = os.times()
     return (after.children_user - before.children_user) + (after.children_system - before.children_system)
 
@@ -76,6 +79,11 @@ def main(argv=None) -> int:
     unknown = sorted(set(cases) - set(CASES))
     if unknown:
         ap.error(f"unknown case(s) {unknown}; valid: {', '.join(CASES)}")
+    if not args.compare_only:
+        args.out.mkdir(parents=True, exist_ok=True)
+        where = subprocess.run([sys.executable, "-c", "import calib_oed; print(calib_oed.__file__)"],
+                               check=True, capture_output=True, text=True, cwd=args.out).stdout.strip()
+        print(f"code: {Path(where).parent.parent}", flush=True)
     failed = False
     for case in cases:
         cpu = float("nan") if args.compare_only else run(case, args.out)

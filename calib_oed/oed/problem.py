@@ -67,6 +67,7 @@ class DesignProblem:
         self.upper = np.tile(robot.upper - margin, self.n)
         self.n_objective = 0
         self.n_constraints = 0
+        self.n_values = 0
         self._states: list[tuple[bytes, object]] = []  # the last body states with Jacobians, by q
 
     def _body_states(self, q: np.ndarray, compute: bool = True):
@@ -97,6 +98,13 @@ class DesignProblem:
         self.n_objective += 1
         ev = self.objective.compute(self.configurations(x))
         return ev.value / self.scale, ev.gradient.ravel() / self.scale
+
+    def compute_values(self, x: np.ndarray) -> tuple[float, np.ndarray]:
+        r""":math:`\phi/\phi^0` and the stacked constraint values (n·m,) without derivatives: the
+        SQP's trial points (``values`` of :func:`~calib_oed.solver.sqp.solve_sqp`)."""
+        self.n_values += 1
+        value = self.objective.compute_value(self.configurations(x)) / self.scale
+        return value, self.compute_constraint_rows(x, jacobian=False)[0].ravel()
 
     def compute_lagrangian_hessian(self, x: np.ndarray, lam: np.ndarray) -> StructuredHessian | None:
         r"""The exact Hessian of :math:`L = \phi/s - \lambda^\top g` in factored form, or None.

@@ -129,7 +129,7 @@ def optimise_from(objective: DesignObjective, feasibility, q0: np.ndarray, *, co
                        bounds=nlp.bounds, settings=sqp_settings(settings, exact), callback=callback,
                        block_size=nlp.nq,
                        lagrangian_hessian=nlp.compute_lagrangian_hessian if exact else None,
-                       row_pieces=nlp.compute_row_pieces)
+                       row_pieces=nlp.compute_row_pieces, values=nlp.compute_values)
     x = result.x
     if nlp.max_violation(x) > FEASIBILITY_TOL:
         # interrupted: the (feasible) start rather than a projection the user did not wait for

@@ -124,7 +124,8 @@ class _Run(_SubproblemMixin, _RestorationMixin):
         self._version += 1
 
     def _trial(self, x):
-        return self.p.evaluate(np.clip(x, self.lb, self.ub), strict=False)
+        """The point ``x`` (clipped to the bounds) with values only when the caller gave ``values``."""
+        return self.p.evaluate_values(np.clip(x, self.lb, self.ub))
 
     def _pieces(self) -> RowPieces:
         """The pieces of the kinked rows near activity at :math:`x_k` (:mod:`calib_oed.solver.pieces`), cached."""
@@ -314,10 +315,14 @@ class _Run(_SubproblemMixin, _RestorationMixin):
         for backtracks in range(s.max_backtracks + 1):
             trial = self._trial(pt.x + alpha * d)
             if trial is not None and self._merit(trial) <= phi0 + s.armijo * alpha * slope:
-                return trial, backtracks, False, its
+                trial = self.p.complete(trial)  # derivatives only where the step is taken
+                if trial is not None:
+                    return trial, backtracks, False, its
             if backtracks == 0 and trial is not None and s.second_order_correction:
                 corrected, its = self._second_order_correction(rows, step, trial)
                 if corrected is not None and self._merit(corrected) <= phi0 + s.armijo * slope:
-                    return corrected, 0, True, its
+                    corrected = self.p.complete(corrected)
+                    if corrected is not None:
+                        return corrected, 0, True, its
             alpha *= s.backtrack
         return None, s.max_backtracks, False, its

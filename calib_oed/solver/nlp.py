@@ -6,6 +6,10 @@ r"""The caller's nonlinear program as the SQP sees it: evaluated, checked and ti
 finiteness checks, evaluation counts and timers [s]; one evaluation is a
 :class:`_Point`, which also carries the row norms :math:`\|A_i\|_1` and the
 :math:`\ell_1` and :math:`\infty` violations of the rows and of the bounds.
+With the caller's optional ``values: x -> (f, c)``, a trial point of a line
+search is first evaluated without derivatives (:meth:`_Problem.evaluate_values`:
+``g``, ``A`` and ``row_l1`` None) and completed only if it is accepted
+(:meth:`_Problem.complete`); most trials are rejected.
 :func:`_bounds` checks ``(lb, ub)``.
 """
 
@@ -22,14 +26,16 @@ from calib_oed.solver.result import SQPProblemError
 
 
 class _Point(NamedTuple):
-    r"""Everything known at one iterate: :math:`f, \nabla f, c, A`, violations, row norms."""
+    r"""Everything known at one iterate: :math:`f, \nabla f, c, A`, violations, row norms.
+
+    ``g``, ``A`` and ``row_l1`` are None at a trial point evaluated by ``values`` alone."""
 
     x: np.ndarray
     f: float
-    g: np.ndarray
+    g: np.ndarray | None
     c: np.ndarray
-    A: np.ndarray | sp.csr_matrix
-    row_l1: np.ndarray  # ||A_i||_1
+    A: np.ndarray | sp.csr_matrix | None
+    row_l1: np.ndarray | None  # ||A_i||_1
     violation_l1: float  # sum_i max(0, -c_i) + bound violation
     violation_max: float
 
@@ -37,11 +43,32 @@ class _Point(NamedTuple):
 class _Problem:
     """The caller's functions with shape checks, evaluation counts and timers."""
 
-    def __init__(self, objective, constraints, n, lb, ub, times):
-        self.objective, self.constraints = objective, constraints
+    def __init__(self, objective, constraints, n, lb, ub, times, values=None):
+        self.objective, self.constraints, self.values = objective, constraints, values
         self.n, self.lb, self.ub, self.times = n, lb, ub, times
         self.m = None
-        self.n_obj = self.n_con = 0
+        self.n_obj = self.n_con = self.n_values = 0
+
+    def evaluate_values(self, x) -> _Point | None:
+        """:math:`f, c` at ``x`` without derivatives (``values``), or the full :meth:`evaluate`
+        without ``values``; ``None`` if not finite."""
+        if self.values is None:
+            return self.evaluate(x, strict=False)
+        t = time.perf_counter()
+        f, c = self.values(x)
+        self.times["values"] += time.perf_counter() - t
+        self.n_values += 1
+        f, c = float(f), np.asarray(c, dtype=float).reshape(-1)
+        m = 0 if self.constraints is None else self.m
+        if c.shape != (m,):
+            raise ShapeError("constraint values of `values`", f"({m},)", c.shape)
+        if not (np.isfinite(f) and np.all(np.isfinite(c))):
+            return None
+        return self._point(x, f, None, c, None, None)
+
+    def complete(self, pt: _Point) -> _Point | None:
+        r"""``pt`` with :math:`\nabla f` and :math:`A` (evaluated at ``pt.x`` if missing); ``None`` if not finite."""
+        return pt if pt.g is not None else self.evaluate(pt.x, strict=False)
 
     def evaluate(self, x, strict: bool) -> _Point | None:
         """Evaluate at ``x``; non-finite values raise if ``strict``, else give ``None``."""
@@ -75,6 +102,9 @@ class _Problem:
             return None
         row_l1 = (np.asarray(abs(A).sum(axis=1)).ravel() if sp.issparse(A)
                   else np.abs(A).sum(axis=1))
+        return self._point(x, f, g, c, A, row_l1)
+
+    def _point(self, x, f, g, c, A, row_l1) -> _Point:
         neg = np.maximum(-c, 0.0)
         bnd = np.maximum(self.lb - x, 0.0) + np.maximum(x - self.ub, 0.0)
         vmax = max(float(np.max(neg, initial=0.0)), float(np.max(bnd, initial=0.0)))

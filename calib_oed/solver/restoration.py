@@ -135,7 +135,9 @@ class _RestorationMixin:
             for backtracks in range(s.max_backtracks + 1):
                 trial = self._trial(pt.x + alpha * d)
                 if trial is not None and trial.violation_l1 <= pt.violation_l1 - s.armijo * alpha * pred:
-                    return self._restored(k, trial, delta, rows.size, qp_status, qp_iter, backtracks)
+                    trial = self.p.complete(trial)
+                    if trial is not None:
+                        return self._restored(k, trial, delta, rows.size, qp_status, qp_iter, backtracks)
                 alpha *= s.backtrack
             delta = 0.5 * alpha * float(np.max(np.abs(d)))
             if delta < s.min_step_bound:

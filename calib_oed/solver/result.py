@@ -240,9 +240,11 @@ class SQPResult:
         kkt_stationarity: :math:`r_d(x)` (relative, see the module docstring).
         kkt_complementarity: :math:`r_c(x)` (relative).
         times: Seconds spent per phase: ``"objective"``, ``"constraints"``,
-            ``"qp"``, ``"hessian"``, ``"total"`` [s].
+            ``"values"`` (the ``values`` callable of trial points), ``"qp"``,
+            ``"hessian"``, ``"total"`` [s].
         n_objective_evaluations: Calls of the objective.
         n_constraint_evaluations: Calls of the constraints.
+        n_value_evaluations: Calls of ``values`` (trial points without derivatives).
         hessian: The Hessian asked for: ``"bfgs"`` or ``"exact"``.
         hessian_fallbacks: Iterations in which the exact Hessian was asked for
             but the BFGS one was used.
@@ -266,6 +268,7 @@ class SQPResult:
     times: dict = field(default_factory=dict)
     n_objective_evaluations: int = 0
     n_constraint_evaluations: int = 0
+    n_value_evaluations: int = 0
     hessian: str = "bfgs"
     hessian_fallbacks: int = 0
     hessian_message: str = ""
@@ -322,6 +325,7 @@ class SQPResult:
             "times": dict(self.times),
             "n_objective_evaluations": self.n_objective_evaluations,
             "n_constraint_evaluations": self.n_constraint_evaluations,
+            "n_value_evaluations": self.n_value_evaluations,
             "hessian": self.hessian,
             "hessian_fallbacks": self.hessian_fallbacks,
             "hessian_message": self.hessian_message,
@@ -340,7 +344,7 @@ class SQPResult:
                 f"SQP {self.status.value}: {self.message}",
                 f"  f = {self.fun:.10g} after {self.iterations} iterations "
                 f"({self.n_objective_evaluations} objective, "
-                f"{self.n_constraint_evaluations} constraint evaluations, "
+                f"{self.n_constraint_evaluations} constraint, {self.n_value_evaluations} value-only evaluations, "
                 f"{n_rest} restoration steps, {n_soc} second-order corrections)",
                 f"  violation {self.max_violation:.2e}, stationarity "
                 f"{self.kkt_stationarity:.2e}, complementarity {self.kkt_complementarity:.2e}",
@@ -349,6 +353,6 @@ class SQPResult:
                 f"  Hessian: {self.hessian}" + (f", {self.hessian_fallbacks} BFGS fallbacks "
                                                  f"({self.hessian_message})" if self.hessian_fallbacks else ""),
                 "  time [s]: "
-                + ", ".join(f"{k} {t.get(k, 0.0):.3f}" for k in ("objective", "constraints", "qp", "hessian", "total")),
+                + ", ".join(f"{k} {t.get(k, 0.0):.3f}" for k in ("objective", "constraints", "values", "qp", "hessian", "total")),
             ]
         )

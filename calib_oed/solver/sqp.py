@@ -76,7 +76,9 @@ far from active; :math:`f` scaled by the caller to O(1). One iteration at
    (:meth:`~calib_oed.solver.iteration._Run._ratio_update`). When the full step is rejected, a second-order correction is tried first
    (:meth:`~calib_oed.solver.iteration._Run._second_order_correction`, against the Maratos effect of
    curved active constraints). A step rejected after ``max_backtracks``
-   leaves :math:`x_k` and cuts :math:`\Delta` tenfold.
+   leaves :math:`x_k` and cuts :math:`\Delta` tenfold. With the caller's
+   ``values`` the trial points are evaluated without derivatives, and
+   :math:`\nabla f`, :math:`A` only at the point accepted.
 5. **Infeasible QP** (only possible at an infeasible :math:`x_k`: at a feasible
    one :math:`d = 0` is feasible). A row no :math:`d` in the box can satisfy is
    found in :math:`O(\text{nnz})` (:func:`calib_oed.solver.restoration.unreachable_rows`)
@@ -143,7 +145,7 @@ _NUMERICAL = (MemoryError, np.linalg.LinAlgError, FloatingPointError)
 
 def solve_sqp(objective, x0, *, constraints=None, bounds=None, settings: SQPSettings | None = None,
               callback=None, block_size: int | None = None,
-              lagrangian_hessian=None, row_pieces=None) -> SQPResult:
+              lagrangian_hessian=None, row_pieces=None, values=None) -> SQPResult:
     r"""Minimise :math:`f(x)` s.t. :math:`c(x) \ge 0`, :math:`lb \le x \le ub` by SQP (module docstring).
 
     Args:
@@ -174,6 +176,11 @@ def solve_sqp(objective, x0, *, constraints=None, bounds=None, settings: SQPSett
             that have a kink at :math:`x`, the values (k,) and gradients
             :math:`G` (k, n) of their smooth pieces (:mod:`calib_oed.solver.pieces`):
             extra QP rows, and their multipliers count in the KKT test.
+        values: Optional ``x -> (f, c)``: :math:`f(x)` and :math:`c(x)` without
+            derivatives, equal to those of ``objective`` and ``constraints``. The
+            line searches then evaluate their trial points with it and call
+            ``objective`` and ``constraints`` only at the point accepted: most
+            trials are rejected, and the derivatives are most of the cost.
 
     Returns:
         :class:`SQPResult`; call ``check()`` for the KKT residuals.
@@ -192,8 +199,8 @@ def solve_sqp(objective, x0, *, constraints=None, bounds=None, settings: SQPSett
         raise NonFiniteError("x0", np.flatnonzero(~np.isfinite(x0)).tolist())
     n = x0.size
     lb, ub = _bounds(bounds, n)
-    times = dict.fromkeys(("objective", "constraints", "qp", "hessian", "total"), 0.0)
-    problem = _Problem(objective, constraints, n, lb, ub, times)
+    times = dict.fromkeys(("objective", "constraints", "values", "qp", "hessian", "total"), 0.0)
+    problem = _Problem(objective, constraints, n, lb, ub, times, values)
     pt0 = problem.evaluate(np.clip(x0, lb, ub), strict=True)
     try:
         run = _Run(problem, pt0, lb, ub, s, t0, block_size, lagrangian_hessian, row_pieces)
@@ -205,7 +212,8 @@ def solve_sqp(objective, x0, *, constraints=None, bounds=None, settings: SQPSett
                     "or lagrangian_hessian instead of one dense Hessian)",
             iterations=0, history=(), multipliers=np.zeros(pt0.c.size), bound_multipliers=np.zeros(n),
             max_violation=pt0.violation_max, kkt_stationarity=np.nan, kkt_complementarity=np.nan,
-            times=times, n_objective_evaluations=problem.n_obj, n_constraint_evaluations=problem.n_con)
+            times=times, n_objective_evaluations=problem.n_obj, n_constraint_evaluations=problem.n_con,
+            n_value_evaluations=problem.n_values)
     for k in range(s.max_iterations):
         try:
             record = run.iterate(k)
@@ -236,5 +244,5 @@ def solve_sqp(objective, x0, *, constraints=None, bounds=None, settings: SQPSett
         history=tuple(run.history), multipliers=run.lam, bound_multipliers=nu_bounds,
         max_violation=pt.violation_max, kkt_stationarity=stat, kkt_complementarity=comp, times=times,
         n_objective_evaluations=problem.n_obj, n_constraint_evaluations=problem.n_con,
-        hessian=run.hessian_label, hessian_fallbacks=run.n_fallbacks, hessian_message=run.fallback_reason,
+        n_value_evaluations=problem.n_values, hessian=run.hessian_label, hessian_fallbacks=run.n_fallbacks, hessian_message=run.fallback_reason,
         max_pieces=run.n_pieces)

@@ -7,6 +7,7 @@ import pytest
 from conftest import central_difference, relative_error
 
 from calib_oed.calibration.workflow import heuristic_design, setup
+from calib_oed.oed import model_error
 from calib_oed.oed.objective import DesignObjective
 from calib_oed.oed.problem import COLLISION_KINDS, DesignProblem
 from calib_oed.scene.reader import load_scene
@@ -158,3 +159,20 @@ def test_an_evaluated_point_keeps_its_body_states(kr16, nlp):
     for a, b in zip(problem.compute_row_pieces(x, rows), fresh.compute_row_pieces(x, rows), strict=True):
         assert np.array_equal(a if isinstance(a, np.ndarray) else a.toarray(),
                               b if isinstance(b, np.ndarray) else b.toarray())
+
+
+@pytest.mark.parametrize("criterion", ["kpi", "params", None])  # None: the scene's default, kpi_model
+def test_values_alone_are_those_with_derivatives_bit_for_bit(kr16, criterion):
+    """The SQP's trial points (:meth:`DesignProblem.compute_values`) see the same numbers as its
+    accepted points: otherwise a step accepted on one would be measured on the other."""
+    objective = DesignObjective(kr16.problem, model_error.scene_criterion(kr16, criterion))
+    q0 = heuristic_design(kr16, 10, 3)
+    problem = DesignProblem(objective, kr16.feasibility, 10, scale=1.7)
+    rng = np.random.default_rng(5)
+    for _ in range(3):
+        x = q0.ravel() + rng.normal(scale=3e-2, size=q0.size)
+        f_alone, c_alone = problem.compute_values(x)  # first: no cache from the full evaluation
+        f, _ = problem.compute_objective(x)
+        c, _ = problem.compute_constraints(x)
+        assert f_alone == f and np.array_equal(c_alone, c)
+    assert problem.n_values == 3

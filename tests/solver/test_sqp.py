@@ -225,7 +225,7 @@ def test_result_checks_itself_and_serialises():
     text = json.dumps(res.to_dict(), allow_nan=False)
     assert json.loads(text)["status"] == "converged"
     assert "converged" in res.summary() and res.n_objective_evaluations >= res.iterations
-    assert set(res.times) == {"objective", "constraints", "qp", "hessian", "total"}
+    assert set(res.times) == {"objective", "constraints", "values", "qp", "hessian", "total"}
     assert res.history[-1].step_norm == 0.0  # the last record is the final KKT check
 
 
