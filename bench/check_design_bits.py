@@ -32,11 +32,17 @@ CASES = {
 }
 
 
+#: Keys of the solver's record that count work, not results (trial points evaluated without
+#: derivatives change them and nothing else): not compared.
+EFFORT = {"n_objective_evaluations", "n_constraint_evaluations", "n_value_evaluations"}
+
+
 def differences(a, b, path: str = "") -> list[str]:
-    """Paths at which two parsed YAML documents differ (floats compared by their exact value)."""
+    """Paths at which two parsed YAML documents differ (floats compared by their exact value;
+    the keys of :data:`EFFORT` skipped)."""
     if isinstance(a, dict) and isinstance(b, dict):
-        out = [f"{path}/{k}: only in one" for k in sorted(set(a) ^ set(b), key=str)]
-        for k in a.keys() & b.keys():
+        out = [f"{path}/{k}: only in one" for k in sorted((set(a) ^ set(b)) - EFFORT, key=str)]
+        for k in (a.keys() & b.keys()) - EFFORT:
             out += differences(a[k], b[k], f"{path}/{k}")
         return out
     if isinstance(a, list) and isinstance(b, list):
