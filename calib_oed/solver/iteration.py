@@ -299,14 +299,16 @@ class _Run(_SubproblemMixin, _RestorationMixin):
 
     def _correct_accepted(self, trial: _Point, d) -> bool:
         r"""Whether to try the correction after the accepted full step to ``trial`` as well
-        (``correction_share`` :math:`\kappa`, ratio rule only): when its violation
+        (``correction_share`` :math:`\kappa`, ratio rule only): when the step reached the box
+        and its violation
         :math:`\mu v_1(x + d)` exceeds :math:`\kappa` times the QP model's predicted reduction,
         which assumes the violation gone (:meth:`_ratio_update`). On curved active rows each
         step leaves a violation of order :math:`\Delta^2`, which caps :math:`\rho` below
         :math:`\tfrac34`: the box then never grows and the run creeps."""
         share, s = self.s.correction_share, self.s
-        if share is None or s.trust_update != "ratio" or not s.second_order_correction:
-            return False
+        if (share is None or s.trust_update != "ratio" or not s.second_order_correction
+                or float(np.max(np.abs(d), initial=0.0)) < 0.99 * self.delta):  # inside the box: it
+            return False  # would not grow anyway, and the next QP removes the violation
         pt = self.pt
         predicted = -(float(pt.g @ d) + 0.5 * float(d @ matvec(self._sub[0].H, d))) + self.mu * pt.violation_l1
         return self.mu * trial.violation_l1 > share * predicted
