@@ -297,27 +297,10 @@ class _Run(_SubproblemMixin, _RestorationMixin):
         predicted = -(float(old.g @ d) + 0.5 * float(d @ matvec(self._sub[0].H, d))) + self.mu * old.violation_l1
         return (self._merit(old) - self._merit(new)) / predicted if predicted > 0 else -1.0
 
-    def _correct_accepted(self, trial: _Point, d) -> bool:
-        r"""Whether to try the correction after the accepted full step to ``trial`` as well
-        (``correction_share`` :math:`\kappa`, ratio rule only): when the step reached the box
-        and its violation
-        :math:`\mu v_1(x + d)` exceeds :math:`\kappa` times the QP model's predicted reduction,
-        which assumes the violation gone (:meth:`_ratio_update`). On curved active rows each
-        step leaves a violation of order :math:`\Delta^2`, which caps :math:`\rho` below
-        :math:`\tfrac34`: the box then never grows and the run creeps."""
-        share, s = self.s.correction_share, self.s
-        if (share is None or s.trust_update != "ratio" or not s.second_order_correction
-                or float(np.max(np.abs(d), initial=0.0)) < 0.99 * self.delta):  # inside the box: it
-            return False  # would not grow anyway, and the next QP removes the violation
-        pt = self.pt
-        predicted = -(float(pt.g @ d) + 0.5 * float(d @ matvec(self._sub[0].H, d))) + self.mu * pt.violation_l1
-        return self.mu * trial.violation_l1 > share * predicted
-
     def _line_search(self, rows, step):
         r"""Armijo backtracking on :math:`\phi_\mu` along the QP step, with one SOC try.
 
-        The correction is tried after a rejected full step, and after an accepted one that
-        :meth:`_correct_accepted` names (taken if its merit is lower). Returns ``(point or None, backtracks, corrected, QP iterations)``. The
+        Returns ``(point or None, backtracks, corrected, QP iterations)``. The
         test is :math:`\phi(x + \alpha d) \le \phi(x) + \eta \alpha D^- + 10 \varepsilon
         \max(1, |\phi(x)|)` with :math:`D^- = \min(D, 0)`: the last term accepts
         changes below rounding (as IPOPT does, Wächter & Biegler 2006, §3.9), and
@@ -332,12 +315,6 @@ class _Run(_SubproblemMixin, _RestorationMixin):
         for backtracks in range(s.max_backtracks + 1):
             trial = self._trial(pt.x + alpha * d)
             if trial is not None and self._merit(trial) <= phi0 + s.armijo * alpha * slope:
-                if backtracks == 0 and self._correct_accepted(trial, d):
-                    corrected, its = self._second_order_correction(rows, step, trial)
-                    if corrected is not None and self._merit(corrected) < self._merit(trial):
-                        corrected = self.p.complete(corrected)
-                        if corrected is not None:
-                            return corrected, 0, True, its
                 trial = self.p.complete(trial)  # derivatives only where the step is taken
                 if trial is not None:
                     return trial, backtracks, False, its

@@ -119,12 +119,6 @@ class SQPSettings:
             bits in every process, which ProxQP's own answer is not.
         second_order_correction: Try a second-order correction before
             backtracking from a rejected full step (:mod:`calib_oed.solver.sqp`, item 4).
-        correction_share: With ``trust_update="ratio"``: after an accepted full step
-            whose :math:`\ell_1` violation costs more than this share of the QP model's
-            predicted reduction (:math:`\mu v_1(x + d) > \kappa\,\mathrm{pred}`), try
-            the second-order correction too and take it if its merit is lower. Such a
-            leftover, from curved active rows, keeps :math:`\rho` below
-            :math:`\tfrac34`, and the box from growing. ``None``: only after rejected steps.
         row_pieces_margin: Rows with :math:`c_i` at most this (units of :math:`c`)
             are offered to the caller's ``row_pieces`` (:mod:`calib_oed.solver.pieces`).
         armijo: :math:`\eta \in (0, 1/2)` of the Armijo condition.
@@ -160,7 +154,6 @@ class SQPSettings:
     qp_max_iterations: int = 100
     qp_polish: bool = True
     second_order_correction: bool = True
-    correction_share: float | None = 0.25
     row_pieces_margin: float = 1e-3
     armijo: float = 1e-4
     backtrack: float = 0.5
@@ -206,9 +199,6 @@ class SQPSettings:
         for name in ("qp_polish", "second_order_correction"):
             if not isinstance(getattr(self, name), bool):
                 raise SQPSettingsError(name, getattr(self, name), "must be True or False")
-        if self.correction_share is not None:
-            need("correction_share", lambda v: isinstance(v, (int, float)) and 0 < v <= 1,
-                 "must be None or lie in (0, 1]")
         if self.qp_backend not in QP_BACKENDS:
             raise SQPSettingsError("qp_backend", self.qp_backend,
                                    f"valid values are {', '.join(map(repr, QP_BACKENDS))}", QP_BACKENDS)
