@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import pytest
 
 import calib_oed.oed.refine as refine
@@ -34,3 +36,20 @@ def test_an_exact_hessian_design_takes_the_ratio_trust_rule(kr16_setup, monkeypa
     design_run = seen[0]  # a later run, if any, is the projection onto the feasible set
     assert design_run.trust_update == used
     assert design_run.max_iterations == 2 and result.iterations <= 2 and q.shape == q0.shape
+
+
+def test_a_design_sqp_takes_the_design_penalty_margin(kr16_setup, monkeypatch):
+    """Without settings, a design SQP runs DESIGN_SQP: the penalty margin far below the SQP's
+    default (tests/solver/test_sqp.py shows the creep the default causes)."""
+    seen = []
+    solve = refine.solve_sqp
+
+    def spy(*args, settings, **kwargs):
+        seen.append(settings)
+        return solve(*args, settings=replace(settings, max_iterations=2), **kwargs)
+
+    monkeypatch.setattr(refine, "solve_sqp", spy)
+    s = kr16_setup
+    refine.optimise_from(DesignObjective(s.problem, "kpi"), s.feasibility, heuristic_designs(s, 12, [0])[0].q)
+    assert seen[0].penalty_margin == refine.DESIGN_PENALTY_MARGIN < SQPSettings().penalty_margin
+    assert seen[0].trust_update == refine.EXACT_TRUST_UPDATE

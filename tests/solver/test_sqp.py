@@ -378,6 +378,32 @@ def test_ratio_trust_update_follows_the_agreement(monkeypatch):
     assert {"halved", "doubled", "kept at the box"} <= kinds
 
 
+def test_a_penalty_far_above_the_multipliers_makes_the_ratio_rule_creep():
+    """Along the inside of the unit circle (an objective 1e-3 small pushing outward), each full
+    step to the box leaves a violation of order box squared. The merit charges it at mu, the QP's
+    Lagrangian Hessian at the multiplier (about 5e-3): with ``penalty_margin`` 0.1 the difference
+    keeps rho below 3/4, the box at 0.003-0.006 and the run creeps along the 2.5 rad of arc to the
+    iteration limit; with 1e-3 the box grows and the run converges in about 20 iterations."""
+    def objective(x):
+        return 1e-3 * (-x[0] - 5 * x @ x), 1e-3 * (np.array([-1.0, 0.0]) - 10 * x)
+
+    def constraints(x):
+        return np.array([1 - x @ x]), (-2 * x)[None, :]
+
+    x0 = np.array([np.cos(2.5), np.sin(2.5)])
+    runs = {margin: solve_sqp(objective, x0, constraints=constraints,
+                              settings=SQPSettings(trust_update="ratio", step_bound=0.003,
+                                                   penalty_margin=margin))
+            for margin in (0.1, 1e-3)}
+    creep, tight = runs[0.1], runs[1e-3]
+    assert creep.status is SQPStatus.MAX_ITERATIONS
+    assert max(r.step_bound for r in creep.history) <= 0.006
+    assert tight.status is SQPStatus.CONVERGED and tight.iterations <= 30
+    assert max(r.step_bound for r in tight.history) >= 0.1
+    np.testing.assert_allclose(tight.x, [1.0, 0.0], atol=1e-6)
+    np.testing.assert_allclose(tight.multipliers, [5.5e-3], rtol=1e-4)  # -df/dc at x*: (1 + 10)/2 * 1e-3
+
+
 def test_max_iterations_is_reported():
     res = solve_sqp(_rosenbrock, np.array([-1.2, 1.0]), settings=SQPSettings(max_iterations=3))
     assert res.status is SQPStatus.MAX_ITERATIONS and res.iterations == 3 and not res.check()
