@@ -53,6 +53,12 @@ def differences(a, b, path: str = "") -> list[str]:
     return [] if same and type(a) is type(b) else [f"{path}: {a!r} against {b!r}"]
 
 
+def _env() -> dict:
+    """The environment with ``PYTHONPATH``'s entries absolute (the designs run in ``OUT``)."""
+    entries = os.environ.get("PYTHONPATH", "").split(os.pathsep)
+    return dict(os.environ, PYTHONPATH=os.pathsep.join(os.path.abspath(e) for e in entries if e))
+
+
 def run(case: str, out: Path) -> float:
     """One design of ``case`` into ``out/case``; its process CPU time [s]."""
     target = (out / case).resolve()
@@ -61,7 +67,7 @@ def run(case: str, out: Path) -> float:
     # run in `out`, not here: `python -m` puts its working directory first on sys.path, so from a
     # checkout's root the package of that checkout would run whatever PYTHONPATH says
     subprocess.run([sys.executable, "-m", "calib_oed", "design", *CASES[case], "-o", str(target), "--quiet"],
-                   check=True, stdout=subprocess.DEVNULL, cwd=target.parent)
+                   check=True, stdout=subprocess.DEVNULL, cwd=target.parent, env=_env())
     after = os.times()
     return (after.children_user - before.children_user) + (after.children_system - before.children_system)
 
@@ -88,7 +94,8 @@ def main(argv=None) -> int:
     if not args.compare_only:
         args.out.mkdir(parents=True, exist_ok=True)
         where = subprocess.run([sys.executable, "-c", "import calib_oed; print(calib_oed.__file__)"],
-                               check=True, capture_output=True, text=True, cwd=args.out).stdout.strip()
+                               check=True, capture_output=True, text=True, cwd=args.out,
+                               env=_env()).stdout.strip()
         print(f"code: {Path(where).parent.parent}", flush=True)
     failed = False
     for case in cases:
