@@ -49,6 +49,7 @@ from importlib import resources
 from pathlib import Path
 
 import yaml
+from _children import child_env, package_run  # bench/ is the script folder, first on sys.path
 
 ROOT = Path(__file__).resolve().parent.parent
 SHIPPED = ("fms_kr16", "fms_kr16_program", "fms_kr300", "fms_kr500", "ur5_table")
@@ -105,13 +106,6 @@ empty: the default) and times the QPs and the phases in process CPU
 ``bench/bench_design_phases.py`` names them)."""
 
 
-def absolute_pythonpath() -> str:
-    """``PYTHONPATH`` with every entry made absolute: the child runs in a temporary directory,
-    where ``PYTHONPATH=.`` would name that directory and the installed package would run."""
-    entries = os.environ.get("PYTHONPATH", "").split(os.pathsep)
-    return os.pathsep.join(os.path.abspath(e) for e in entries if e)
-
-
 def run_case(scene: str, n: int, certificate: bool, extra=(), structured_qp: str = "", rule: str = "") -> dict:
     """One ``calib-oed design`` process: its record, CPU seconds and peak memory (``os.wait4``)."""
     with tempfile.TemporaryDirectory() as tmp:
@@ -121,7 +115,7 @@ def run_case(scene: str, n: int, certificate: bool, extra=(), structured_qp: str
         argv = [*head, "design", scene, "-n", str(n), "-o", tmp, "--json", *extra]
         if not certificate:
             argv.append("--no-certificate")
-        env = dict(os.environ, OPENBLAS_NUM_THREADS="1", PYTHONPATH=absolute_pythonpath())
+        env = child_env(OPENBLAS_NUM_THREADS="1")  # PYTHONPATH absolute: the child runs in tmp
         out_path, err_path = Path(tmp) / "stdout.json", Path(tmp) / "stderr.txt"
         with open(out_path, "w") as out, open(err_path, "w") as err:
             # cwd: the child imports calib_oed as installed (or from PYTHONPATH), not from cwd
@@ -174,10 +168,7 @@ def main(argv=None) -> int:
     print(f"# {platform.node()} {platform.processor() or platform.machine()}, "
           f"{os.cpu_count()} cores, Python {platform.python_version()}")
     with tempfile.TemporaryDirectory() as where:  # the package the children import, from where they run
-        code = subprocess.run([sys.executable, "-c", "import calib_oed; print(calib_oed.__file__)"], cwd=where,
-                              env=dict(os.environ, PYTHONPATH=absolute_pythonpath()), check=True,
-                              capture_output=True, text=True).stdout.strip()
-    print(f"# code: {Path(code).parent.parent}", flush=True)
+        print(f"# code: {package_run(where)}", flush=True)
     scenes = [*SHIPPED, *OWN] if args.scenes == "all" else [s for s in args.scenes.split(",") if s]
     tmp = tempfile.TemporaryDirectory()
     if overrides:

@@ -23,6 +23,7 @@ import sys
 from pathlib import Path
 
 import yaml
+from _children import child_env, package_run  # bench/ is the script folder, first on sys.path
 
 CASES = {
     "default": ["fms_kr16", "-n", "60", "--seed", "0"],
@@ -53,12 +54,6 @@ def differences(a, b, path: str = "") -> list[str]:
     return [] if same and type(a) is type(b) else [f"{path}: {a!r} against {b!r}"]
 
 
-def _env() -> dict:
-    """The environment with ``PYTHONPATH``'s entries absolute (the designs run in ``OUT``)."""
-    entries = os.environ.get("PYTHONPATH", "").split(os.pathsep)
-    return dict(os.environ, PYTHONPATH=os.pathsep.join(os.path.abspath(e) for e in entries if e))
-
-
 def run(case: str, out: Path) -> float:
     """One design of ``case`` into ``out/case``; its process CPU time [s]."""
     target = (out / case).resolve()
@@ -67,7 +62,7 @@ def run(case: str, out: Path) -> float:
     # run in `out`, not here: `python -m` puts its working directory first on sys.path, so from a
     # checkout's root the package of that checkout would run whatever PYTHONPATH says
     subprocess.run([sys.executable, "-m", "calib_oed", "design", *CASES[case], "-o", str(target), "--quiet"],
-                   check=True, stdout=subprocess.DEVNULL, cwd=target.parent, env=_env())
+                   check=True, stdout=subprocess.DEVNULL, cwd=target.parent, env=child_env())
     after = os.times()
     return (after.children_user - before.children_user) + (after.children_system - before.children_system)
 
@@ -93,10 +88,7 @@ def main(argv=None) -> int:
         ap.error(f"unknown case(s) {unknown}; valid: {', '.join(CASES)}")
     if not args.compare_only:
         args.out.mkdir(parents=True, exist_ok=True)
-        where = subprocess.run([sys.executable, "-c", "import calib_oed; print(calib_oed.__file__)"],
-                               check=True, capture_output=True, text=True, cwd=args.out,
-                               env=_env()).stdout.strip()
-        print(f"code: {Path(where).parent.parent}", flush=True)
+        print(f"code: {package_run(args.out)}", flush=True)
     failed = False
     for case in cases:
         cpu = float("nan") if args.compare_only else run(case, args.out)

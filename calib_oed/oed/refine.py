@@ -52,6 +52,7 @@ def sqp_settings(settings: SQPSettings | None, exact: bool) -> SQPSettings:
         settings = replace(settings, trust_update=EXACT_TRUST_UPDATE)
     return settings
 
+
 def project_feasible(nlp: DesignProblem, x: np.ndarray, max_iterations: int = 50) -> np.ndarray:
     r"""The nearest feasible design: :math:`\min_y \tfrac12\|y - x\|^2` s.t. the design constraints.
 

@@ -289,8 +289,8 @@ class _SubproblemMixin:
             c_i(x + d) + A_i (p - d) \ge 0 \quad (i \in K),
 
         same Hessian (exact or BFGS, as in the QP of :math:`d`), :math:`\nabla f`,
-        box and warm start, and return the evaluated :math:`x + p` (``None`` if
-        the QP fails) and the QP iterations.
+        box and warm start, and return the evaluated :math:`x + p` (its values only when the
+        caller gave ``values``; ``None`` if the QP fails) and the QP iterations.
         """
         pt = self.pt
         sub, tol_p, tol_d = self._sub
