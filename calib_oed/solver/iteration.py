@@ -80,6 +80,7 @@ class _Run(_SubproblemMixin, _RestorationMixin):
         self.status = self.message = None
         self.restoration_run = 0  # consecutive restoration steps
         self.restoration_reference = np.inf  # violation l1 ten restoration steps ago
+        self.extrapolated = 1.0  # alpha of this iteration's step longer than the QP's (_extrapolate)
 
     @property
     def hessian_label(self) -> str:
@@ -166,13 +167,13 @@ class _Run(_SubproblemMixin, _RestorationMixin):
                              self.s.tol_feasibility, pieces)
 
     def _record(self, k, stat, step_norm, delta, n_rows, qp_status, qp_iter, backtracks, restoration,
-                corrected=False):
+                corrected=False, extrapolated=1.0):
         pt, info = self.pt, self._info
         self.n_fallbacks += info.hessian_fallback
         rec = IterationRecord(k, pt.f, self._merit(pt), self.mu, pt.violation_max, stat, step_norm,
                               delta, int(n_rows), qp_status, int(qp_iter), int(backtracks),
                               bool(restoration), time.perf_counter() - self.t0, bool(corrected),
-                              **asdict(info))
+                              float(extrapolated), **asdict(info))
         self.history.append(rec)
         return rec
 
@@ -194,6 +195,7 @@ class _Run(_SubproblemMixin, _RestorationMixin):
         delta = self.delta
         self._use_exact = True
         self._info = QPUse()
+        self.extrapolated = 1.0
         rows, step, ok = self._qp(delta)
         qp_iter = step.iterations
         if not ok and self._info.hessian == "exact" and step.status != "unreachable_row":
@@ -261,7 +263,9 @@ class _Run(_SubproblemMixin, _RestorationMixin):
             return self._record(k, stat, 0.0, delta, n_rows, step.status, qp_iter, backtracks, False)
         step_norm = float(np.max(np.abs(new.x - pt.x), initial=0.0))
         self._accept(new, self.lam)
-        if s.trust_update == "ratio":
+        if self.extrapolated > 1.0:  # the model was too pessimistic: a longer step that reached the box doubles it
+            self.delta = min(s.max_step_bound, 2.0 * delta) if step_norm >= 0.99 * delta else delta
+        elif s.trust_update == "ratio":
             self.delta = self._ratio_update(pt, new, step.d, delta, d_norm, backtracks)
         elif backtracks:  # the model failed at this radius: shrink it as a failed search does,
             # but not below the step accepted (halving the cut step instead collapsed the box
@@ -272,7 +276,7 @@ class _Run(_SubproblemMixin, _RestorationMixin):
         else:
             self.delta = max(s.min_step_bound, min(delta, s.step_bound_ratio * step_norm))
         return self._record(k, stat, step_norm, delta, n_rows, step.status, qp_iter, backtracks,
-                            False, soc)
+                            False, soc, self.extrapolated)
 
     def _ratio_update(self, old: _Point, new: _Point, d, delta, d_norm, backtracks) -> float:
         r""":math:`\Delta_{k+1}` of ``trust_update="ratio"`` after the accepted point ``new``.
@@ -315,6 +319,8 @@ class _Run(_SubproblemMixin, _RestorationMixin):
         for backtracks in range(s.max_backtracks + 1):
             trial = self._trial(pt.x + alpha * d)
             if trial is not None and self._merit(trial) <= phi0 + s.armijo * alpha * slope:
+                if backtracks == 0 and s.extrapolate:
+                    trial = self._extrapolate(trial, d)
                 trial = self.p.complete(trial)  # derivatives only where the step is taken
                 if trial is not None:
                     return trial, backtracks, False, its
@@ -326,3 +332,41 @@ class _Run(_SubproblemMixin, _RestorationMixin):
                         return corrected, 0, True, its
             alpha *= s.backtrack
         return None, s.max_backtracks, False, its
+
+    def _extrapolate(self, trial: _Point, d) -> _Point:
+        r"""A longer step :math:`\alpha d`, :math:`\alpha \ge 2`, when the merit curves less along ``d`` than the model.
+
+        Only after a full step from the exact Hessian whose eigenvalues were modified
+        (:mod:`calib_oed.solver.hessian`): a flipped negative eigenvalue adds model curvature
+        the function does not have, and the step is that much too short. The quadratic through
+        :math:`\phi(0)`, the slope :math:`D = \nabla f^\top d - \mu v_1(x_k)` and
+        :math:`\phi(1)` (the accepted full step) has the curvature
+        :math:`\kappa = 2(\phi(1) - \phi(0) - D)` along :math:`d` and its minimiser at
+        :math:`\alpha = -D/\kappa` (Nocedal & Wright 2006, §3.5, eq. 3.57, here beyond 1;
+        :math:`\kappa \le 0`: no minimiser), taken at most to the box
+        (:math:`\alpha\|d\|_\infty \le \Delta`) and to every inactive row's linearisation
+        (:math:`c_i + \alpha A_i d \ge -` ``tol_feasibility``; an active row's curvature is the
+        merit's to judge). Tried when :math:`\alpha \ge 2`, kept when its merit is below
+        :math:`\phi(1)`; the point is clipped to the bounds, as every trial.
+        """
+        pt, s = self.pt, self.s
+        if self._info.hessian != "exact" or not self._info.hessian_modified:
+            return trial
+        slope = float(pt.g @ d) - self.mu * pt.violation_l1
+        if slope >= 0:
+            return trial
+        phi1 = self._merit(trial)
+        kappa = 2.0 * (phi1 - self._merit(pt) - slope)
+        ad = np.asarray(pt.A @ d).ravel()
+        fall = (ad < 0) & (self.lam <= 0)
+        alpha = min(self.delta / float(np.max(np.abs(d))),
+                    float(np.min((pt.c[fall] + s.tol_feasibility) / -ad[fall], initial=np.inf)))
+        if kappa > 0:
+            alpha = min(alpha, -slope / kappa)
+        if alpha < 2.0:
+            return trial
+        longer = self._trial(pt.x + alpha * d)
+        if longer is None or not self._merit(longer) < phi1:
+            return trial
+        self.extrapolated = alpha
+        return longer

@@ -186,6 +186,7 @@ class _Step:
     restoration: bool
     time: float
     second_order_correction: bool = False
+    extrapolated: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -217,6 +218,8 @@ class IterationRecord(QPUse, _Step):
         time: Seconds since the start of :func:`~calib_oed.solver.sqp.solve_sqp` [s].
         second_order_correction: The accepted point is the second-order
             correction of the full step.
+        extrapolated: :math:`\alpha \ge 2` of a step longer than the QP's
+            (``SQPSettings.extrapolate``), else 1.
 
     and after them, keyword-only, what the QP used (:class:`QPUse`).
     """
@@ -338,6 +341,7 @@ class SQPResult:
         kept = [r.n_rows_kept for r in self.history]
         n_rest = sum(r.restoration for r in self.history)
         n_soc = sum(r.second_order_correction for r in self.history)
+        n_ext = sum(r.extrapolated > 1.0 for r in self.history)
         t = self.times
         return "\n".join(
             [
@@ -345,7 +349,7 @@ class SQPResult:
                 f"  f = {self.fun:.10g} after {self.iterations} iterations "
                 f"({self.n_objective_evaluations} objective, "
                 f"{self.n_constraint_evaluations} constraint, {self.n_value_evaluations} value-only evaluations, "
-                f"{n_rest} restoration steps, {n_soc} second-order corrections)",
+                f"{n_rest} restoration steps, {n_soc} second-order corrections, {n_ext} longer steps)",
                 f"  violation {self.max_violation:.2e}, stationarity "
                 f"{self.kkt_stationarity:.2e}, complementarity {self.kkt_complementarity:.2e}",
                 f"  QP rows kept: max {max(kept, default=0)} of {self.multipliers.size}"

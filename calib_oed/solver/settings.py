@@ -119,6 +119,11 @@ class SQPSettings:
             bits in every process, which ProxQP's own answer is not.
         second_order_correction: Try a second-order correction before
             backtracking from a rejected full step (:mod:`calib_oed.solver.sqp`, item 4).
+        extrapolate: After a full step from an exact Hessian whose eigenvalues were modified,
+            try a step :math:`\alpha d`, :math:`\alpha \ge 2`, to the minimiser of the merit's
+            quadratic along :math:`d`, within the box and the inactive rows' linearisations
+            (:meth:`calib_oed.solver.iteration._Run._extrapolate`). Off by default; the design
+            takes it (:data:`calib_oed.oed.refine.DESIGN_SQP`).
         row_pieces_margin: Rows with :math:`c_i` at most this (units of :math:`c`)
             are offered to the caller's ``row_pieces`` (:mod:`calib_oed.solver.pieces`).
         armijo: :math:`\eta \in (0, 1/2)` of the Armijo condition.
@@ -154,6 +159,7 @@ class SQPSettings:
     qp_max_iterations: int = 100
     qp_polish: bool = True
     second_order_correction: bool = True
+    extrapolate: bool = False
     row_pieces_margin: float = 1e-3
     armijo: float = 1e-4
     backtrack: float = 0.5
@@ -196,7 +202,7 @@ class SQPSettings:
                 "step_bound", self.step_bound,
                 f"must satisfy min_step_bound ({self.min_step_bound}) <= step_bound <= "
                 f"max_step_bound ({self.max_step_bound})")
-        for name in ("qp_polish", "second_order_correction"):
+        for name in ("qp_polish", "second_order_correction", "extrapolate"):
             if not isinstance(getattr(self, name), bool):
                 raise SQPSettingsError(name, getattr(self, name), "must be True or False")
         if self.qp_backend not in QP_BACKENDS:

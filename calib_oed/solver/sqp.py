@@ -75,7 +75,10 @@ far from active; :math:`f` scaled by the caller to O(1). One iteration at
    merit's actual and predicted reduction instead
    (:meth:`~calib_oed.solver.iteration._Run._ratio_update`). When the full step is rejected, a second-order correction is tried first
    (:meth:`~calib_oed.solver.iteration._Run._second_order_correction`, against the Maratos effect of
-   curved active constraints). A step rejected after ``max_backtracks``
+   curved active constraints). With ``extrapolate``, an accepted full step from a modified exact
+   Hessian is taken further when the merit curves less along it than the model
+   (:meth:`~calib_oed.solver.iteration._Run._extrapolate`); such a step that reaches the edge
+   doubles :math:`\Delta`. A step rejected after ``max_backtracks``
    leaves :math:`x_k` and cuts :math:`\Delta` tenfold. With the caller's
    ``values`` the trial points are evaluated without derivatives, and
    :math:`\nabla f`, :math:`A` only at the point accepted.
