@@ -135,15 +135,15 @@ def design_settings(objective, settings, exact: bool = False, n: int = 60, base=
     :data:`MODEL_ERROR_ITERATIONS` with damped BFGS (``docs/oed.md``). With the exact Hessian, an
     ``"auto"`` Hessian modification is the tangent rule at every size (``docs/benchmarks.md``,
     "Growth with n"); the trust rule is that of every exact-Hessian design
-    (:data:`~calib_oed.oed.refine.EXACT_TRUST_UPDATE`)."""
+    (:data:`~calib_oed.oed.refine.EXACT_TRUST_UPDATE`); one penalty for every row, not one weight per
+    row (``SQPSettings.penalty_weights``; ``docs/benchmarks.md``, "One penalty weight per row")."""
     if not getattr(objective, "needs_design", False):
         return settings
     from calib_oed.solver.sqp import SQPSettings
     if settings is None:
         settings = replace(base or SQPSettings(), max_iterations=exact_iterations(n) if exact else MODEL_ERROR_ITERATIONS)
-    if exact and settings.hessian_modification == "auto":  # left to the SQP: the tangent rule
-        settings = replace(settings, hessian_modification="tangent")
-    return settings
+    rule = "tangent" if exact and settings.hessian_modification == "auto" else settings.hessian_modification
+    return replace(settings, hessian_modification=rule, penalty_weights="single")
 
 
 def scene_criterion(s, criterion, prior=None):

@@ -57,6 +57,7 @@ class _Run(_SubproblemMixin, _RestorationMixin):
         self.first_update = True
         self.delta = s.step_bound
         self.mu = s.penalty_margin
+        self.mu_rows = np.full(m, s.penalty_margin) if s.penalty_weights == "row" else None
         self.lam = np.zeros(m)  # multipliers of all rows, 0 for rows not in the QP (+ their pieces')
         self.lam_rows = self.lam  # the same without the pieces' (for the KKT test)
         self.row_pieces = row_pieces  # the caller's pieces of kinked rows (calib_oed.solver.pieces)
@@ -95,7 +96,15 @@ class _Run(_SubproblemMixin, _RestorationMixin):
 
     # ------------------------------------------------------------- steps
     def _merit(self, pt: _Point):
-        return pt.f + self.mu * pt.violation_l1
+        return pt.f + self._penalty(pt)
+
+    def _penalty(self, pt: _Point) -> float:
+        r"""The merit's penalty term at ``pt``: :math:`\mu v_1`, or with ``penalty_weights="row"``
+        :math:`\sum_i \mu_i \max(0, -c_i) + \mu\,` (bound violation), :math:`\mu = \max_i \mu_i`."""
+        if self.mu_rows is None:
+            return self.mu * pt.violation_l1
+        rows = np.maximum(-pt.c, 0.0)
+        return float(self.mu_rows @ rows) + self.mu * max(pt.violation_l1 - float(rows.sum()), 0.0)
 
     def _accept(self, new: _Point, lam):
         r"""Move to ``new``; damped BFGS update of the quasi-Newton part with multipliers ``lam``.
@@ -246,6 +255,9 @@ class _Run(_SubproblemMixin, _RestorationMixin):
             return self._record(k, stat, 0.0, delta, n_rows, step.status, qp_iter, 0, False)
         need = float(np.max(self.lam, initial=0.0)) + s.penalty_margin
         self.mu = max(need, 0.5 * (self.mu + need))  # Powell (1978): may fall back after a spike
+        if self.mu_rows is not None:  # Powell's (1978) weights, one per row
+            need_rows = self.lam + s.penalty_margin
+            self.mu_rows = np.maximum(need_rows, 0.5 * (self.mu_rows + need_rows))
         new, backtracks, soc, its = self._line_search(rows, step)
         qp_iter += its
         if (new is None and s.qp_polish and not step.polished  # QP error may be the cause
@@ -298,7 +310,7 @@ class _Run(_SubproblemMixin, _RestorationMixin):
 
     def _agreement(self, old: _Point, new: _Point, d) -> float:
         r""":math:`\rho` of :meth:`_ratio_update` for a full step (-1 when the model predicts no decrease)."""
-        predicted = -(float(old.g @ d) + 0.5 * float(d @ matvec(self._sub[0].H, d))) + self.mu * old.violation_l1
+        predicted = -(float(old.g @ d) + 0.5 * float(d @ matvec(self._sub[0].H, d))) + self._penalty(old)
         return (self._merit(old) - self._merit(new)) / predicted if predicted > 0 else -1.0
 
     def _line_search(self, rows, step):
@@ -314,7 +326,7 @@ class _Run(_SubproblemMixin, _RestorationMixin):
         s, pt, d = self.s, self.pt, step.d
         phi0 = self._merit(pt)
         phi0 += 10 * np.finfo(float).eps * max(1.0, abs(phi0))
-        slope = min(float(pt.g @ d) - self.mu * pt.violation_l1, 0.0)  # N&W Theorem 18.2
+        slope = min(float(pt.g @ d) - self._penalty(pt), 0.0)  # N&W Theorem 18.2
         alpha, its = 1.0, 0
         for backtracks in range(s.max_backtracks + 1):
             trial = self._trial(pt.x + alpha * d)
@@ -352,7 +364,7 @@ class _Run(_SubproblemMixin, _RestorationMixin):
         pt, s = self.pt, self.s
         if self._info.hessian != "exact" or not self._info.hessian_modified:
             return trial
-        slope = float(pt.g @ d) - self.mu * pt.violation_l1
+        slope = float(pt.g @ d) - self._penalty(pt)
         if slope >= 0:
             return trial
         phi1 = self._merit(trial)

@@ -18,6 +18,7 @@ QP_BACKENDS = ("dense", "sparse")
 STRUCTURED_QPS = ("auto", "lifted", "block")
 TRUST_UPDATES = ("edge", "ratio")
 HESSIAN_MODIFICATIONS = ("auto", "tangent", "block")
+PENALTY_WEIGHTS = ("single", "row")
 
 
 @dataclass(frozen=True)
@@ -130,6 +131,11 @@ class SQPSettings:
         backtrack: Factor :math:`\in (0, 1)` applied to :math:`\alpha` per backtrack.
         max_backtracks: Backtracks before the step is rejected.
         penalty_margin: :math:`\mu_m > 0` in :math:`\mu \ge \|\lambda\|_\infty + \mu_m`.
+        penalty_weights: ``"single"`` (default): one penalty :math:`\mu` for every row;
+            ``"row"``: one weight per row, :math:`\mu_i \ge \lambda_i + \mu_m`, Powell's update
+            each (:mod:`calib_oed.solver.sqp`, item 4). The design takes ``"row"``
+            (:data:`calib_oed.oed.refine.DESIGN_SQP`): one row's large multiplier no longer
+            charges the second-order violation of curved rows with small ones at its size.
         restoration_penalty: :math:`\rho` of the elastic restoration QP.
     """
 
@@ -165,6 +171,7 @@ class SQPSettings:
     backtrack: float = 0.5
     max_backtracks: int = 12
     penalty_margin: float = 0.1
+    penalty_weights: str = "single"
     restoration_penalty: float = 1e3
 
     def __post_init__(self):
@@ -205,6 +212,9 @@ class SQPSettings:
         for name in ("qp_polish", "second_order_correction", "extrapolate"):
             if not isinstance(getattr(self, name), bool):
                 raise SQPSettingsError(name, getattr(self, name), "must be True or False")
+        if self.penalty_weights not in PENALTY_WEIGHTS:
+            raise SQPSettingsError("penalty_weights", self.penalty_weights,
+                                   f"valid values are {', '.join(map(repr, PENALTY_WEIGHTS))}", PENALTY_WEIGHTS)
         if self.qp_backend not in QP_BACKENDS:
             raise SQPSettingsError("qp_backend", self.qp_backend,
                                    f"valid values are {', '.join(map(repr, QP_BACKENDS))}", QP_BACKENDS)

@@ -60,10 +60,15 @@ far from active; :math:`f` scaled by the caller to O(1). One iteration at
    one QP's spurious multipliers (a degenerate active set) falls back by half per
    iteration: a nondecreasing one stayed at 5e4 against multipliers of 0.03 on
    ``fms_kr16_program``, where the QP's 1e-9 error times :math:`\mu` then outweighed
-   every gain and the run stalled. Armijo backtracking
+   every gain and the run stalled. With ``penalty_weights="row"`` each row has its own weight,
+   :math:`\mu_{i,k} = \max(\nu_{i,k}, \tfrac12(\mu_{i,k-1} + \nu_{i,k}))`,
+   :math:`\nu_{i,k} = \lambda_{i,k+1} + \mu_m`, and the merit is
+   :math:`f + \sum_i \mu_i \max(0, -c_i) + \mu` (bound violation) (Powell 1978's weights;
+   :math:`\mu_i \ge \lambda_i` keeps :math:`d` a descent direction): a row with a small
+   multiplier is not charged at the largest one. Armijo backtracking
    (:meth:`~calib_oed.solver.iteration._Run._line_search`) on
    :math:`\phi(x + \alpha d) \le \phi(x) + \eta \alpha D` with the directional
-   derivative :math:`D = \nabla f^\top d - \mu \sum_i \max(0, -c_i)` (same
+   derivative :math:`D = \nabla f^\top d - \mu \sum_i \max(0, -c_i)` (:math:`\mu_i` per row; same
    theorem). Trust region: after a backtrack
    :math:`\Delta \leftarrow \max(\Delta_\min, \tfrac12 \|\alpha d\|_\infty,
    \tfrac1{10} \min(\Delta, \|d\|_\infty))` (the tenfold cut of a failed search, but

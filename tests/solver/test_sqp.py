@@ -21,6 +21,7 @@ from calib_oed.solver.bfgs import damped_bfgs_update
 from calib_oed.solver.polish import polish
 from calib_oed.solver.qp import DenseQPWorkspace, QPSubproblem, SparseQPWorkspace
 from calib_oed.solver.restoration import unreachable_rows
+from calib_oed.solver.result import StructuredHessian
 from calib_oed.solver.sqp import (
     SQPProblemError,
     SQPSettings,
@@ -404,6 +405,48 @@ def test_a_penalty_far_above_the_multipliers_makes_the_ratio_rule_creep():
     np.testing.assert_allclose(tight.multipliers, [5.5e-3], rtol=1e-4)  # -df/dc at x*: (1 + 10)/2 * 1e-3
 
 
+def test_one_penalty_weight_per_row_ends_the_creep_a_large_multiplier_elsewhere_causes():
+    """The circle of the test above, with a second, linear row whose multiplier is 100 (f = 100 z,
+    z >= 0). One penalty (Powell's mu >= max lambda + margin) charges the circle's second-order
+    violation at 100 against its multiplier 5e-3: the ratio rule keeps the box small and the run
+    crawls towards x* = (0, 1, 0). Powell's (1978) weights, one per row (mu_i >= lambda_i + margin),
+    charge it at 6e-3 and the run converges in a few iterations, with or without the exact Hessian."""
+    def objective(x):
+        return -0.01 * x[1] + 100 * x[2], np.array([0.0, -0.01, 100.0])
+
+    def constraints(x):
+        return np.array([x[2], 1 - x[0] ** 2 - x[1] ** 2]), np.array([[0.0, 0.0, 1.0], [-2 * x[0], -2 * x[1], 0.0]])
+
+    def hessian(x, lam):
+        return StructuredHessian(np.diag([2 * lam[1], 2 * lam[1], 0.0])[None])
+
+    runs = {(w, exact): solve_sqp(objective, np.array([1.0, 0.0, 0.0]), constraints=constraints,
+                                  lagrangian_hessian=hessian if exact else None,
+                                  settings=SQPSettings(trust_update="ratio", penalty_margin=1e-3,
+                                                       penalty_weights=w))
+            for w in ("single", "row") for exact in (False, True)}
+    for exact in (False, True):
+        res = runs["row", exact]
+        assert res.status is SQPStatus.CONVERGED and res.check(), res.summary()
+        assert res.iterations <= 15
+        np.testing.assert_allclose(res.x, [0.0, 1.0, 0.0], atol=1e-6)
+        np.testing.assert_allclose(res.multipliers, [100.0, 5e-3], rtol=1e-6)
+        assert res.history[-1].penalty >= 100.0  # the record's penalty: the largest weight
+    single = runs["single", True]
+    assert single.iterations >= 4 * runs["row", True].iterations
+    assert abs(single.x[0]) > 1e-3  # stopped by the scaled stationarity test short of x*
+
+
+@pytest.mark.parametrize("name", sorted(HS))
+def test_one_penalty_weight_per_row_reaches_the_same_optimum(name):
+    objective, constraints, x0, bounds, x_star, f_star = HS[name]()
+    res = solve_sqp(objective, np.array(x0, dtype=float), constraints=constraints, bounds=bounds,
+                    settings=SQPSettings(trust_update="ratio", penalty_weights="row"))
+    assert res.status is SQPStatus.CONVERGED and res.check(), res.summary()
+    np.testing.assert_allclose(res.x, x_star, atol=1e-5 * max(1.0, np.abs(np.asarray(x_star)).max()))
+    assert abs(res.fun - f_star) <= 1e-7 * max(1.0, abs(f_star))
+
+
 def test_max_iterations_is_reported():
     res = solve_sqp(_rosenbrock, np.array([-1.2, 1.0]), settings=SQPSettings(max_iterations=3))
     assert res.status is SQPStatus.MAX_ITERATIONS and res.iterations == 3 and not res.check()
@@ -457,12 +500,13 @@ def test_agrees_with_scipy_slsqp_on_a_random_smooth_problem():
     ("active_margin", -0.1), ("bfgs_damping", 1.0), ("armijo", 0.6), ("backtrack", 1.5),
     ("max_backtracks", -1), ("qp_polish", "yes"), ("step_bound_ratio", 0.5),
     ("qp_eps_abs", 0.0), ("qp_backend", "osqp"), ("trust_update", "nocedal"),
+    ("penalty_weights", "each"),
 ])
 def test_bad_settings_raise_clear_errors(field, value):
     with pytest.raises(SQPSettingsError, match=field) as info:
         SQPSettings(**{field: value})
     assert isinstance(info.value, ValueError) and info.value.name == field
-    if field in ("qp_backend", "trust_update"):
+    if field in ("qp_backend", "trust_update", "penalty_weights"):
         assert info.value.valid and all(repr(v) in str(info.value) for v in info.value.valid)
 
 
