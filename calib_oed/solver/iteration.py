@@ -100,7 +100,8 @@ class _Run(_SubproblemMixin, _RestorationMixin):
 
     def _penalty(self, pt: _Point) -> float:
         r"""The merit's penalty term at ``pt``: :math:`\mu v_1`, or with ``penalty_weights="row"``
-        :math:`\sum_i \mu_i \max(0, -c_i) + \mu\,` (bound violation), :math:`\mu = \max_i \mu_i`."""
+        :math:`\sum_i \mu_i \max(0, -c_i) + \mu\,` (bound violation), :math:`\mu \ge \max_i \mu_i`
+        the single penalty's update."""
         if self.mu_rows is None:
             return self.mu * pt.violation_l1
         rows = np.maximum(-pt.c, 0.0)

@@ -202,9 +202,10 @@ class IterationRecord(QPUse, _Step):
     Attributes:
         iteration: Index :math:`k`, from 0.
         objective: :math:`f(x_{k+1})`.
-        merit: :math:`\phi_{\mu_k}(x_{k+1}) = f + \mu_k (\sum_i \max(0, -c_i) + \text{bound violation})`.
+        merit: :math:`\phi_{\mu_k}(x_{k+1}) = f + \mu_k (\sum_i \max(0, -c_i) + \text{bound violation})`
+            (with one weight per row, ``SQPSettings.penalty_weights="row"``, :math:`\mu_{i,k}` on row i).
         penalty: :math:`\mu_k` used in this iteration's line search (with one weight per
-            row, ``SQPSettings.penalty_weights="row"``, the largest).
+            row, the single penalty's update, at least every row's weight).
         violation: :math:`r_p(x_{k+1})`, max violation of :math:`c \ge 0` and the bounds.
         stationarity: :math:`r_d(x_k)` (see the module docstring).
         step_norm: :math:`\|x_{k+1} - x_k\|_\infty` (:math:`\alpha \|d\|_\infty`).

@@ -113,6 +113,36 @@ def test_row_derivatives_and_hessians_at_one_point_share_one_evaluation(kr16, se
         np.testing.assert_array_equal(kept.compute_row_hessians(q), fresh.compute_row_hessians(q))
 
 
+@pytest.mark.parametrize("exact", [True, False])
+def test_trial_points_by_values_alone_give_the_same_maxima_bit_for_bit(kr16, objective, search_start, exact):
+    """The line search's trial points are evaluated without derivatives (``values`` of the SQP):
+    every iterate, and so every maximum, is that of the full evaluations."""
+    pool, blocks, approx = search_start
+    gamma = objective.criterion.compute_gradient(information(blocks, approx.weights))
+    starts = pool[sm.spread_starts(pool, approx.sensitivities, 4)]
+    runs = []
+    real = sm.solve_sqp
+
+    def spy(*args, drop=False, **kwargs):
+        if drop:
+            kwargs.pop("values")
+        res = real(*args, **kwargs)
+        runs.append(res)
+        return res
+
+    with pytest.MonkeyPatch.context() as mp:
+        for drop in (True, False):
+            mp.setattr(sm, "solve_sqp", lambda *a, drop=drop, **kw: spy(*a, drop=drop, **kw))
+            runs.append(sm.maximise_sensitivity(kr16, objective, gamma, starts, approx.mean_sensitivity,
+                                                exact=exact, max_iterations=25))
+    full, full_loc, cheap, cheap_loc = runs
+    assert full.n_value_evaluations == 0 and cheap.n_value_evaluations > 0
+    assert cheap.n_objective_evaluations < full.n_objective_evaluations
+    assert [(r.objective, r.step_norm) for r in full.history] == [(r.objective, r.step_norm) for r in cheap.history]
+    for field in ("q", "values", "violation"):
+        np.testing.assert_array_equal(getattr(full_loc, field), getattr(cheap_loc, field))
+
+
 def test_exact_curvature_reaches_the_maxima_in_fewer_iterations(kr16, objective, search_start):
     """With the exact Lagrangian Hessian the maximisation ends at a KKT point, feasible and no pose worse
     than its start, in fewer SQP iterations than with per-pose BFGS blocks; it never falls back to BFGS."""
