@@ -100,12 +100,14 @@ class _Run(_SubproblemMixin, _RestorationMixin):
 
     def _penalty(self, pt: _Point) -> float:
         r"""The merit's penalty term at ``pt``: :math:`\mu v_1`, or with ``penalty_weights="row"``
-        :math:`\sum_i \mu_i \max(0, -c_i) + \mu\,` (bound violation), :math:`\mu \ge \max_i \mu_i`
-        the single penalty's update."""
+        :math:`\sum_i w_i \max(0, -c_i) + \mu\,` (bound violation), :math:`w_i = \mu_i` on the rows
+        the last QP held (:math:`\lambda_i > 0`), :math:`\mu \ge \max_i \mu_i` on the others:
+        a row the step did not expect to bind is charged as with one penalty."""
         if self.mu_rows is None:
             return self.mu * pt.violation_l1
         rows = np.maximum(-pt.c, 0.0)
-        return float(self.mu_rows @ rows) + self.mu * max(pt.violation_l1 - float(rows.sum()), 0.0)
+        weights = np.where(self.lam > 0, self.mu_rows, self.mu)
+        return float(weights @ rows) + self.mu * max(pt.violation_l1 - float(rows.sum()), 0.0)
 
     def _accept(self, new: _Point, lam):
         r"""Move to ``new``; damped BFGS update of the quasi-Newton part with multipliers ``lam``.
@@ -256,7 +258,8 @@ class _Run(_SubproblemMixin, _RestorationMixin):
             return self._record(k, stat, 0.0, delta, n_rows, step.status, qp_iter, 0, False)
         need = float(np.max(self.lam, initial=0.0)) + s.penalty_margin
         self.mu = max(need, 0.5 * (self.mu + need))  # Powell (1978): may fall back after a spike
-        if self.mu_rows is not None:  # Powell's (1978) weights, one per row
+        if self.mu_rows is not None:  # Powell's (1978) update per row; the QP's active rows are
+            # charged at theirs, a row the QP did not hold (lambda_i = 0) at mu (_penalty)
             need_rows = self.lam + s.penalty_margin
             self.mu_rows = np.maximum(need_rows, 0.5 * (self.mu_rows + need_rows))
         new, backtracks, soc, its = self._line_search(rows, step)
