@@ -133,7 +133,8 @@ class SQPSettings:
         penalty_margin: :math:`\mu_m > 0` in :math:`\mu \ge \|\lambda\|_\infty + \mu_m`.
         penalty_weights: ``"single"`` (default): one penalty :math:`\mu` for every row;
             ``"row"``: one weight per row, :math:`\mu_i \ge \lambda_i + \mu_m`, Powell's update
-            each (:mod:`calib_oed.solver.sqp`, item 4). The design takes ``"row"``
+            each, charged on the rows the last QP held (:math:`\lambda_i > 0`; the others at
+            :math:`\mu`; :mod:`calib_oed.solver.sqp`, item 4). The design takes ``"row"``
             (:data:`calib_oed.oed.refine.DESIGN_SQP`): one row's large multiplier no longer
             charges the second-order violation of curved rows with small ones at its size.
         restoration_penalty: :math:`\rho` of the elastic restoration QP.

@@ -63,8 +63,9 @@ far from active; :math:`f` scaled by the caller to O(1). One iteration at
    every gain and the run stalled. With ``penalty_weights="row"`` each row has its own weight,
    :math:`\mu_{i,k} = \max(\nu_{i,k}, \tfrac12(\mu_{i,k-1} + \nu_{i,k}))`,
    :math:`\nu_{i,k} = \lambda_{i,k+1} + \mu_m`, and the merit is
-   :math:`f + \sum_i \mu_i \max(0, -c_i) + \mu` (bound violation) (Powell 1978's weights;
-   :math:`\mu_i \ge \lambda_i` keeps :math:`d` a descent direction): a row with a small
+   :math:`f + \sum_i w_i \max(0, -c_i) + \mu` (bound violation) with :math:`w_i = \mu_i` on the
+   rows the QP held (:math:`\lambda_i > 0`) and :math:`\mu` on the others (Powell 1978's weights;
+   :math:`w_i \ge \lambda_i` keeps :math:`d` a descent direction): an active row with a small
    multiplier is not charged at the largest one. Armijo backtracking
    (:meth:`~calib_oed.solver.iteration._Run._line_search`) on
    :math:`\phi(x + \alpha d) \le \phi(x) + \eta \alpha D` with the directional

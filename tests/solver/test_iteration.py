@@ -98,3 +98,29 @@ def test_no_longer_step_without_a_modified_exact_hessian(exact):
 def test_extrapolate_must_be_a_bool():
     with pytest.raises(SQPSettingsError, match="extrapolate"):
         SQPSettings(extrapolate="yes")
+
+
+def test_rows_the_qp_did_not_hold_are_charged_at_the_single_penalty():
+    """``penalty_weights="row"``: a row with a multiplier is charged at its own weight, a row the
+    QP did not hold (multiplier 0) at the single penalty mu, and a bound's violation at mu."""
+    from collections import defaultdict
+
+    from calib_oed.solver.iteration import _Run
+    from calib_oed.solver.nlp import _Problem
+
+    def objective(x):
+        return float(x @ x), 2 * x
+
+    def constraints(x):
+        return np.array([x[0] - 1.1, x[1] - 1.2]), np.eye(2)
+
+    lb, ub = np.array([-np.inf, -np.inf]), np.array([0.95, np.inf])
+    problem = _Problem(objective, constraints, 2, lb, ub, defaultdict(float))
+    pt = problem.evaluate(np.array([1.0, 1.0]), strict=True)  # c = (-0.1, -0.2), x_0 above its bound by 0.05
+    run = _Run(problem, pt, lb, ub, SQPSettings(penalty_weights="row"), 0.0)
+    run.lam, run.mu, run.mu_rows = np.array([0.5, 0.0]), 2.0, np.array([0.6, 0.001])
+    assert run._penalty(pt) == pytest.approx(0.6 * 0.1 + 2.0 * 0.2 + 2.0 * 0.05, rel=1e-12)
+    assert run._merit(pt) == pytest.approx(2.0 + run._penalty(pt), rel=1e-12)
+    single = _Run(problem, pt, lb, ub, SQPSettings(), 0.0)
+    single.mu = 2.0
+    assert single._penalty(pt) == pytest.approx(2.0 * (0.1 + 0.2 + 0.05), rel=1e-12)
