@@ -54,7 +54,12 @@ def sensitivity_field(objective: DesignObjective, gamma: np.ndarray, q) -> tuple
     """
     rows, d_rows = objective.compute_row_derivatives(q)  # (K, d, p), (K, d, p, nv)
     fg = rows @ gamma
-    return -np.einsum("kdf,kdf->k", fg, rows), -2.0 * np.einsum("kdf,kdfv->kv", fg, d_rows)
+    return _sensitivity(rows, fg), -2.0 * np.einsum("kdf,kdfv->kv", fg, d_rows)
+
+
+def _sensitivity(rows: np.ndarray, fg: np.ndarray) -> np.ndarray:
+    r""":math:`d = -\mathrm{tr}(\Gamma F^\top F)` per pose from the rows (K, d, p) and ``fg`` :math:`= F\Gamma`."""
+    return -np.einsum("kdf,kdf->k", fg, rows)
 
 
 def sensitivity_hessian(objective: DesignObjective, gamma: np.ndarray, q) -> np.ndarray | None:
@@ -160,7 +165,7 @@ def maximise_sensitivity(setup, objective: DesignObjective, gamma: np.ndarray, s
     def values_only(x):
         """The trial points' values without derivatives, the same numbers bit for bit."""
         rows = objective.compute_blocks(x.reshape(k, nq))
-        d = -np.einsum("kdf,kdf->k", rows @ gamma, rows)
+        d = _sensitivity(rows, rows @ gamma)
         return -float(d.sum()) / scale, nlp.compute_constraint_rows(x, jacobian=False)[0].ravel()
 
     def at_end(key, x):

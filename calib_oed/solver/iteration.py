@@ -179,13 +179,13 @@ class _Run(_SubproblemMixin, _RestorationMixin):
                              self.s.tol_feasibility, pieces)
 
     def _record(self, k, stat, step_norm, delta, n_rows, qp_status, qp_iter, backtracks, restoration,
-                corrected=False, extrapolated=1.0):
+                corrected=False):
         pt, info = self.pt, self._info
         self.n_fallbacks += info.hessian_fallback
         rec = IterationRecord(k, pt.f, self._merit(pt), self.mu, pt.violation_max, stat, step_norm,
                               delta, int(n_rows), qp_status, int(qp_iter), int(backtracks),
                               bool(restoration), time.perf_counter() - self.t0, bool(corrected),
-                              float(extrapolated), **asdict(info))
+                              float(self.extrapolated), **asdict(info))
         self.history.append(rec)
         return rec
 
@@ -292,7 +292,7 @@ class _Run(_SubproblemMixin, _RestorationMixin):
         else:
             self.delta = max(s.min_step_bound, min(delta, s.step_bound_ratio * step_norm))
         return self._record(k, stat, step_norm, delta, n_rows, step.status, qp_iter, backtracks,
-                            False, soc, self.extrapolated)
+                            False, soc)
 
     def _ratio_update(self, old: _Point, new: _Point, d, delta, d_norm, backtracks) -> float:
         r""":math:`\Delta_{k+1}` of ``trust_update="ratio"`` after the accepted point ``new``.
@@ -328,15 +328,16 @@ class _Run(_SubproblemMixin, _RestorationMixin):
         for no increase.
         """
         s, pt, d = self.s, self.pt, step.d
-        phi0 = self._merit(pt)
-        phi0 += 10 * np.finfo(float).eps * max(1.0, abs(phi0))
-        slope = min(float(pt.g @ d) - self._penalty(pt), 0.0)  # N&W Theorem 18.2
+        merit0 = self._merit(pt)
+        phi0 = merit0 + 10 * np.finfo(float).eps * max(1.0, abs(merit0))
+        derivative = float(pt.g @ d) - self._penalty(pt)  # N&W Theorem 18.2
+        slope = min(derivative, 0.0)
         alpha, its = 1.0, 0
         for backtracks in range(s.max_backtracks + 1):
             trial = self._trial(pt.x + alpha * d)
             if trial is not None and self._merit(trial) <= phi0 + s.armijo * alpha * slope:
                 if backtracks == 0 and s.extrapolate:
-                    trial = self._extrapolate(trial, d)
+                    trial = self._extrapolate(trial, d, merit0, derivative)
                 trial = self.p.complete(trial)  # derivatives only where the step is taken
                 if trial is not None:
                     return trial, backtracks, False, its
@@ -349,14 +350,14 @@ class _Run(_SubproblemMixin, _RestorationMixin):
             alpha *= s.backtrack
         return None, s.max_backtracks, False, its
 
-    def _extrapolate(self, trial: _Point, d) -> _Point:
+    def _extrapolate(self, trial: _Point, d, merit0: float, slope: float) -> _Point:
         r"""A longer step :math:`\alpha d`, :math:`\alpha \ge 2`, when the merit curves less along ``d`` than the model.
 
         Only after a full step from the exact Hessian whose eigenvalues were modified
         (:mod:`calib_oed.solver.hessian`): a flipped negative eigenvalue adds model curvature
         the function does not have, and the step is that much too short. The quadratic through
         :math:`\phi(0)`, the slope :math:`D = \nabla f^\top d - \mu v_1(x_k)` and
-        :math:`\phi(1)` (the accepted full step) has the curvature
+        :math:`\phi(1)` (the accepted full step; ``merit0`` and ``slope`` from the line search) has the curvature
         :math:`\kappa = 2(\phi(1) - \phi(0) - D)` along :math:`d` and its minimiser at
         :math:`\alpha = -D/\kappa` (Nocedal & Wright 2006, §3.5, eq. 3.57, here beyond 1;
         :math:`\kappa \le 0`: no minimiser), taken at most to the box
@@ -366,13 +367,10 @@ class _Run(_SubproblemMixin, _RestorationMixin):
         :math:`\phi(1)`; the point is clipped to the bounds, as every trial.
         """
         pt, s = self.pt, self.s
-        if self._info.hessian != "exact" or not self._info.hessian_modified:
-            return trial
-        slope = float(pt.g @ d) - self._penalty(pt)
-        if slope >= 0:
+        if self._info.hessian != "exact" or not self._info.hessian_modified or slope >= 0:
             return trial
         phi1 = self._merit(trial)
-        kappa = 2.0 * (phi1 - self._merit(pt) - slope)
+        kappa = 2.0 * (phi1 - merit0 - slope)
         ad = np.asarray(pt.A @ d).ravel()
         fall = (ad < 0) & (self.lam <= 0)
         alpha = min(self.delta / float(np.max(np.abs(d))),
