@@ -26,8 +26,9 @@ from calib_oed.solver.sqp import SQPResult, SQPSettings, SQPStatus, solve_sqp
 #: (``SQPSettings.penalty_margin``, the SQP's default 0.1). The design's multipliers are about
 #: 1e-2 (objective scaled to 1): with 0.1 the merit charged a step's leftover violation over
 #: curved active rows ten times what the QP's Lagrangian Hessian models, the ratio rule kept the
-#: trust box small and the run crept (``fms_kr16`` n = 500: 90 iterations at boxes of 3e-3 to
-#: 6e-3 rad). Measured against 0.1 (``docs/benchmarks.md``, "The design SQP's penalty margin").
+#: trust box small and the run crept (``fms_kr16`` n = 500: 40 iterations at boxes of 2.7e-3 to
+#: 5.5e-3 rad, ``bench/trace_design_sqp.py``). Measured against 0.1 (``docs/benchmarks.md``,
+#: "The design SQP's penalty margin").
 DESIGN_PENALTY_MARGIN = 1e-3
 
 #: SQP settings of the design problem (objective scaled to 1 at the start, x in rad). With
