@@ -37,7 +37,8 @@ def _solve_kkt(kkt, rhs):
     return sol if np.all(np.isfinite(sol)) else None
 
 
-def polish(sub: QPSubproblem, step: QPStep, tol: float = 1e-9) -> QPStep | None:
+def polish(sub: QPSubproblem, step: QPStep, tol: float = 1e-9, rounds: int = 3,
+           release: bool = False) -> QPStep | None:
     r"""Exact solution on the active set ProxQP identified, or ``None``.
 
     ProxQP's solution is accurate to ``eps_abs`` (~1e-9). Near convergence
@@ -57,7 +58,9 @@ def polish(sub: QPSubproblem, step: QPStep, tol: float = 1e-9) -> QPStep | None:
         \qquad \nu = H d + g - C^\top \lambda \text{ on } \bar{\mathcal{F}}.
 
     Rows or box components the result violates join the active set (up to
-    three rounds). A singular system (degenerate active set) is solved in the
+    ``rounds`` rounds); with ``release``, rows and box components whose
+    multiplier has the wrong sign also leave it (a primal-dual active-set
+    iteration, for a guessed active set: :func:`from_active_set`). A singular system (degenerate active set) is solved in the
     least-squares sense. The result is returned only if it is a KKT point of
     the QP to ``tol`` (signs of :math:`\lambda, \nu` included). A structured
     :math:`H` is made dense (the caller skips the polish for large :math:`n`).
@@ -73,7 +76,7 @@ def polish(sub: QPSubproblem, step: QPStep, tol: float = 1e-9) -> QPStep | None:
     act = step.lam > scale
     lo = (step.nu > scale) & np.isfinite(bl)
     up = (step.nu < -scale) & np.isfinite(bu) & ~lo
-    for _ in range(3):
+    for _ in range(rounds):
         fixed = lo | up
         free = ~fixed
         d = np.where(lo, bl, np.where(up, bu, 0.0))
@@ -94,11 +97,16 @@ def polish(sub: QPSubproblem, step: QPStep, tol: float = 1e-9) -> QPStep | None:
         nu = np.where(fixed, matvec(H, d) + g - matvec(C.T, lam), 0.0)
         new_rows = (matvec(C, d) - lower < -vtol) & ~act
         new_lo, new_up = (d < bl - vtol) & free, (d > bu + vtol) & free
-        if not (new_rows.any() or new_lo.any() or new_up.any()):
+        if release:  # a wrong-signed multiplier: that row or bound leaves the active set
+            out_rows, out_lo, out_up = act & (lam < -tol), lo & (nu < -tol), up & (nu > tol)
+        else:
+            out_rows = out_lo = out_up = np.zeros(0, dtype=bool)
+        if not (new_rows.any() or new_lo.any() or new_up.any()
+                or out_rows.any() or out_lo.any() or out_up.any()):
             break
-        act |= new_rows
-        lo |= new_lo
-        up |= new_up
+        act = (act | new_rows) & ~out_rows if release else act | new_rows
+        lo = (lo | new_lo) & ~out_lo if release else lo | new_lo
+        up = (up | new_up) & ~out_up if release else up | new_up
     else:
         return None
     if np.any(lam < -tol) or np.any(nu[lo] < -tol) or np.any(nu[up] > tol):
@@ -109,3 +117,24 @@ def polish(sub: QPSubproblem, step: QPStep, tol: float = 1e-9) -> QPStep | None:
         return None
     return step._replace(d=d, lam=lam, nu=nu, primal_residual=primal, dual_residual=dual,
                          complementarity=comp, polished=True)
+
+
+def from_active_set(sub: QPSubproblem, lam0, nu0, tol: float = 1e-9, rounds: int = 5) -> QPStep | None:
+    r"""The QP's solution on the active set that warm-start multipliers name, or ``None``.
+
+    Between SQP iterations the active set of the QP changes little: the rows
+    with :math:`\lambda_0 > 0` and the bounds with :math:`\nu_0 \ne 0` of the
+    last iteration are usually the active set of this one. Solving the KKT
+    system on that set (:func:`polish` with ``release``: rows it violates join,
+    wrong-signed multipliers leave, ``rounds`` times) costs one symmetric
+    factorisation; ProxQP's proximal iterations cost several (its own
+    factorisation and updates for every change of its active set). The result
+    is returned only if it is a KKT point of the QP to ``tol``, signs
+    included, exactly as a polished ProxQP step is; :math:`H` positive
+    definite makes that point the QP's unique solution. ``None`` when the guess
+    does not lead there: the caller solves the QP with ProxQP.
+    """
+    n = sub.g.size
+    nu = np.zeros(n) if nu0 is None else np.asarray(nu0, dtype=float)
+    guess = QPStep(np.zeros(n), np.asarray(lam0, dtype=float), nu, "solved", 0, np.inf, np.inf, np.inf)
+    return polish(sub, guess, tol, rounds=rounds, release=True)

@@ -118,6 +118,11 @@ class SQPSettings:
         qp_polish: Refine every QP step (up to ``max_dense_qp_size`` variables) on its active
             set (:func:`calib_oed.solver.polish.polish`): the exact KKT point, and the same
             bits in every process, which ProxQP's own answer is not.
+        qp_active_set_start: Before ProxQP, solve the KKT system of the QP on the active set
+            its warm-start multipliers name (:func:`calib_oed.solver.polish.from_active_set`,
+            up to ``max_dense_qp_size`` variables, not the block QP, which does the same
+            itself) and keep that point if it is a KKT point of the QP to the same
+            tolerance as a polished ProxQP step.
         second_order_correction: Try a second-order correction before
             backtracking from a rejected full step (:mod:`calib_oed.solver.sqp`, item 4).
         extrapolate: After a full step from an exact Hessian whose eigenvalues were modified,
@@ -165,6 +170,7 @@ class SQPSettings:
     qp_eps_abs: float = 1e-9
     qp_max_iterations: int = 100
     qp_polish: bool = True
+    qp_active_set_start: bool = True
     second_order_correction: bool = True
     extrapolate: bool = False
     row_pieces_margin: float = 1e-3
@@ -210,7 +216,7 @@ class SQPSettings:
                 "step_bound", self.step_bound,
                 f"must satisfy min_step_bound ({self.min_step_bound}) <= step_bound <= "
                 f"max_step_bound ({self.max_step_bound})")
-        for name in ("qp_polish", "second_order_correction", "extrapolate"):
+        for name in ("qp_polish", "qp_active_set_start", "second_order_correction", "extrapolate"):
             if not isinstance(getattr(self, name), bool):
                 raise SQPSettingsError(name, getattr(self, name), "must be True or False")
         if self.penalty_weights not in PENALTY_WEIGHTS:

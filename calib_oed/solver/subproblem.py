@@ -39,7 +39,7 @@ import scipy.sparse as sp
 from calib_oed.solver.block_qp import BlockQPWorkspace
 from calib_oed.solver.hessian import active_normals, check_structured, positive_definite
 from calib_oed.solver.lifted import LiftedQPWorkspace
-from calib_oed.solver.polish import polish
+from calib_oed.solver.polish import from_active_set, polish
 from calib_oed.solver.qp import (
     DenseQPWorkspace,
     QPSizeError,
@@ -99,14 +99,18 @@ class QPSolver:
         """Whether a QP of ``k`` rows with a dense Hessian goes to the dense backend."""
         return self.s.qp_backend == "dense" and self.n + k <= self.s.max_dense_qp_size
 
+    def backend(self, sub: QPSubproblem) -> str:
+        """The workspace ``sub`` goes to: ``"block"``, ``"lifted"``, ``"dense"`` or ``"sparse"``."""
+        s = self.s
+        if isinstance(sub.H, StructuredHessian):
+            if s.structured_qp == "auto":
+                return "block" if self.n >= s.block_qp_min_size else "lifted"
+            return s.structured_qp
+        return "dense" if self.dense_ok(sub.lower.size) else "sparse"
+
     def _workspace(self, sub: QPSubproblem):
         s, n = self.s, self.n
-        if isinstance(sub.H, StructuredHessian):
-            name = s.structured_qp
-            if name == "auto":
-                name = "block" if n >= s.block_qp_min_size else "lifted"
-        else:
-            name = "dense" if self.dense_ok(sub.lower.size) else "sparse"
+        name = self.backend(sub)
         if name not in self._ws:
             if name == "block":
                 self._ws[name] = BlockQPWorkspace(n, s.qp_eps_abs, s.qp_max_iterations)
@@ -269,6 +273,16 @@ class _SubproblemMixin:
         return rows, step._replace(iterations=step.iterations + its), ok
 
     def _solve(self, sub, lam0, nu0, tol, refresh=False):
+        if lam0 is not None and not refresh and self.s.qp_active_set_start:
+            # the warm start's active set first (solver.polish.from_active_set); the block QP
+            # tries its own, and the dense KKT system is only for sizes the polish takes
+            name = self.qp.backend(sub)
+            if name != "block" and self.pt.x.size <= self.s.max_dense_qp_size:
+                step = from_active_set(sub, lam0, nu0, tol)
+                if step is not None:
+                    self.qp.last_backend = name
+                    self._info = replace(self._info, qp_backend=name)
+                    return step
         step = self.qp.solve(sub, lam0, nu0, refresh)
         self._info = replace(self._info, qp_backend=self.qp.last_backend)
         if (self.s.qp_polish and step.status not in CRASHED and step.primal_residual <= 1e3 * tol
