@@ -17,7 +17,7 @@ import scipy.sparse as sp
 from calib_oed.solver.qp import QPStep, QPSubproblem, as_dense, matvec
 
 
-def _solve_kkt(kkt, rhs):
+def _solve_kkt(kkt, rhs, singular_ok: bool = True):
     """Solve the symmetric KKT system; least squares if it is singular (degenerate active set).
 
     With more active constraints than free variables (a tiny trust region
@@ -30,6 +30,8 @@ def _solve_kkt(kkt, rhs):
         try:
             sol = scipy.linalg.solve(kkt, rhs, assume_a="sym", check_finite=False)
         except (np.linalg.LinAlgError, scipy.linalg.LinAlgWarning, ValueError):
+            if not singular_ok:
+                return None
             try:
                 sol = scipy.linalg.lstsq(kkt, rhs, check_finite=False, lapack_driver="gelsy")[0]
             except (np.linalg.LinAlgError, ValueError):
@@ -58,10 +60,12 @@ def polish(sub: QPSubproblem, step: QPStep, tol: float = 1e-9, rounds: int = 3,
         \qquad \nu = H d + g - C^\top \lambda \text{ on } \bar{\mathcal{F}}.
 
     Rows or box components the result violates join the active set (up to
-    ``rounds`` rounds); with ``release``, rows and box components whose
-    multiplier has the wrong sign also leave it (a primal-dual active-set
-    iteration, for a guessed active set: :func:`from_active_set`). A singular system (degenerate active set) is solved in the
-    least-squares sense. The result is returned only if it is a KKT point of
+    ``rounds`` rounds). With ``release`` (a guessed active set,
+    :func:`from_active_set`), a round that violates nothing lets the rows and
+    box components with a wrong-signed multiplier leave it. A singular system
+    (degenerate active set) is solved in the least-squares sense; with
+    ``release`` it ends the attempt instead (its multipliers are not unique,
+    and their signs then send the sets in a cycle). The result is returned only if it is a KKT point of
     the QP to ``tol`` (signs of :math:`\lambda, \nu` included). A structured
     :math:`H` is made dense (the caller skips the polish for large :math:`n`).
     """
@@ -88,7 +92,7 @@ def polish(sub: QPSubproblem, step: QPStep, tol: float = 1e-9, rounds: int = 3,
         kkt[nf:, :nf] = -ca[:, free]
         rhs = np.concatenate([-g[free] - H[np.ix_(free, fixed)] @ d[fixed],
                               -lower[act] + ca[:, fixed] @ d[fixed]])
-        sol = _solve_kkt(kkt, rhs)
+        sol = _solve_kkt(kkt, rhs, singular_ok=not release)
         if sol is None:
             return None
         d[free] = sol[:nf]
@@ -97,16 +101,18 @@ def polish(sub: QPSubproblem, step: QPStep, tol: float = 1e-9, rounds: int = 3,
         nu = np.where(fixed, matvec(H, d) + g - matvec(C.T, lam), 0.0)
         new_rows = (matvec(C, d) - lower < -vtol) & ~act
         new_lo, new_up = (d < bl - vtol) & free, (d > bu + vtol) & free
-        if release:  # a wrong-signed multiplier: that row or bound leaves the active set
+        if release:  # wrong-signed multipliers leave the active set before anything joins it
             out_rows, out_lo, out_up = act & (lam < -tol), lo & (nu < -tol), up & (nu > tol)
-        else:
-            out_rows = out_lo = out_up = np.zeros(0, dtype=bool)
-        if not (new_rows.any() or new_lo.any() or new_up.any()
-                or out_rows.any() or out_lo.any() or out_up.any()):
+            if out_rows.any() or out_lo.any() or out_up.any():
+                act &= ~out_rows
+                lo &= ~out_lo
+                up &= ~out_up
+                continue
+        if not (new_rows.any() or new_lo.any() or new_up.any()):
             break
-        act = (act | new_rows) & ~out_rows if release else act | new_rows
-        lo = (lo | new_lo) & ~out_lo if release else lo | new_lo
-        up = (up | new_up) & ~out_up if release else up | new_up
+        act |= new_rows
+        lo |= new_lo
+        up |= new_up
     else:
         return None
     if np.any(lam < -tol) or np.any(nu[lo] < -tol) or np.any(nu[up] > tol):
