@@ -136,14 +136,16 @@ def design_settings(objective, settings, exact: bool = False, n: int = 60, base=
     ``"auto"`` Hessian modification is the tangent rule at every size (``docs/benchmarks.md``,
     "Growth with n"); the trust rule is that of every exact-Hessian design
     (:data:`~calib_oed.oed.refine.EXACT_TRUST_UPDATE`); one penalty for every row, not one weight per
-    row (``SQPSettings.penalty_weights``; ``docs/benchmarks.md``, "One penalty weight per row")."""
+    row (``SQPSettings.penalty_weights``), and no active-set start of its QPs
+    (``SQPSettings.qp_active_set_start``; ``docs/benchmarks.md``, "One penalty weight per row" and
+    "The QP's answer from the last active set")."""
     if not getattr(objective, "needs_design", False):
         return settings
     from calib_oed.solver.sqp import SQPSettings
     if settings is None:
         settings = replace(base or SQPSettings(), max_iterations=exact_iterations(n) if exact else MODEL_ERROR_ITERATIONS)
     rule = "tangent" if exact and settings.hessian_modification == "auto" else settings.hessian_modification
-    return replace(settings, hessian_modification=rule, penalty_weights="single")
+    return replace(settings, hessian_modification=rule, penalty_weights="single", qp_active_set_start=False)
 
 
 def scene_criterion(s, criterion, prior=None):

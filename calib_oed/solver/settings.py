@@ -122,7 +122,9 @@ class SQPSettings:
             its warm-start multipliers name (:func:`calib_oed.solver.polish.from_active_set`,
             up to ``max_dense_qp_size`` variables, not the block QP, which does the same
             itself) and keep that point if it is a KKT point of the QP to the same
-            tolerance as a polished ProxQP step.
+            tolerance as a polished ProxQP step. Off by default (the same steps, to the QP's
+            tolerance, but not the same bits); on in the design SQP
+            (:data:`calib_oed.oed.refine.DESIGN_SQP`).
         second_order_correction: Try a second-order correction before
             backtracking from a rejected full step (:mod:`calib_oed.solver.sqp`, item 4).
         extrapolate: After a full step from an exact Hessian whose eigenvalues were modified,
@@ -170,7 +172,7 @@ class SQPSettings:
     qp_eps_abs: float = 1e-9
     qp_max_iterations: int = 100
     qp_polish: bool = True
-    qp_active_set_start: bool = True
+    qp_active_set_start: bool = False
     second_order_correction: bool = True
     extrapolate: bool = False
     row_pieces_margin: float = 1e-3

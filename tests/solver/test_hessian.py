@@ -278,9 +278,7 @@ def test_a_failing_structured_qp_falls_back_to_bfgs(monkeypatch):
     monkeypatch.setattr(LiftedQPWorkspace, "solve", broken)
     monkeypatch.setattr(BlockQPWorkspace, "solve", broken)
     objective, constraints, hessian, x_star, _ = _double_well(b=4)
-    # without the active-set start, which would solve some exact QPs without the broken workspace
-    res = solve_sqp(objective, np.full(x_star.size, 0.5), constraints=constraints, lagrangian_hessian=hessian,
-                    settings=SQPSettings(qp_active_set_start=False))
+    res = solve_sqp(objective, np.full(x_star.size, 0.5), constraints=constraints, lagrangian_hessian=hessian)
     assert res.status is SQPStatus.CONVERGED and res.check(), res.summary()
     np.testing.assert_allclose(res.x, x_star, atol=1e-5)
     assert res.hessian_fallbacks == res.iterations and "structured QP broke" in res.hessian_message

@@ -42,9 +42,7 @@ def _garbage(self, sub, d0=None, lam0=None, nu0=None):
 def test_a_failing_qp_solver_ends_in_a_status(monkeypatch, backend, workspace, failure, status_word):
     monkeypatch.setattr(workspace, "solve", failure)
     obj, con = _hs43()
-    # without the active-set start, which would solve some QPs without the broken workspace
-    res = solve_sqp(obj, np.zeros(4), constraints=con,
-                    settings=SQPSettings(qp_backend=backend, qp_active_set_start=False))
+    res = solve_sqp(obj, np.zeros(4), constraints=con, settings=SQPSettings(qp_backend=backend))
     assert res.status is SQPStatus.QP_FAILED, res.summary()
     assert status_word in res.message
     assert res.history and res.history[-1].qp_status in ("error", "non_finite")
