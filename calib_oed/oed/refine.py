@@ -38,7 +38,7 @@ DESIGN_PENALTY_MARGIN = 1e-3
 #: ``penalty_weights="row"``, each row's violation is charged at its own multiplier plus the
 #: margin, not at the largest (``docs/benchmarks.md``, "One penalty weight per row"). With
 #: ``qp_active_set_start``, a QP for ProxQP (dense or lifted) is first solved on the last
-#: iteration's active set: the notional90 study 13 min 27 s -> 9 min 54 s on 2 cores, its designs'
+#: iteration's active set: the notional90 study's CPU 1603 -> 1205 s on 2 cores, its designs'
 #: values the same (``docs/benchmarks.md``, "The QP's answer from the last active set").
 DESIGN_SQP = SQPSettings(penalty_margin=DESIGN_PENALTY_MARGIN, extrapolate=True, penalty_weights="row",
                          qp_active_set_start=True)

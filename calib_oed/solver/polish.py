@@ -61,8 +61,9 @@ def polish(sub: QPSubproblem, step: QPStep, tol: float = 1e-9, rounds: int = 3,
 
     Rows or box components the result violates join the active set (up to
     ``rounds`` rounds). With ``release`` (a guessed active set,
-    :func:`from_active_set`), a round that violates nothing lets the rows and
-    box components with a wrong-signed multiplier leave it. A singular system
+    :func:`from_active_set`), rows and box components with a wrong-signed
+    multiplier leave it first; violated ones join only in a round where none
+    leaves. A singular system
     (degenerate active set) is solved in the least-squares sense; with
     ``release`` it ends the attempt instead (its multipliers are not unique,
     and their signs then send the sets in a cycle). The result is returned only if it is a KKT point of
