@@ -272,22 +272,24 @@ class _SubproblemMixin:
             its += step.iterations
         return rows, step._replace(iterations=step.iterations + its), ok
 
+    def _polishes(self, backend: str) -> bool:
+        """Whether the dense KKT solves (the polish, the active-set start) serve ``backend``'s QPs:
+        not the block QP's (it polishes its own active set, O(n)), and only up to
+        ``max_dense_qp_size`` variables."""
+        return backend != "block" and self.pt.x.size <= self.s.max_dense_qp_size
+
     def _solve(self, sub, lam0, nu0, tol, refresh=False):
-        if lam0 is not None and not refresh and self.s.qp_active_set_start:
-            # the warm start's active set first (solver.polish.from_active_set); the block QP
-            # tries its own, and the dense KKT system is only for sizes the polish takes
+        if lam0 is not None and self.s.qp_active_set_start:  # the warm start's active set first
             name = self.qp.backend(sub)
-            if name != "block" and self.pt.x.size <= self.s.max_dense_qp_size:
-                step = from_active_set(sub, lam0, nu0, tol)
-                if step is not None:
-                    self.qp.last_backend = name
-                    self._info = replace(self._info, qp_backend=name)
-                    return step
+            step = from_active_set(sub, lam0, nu0, tol) if self._polishes(name) else None
+            if step is not None:
+                self.qp.last_backend = name
+                self._info = replace(self._info, qp_backend=name)
+                return step
         step = self.qp.solve(sub, lam0, nu0, refresh)
         self._info = replace(self._info, qp_backend=self.qp.last_backend)
         if (self.s.qp_polish and step.status not in CRASHED and step.primal_residual <= 1e3 * tol
-                and self.qp.last_backend != "block"  # it polishes its own active set, O(n)
-                and self.pt.x.size <= self.s.max_dense_qp_size):
+                and self._polishes(self.qp.last_backend)):
             step = polish(sub, step, tol) or step
         return step
 
