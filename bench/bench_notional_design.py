@@ -4,7 +4,7 @@ Run from any directory with the checkout to time on ``PYTHONPATH``:
 
     OPENBLAS_NUM_THREADS=1 PYTHONPATH=CHECKOUT python bench/bench_notional_design.py \
         [--case 0] [--criterion params] [--collisions 1] [--no-reequilibrate] [--proxsuite-default]
-        [--trust-update edge|ratio]
+        [--trust-update edge|ratio] [--qp-trace]
 
 The case is the ``notional90`` study's ``--case``-th arm (the first: lambda 650,
 mu 600 mm in the scaled ``fms_kr16`` paper cell), set up as
@@ -20,6 +20,11 @@ The dense polish of the QP steps (``solver.polish.polish``, every step since
 96ef43f, before only steps of at most 1e-4) is timed apart (``polish_cpu_s``,
 inside ``sqp_cpu_s``, not in ``qp_cpu_s``); ``--polish-small-only`` restores
 the old rule by a monkeypatch here.
+``exchange_cpu_s`` is the CPU of the exchange algorithm behind the start
+(``oed.starts.exchange_poses``). ``--qp-trace`` prints one line per QP of the
+SQP on stderr: the workspace, rows, row capacity (dense), ProxQP iterations and
+status, residuals and CPU (QPs the active-set start answers never reach ProxQP
+and are not listed).
 ``--proxsuite-default`` imports ``proxsuite`` before ``calib_oed``, so that
 proxsuite picks its own build (AVX2 here) instead of the SSE2 build of
 ``solver/proxqp_build.py`` (3386afc); the same code, the other build.
@@ -41,6 +46,7 @@ import argparse
 import dataclasses
 import json
 import math
+import sys
 import time
 
 C0 = time.process_time()
@@ -58,6 +64,9 @@ def main() -> None:
     ap.add_argument("--proxsuite-default", action="store_true",
                     help="import proxsuite before calib_oed: its own build choice (AVX2 here), "
                          "not the SSE2 build solver/proxqp_build.py picks")
+    ap.add_argument("--qp-trace", action="store_true",
+                    help="one line per QP of the SQP on stderr: backend, rows, row capacity, "
+                         "ProxQP iterations, status, residuals, CPU")
     ap.add_argument("--trust-update", choices=("edge", "ratio"), default=None,
                     help="the design SQP's trust rule (default: the design's own)")
     args = ap.parse_args()
@@ -75,7 +84,8 @@ def main() -> None:
     from calib_oed.calibration.workflow import setup
     from calib_oed.study.loader import load_study_config
 
-    cpu = {"sqp": 0.0, "qp": 0.0, "start_qp": 0.0, "polish": 0.0, "start_polish": 0.0}
+    cpu = {"sqp": 0.0, "qp": 0.0, "start_qp": 0.0, "polish": 0.0, "start_polish": 0.0,
+           "start_exchange": 0.0}
     calls = {"qp": 0, "refresh": 0, "proxqp_iterations": 0}
     inside = []  # non-empty while optimise_starts runs (the start's own QPs are counted apart)
 
@@ -111,14 +121,25 @@ def main() -> None:
     def counted(self, sub, lam0=None, nu0=None, refresh=False):
         calls["qp"] += bool(inside)
         calls["refresh"] += bool(inside) and bool(refresh)
+        c = time.process_time()
         if refresh and not args.no_reequilibrate:
             step = qp_solve(self, sub, lam0, nu0, refresh)
         else:
             step = qp_solve(self, sub, lam0, nu0)
         calls["proxqp_iterations"] += int(step.iterations) if inside else 0
+        if args.qp_trace and inside:
+            ws = getattr(self, "_ws", {}).get(self.last_backend)
+            print(f"qp {self.last_backend} rows {sub.lower.size} capacity {getattr(ws, 'capacity', '-')} "
+                  f"warm {lam0 is not None} iterations {step.iterations} {step.status} "
+                  f"primal {step.primal_residual:.1e} dual {step.dual_residual:.1e} "
+                  f"cpu {time.process_time() - c:.3f}", file=sys.stderr)
         return step
 
     subproblem.QPSolver.solve = timed("qp", counted)
+    import calib_oed.oed.approximate_pool as approximate_pool_mod
+    import calib_oed.oed.starts as starts_mod
+    starts_mod.exchange_poses = timed("exchange", starts_mod.exchange_poses)
+    approximate_pool_mod.exchange_poses = starts_mod.exchange_poses
     polish = subproblem.polish
 
     def polish_small(sub, step, *a, **kw):
@@ -140,7 +161,6 @@ def main() -> None:
                               collisions=bool(args.collisions), settings=settings, certificate=False,
                               enrich=plan.enrich)
         c_design = time.process_time() - c_design
-    import sys
     loaded = getattr(sys.modules.get("proxsuite"), "_submodule", None)
     solver = d.solver or {}
     its = int(solver.get("iterations", 0))
@@ -155,6 +175,7 @@ def main() -> None:
         "process_cpu_s": time.process_time() - C0, "design_cpu_s": c_design,
         "sqp_cpu_s": cpu["sqp"], "qp_cpu_s": cpu["qp"], "start_qp_cpu_s": cpu["start_qp"],
         "polish_cpu_s": cpu["polish"], "start_polish_cpu_s": cpu["start_polish"],
+        "exchange_cpu_s": cpu["start_exchange"],
         "polish_small_only": args.polish_small_only,
         "sqp_cpu_per_iteration_s": cpu["sqp"] / max(its, 1),
         "qp_share_of_sqp": cpu["qp"] / cpu["sqp"] if cpu["sqp"] else None,
