@@ -16,7 +16,8 @@ given its best shot: IPOPT the sparse Jacobian structure and the exact
 Lagrangian Hessian (per-pose blocks plus the dense low-rank coupling, lower
 triangle; ``ipopt-exact-active`` with the constraints' curvature only for rows whose multiplier is
 at least ``ACTIVE_CURVATURE`` times the largest, as the SQP computes it for its active rows only),
-or its L-BFGS; our SQP as the design runs it (per-pose BFGS blocks, kinked rows' pieces); trust-constr the sparse Jacobian and the exact
+or its L-BFGS; our SQP as the design runs it (exact Hessian or per-pose BFGS blocks, kinked rows' pieces, trial points
+by their values alone, traced like every other evaluation); trust-constr the sparse Jacobian and the exact
 Hessians of the objective and of the constraints as separate callbacks; SLSQP
 (which takes no Hessian) dense Jacobians. Reported per solver: the final
 objective, whether the last iterate is feasible (1e-6), its status, the CPU
@@ -67,6 +68,16 @@ class Trace:
         self.points.append((t, f, ok))
         return f, g
 
+    def values(self, x):
+        """The SQP's trial points without derivatives (``values``), traced like :meth:`objective`."""
+        f, c = self.nlp.compute_values(x)
+        t = time.process_time() - self.cpu0
+        pause = time.process_time()
+        ok = self.nlp.max_violation(x) <= FEASIBLE  # not charged to the solver
+        self.cpu0 += time.process_time() - pause
+        self.points.append((t, f, ok))
+        return f, c
+
     def cpu_to(self, target: float) -> float:
         return next((t for t, f, ok in self.points if ok and f <= target), float("nan"))
 
@@ -80,7 +91,8 @@ def run_sqp(nlp, x0, exact: bool, time_limit: float):
     settings = sqp_settings(replace(DESIGN_SQP, time_limit=time_limit), exact)
     kwargs = {"lagrangian_hessian": nlp.compute_lagrangian_hessian} if exact else {}
     res = solve_sqp(trace.objective, x0, constraints=nlp.compute_constraints, bounds=nlp.bounds,
-                    settings=settings, block_size=nlp.nq, row_pieces=nlp.compute_row_pieces, **kwargs)
+                    settings=settings, block_size=nlp.nq, row_pieces=nlp.compute_row_pieces,
+                    values=trace.values, **kwargs)
     return res.x, trace, f"{res.status.value}, {res.iterations} it"
 
 

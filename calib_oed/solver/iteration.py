@@ -70,6 +70,7 @@ class _Run(_SubproblemMixin, _RestorationMixin):
         self.nu = np.zeros(n)  # box multipliers of the last QP (warm start)
         self.qp = QPSolver(n, s)
         self.max_rows = s.qp_row_limit(n)
+        self._farkas = None  # (point version, QP row ids, y): a failed QP's Farkas certificate
         self.sticky = np.zeros(m, dtype=bool)  # dropped rows a QP step violated: preferred later
         self._version = 0  # counts accepted points (the exact Hessian is cached per point and lam)
         self._exact = self._exact_key = None

@@ -3,7 +3,8 @@ r"""Infeasible QP subproblems: rows no step can reach, and the elastic restorati
 At an infeasible iterate the linearised rows :math:`C d \ge \ell` may have
 no solution in the box :math:`[\underline{b}, \overline{b}]`; ProxQP does not
 detect this (:mod:`calib_oed.solver.qp`). :func:`unreachable_rows` finds the
-obvious cases in :math:`O(\text{nnz})`, and :func:`solve_elastic_qp` gives the
+obvious cases in :math:`O(\text{nnz})`, :func:`certified_violation` the others from the
+multipliers of a failed solve (a Farkas certificate), and :func:`solve_elastic_qp` gives the
 feasibility-restoration step of the SQP (:mod:`calib_oed.solver.sqp`, item 5);
 :class:`_RestorationMixin` is that step inside :class:`calib_oed.solver.iteration._Run`.
 """
@@ -40,6 +41,31 @@ def unreachable_rows(C, lower, box_lower, box_upper, tol: float) -> np.ndarray:
         C = np.asarray(C, dtype=float)
         reach = best(C, np.arange(C.shape[1])[None, :]).sum(axis=1) if C.size else np.zeros(C.shape[0])
     return np.flatnonzero(reach < lower - tol)
+
+
+def certified_violation(C, lower, box_lower, box_upper, y) -> float:
+    r"""The least violation every :math:`d` must have, by the Farkas certificate ``y``; <= 0: none.
+
+    For :math:`y \ge 0` (on the rows of :math:`C d \ge \ell`), :math:`z = C^\top y` and
+    :math:`\beta = \max_{d \in \text{box}} z^\top d = \sum_j \max(z_j \underline{b}_j,
+    z_j \overline{b}_j)`, every :math:`d` in the box has
+    :math:`\max_i (\ell_i - C_i d) \ge (y^\top \ell - \beta)/\|y\|_1 =: \gamma`. A :math:`d`
+    outside the box by :math:`\epsilon` at most (∞-norm) meets the rows only :math:`L\epsilon`
+    better, :math:`L = \|z\|_1/\|y\|_1`, so every :math:`d` violates a row or the box by at least
+    :math:`\gamma/(1 + L)`, the value returned (Farkas' lemma: the QP is infeasible when it is
+    positive; :func:`unreachable_rows` is the case of one row). ProxQP's multipliers of an
+    infeasible QP grow along such a :math:`y`.
+    """
+    y = np.maximum(np.asarray(y, dtype=float), 0.0)
+    total = float(y.sum())
+    if not (np.isfinite(total) and total > 0.0):
+        return -np.inf
+    y = y / total
+    z = np.asarray(C.T @ y).ravel()
+    with np.errstate(invalid="ignore"):
+        reach = float(np.sum(np.where(z > 0, z * box_upper, np.where(z < 0, z * box_lower, 0.0))))
+    gap = float(y @ lower) - reach
+    return gap / (1.0 + float(np.abs(z).sum())) if np.isfinite(gap) else -np.inf
 
 
 def solve_elastic_qp(C, lower, violated, box_lower, box_upper, penalty: float,

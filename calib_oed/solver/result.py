@@ -212,8 +212,10 @@ class IterationRecord(QPUse, _Step):
         step_bound: Trust-region radius :math:`\Delta_k` of the QP (∞-norm).
         n_rows_kept: Rows of :math:`c` passed to the QP.
         qp_status: Outcome of the QP: ProxQP's status (``"solved"``, ``"max_iter"``,
-            ...) or ``"unreachable_row"`` (infeasible, found before solving). For a
-            restoration step, that of the QP that failed.
+            ...), ``"unreachable_row"`` (infeasible, found before solving) or ``"infeasible"``
+            (proved so by the Farkas certificate of a failed solve at the same iterate,
+            :func:`~calib_oed.solver.restoration.certified_violation`). For a restoration step,
+            that of the last QP that failed.
         qp_iterations: Inner iterations of the QP solver (all QPs of the iteration).
         backtracks: Halvings of :math:`\alpha` in the line search.
         restoration: The step came from the feasibility-restoration QP.

@@ -101,7 +101,12 @@ far from active; :math:`f` scaled by the caller to O(1). One iteration at
    inconsistent, e.g. degenerate active rows, or ProxQP did not converge on the QP, not the
    problem). Every QP ProxQP did not solve is retried cold with a recomputed equilibration
    (:mod:`calib_oed.solver.qp`, :class:`~calib_oed.solver.qp.DenseQPWorkspace`), before any of
-   this. A QP that fails at a feasible
+   this, unless its multipliers prove it infeasible: ProxQP's multipliers of an infeasible QP grow
+   along a Farkas certificate :math:`y \ge 0`, and when :math:`y` shows every step violating a row or
+   the box by more than ten times the primal tolerance
+   (:func:`calib_oed.solver.restoration.certified_violation`), the retries of that iteration whose
+   QPs hold the same rows are tested with it and not solved (``qp_status`` ``"infeasible"``): the
+   same steps and multipliers, without ProxQP's iteration limit on each. A QP that fails at a feasible
    :math:`x_k` (numerical trouble) is retried with :math:`\Delta / 10`, then
    :attr:`SQPStatus.FAILED` (:attr:`SQPStatus.QP_FAILED` when the QP solver
    raised, returned non-finite values or the QP was too large).

@@ -47,7 +47,7 @@ from calib_oed.solver.qp import (
     QPSubproblem,
     SparseQPWorkspace,
 )
-from calib_oed.solver.restoration import unreachable_rows
+from calib_oed.solver.restoration import certified_violation, unreachable_rows
 from calib_oed.solver.result import QPUse, StructuredHessian
 from calib_oed.solver.rows import missed_rows, select_rows
 from calib_oed.solver.settings import SQPSettings
@@ -67,6 +67,13 @@ BOUND_TOL = 1e-10
 """A variable within this of a bound (units of x) counts as on it, for the tangent rule of the
 Hessian's modification (:func:`~calib_oed.solver.hessian.active_normals`); a step the QP takes
 to a bound lands on it to rounding."""
+
+CERTIFIED_MARGIN = 10.0
+"""A QP counts as infeasible when its Farkas certificate shows every step violating a row or the
+box by more than this times the primal tolerance of the residual test
+(:func:`~calib_oed.solver.restoration.certified_violation`)."""
+
+_CERTIFIED = "infeasible by the Farkas certificate of a failed solve at this iterate"
 
 _MISSED_ROUNDS = 2
 """Re-solves per QP with the dropped rows its step violates (:mod:`calib_oed.solver.rows`)."""
@@ -249,18 +256,30 @@ class _SubproblemMixin:
             tol_p = 10 * s.qp_eps_abs * scale
             tol_d = 10 * s.qp_eps_abs * max(scale, float(np.max(np.abs(pt.g), initial=0.0)))
             self._sub = (sub, tol_p, tol_d)
-            if np.any(pt.c[rows] < 0):
+            ids = np.concatenate([rows, pt.c.size + np.arange(pieces.size)])  # QP rows at x_k
+            violated = bool(np.any(pt.c[rows] < 0))  # else d = 0 is feasible
+            if violated:
                 bad = unreachable_rows(sub.C, sub.lower, sub.box_lower, sub.box_upper, tol_p)
                 if bad.size:  # infeasible for sure: do not let ProxQP run to its limit
                     return rows, failed_step(pt.x.size, qp_rows.size, "unreachable_row"), False
             t = time.perf_counter()
-            step = self._solve(sub, np.concatenate([self.lam_rows[rows], np.zeros(pieces.size)]), self.nu, tol_d)
-            ok = step.is_solved(tol_p, tol_d)
-            if not ok and step.status not in CRASHED and self._info.qp_backend != "block":
-                # a stale warm start or a stale equilibration of the reused ProxQP object
-                # (:class:`~calib_oed.solver.qp.DenseQPWorkspace`) can mislead it: cold, rescaled
-                cold = self._solve(sub, None, None, tol_d, refresh=True)
-                step, ok = cold._replace(iterations=cold.iterations + step.iterations), cold.is_solved(tol_p, tol_d)
+            if violated and self._certified(sub, ids, tol_p):
+                step, ok = failed_step(pt.x.size, qp_rows.size, "infeasible", _CERTIFIED), False
+            else:
+                step = self._solve(sub, np.concatenate([self.lam_rows[rows], np.zeros(pieces.size)]), self.nu,
+                                   tol_d)
+                ok = step.is_solved(tol_p, tol_d)
+                if (not ok and violated and step.status not in CRASHED
+                        and self._keep_certificate(sub, ids, step.lam, tol_p)):
+                    pass  # infeasible: the cold retry would fail as well
+                elif not ok and step.status not in CRASHED and self._info.qp_backend != "block":
+                    # a stale warm start or a stale equilibration of the reused ProxQP object
+                    # (:class:`~calib_oed.solver.qp.DenseQPWorkspace`) can mislead it: cold, rescaled
+                    cold = self._solve(sub, None, None, tol_d, refresh=True)
+                    step, ok = (cold._replace(iterations=cold.iterations + step.iterations),
+                                cold.is_solved(tol_p, tol_d))
+                    if not ok and violated and cold.status not in CRASHED:
+                        self._keep_certificate(sub, ids, cold.lam, tol_p)
             self.p.times["qp"] += time.perf_counter() - t
             if not ok or rounds == _MISSED_ROUNDS:
                 break
@@ -271,6 +290,36 @@ class _SubproblemMixin:
             sel = self._select(delta)
             its += step.iterations
         return rows, step._replace(iterations=step.iterations + its), ok
+
+    def _certified(self, sub, ids, tol_p) -> bool:
+        r"""Whether the certificate kept at :math:`x_k` (:meth:`_keep_certificate`) proves ``sub``
+        infeasible: its rows (``ids``: row of :math:`c`, or :math:`m` + piece) all in this QP, and
+        every step violating a row or the box by more than ``CERTIFIED_MARGIN`` times ``tol_p``, so
+        that no solver could return a step that passes the residual test."""
+        kept = self._farkas
+        if kept is None or kept[0] != self._version:
+            return False
+        pos = np.searchsorted(ids, kept[1]) if ids.size else np.zeros(kept[1].size, dtype=int)
+        pos = np.minimum(pos, max(ids.size - 1, 0))
+        if not ids.size or not np.array_equal(ids[pos], kept[1]):  # ids: rows sorted, then pieces
+            return False
+        y = np.zeros(ids.size)
+        y[pos] = kept[2]
+        return certified_violation(sub.C, sub.lower, sub.box_lower, sub.box_upper, y) > CERTIFIED_MARGIN * tol_p
+
+    def _keep_certificate(self, sub, ids, lam, tol_p) -> bool:
+        r"""Keep ``lam`` of a failed solve of ``sub`` as a Farkas certificate at :math:`x_k` if it
+        proves ``sub`` infeasible (:func:`~calib_oed.solver.restoration.certified_violation`):
+        the QPs of the same iteration (the BFGS fallback, a larger box) that hold its rows are
+        then tested before ProxQP runs to its limit on them. Returns whether it was kept."""
+        lam = np.asarray(lam, dtype=float)
+        if lam.size != ids.size or not np.all(np.isfinite(lam)):
+            return False
+        if certified_violation(sub.C, sub.lower, sub.box_lower, sub.box_upper, lam) <= CERTIFIED_MARGIN * tol_p:
+            return False
+        on = lam > 0
+        self._farkas = (self._version, ids[on], lam[on])
+        return True
 
     def _polishes(self, backend: str) -> bool:
         """Whether the dense KKT solves (the polish, the active-set start) serve ``backend``'s QPs:

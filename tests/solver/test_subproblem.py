@@ -105,3 +105,34 @@ def test_dense_workspace_capacity_stays_within_its_bound():
                            -np.ones(k), -np.ones(n), np.ones(n))
         step = ws.solve(sub)
         assert step.is_solved(1e-8, 1e-7) and ws.capacity <= 24
+
+
+def _crossing_rows():
+    r"""min |x|^2 s.t. x_1 - x_2^2 >= 1, 0.5 - x_1 + 2 x_2^2 >= 0 from (0, 0.1): the linearised rows
+    contradict each other there (d_1 >= ~1 and d_1 <= ~0.5), each reachable in the box alone."""
+    def f(x):
+        return float(x @ x), 2 * x
+
+    def cons(x):
+        return (np.array([x[0] - x[1] ** 2 - 1.0, 0.5 - x[0] + 2 * x[1] ** 2]),
+                np.array([[1.0, -2 * x[1]], [-1.0, 4 * x[1]]]))
+    return f, cons, np.array([0.0, 0.1])
+
+
+def test_a_qp_proved_infeasible_is_not_solved_again(monkeypatch):
+    """The multipliers of the first failed QP prove the linearisation infeasible (Farkas): the retries
+    of the same iteration (cold, larger box) are not run to ProxQP's limit, and the run is the same."""
+    import calib_oed.solver.subproblem as subproblem
+
+    f, cons, x0 = _crossing_rows()
+    settings = SQPSettings(step_bound=1.0)
+    res = solve_sqp(f, x0, constraints=cons, settings=settings)
+    monkeypatch.setattr(subproblem, "CERTIFIED_MARGIN", np.inf)  # no certificate is ever good enough
+    plain = solve_sqp(f, x0, constraints=cons, settings=settings)
+    assert res.status is plain.status is SQPStatus.CONVERGED
+    np.testing.assert_array_equal(res.x, plain.x)
+    assert [r.restoration for r in res.history] == [r.restoration for r in plain.history]
+    assert res.history[0].restoration and plain.history[0].qp_status == "max_iter"
+    assert "infeasible" in [r.qp_status for r in res.history]
+    first = [r.qp_iterations for r in res.history if r.restoration]
+    assert sum(first) < 0.7 * sum(r.qp_iterations for r in plain.history if r.restoration)
