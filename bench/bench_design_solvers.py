@@ -59,23 +59,23 @@ class Trace:
         self.cpu0 = time.process_time()
         self.points: list[tuple[float, float, bool]] = []
 
-    def objective(self, x):
-        f, g = self.nlp.compute_objective(x)
+    def _seen(self, x, f) -> None:
+        """Record ``f`` at ``x`` with the CPU so far and whether ``x`` is feasible (that check not charged)."""
         t = time.process_time() - self.cpu0
         pause = time.process_time()
-        ok = self.nlp.max_violation(x) <= FEASIBLE  # not charged to the solver
+        ok = self.nlp.max_violation(x) <= FEASIBLE
         self.cpu0 += time.process_time() - pause
         self.points.append((t, f, ok))
+
+    def objective(self, x):
+        f, g = self.nlp.compute_objective(x)
+        self._seen(x, f)
         return f, g
 
     def values(self, x):
         """The SQP's trial points without derivatives (``values``), traced like :meth:`objective`."""
         f, c = self.nlp.compute_values(x)
-        t = time.process_time() - self.cpu0
-        pause = time.process_time()
-        ok = self.nlp.max_violation(x) <= FEASIBLE  # not charged to the solver
-        self.cpu0 += time.process_time() - pause
-        self.points.append((t, f, ok))
+        self._seen(x, f)
         return f, c
 
     def cpu_to(self, target: float) -> float:

@@ -24,7 +24,9 @@ the old rule by a monkeypatch here.
 (``oed.starts.exchange_poses``). ``--qp-trace`` prints one line per QP of the
 SQP on stderr: the workspace, rows, row capacity (dense), ProxQP iterations and
 status, residuals and CPU (QPs the active-set start answers never reach ProxQP
-and are not listed).
+and are not listed), and for a QP ProxQP did not solve the least violation its
+multipliers prove (``certificate``, positive: infeasible;
+``solver.restoration.certified_violation``).
 ``--proxsuite-default`` imports ``proxsuite`` before ``calib_oed``, so that
 proxsuite picks its own build (AVX2 here) instead of the SSE2 build of
 ``solver/proxqp_build.py`` (3386afc); the same code, the other build.
@@ -50,6 +52,19 @@ import sys
 import time
 
 C0 = time.process_time()
+
+
+def _certificate(sub, step) -> str:
+    """`` certificate G`` for a QP ProxQP did not solve: the least violation its multipliers prove
+    (``solver.restoration.certified_violation``; > 0: infeasible), '' for a solved one or a
+    checkout without it."""
+    try:
+        from calib_oed.solver.restoration import certified_violation
+    except ImportError:
+        return ""
+    if step.status == "solved":
+        return ""
+    return f" certificate {certified_violation(sub.C, sub.lower, sub.box_lower, sub.box_upper, step.lam):.1e}"
 
 
 def main() -> None:
@@ -132,7 +147,7 @@ def main() -> None:
             print(f"qp {self.last_backend} rows {sub.lower.size} capacity {getattr(ws, 'capacity', '-')} "
                   f"warm {lam0 is not None} iterations {step.iterations} {step.status} "
                   f"primal {step.primal_residual:.1e} dual {step.dual_residual:.1e} "
-                  f"cpu {time.process_time() - c:.3f}", file=sys.stderr)
+                  f"cpu {time.process_time() - c:.3f}{_certificate(sub, step)}", file=sys.stderr)
         return step
 
     subproblem.QPSolver.solve = timed("qp", counted)
