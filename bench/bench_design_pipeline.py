@@ -5,6 +5,7 @@ Run from the repository root:
     .venv/bin/python bench/bench_design_pipeline.py [--scenes all] [--poses 60]
         [--growth 30,60,120,250,500] [--no-certificate] [--replicates 1,2,3,5]
         [--structured-qp lifted,block] [--hessian-modification tangent,block] [--criterion kpi]
+        [--seeds 0,1]
 
 Each case runs in its own process (``python -m calib_oed design SCENE -n N -o DIR
 --json``), as a user would run it: from the scene file to the written design.
@@ -16,7 +17,8 @@ certificate's time and the efficiency against the certified lower bound;
 maxima) that both the start and the certificate use, included in *design cpu*.
 ``PYTHONPATH=/other/checkout`` runs that checkout's package (the child's
 working directory is a temporary folder), for side-by-side comparisons.
-``--replicates 1,3`` runs every scene once per K (``--replicates K``);
+``--replicates 1,3`` runs every scene once per K (``--replicates K``), ``--seeds 0,1`` once
+per seed of the pool and the start (``--seed S``);
 ``--feasibility link_fit=single,joint_window=full`` runs copies of the scenes
 with those ``feasibility`` keys overridden (e.g. the single capsules, the
 default before the convex hulls).
@@ -157,6 +159,7 @@ def main(argv=None) -> int:
                     help="override scene feasibility keys, e.g. link_fit=single,joint_window=full")
     ap.add_argument("--structured-qp", default="",
                     help="run every case once per QP path, e.g. lifted,block (SQPSettings.structured_qp)")
+    ap.add_argument("--seeds", default="0", help="every scene once per seed of the pool and the start, e.g. 0,1")
     ap.add_argument("--hessian-modification", default="",
                     help="run every case once per rule, e.g. tangent,block (SQPSettings.hessian_modification)")
     args = ap.parse_args(argv)
@@ -174,15 +177,18 @@ def main(argv=None) -> int:
     if overrides:
         scenes = [with_feasibility(s, overrides, Path(tmp.name)) for s in scenes]
     rows = []
+    seeds = [int(k) for k in args.seeds.split(",") if k]
     for scene in scenes:
-        for k in reps:
-            for qp in qps:
-                for rule in rules:
-                    row = run_case(scene, args.poses, not args.no_certificate,
-                                   crit + (() if k == 1 else ("--replicates", str(k))), qp, rule)
-                    row["replicates"] = k
-                    rows.append(row)
-                    print(json.dumps(row), flush=True)
+        for seed in seeds:
+            for k in reps:
+                for qp in qps:
+                    for rule in rules:
+                        extra = (crit + (() if k == 1 else ("--replicates", str(k)))
+                                 + (() if seed == 0 else ("--seed", str(seed))))
+                        row = run_case(scene, args.poses, not args.no_certificate, extra, qp, rule)
+                        row["replicates"], row["seed"] = k, seed
+                        rows.append(row)
+                        print(json.dumps(row), flush=True)
     for n in [int(k) for k in args.growth.split(",") if k]:
         for qp in qps:
             for rule in rules:
@@ -207,7 +213,8 @@ def main(argv=None) -> int:
         # the start: the column generation and the exchange, as a share of the design's CPU
         start = "-" if "exchange" not in ph else \
             f"{100 * (ph.get('columns', 0.0) + ph['exchange']) / max(r['design_cpu_s'], 1e-9):.0f}"
-        print(f"{r['scene']:18s} {r['n']:4d} {r.get('replicates', 1):3d} {r['distinct_poses']:8d} "
+        name = r["scene"] if len(seeds) == 1 else f"{r['scene']}:{r.get('seed', 0)}"
+        print(f"{name:18s} {r['n']:4d} {r.get('replicates', 1):3d} {r['distinct_poses']:8d} "
               f"{r['status']:>15s} {r['iterations']:4d} {r['value']:11.4e} {eff:>6s} "
               f"{r['design_cpu_s']:10.1f} {approx:>10s} {cert:>8s} {r['process_cpu_s']:8.1f} "
               f"{r['peak_rss_mb']:8.0f} {r.get('structured_qp') or '-':>6s} "

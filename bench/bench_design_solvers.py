@@ -6,7 +6,7 @@ Run from the repository root (IPOPT needs the bench extra and Debian's
     OPENBLAS_NUM_THREADS=1 .venv/bin/python bench/bench_design_solvers.py [--scene fms_kr16]
         [--poses 60] [--seed 0] [--pool 3000]
         [--solvers sqp-exact,sqp-bfgs,ipopt-exact,ipopt-exact-active,ipopt-lbfgs,trust-constr,slsqp]
-        [--time-limit 300]
+        [--time-limit 300] [--step-bound RAD]
 
 Every solver gets the same NLP (:class:`calib_oed.oed.problem.DesignProblem`:
 objective scaled to 1 at the start, exact gradient, the same constraint rows
@@ -82,13 +82,15 @@ class Trace:
         return next((t for t, f, ok in self.points if ok and f <= target), float("nan"))
 
 
-def run_sqp(nlp, x0, exact: bool, time_limit: float):
+def run_sqp(nlp, x0, exact: bool, time_limit: float, step_bound: float | None = None):
     from dataclasses import replace
 
     trace = Trace(nlp)
     # as the design runs it (calib_oed.oed.refine.optimise_from): the exact Hessian's trust rule,
-    # per-pose blocks, kinked rows' pieces
+    # per-pose blocks, kinked rows' pieces; ``step_bound``: another first box than the design's
     settings = sqp_settings(replace(DESIGN_SQP, time_limit=time_limit), exact)
+    if step_bound is not None:
+        settings = replace(settings, step_bound=step_bound)
     kwargs = {"lagrangian_hessian": nlp.compute_lagrangian_hessian} if exact else {}
     res = solve_sqp(trace.objective, x0, constraints=nlp.compute_constraints, bounds=nlp.bounds,
                     settings=settings, block_size=nlp.nq, row_pieces=nlp.compute_row_pieces,
@@ -208,6 +210,8 @@ def main(argv=None) -> int:
     ap.add_argument("--pool", type=int, default=3000)
     ap.add_argument("--solvers", default="sqp-exact,sqp-bfgs,ipopt-exact,ipopt-lbfgs,trust-constr,slsqp")
     ap.add_argument("--time-limit", type=float, default=300.0, help="CPU seconds per solver")
+    ap.add_argument("--step-bound", type=float, default=None,
+                    help="our SQP's first trust box [rad] (default: the design's, DESIGN_STEP_BOUND)")
     args = ap.parse_args(argv)
     print(f"# {platform.node()}, {os.cpu_count()} cores, Python {platform.python_version()}, "
           f"numpy {np.__version__}, scipy {scipy.__version__}")
@@ -223,7 +227,7 @@ def main(argv=None) -> int:
             x0 = q0.ravel().copy()
             wall, cpu = time.perf_counter(), time.process_time()
             if name.startswith("sqp"):
-                x, trace, status = run_sqp(nlp, x0, name == "sqp-exact", args.time_limit)
+                x, trace, status = run_sqp(nlp, x0, name == "sqp-exact", args.time_limit, args.step_bound)
             elif name.startswith("ipopt"):
                 x, trace, status = run_ipopt(nlp, x0, name.startswith("ipopt-exact"), args.time_limit,
                                              active_only=name == "ipopt-exact-active")

@@ -131,21 +131,21 @@ def exact_iterations(n: int) -> int:
 def design_settings(objective, settings, exact: bool = False, n: int = 60, base=None):
     """``settings``, or for a criterion of the whole design of ``n`` poses ``base`` (the design's
     SQP settings, :data:`~calib_oed.oed.refine.DESIGN_SQP`; None: the SQP's defaults) capped at
-    :func:`exact_iterations` with the exact Hessian (``exact``: ``kpi_model``),
-    :data:`MODEL_ERROR_ITERATIONS` with damped BFGS (``docs/oed.md``). With the exact Hessian, an
+    :func:`exact_iterations` with the exact Hessian (``exact``: ``kpi_model``), else
+    :data:`MODEL_ERROR_ITERATIONS` (``docs/oed.md``). With the exact Hessian, an
     ``"auto"`` Hessian modification is the tangent rule at every size (``docs/benchmarks.md``,
-    "Growth with n"); the trust rule is that of every exact-Hessian design
-    (:data:`~calib_oed.oed.refine.EXACT_TRUST_UPDATE`); one penalty for every row, not one weight per
-    row (``SQPSettings.penalty_weights``), and no active-set start of its QPs
-    (``SQPSettings.qp_active_set_start``; ``docs/benchmarks.md``, "One penalty weight per row" and
-    "The QP's answer from the last active set")."""
+    "Growth with n"); the trust rule is every exact-Hessian design's (:data:`~calib_oed.oed.refine.EXACT_TRUST_UPDATE`);
+    one penalty for every row, no active-set start, and the SQP's default first box for ``base``'s (``SQPSettings``:
+    ``penalty_weights``, ``qp_active_set_start``, ``step_bound``): the design SQP's moved these designs by percents."""
     if not getattr(objective, "needs_design", False):
         return settings
     from calib_oed.solver.sqp import SQPSettings
     if settings is None:
         settings = replace(base or SQPSettings(), max_iterations=exact_iterations(n) if exact else MODEL_ERROR_ITERATIONS)
     rule = "tangent" if exact and settings.hessian_modification == "auto" else settings.hessian_modification
-    return replace(settings, hessian_modification=rule, penalty_weights="single", qp_active_set_start=False)
+    box = SQPSettings.step_bound if base is not None and settings.step_bound == base.step_bound else settings.step_bound
+    return replace(settings, hessian_modification=rule, penalty_weights="single", qp_active_set_start=False,
+                   step_bound=box)
 
 
 def scene_criterion(s, criterion, prior=None):

@@ -40,8 +40,16 @@ DESIGN_PENALTY_MARGIN = 1e-3
 #: ``qp_active_set_start``, a QP for ProxQP (dense or lifted) is first solved on the last
 #: iteration's active set: the notional90 study's CPU 1603 -> 1205 s on 2 cores, its designs'
 #: values the same (``docs/benchmarks.md``, "The QP's answer from the last active set").
+#: The design SQP's first trust box :math:`\Delta_0` [rad] (``SQPSettings.step_bound``, the SQP's
+#: default 0.3). The design starts at the exchange algorithm's design, close to a local optimum;
+#: a 0.3 rad box let the first steps leave the curved incidence rows violated by up to 0.5
+#: (``fms_kr16``, 60 poses), and the iterates stayed infeasible until the last iterations. From
+#: 0.03 the box grows as the model earns it (``EXACT_TRUST_UPDATE``) and the iterates stay near
+#: feasible (``docs/benchmarks.md``, "The design SQP's first trust box").
+DESIGN_STEP_BOUND = 0.03
+
 DESIGN_SQP = SQPSettings(penalty_margin=DESIGN_PENALTY_MARGIN, extrapolate=True, penalty_weights="row",
-                         qp_active_set_start=True)
+                         qp_active_set_start=True, step_bound=DESIGN_STEP_BOUND)
 
 #: The trust rule of a design SQP with the exact Hessian when the settings leave it to the caller
 #: (``trust_update=None``): the model's agreement decides the box (``SQPSettings.trust_update``).

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from conftest import central_difference
@@ -13,7 +15,7 @@ from calib_oed.feasibility.sampling import sample_feasible
 from calib_oed.measurement.base import evaluate_setup
 from calib_oed.measurement.discrepancy import DiscrepancyPrior
 from calib_oed.oed.criteria import CRITERIA
-from calib_oed.oed.design import design
+from calib_oed.oed.design import DESIGN_SQP, design
 from calib_oed.oed.model_error import (
     KRIGING,
     MODEL_ERROR,
@@ -212,8 +214,15 @@ def test_a_kpi_model_design_has_no_certificate(kr16):
     assert d.solver["model_error"]["kind"] == "joint"  # the record names the prior it was made for
     # the rest of the settings are the design's own (DESIGN_SQP, which design() passes), not the SQP's defaults
     own = design_settings(DesignObjective(s.problem, MODEL_ERROR), None, True,
-                          base=SQPSettings(hessian_modification="block", step_bound=0.2))
-    assert (own.hessian_modification, own.step_bound, own.max_iterations) == ("block", 0.2, 300)
+                          base=SQPSettings(hessian_modification="block", penalty_margin=0.2, step_bound=0.2))
+    assert (own.hessian_modification, own.penalty_margin, own.max_iterations) == ("block", 0.2, 300)
+    # but not the design's first trust box (DESIGN_STEP_BOUND): the SQP's default, unless the caller chose one
+    assert own.step_bound == SQPSettings().step_bound == 0.3
+    assert design_settings(DesignObjective(s.problem, MODEL_ERROR), None, True, base=DESIGN_SQP).step_bound == 0.3
+    assert design_settings(DesignObjective(s.problem, MODEL_ERROR), replace(DESIGN_SQP, max_iterations=7), True,
+                           base=DESIGN_SQP).step_bound == 0.3  # --iterations keeps the design's settings
+    assert design_settings(DesignObjective(s.problem, MODEL_ERROR), SQPSettings(step_bound=0.1), True,
+                           base=DESIGN_SQP).step_bound == 0.1
 
 
 def scene_with(tmp_path, old: str, new: str):

@@ -53,3 +53,22 @@ def test_a_design_sqp_takes_the_design_penalty_margin(kr16_setup, monkeypatch):
     refine.optimise_from(DesignObjective(s.problem, "kpi"), s.feasibility, heuristic_designs(s, 12, [0])[0].q)
     assert seen[0].penalty_margin == refine.DESIGN_PENALTY_MARGIN < SQPSettings().penalty_margin
     assert seen[0].trust_update == refine.EXACT_TRUST_UPDATE
+
+
+def test_a_design_sqp_starts_in_the_design_trust_box(kr16_setup, monkeypatch):
+    """DESIGN_SQP's first box is DESIGN_STEP_BOUND, below the SQP's default; the first QP's box is it,
+    and the ratio rule grows it after the full steps the model predicts well."""
+    seen, results = [], []
+    solve = refine.solve_sqp
+
+    def spy(*args, settings, **kwargs):
+        seen.append(settings)
+        results.append(solve(*args, settings=replace(settings, max_iterations=8), **kwargs))
+        return results[-1]
+
+    monkeypatch.setattr(refine, "solve_sqp", spy)
+    s = kr16_setup
+    refine.optimise_from(DesignObjective(s.problem, "kpi"), s.feasibility, heuristic_designs(s, 12, [0])[0].q)
+    assert seen[0].step_bound == refine.DESIGN_STEP_BOUND == 0.03 < SQPSettings().step_bound
+    boxes = [r.step_bound for r in results[0].history]
+    assert boxes[0] == refine.DESIGN_STEP_BOUND and max(boxes) > refine.DESIGN_STEP_BOUND
