@@ -31,15 +31,6 @@ from calib_oed.solver.sqp import SQPResult, SQPSettings, SQPStatus, solve_sqp
 #: "The design SQP's penalty margin").
 DESIGN_PENALTY_MARGIN = 1e-3
 
-#: SQP settings of the design problem (objective scaled to 1 at the start, x in rad). With
-#: ``extrapolate``, a step whose merit curves less than the flipped exact Hessian models is taken
-#: further (``SQPSettings.extrapolate``): ``fms_kr16`` n = 250, ``kpi``, 271 -> 169 iterations to
-#: the same value (``docs/benchmarks.md``, "Longer steps after a flipped eigenvalue"). With
-#: ``penalty_weights="row"``, each row's violation is charged at its own multiplier plus the
-#: margin, not at the largest (``docs/benchmarks.md``, "One penalty weight per row"). With
-#: ``qp_active_set_start``, a QP for ProxQP (dense or lifted) is first solved on the last
-#: iteration's active set: the notional90 study's CPU 1603 -> 1205 s on 2 cores, its designs'
-#: values the same (``docs/benchmarks.md``, "The QP's answer from the last active set").
 #: The design SQP's first trust box :math:`\Delta_0` [rad] (``SQPSettings.step_bound``, the SQP's
 #: default 0.3). The design starts at the exchange algorithm's design, close to a local optimum;
 #: a 0.3 rad box let the first steps leave the curved incidence rows violated by up to 0.5
@@ -48,6 +39,16 @@ DESIGN_PENALTY_MARGIN = 1e-3
 #: feasible (``docs/benchmarks.md``, "The design SQP's first trust box").
 DESIGN_STEP_BOUND = 0.03
 
+#: SQP settings of the design problem (objective scaled to 1 at the start, x in rad). With
+#: ``extrapolate``, a step whose merit curves less than the flipped exact Hessian models is taken
+#: further (``SQPSettings.extrapolate``): ``fms_kr16`` n = 250, ``kpi``, 271 -> 169 iterations to
+#: the same value (``docs/benchmarks.md``, "Longer steps after a flipped eigenvalue"). With
+#: ``penalty_weights="row"``, each row's violation is charged at its own multiplier plus the
+#: margin, not at the largest (``docs/benchmarks.md``, "One penalty weight per row"). With
+#: ``qp_active_set_start``, a QP for ProxQP (dense or lifted) is first solved on the last
+#: iteration's active set: the notional90 study's CPU 1603 -> 1205 s on 2 cores, its designs'
+#: values the same (``docs/benchmarks.md``, "The QP's answer from the last active set"). Its first
+#: trust box is :data:`DESIGN_STEP_BOUND`.
 DESIGN_SQP = SQPSettings(penalty_margin=DESIGN_PENALTY_MARGIN, extrapolate=True, penalty_weights="row",
                          qp_active_set_start=True, step_bound=DESIGN_STEP_BOUND)
 

@@ -269,12 +269,12 @@ class _SubproblemMixin:
                 step = self._solve(sub, np.concatenate([self.lam_rows[rows], np.zeros(pieces.size)]), self.nu,
                                    tol_d)
                 ok = step.is_solved(tol_p, tol_d)
-                if (not ok and violated and step.status not in CRASHED
-                        and self._keep_certificate(sub, ids, step.lam, tol_p)):
-                    pass  # infeasible: the cold retry would fail as well
-                elif not ok and step.status not in CRASHED and self._info.qp_backend != "block":
+                failed = not ok and step.status not in CRASHED
+                proved = failed and violated and self._keep_certificate(sub, ids, step.lam, tol_p)
+                if failed and not proved and self._info.qp_backend != "block":
                     # a stale warm start or a stale equilibration of the reused ProxQP object
-                    # (:class:`~calib_oed.solver.qp.DenseQPWorkspace`) can mislead it: cold, rescaled
+                    # (:class:`~calib_oed.solver.qp.DenseQPWorkspace`) can mislead it: cold, rescaled;
+                    # not a QP proved infeasible (the cold solve would fail as well)
                     cold = self._solve(sub, None, None, tol_d, refresh=True)
                     step, ok = (cold._replace(iterations=cold.iterations + step.iterations),
                                 cold.is_solved(tol_p, tol_d))
