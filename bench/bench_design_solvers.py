@@ -6,7 +6,7 @@ Run from the repository root (IPOPT needs the bench extra and Debian's
     OPENBLAS_NUM_THREADS=1 .venv/bin/python bench/bench_design_solvers.py [--scene fms_kr16]
         [--poses 60] [--seed 0] [--pool 3000]
         [--solvers sqp-exact,sqp-bfgs,ipopt-exact,ipopt-exact-active,ipopt-lbfgs,trust-constr,slsqp]
-        [--time-limit 300] [--step-bound RAD]
+        [--time-limit 300] [--step-bound RAD] [--trace]
 
 Every solver gets the same NLP (:class:`calib_oed.oed.problem.DesignProblem`:
 objective scaled to 1 at the start, exact gradient, the same constraint rows
@@ -58,14 +58,16 @@ class Trace:
         self.nlp = nlp
         self.cpu0 = time.process_time()
         self.points: list[tuple[float, float, bool]] = []
+        self.violations: list[float] = []
 
     def _seen(self, x, f) -> None:
         """Record ``f`` at ``x`` with the CPU so far and whether ``x`` is feasible (that check not charged)."""
         t = time.process_time() - self.cpu0
         pause = time.process_time()
-        ok = self.nlp.max_violation(x) <= FEASIBLE
+        violation = self.nlp.max_violation(x)
         self.cpu0 += time.process_time() - pause
-        self.points.append((t, f, ok))
+        self.points.append((t, f, violation <= FEASIBLE))
+        self.violations.append(violation)
 
     def objective(self, x):
         f, g = self.nlp.compute_objective(x)
@@ -210,6 +212,8 @@ def main(argv=None) -> int:
     ap.add_argument("--pool", type=int, default=3000)
     ap.add_argument("--solvers", default="sqp-exact,sqp-bfgs,ipopt-exact,ipopt-lbfgs,trust-constr,slsqp")
     ap.add_argument("--time-limit", type=float, default=300.0, help="CPU seconds per solver")
+    ap.add_argument("--trace", action="store_true",
+                    help="every point a solver evaluated: CPU, value [mm²], largest violation")
     ap.add_argument("--step-bound", type=float, default=None,
                     help="our SQP's first trust box [rad] (default: the design's, DESIGN_STEP_BOUND)")
     args = ap.parse_args(argv)
@@ -239,6 +243,9 @@ def main(argv=None) -> int:
             feasible = None if x is None else nlp.max_violation(x) <= FEASIBLE
             runs[name] = (final, feasible, status, cpu, wall, trace)
             print(f"{name}: {status}; value {final}, feasible {feasible}, {cpu:.1f} s CPU", flush=True)
+            if args.trace and trace:
+                for k, ((t, f, _), v) in enumerate(zip(trace.points, trace.violations, strict=True)):
+                    print(f"  {name} point {k}: {t:6.3f} s CPU, {f * phi0:.5e} mm², violation {v:.1e}")
     best = min(r[0] for r in runs.values() if r[0] is not None and r[1])
     print(f"\n{args.scene}, {args.poses} poses, exchange start {phi0:.5e} mm²; best {best:.5e} mm²")
     print(f"{'solver':13s} {'final [mm²]':>12s} {'feasible':>8s} {'CPU [s]':>8s} {'wall [s]':>8s} "
