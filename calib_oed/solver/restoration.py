@@ -21,6 +21,13 @@ from calib_oed.solver.qp import QPStep, QPSubproblem, _configure, _finish
 from calib_oed.solver.result import SQPStatus
 
 
+def _box_max(a, box_lower, box_upper):
+    r""":math:`\max(a \underline{b}, a \overline{b})` elementwise, 0 where :math:`a = 0`: the
+    largest :math:`a d` over the box, term by term (an infinite side with :math:`a = 0` counts 0)."""
+    with np.errstate(invalid="ignore"):
+        return np.where(a > 0, a * box_upper, np.where(a < 0, a * box_lower, 0.0))
+
+
 def unreachable_rows(C, lower, box_lower, box_upper, tol: float) -> np.ndarray:
     r"""Rows that no :math:`d` in the box can satisfy: :math:`\max_{d \in \text{box}} C_i d < \ell_i - \text{tol}`.
 
@@ -29,17 +36,14 @@ def unreachable_rows(C, lower, box_lower, box_upper, tol: float) -> np.ndarray:
     it here spares ProxQP, which does not detect infeasibility and would run
     to its iteration limit.
     """
-    def best(a, cols):
-        with np.errstate(invalid="ignore"):
-            return np.where(a > 0, a * box_upper[cols], np.where(a < 0, a * box_lower[cols], 0.0))
-
     if sp.issparse(C):
         C = sp.csr_matrix(C)
-        vals = best(C.data, C.indices)
+        vals = _box_max(C.data, box_lower[C.indices], box_upper[C.indices])
         reach = np.asarray(sp.csr_matrix((vals, C.indices, C.indptr), shape=C.shape).sum(axis=1)).ravel()
     else:
         C = np.asarray(C, dtype=float)
-        reach = best(C, np.arange(C.shape[1])[None, :]).sum(axis=1) if C.size else np.zeros(C.shape[0])
+        reach = (_box_max(C, box_lower[None, :], box_upper[None, :]).sum(axis=1) if C.size
+                 else np.zeros(C.shape[0]))
     return np.flatnonzero(reach < lower - tol)
 
 
@@ -62,8 +66,7 @@ def certified_violation(C, lower, box_lower, box_upper, y) -> float:
         return -np.inf
     y = y / total
     z = np.asarray(C.T @ y).ravel()
-    with np.errstate(invalid="ignore"):
-        reach = float(np.sum(np.where(z > 0, z * box_upper, np.where(z < 0, z * box_lower, 0.0))))
+    reach = float(np.sum(_box_max(z, box_lower, box_upper)))
     gap = float(y @ lower) - reach
     return gap / (1.0 + float(np.abs(z).sum())) if np.isfinite(gap) else -np.inf
 

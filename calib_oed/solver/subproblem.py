@@ -297,14 +297,10 @@ class _SubproblemMixin:
         every step violating a row or the box by more than ``CERTIFIED_MARGIN`` times ``tol_p``, so
         that no solver could return a step that passes the residual test."""
         kept = self._farkas
-        if kept is None or kept[0] != self._version:
-            return False
-        pos = np.searchsorted(ids, kept[1]) if ids.size else np.zeros(kept[1].size, dtype=int)
-        pos = np.minimum(pos, max(ids.size - 1, 0))
-        if not ids.size or not np.array_equal(ids[pos], kept[1]):  # ids: rows sorted, then pieces
+        if kept is None or kept[0] != self._version or not np.isin(kept[1], ids).all():
             return False
         y = np.zeros(ids.size)
-        y[pos] = kept[2]
+        y[np.searchsorted(ids, kept[1])] = kept[2]  # ids: rows sorted, then pieces in order
         return certified_violation(sub.C, sub.lower, sub.box_lower, sub.box_upper, y) > CERTIFIED_MARGIN * tol_p
 
     def _keep_certificate(self, sub, ids, lam, tol_p) -> bool:
