@@ -90,22 +90,29 @@ def point_derivatives(axes: np.ndarray, jac: np.ndarray):
 def gravity_hessians(load, q: np.ndarray) -> np.ndarray:
     r""":math:`\partial^2\tau_{g,k}/\partial q_m\partial q_p` (n, nv, nv, nv) [N·m/rad²] of a
     :class:`~calib_oed.model.compliance.GravityLoad` (revolute joints):
-    :math:`\tau_{g,k} = \sum_i m_i\,g\cdot J_k(c_i)`, :math:`c_i` the centre of mass of body i."""
+    :math:`\tau_{g,k} = \sum_i m_i\,g\cdot J_k(c_i) = g\cdot J_k^m`, :math:`c_i` the centre of mass of
+    body i, with the mass-weighted column :math:`J_k^m = \sum_{i \ge k} m_i\,a_k\times(c_i - o_k)
+    = a_k\times(\sum_{i\ge k} m_i c_i - M_k o_k)`, :math:`M_k = \sum_{i\ge k} m_i`: the derivatives
+    of :func:`point_derivatives` are linear in the columns, so one weighted point carries them all."""
     model, data = load.model, load.data
     nv = model.nv
     g = np.asarray(model.gravity.linear)
-    mass = np.array([model.inertias[i].mass for i in range(1, nv + 1)])
-    axes, orig, com = (np.empty((len(q), nv, 3)) for _ in range(3))
+    inertias = [model.inertias[i] for i in range(1, nv + 1)]
+    mass = np.array([m.mass for m in inertias])
+    lever = np.array([m.lever for m in inertias])  # (nv, 3), body frames
+    rot, orig = np.empty((len(q), nv, 3, 3)), np.empty((len(q), nv, 3))
     for s, qs in enumerate(q):
         pin.forwardKinematics(model, data, qs)
-        for i in range(1, nv + 1):
-            axes[s, i - 1] = data.oMi[i].rotation @ load.axes[i - 1, 3:]
-            orig[s, i - 1] = data.oMi[i].translation
-            com[s, i - 1] = data.oMi[i].act(model.inertias[i].lever)
-    jac = np.cross(axes[:, None, :, :], com[:, :, None, :] - orig[:, None, :, :])  # [s, i, k]
-    jac *= (np.arange(nv)[None, :] <= np.arange(nv)[:, None])[None, :, :, None]  # k <= i
-    dd = point_derivatives(axes, np.moveaxis(jac, 3, 2))[1]  # (n, P, 3, K, K, K)
-    return np.einsum("i,x,sixkmp->skmp", mass, g, dd)
+        for i in range(nv):
+            placement = data.oMi[i + 1]
+            rot[s, i], orig[s, i] = placement.rotation, placement.translation
+    axes = rot @ load.axes[:, 3:, None]  # (n, nv, 3, 1)
+    com = (rot @ lever[:, :, None])[..., 0] + orig  # (n, nv, 3)
+    moment = np.cumsum((mass[:, None] * com)[:, ::-1], axis=1)[:, ::-1]  # sum_{i >= k} m_i c_i
+    total = np.cumsum(mass[::-1])[::-1]  # M_k
+    jac = cross(axes[..., 0], moment - total[:, None] * orig)  # (n, nv, 3): J_k^m
+    dd = point_derivatives(axes[..., 0], np.moveaxis(jac, 2, 1)[:, None])[1][:, 0]  # (n, 3, K, K, K)
+    return np.einsum("x,sxkmp->skmp", g, dd)
 
 
 def kernel_second_own(prior, q1, q2, e, grav=None):
@@ -247,10 +254,12 @@ def compute_hessian(crit, rows, q, z, d_rows, dd_rows, d_z=None, dd_z=None) -> n
     t2 = dyw @ p_s.T
     h = dyw @ np.einsum("fg,Ngc->Nfc", flat.T @ sf, dy).reshape(big, -1).T + t2 + t2.T
     del p_s, t2
-    s_ay = np.einsum("jalb,lpbc->jalpc", s.reshape(n, d, n, d), ay)
-    h += np.einsum("jmac,jalpc->jmlp", ay * om, s_ay).reshape(big, big)
+    # <A_a Y, S_jl A_b Y>_Omega: pose j's rows of S first, then pose l's columns
+    t1 = ((ay * om).transpose(0, 1, 3, 2).reshape(n, nv * t3, d) @ s.reshape(n, d, n * d))
+    t1 = t1.reshape(n, nv, t3, n, d).transpose(3, 0, 1, 4, 2).reshape(n, big, d * t3)  # [l, (j, m), (b, c)]
+    h += (t1 @ ay.transpose(0, 2, 3, 1).reshape(n, d * t3, nv)).transpose(1, 0, 2).reshape(big, big)
     h *= 2.0
-    del s_ay
+    del t1
     rw = (r * om).reshape(n, d, t3)
     p_a = np.einsum("jmdf,jdc->jmfc", a_rows, rw).reshape(big, -1)
     cross = p_a @ dyf.T
@@ -259,20 +268,38 @@ def compute_hessian(crit, rows, q, z, d_rows, dd_rows, d_z=None, dd_z=None) -> n
     h += 2.0 * (cross + cross.T) - 2.0 * (gm + gm.T)
     blocks = -2.0 * np.einsum("jmdc,jpdc->jmp", a_rows @ lam, ay)
     blocks = blocks + np.swapaxes(blocks, 1, 2)
-    x = np.einsum("jmaki,ibk->jmaib", np.einsum("kjim,jak->jmaki", dk1, b) + np.einsum("kji,jakm->jmaki", kk, db),
-                  b).reshape(n, nv, d, n * d)
+    # X_b = E_l (pose l's rows) of dS along b, never formed ((n, nv, d, n d)): every product with it
+    # goes through the kernels' joint index k, X_b[a, (i, b')] = sum_k B_ik b' (dk_k B_lak + k_k dB_lak)
     xk = _MM * (np.einsum("kjim,jak,ick->jmaic", dkw1, b, jw, optimize=True)
                 + np.einsum("kji,jakm,ick->jmaic", kwk, db, jw, optimize=True)).reshape(n, nv, d, t3)
-    # <dV_a, X_b Omega V^T-weighted>: W_b (pose l's rows of dV_a) and the rows of X_b^T V Omega (all rows)
-    w_l = np.einsum("lpax,xc->lpac", x, v * om) - xk * om
-    xtv = np.einsum("lpax,lac->lpxc", x, (v * om).reshape(n, d, t3))  # (n, nv, n d, T3)
-    f_xtv = (np.moveaxis(xtv, 3, 2).reshape(-1, n * d) @ flat).reshape(n, nv, t3, nf)  # F^T (X_b^T V Omega)
-    hfs = dyf @ (np.einsum("laf,lpac->lpfc", flat3, w_l) + np.swapaxes(f_xtv, 2, 3)).reshape(big, -1).T
-    hfs += np.einsum("jmac,lpjac->jmlp", ay, xtv.reshape(n, nv, n, d, t3)).reshape(big, big)
+    vo3 = (v * om).reshape(n, d, t3)
+    bt = np.swapaxes(b, 1, 2)  # (n, K, d)
+    bv = bt @ vo3  # (n, K, T3): B_i^T (V Omega)_i
+    bf = bt @ flat3  # (n, K, nf): B_i^T F_i
+    dbv = np.einsum("lakp,lac->lkpc", db, vo3)  # (n, K, nv, T3)
+    dk_t = dk1.transpose(0, 1, 3, 2).reshape(nv, big, n)  # [k, (l, p), i]
+    d1 = (dk_t @ bv.transpose(1, 0, 2)).reshape(nv, n, nv, t3)  # sum_i dk_k(l, i)/dq_lp B_i^T V Omega_i
+    d2 = kk @ bv.transpose(1, 0, 2)  # (K, n, T3)
+    # W_b = X_b V Omega - X^w_b Omega (pose l's rows of dV Omega's partner), (n, nv, d, T3)
+    w_l = (b[:, None] @ d1.transpose(1, 2, 0, 3) + db.transpose(0, 3, 1, 2) @ d2.transpose(1, 0, 2)[:, None]
+           - xk * om)
+    # F^T (X_b^T V Omega), (n, nv, T3, nf)
+    q1 = (dk_t @ bf.transpose(1, 0, 2)).reshape(nv, n, nv, nf)
+    q2 = kk @ bf.transpose(1, 0, 2)  # (K, n, nf)
+    f_xtv = (bv.transpose(0, 2, 1)[:, None] @ q1.transpose(1, 2, 0, 3)
+             + dbv.transpose(0, 2, 3, 1) @ q2.transpose(1, 0, 2)[:, None])
+    hfs = dyf @ (np.swapaxes(flat3, 1, 2)[:, None] @ w_l + np.swapaxes(f_xtv, 2, 3)).reshape(big, -1).T
+    # <A_a Y, X_b^T V Omega> on pose j's rows: through B_j^T (A_a Y) per joint k
+    ayb = (bt[:, None] @ ay).transpose(2, 0, 1, 3).reshape(nv, big, t3)  # [k, (j, m), c]
+    p1 = (ayb @ bv.transpose(1, 2, 0)).reshape(nv, n, nv, n)  # [k, j, m, l]
     hfs4 = hfs.reshape(n, nv, n, nv)
+    hfs4 += np.einsum("kjml,kljp->jmlp", p1, dk1)
+    dbv_k = dbv.transpose(1, 0, 2, 3).reshape(nv, big, t3)  # [k, (l, p), c]
+    for k in range(nv):
+        hfs4 += (ayb[k] @ dbv_k[k].T).reshape(n, nv, n, nv) * kk[k].T[:, None, :, None]
     hfs4[np.arange(n), :, np.arange(n)] += np.einsum("jmac,jpac->jmp", ay, w_l)
     h += 2.0 * (hfs + hfs.T)
-    del x, xk, w_l, xtv, f_xtv, hfs, hfs4
+    del xk, w_l, f_xtv, hfs, hfs4, p1
 
     # second derivatives of the pieces: rows, S (all pairs of poses), k_w (per pose); the kernels'
     # second derivatives contracted in factored form (kernel_second_own, kernel_second_mixed)

@@ -6,6 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from conftest import central_difference
+from test_joint_prior import strong_prior
+from test_model_error_design import two_reflector_problem
 
 import calib_oed.oed.model_error_hessian as meh
 from calib_oed.calibration.workflow import setup
@@ -54,6 +56,20 @@ def test_exact_hessian_matches_central_differences_of_the_gradient(case, monkeyp
     kept = np.linalg.eigvalsh(structured.low_rank.T @ structured.low_rank)
     np.testing.assert_allclose(kept, np.sort(np.abs(theta))[-rank:], rtol=1e-8, atol=1e-8 * np.abs(theta).max())
     assert np.linalg.eigvalsh(structured.blocks).min() >= -1e-10 * np.abs(theta).max()
+
+
+def test_exact_hessian_with_two_reflectors_and_two_working_configurations(monkeypatch):
+    """Two reflectors per pose (six rows) and two weighted KPI points, every part of the joint prior
+    on (ur5, isotropic noise): the Hessian against central differences of the exact gradient."""
+    problem = two_reflector_problem()
+    objective = DesignObjective(problem, "kpi_model", model_error=strong_prior(problem))
+    q = problem.robot.random_configurations(8, 5)
+    seen = {}
+    exact = meh.compute_hessian
+    monkeypatch.setattr(meh, "compute_hessian", lambda *a, **k: seen.setdefault("h", exact(*a, **k)))
+    objective.compute_hessian(q)
+    fd = central_difference(lambda x: objective.compute(x.reshape(q.shape)).gradient.ravel(), q.ravel())
+    assert np.abs(seen["h"] - fd).max() <= 1e-6 * np.abs(fd).max()
 
 
 def test_gravity_torque_hessians_match_central_differences(case):
