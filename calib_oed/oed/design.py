@@ -249,7 +249,8 @@ def design(
             and counted in the record.
         seed: Seed of the pool and the starts; start ``k`` of a multi-start
             uses ``seed + k``. Same seed, same bits on one machine under any load
-            (``tests/cli/test_reproducible_design.py``); elsewhere up to round-off.
+            (``tests/cli/test_reproducible_design.py``); elsewhere up to round-off, which moves a
+            ``kpi_model`` design's value by percents (``docs/oed.md``).
         n_starts: Run from this many seeded starts and keep the best.
         refine: Refine the start with the SQP (default); ``False`` keeps the
             start (pure selection from the pool with ``start="exchange"``).
