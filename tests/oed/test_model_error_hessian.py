@@ -58,18 +58,23 @@ def test_exact_hessian_matches_central_differences_of_the_gradient(case, monkeyp
     assert np.linalg.eigvalsh(structured.blocks).min() >= -1e-10 * np.abs(theta).max()
 
 
-def test_exact_hessian_with_two_reflectors_and_two_working_configurations(monkeypatch):
-    """Two reflectors per pose (six rows) and two weighted KPI points, every part of the joint prior
-    on (ur5, isotropic noise): the Hessian against central differences of the exact gradient."""
-    problem = two_reflector_problem()
-    objective = DesignObjective(problem, "kpi_model", model_error=strong_prior(problem))
-    q = problem.robot.random_configurations(8, 5)
+def assert_hessian_matches_differences(objective, q, monkeypatch):
+    """The exact Hessian ``compute_hessian`` builds at ``q`` against central differences of the exact gradient."""
     seen = {}
     exact = meh.compute_hessian
     monkeypatch.setattr(meh, "compute_hessian", lambda *a, **k: seen.setdefault("h", exact(*a, **k)))
     objective.compute_hessian(q)
     fd = central_difference(lambda x: objective.compute(x.reshape(q.shape)).gradient.ravel(), q.ravel())
     assert np.abs(seen["h"] - fd).max() <= 1e-6 * np.abs(fd).max()
+
+
+def test_exact_hessian_with_two_reflectors_and_two_working_configurations(monkeypatch):
+    """Two reflectors per pose (six rows) and two weighted KPI points, every part of the joint prior
+    on (ur5, isotropic noise): the Hessian against central differences of the exact gradient."""
+    problem = two_reflector_problem()
+    objective = DesignObjective(problem, "kpi_model", model_error=strong_prior(problem))
+    q = problem.robot.random_configurations(8, 5)
+    assert_hessian_matches_differences(objective, q, monkeypatch)
 
 
 def test_gravity_torque_hessians_match_central_differences(case):
@@ -136,9 +141,4 @@ def test_exact_hessian_with_the_motor_side_part(monkeypatch):
     objective = DesignObjective(s.problem, scene_criterion(s, "kpi_model", prior))
     q = s.problem.robot.random_configurations(10, 3)
     q = np.vstack([q, q[:3] + 0.02])  # pairs within the length scale
-    seen = {}
-    exact = meh.compute_hessian
-    monkeypatch.setattr(meh, "compute_hessian", lambda *a, **k: seen.setdefault("h", exact(*a, **k)))
-    objective.compute_hessian(q)
-    fd = central_difference(lambda x: objective.compute(x.reshape(q.shape)).gradient.ravel(), q.ravel())
-    assert np.abs(seen["h"] - fd).max() <= 1e-6 * np.abs(fd).max()
+    assert_hessian_matches_differences(objective, q, monkeypatch)
