@@ -184,10 +184,10 @@ def maximise_sensitivity(setup, objective: DesignObjective, gamma: np.ndarray, s
         return StructuredHessian(blocks if rows is None else blocks - rows, None)
 
     res = solve_sqp(negative, starts.ravel(), constraints=constraints, bounds=nlp.bounds,
-                    # the certificate's exact search starts its QPs from the last active set; the
-                    # design's start (BFGS) keeps ProxQP's path, so that its designs stay bit for bit
+                    # both searches start their QPs from the last active set (docs/benchmarks.md,
+                    # "The start's column generation from the last active set")
                     settings=SQPSettings(max_iterations=max_iterations, step_bound=0.2,
-                                         qp_active_set_start=exact),
+                                         qp_active_set_start=True),
                     block_size=nq, lagrangian_hessian=curvature if exact else None,
                     row_pieces=nlp.compute_row_pieces if exact else None, values=values_only)
     if res.status is SQPStatus.INTERRUPTED:  # Ctrl-C ends the certificate, not just this search

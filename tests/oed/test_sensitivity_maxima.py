@@ -190,3 +190,41 @@ def test_a_chunk_that_could_not_move_is_run_again_one_start_at_a_time(kr16, obje
     for j, one in enumerate(alone):
         np.testing.assert_array_equal(loc.q[j], one.q[0])
         assert loc.values[j] == one.values[0] >= one.start_values[0]
+
+
+
+def test_the_start_search_from_the_last_active_set_finds_the_maxima_of_proxqp_alone(kr16, objective, search_start,
+                                                                                    monkeypatch):
+    """The design's start (BFGS, ``exact=False``) solves its QPs from the last active set first
+    (``qp_active_set_start``): the maxima are those the search finds with ProxQP alone."""
+    from calib_oed.solver import subproblem
+    from calib_oed.solver.sqp import SQPSettings
+
+    pool, blocks, approx = search_start
+    gamma = objective.criterion.compute_gradient(information(blocks, approx.weights))
+    starts = pool[sm.spread_starts(pool, approx.sensitivities, 4)]
+    used = []
+    real = sm.solve_sqp
+
+    def seen(*args, **kwargs):
+        used.append(kwargs["settings"].qp_active_set_start)
+        return real(*args, **kwargs)
+
+    answered = []
+    guess = subproblem.from_active_set
+
+    def counted(*args, **kwargs):
+        step = guess(*args, **kwargs)
+        answered.append(step is not None)
+        return step
+
+    monkeypatch.setattr(sm, "solve_sqp", seen)
+    monkeypatch.setattr(subproblem, "from_active_set", counted)
+    kept = sm.maximise_sensitivity(kr16, objective, gamma, starts, approx.mean_sensitivity, exact=False)
+    assert sum(answered) > 0  # some QPs answered from the last active set, without ProxQP
+    monkeypatch.setattr(sm, "SQPSettings", lambda **kw: SQPSettings(**{**kw, "qp_active_set_start": False}))
+    plain = sm.maximise_sensitivity(kr16, objective, gamma, starts, approx.mean_sensitivity, exact=False)
+    assert used == [True, False]
+    np.testing.assert_allclose(kept.q, plain.q, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(kept.values, plain.values, rtol=1e-9)
+    assert kept.status == plain.status and kept.iterations == plain.iterations
