@@ -28,6 +28,13 @@ def search_start(kr16, objective):
     return pool, blocks, solve_approximate(blocks, objective.criterion)
 
 
+def four_starts(objective, search_start):
+    """The approximate design of the search start, its sensitivity's gradient and four spread starts."""
+    pool, blocks, approx = search_start
+    gamma = objective.criterion.compute_gradient(information(blocks, approx.weights))
+    return approx, gamma, pool[sm.spread_starts(pool, approx.sensitivities, 4)]
+
+
 def test_end_values_are_those_at_the_end_points(kr16, objective, search_start):
     """The values the SQP saw last are reused only at exactly its end point: recomputed, they agree."""
     pool, blocks, approx = search_start
@@ -146,9 +153,7 @@ def test_trial_points_by_values_alone_give_the_same_maxima_bit_for_bit(kr16, obj
 def test_exact_curvature_reaches_the_maxima_in_fewer_iterations(kr16, objective, search_start):
     """With the exact Lagrangian Hessian the maximisation ends at a KKT point, feasible and no pose worse
     than its start, in fewer SQP iterations than with per-pose BFGS blocks; it never falls back to BFGS."""
-    pool, blocks, approx = search_start
-    gamma = objective.criterion.compute_gradient(information(blocks, approx.weights))
-    starts = pool[sm.spread_starts(pool, approx.sensitivities, 4)]
+    approx, gamma, starts = four_starts(objective, search_start)
     calls = []
     real = sm.solve_sqp
 
@@ -200,9 +205,7 @@ def test_the_start_search_from_the_last_active_set_finds_the_maxima_of_proxqp_al
     from calib_oed.solver import subproblem
     from calib_oed.solver.sqp import SQPSettings
 
-    pool, blocks, approx = search_start
-    gamma = objective.criterion.compute_gradient(information(blocks, approx.weights))
-    starts = pool[sm.spread_starts(pool, approx.sensitivities, 4)]
+    approx, gamma, starts = four_starts(objective, search_start)
     used = []
     real = sm.solve_sqp
 
