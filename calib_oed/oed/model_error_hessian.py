@@ -44,9 +44,9 @@ isotropic prior, a full noise model (whitening that moves with the pose), joint 
 from __future__ import annotations
 
 import numpy as np
-import pinocchio as pin
 import scipy.linalg
 
+from calib_oed.feasibility.bodies import compute_body_states
 from calib_oed.model.kinematics import compute_tool_kinematics, cross
 from calib_oed.solver.hessian import LIFTED_MAX_RANK_RATIO
 from calib_oed.solver.result import StructuredHessian
@@ -94,18 +94,14 @@ def gravity_hessians(load, q: np.ndarray) -> np.ndarray:
     body i, with the mass-weighted column :math:`J_k^m = \sum_{i \ge k} m_i\,a_k\times(c_i - o_k)
     = a_k\times(\sum_{i\ge k} m_i c_i - M_k o_k)`, :math:`M_k = \sum_{i\ge k} m_i`: the derivatives
     of :func:`point_derivatives` are linear in the columns, so one weighted point carries them all."""
-    model, data = load.model, load.data
+    model = load.model
     nv = model.nv
     g = np.asarray(model.gravity.linear)
     inertias = [model.inertias[i] for i in range(1, nv + 1)]
     mass = np.array([m.mass for m in inertias])
     lever = np.array([m.lever for m in inertias])  # (nv, 3), body frames
-    rot, orig = np.empty((len(q), nv, 3, 3)), np.empty((len(q), nv, 3))
-    for s, qs in enumerate(q):
-        pin.forwardKinematics(model, data, qs)
-        for i in range(nv):
-            placement = data.oMi[i + 1]
-            rot[s, i], orig[s, i] = placement.rotation, placement.translation
+    states = compute_body_states(model, np.asarray(q, dtype=float), jacobian=False)
+    rot, orig = states.rotation[:, 1:], states.translation[:, 1:]  # joint frames 1..nv
     axes = rot @ load.axes[:, 3:, None]  # (n, nv, 3, 1)
     com = (rot @ lever[:, :, None])[..., 0] + orig  # (n, nv, 3)
     moment = np.cumsum((mass[:, None] * com)[:, ::-1], axis=1)[:, ::-1]  # sum_{i >= k} m_i c_i
@@ -207,8 +203,9 @@ def compute_hessian(crit, rows, q, z, d_rows, dd_rows, d_z=None, dd_z=None) -> n
     r = s @ v - k_w
     qq = scipy.linalg.cho_solve(factor, flat.T @ r, check_finite=False)
     d_f = 2.0 * (r * om) @ y.T - 2.0 * flat @ ((qq * om) @ y.T + (y * om) @ qq.T)
-    u4 = ((v * om) @ v.T).reshape(n, d, n, d)
-    x_w = -2.0 * v * om
+    vo = v * om
+    u4 = (vo @ v.T).reshape(n, d, n, d)
+    x_w = -2.0 * vo
 
     # the points' Jacobian derivatives, whitened: B, dB, ddB (n, d, K[, nv[, nv]])
     pts = crit.points
@@ -272,7 +269,7 @@ def compute_hessian(crit, rows, q, z, d_rows, dd_rows, d_z=None, dd_z=None) -> n
     # goes through the kernels' joint index k, X_b[a, (i, b')] = sum_k B_ik b' (dk_k B_lak + k_k dB_lak)
     xk = _MM * (np.einsum("kjim,jak,ick->jmaic", dkw1, b, jw, optimize=True)
                 + np.einsum("kji,jakm,ick->jmaic", kwk, db, jw, optimize=True)).reshape(n, nv, d, t3)
-    vo3 = (v * om).reshape(n, d, t3)
+    vo3 = vo.reshape(n, d, t3)
     bt = np.swapaxes(b, 1, 2)  # (n, K, d)
     bv = bt @ vo3  # (n, K, T3): B_i^T (V Omega)_i
     bf = bt @ flat3  # (n, K, nf): B_i^T F_i
