@@ -79,6 +79,12 @@ _MISSED_ROUNDS = 2
 """Re-solves per QP with the dropped rows its step violates (:mod:`calib_oed.solver.rows`)."""
 
 
+def _proves_infeasible(sub, y, tol_p) -> bool:
+    """Whether ``y`` (multipliers of ``sub``'s rows) shows every step violating a row or the box by
+    more than :data:`CERTIFIED_MARGIN` times ``tol_p`` (:func:`~calib_oed.solver.restoration.certified_violation`)."""
+    return certified_violation(sub.C, sub.lower, sub.box_lower, sub.box_upper, y) > CERTIFIED_MARGIN * tol_p
+
+
 def failed_step(n: int, k: int, status: str, message: str = "") -> QPStep:
     """A QP step that carries only a failure: NaN step, infinite residuals."""
     nan = np.full(n, np.nan)
@@ -301,7 +307,7 @@ class _SubproblemMixin:
             return False
         y = np.zeros(ids.size)
         y[np.searchsorted(ids, kept[1])] = kept[2]  # ids: rows sorted, then pieces in order
-        return certified_violation(sub.C, sub.lower, sub.box_lower, sub.box_upper, y) > CERTIFIED_MARGIN * tol_p
+        return _proves_infeasible(sub, y, tol_p)
 
     def _keep_certificate(self, sub, ids, lam, tol_p) -> bool:
         r"""Keep ``lam`` of a failed solve of ``sub`` as a Farkas certificate at :math:`x_k` if it
@@ -311,7 +317,7 @@ class _SubproblemMixin:
         lam = np.asarray(lam, dtype=float)
         if lam.size != ids.size or not np.all(np.isfinite(lam)):
             return False
-        if certified_violation(sub.C, sub.lower, sub.box_lower, sub.box_upper, lam) <= CERTIFIED_MARGIN * tol_p:
+        if not _proves_infeasible(sub, lam, tol_p):
             return False
         on = lam > 0
         self._farkas = (self._version, ids[on], lam[on])
