@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import functools
 from dataclasses import replace
 
+import numpy as np
 import pytest
 
 import calib_oed.oed.refine as refine
@@ -72,3 +74,42 @@ def test_a_design_sqp_starts_in_the_design_trust_box(kr16_setup, monkeypatch):
     assert seen[0].step_bound == refine.DESIGN_STEP_BOUND == 0.03 < SQPSettings().step_bound
     boxes = [r.step_bound for r in results[0].history]
     assert boxes[0] == refine.DESIGN_STEP_BOUND and max(boxes) > refine.DESIGN_STEP_BOUND
+
+
+def test_the_projection_takes_pose_blocks_and_the_block_qp(kr16_setup, monkeypatch):
+    """A design of 50 poses (300 variables, from ``block_qp_min_size``) pushed off the feasible set,
+    its QPs above ``max_dense_qp_size`` (set to 300 here; 3000 by default, 500 poses):
+    ``project_feasible`` gives the SQP one BFGS block per pose, so its QPs are block QPs, not
+    sparse ProxQP on a dense BFGS matrix, and it ends where the projection with one dense block
+    ends (the same problem: the KKT point of min ||y - x||^2 / 2 on the constraints), feasible."""
+    from calib_oed.feasibility.constraints import FEASIBILITY_TOL
+    from calib_oed.feasibility.sampling import sample_feasible
+    from calib_oed.oed.problem import DesignProblem
+
+    s = kr16_setup
+    q0 = sample_feasible(s.feasibility, 50, 5)
+    nlp = DesignProblem(DesignObjective(s.problem, "kpi"), s.feasibility, len(q0))
+    x = q0.ravel() + np.random.default_rng(0).normal(scale=0.05, size=q0.size)
+    assert nlp.max_violation(x) > 10 * FEASIBILITY_TOL  # the test's premise
+    seen, solve = [], refine.solve_sqp
+
+    def spy(*args, **kwargs):
+        seen.append((kwargs.get("block_size"), solve(*args, **kwargs)))
+        return seen[-1][1]
+
+    settings = functools.partial(SQPSettings, max_dense_qp_size=300)
+    monkeypatch.setattr(refine, "solve_sqp", spy)
+    monkeypatch.setattr(refine, "SQPSettings", settings)
+    y = refine.project_feasible(nlp, x)
+    block_size, result = seen[0]
+    assert block_size == nlp.nq
+    assert result.status.name == "CONVERGED"
+    assert {r.qp_backend for r in result.history if r.qp_backend} == {"block"}
+    assert nlp.max_violation(y) <= FEASIBILITY_TOL
+    one_block = solve(lambda v: (0.5 * float((v - x) @ (v - x)), v - x), x, constraints=nlp.compute_constraints,
+                      bounds=nlp.bounds, settings=settings(max_iterations=50, step_bound=0.05,
+                                                              tol_feasibility=0.1 * FEASIBILITY_TOL))
+    assert one_block.status.name == "CONVERGED"
+    assert {r.qp_backend for r in one_block.history if r.qp_backend} == {"sparse"}
+    assert np.abs(y - one_block.x).max() < 1e-5
+    assert np.linalg.norm(y - x) <= np.linalg.norm(one_block.x - x) + 1e-9
