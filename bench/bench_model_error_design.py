@@ -24,7 +24,7 @@ design CPU time (``solver.cpu_seconds``, one BLAS thread).
     nice -n 10 python bench/bench_model_error_design.py [--scenes fms_kr16 ur5_table bench/scenes/ur10_cell.yaml]
         [--model rigid|extended] [-n 60] [--truths 40] [--noise 1] [--seed 0] [--compensate] [--out DIR]
         [--prior-scale F] [--budgets 25,60,300] [--motor ARCSEC] [--motor-length RAD] [--smooth ARCSEC]
-        [--rules block]
+        [--rules block] [--pose-budgets 36000]
 
 ``--prior-scale F`` designs ``kpi_model`` with every amplitude of its prior times F (the
 length scales kept): how much a misjudged prior costs.
@@ -42,6 +42,11 @@ default :data:`~calib_oed.measurement.joint_prior.MOTOR_LENGTH`; 0 drops it), ``
 that of their smooth own-angle part (length 60 deg unless the prior has another; the default prior
 has none, and the realistic simulator has no such part). ``--motor 0 --smooth 10`` is the default
 prior before its motor-side part.
+
+``--pose-budgets 36000`` adds the default ``kpi_model`` design with that many pose-iterations
+(:data:`calib_oed.oed.model_error.MODEL_ERROR_POSE_ITERATIONS`, the budget above 60 poses:
+this over n iterations, between 25 and 300), everything else the default's, paired with the
+default one as the budgets are.
 
 ``--rules block`` adds the default ``kpi_model`` design with that rule of the SQP's Hessian
 modification (``SQPSettings.hessian_modification``; the default ``auto`` is the tangent rule at
@@ -61,6 +66,7 @@ from pathlib import Path
 import numpy as np
 from threadpoolctl import threadpool_limits
 
+import calib_oed.oed.model_error as me
 import calib_oed.oed.model_error_hessian as meh
 from calib_oed import load_scene
 from calib_oed.calibration.identification import identify
@@ -158,6 +164,16 @@ def budget_design(s, n: int, criterion, seed: int, iterations: int):
         meh.FULL_COUPLING_MAX_SIZE = old
 
 
+def pose_budget_design(s, n: int, criterion, seed: int, pose_iterations: int):
+    """The default ``kpi_model`` design with ``pose_iterations`` pose-iterations (``--pose-budgets``)."""
+    old = me.MODEL_ERROR_POSE_ITERATIONS
+    me.MODEL_ERROR_POSE_ITERATIONS = pose_iterations
+    try:
+        return design(s, n, criterion, seed=seed, certificate=False)
+    finally:
+        me.MODEL_ERROR_POSE_ITERATIONS = old
+
+
 def with_parts(prior, motor: float | None, motor_length: float, smooth: float | None):
     """``prior`` with its motor-side and smooth parts' RMS set [arcsec] (None: kept)."""
     if (motor is not None or smooth is not None) and not isinstance(prior, JointErrorPrior):
@@ -173,7 +189,7 @@ def with_parts(prior, motor: float | None, motor_length: float, smooth: float | 
 def run_scene(scene_ref: str, model: str, n: int, truths: int, noise: int, seed: int, compensate: bool,
               out: Path | None, prior_scale: float = 1.0, frame: str | None = None,
               budgets: tuple[int, ...] = (), motor: float | None = None, motor_length: float = MOTOR_LENGTH,
-              smooth: float | None = None, rules: tuple[str, ...] = ()) -> dict:
+              smooth: float | None = None, rules: tuple[str, ...] = (), pose_budgets: tuple[int, ...] = ()) -> dict:
     scene = load_scene(scene_ref)
     s = setup(extended_scene(scene) if model == "extended" else scene)
     prior = s.scene.model_error if s.scene.model_error is not None else joint_prior(s.problem)
@@ -183,8 +199,12 @@ def run_scene(scene_ref: str, model: str, n: int, truths: int, noise: int, seed:
     row = {"scene": s.scene.name, "model": model, "n": n, "truths": truths, "noise_draws": noise,
            "prior": prior.describe(), "frame": frame or s.problem.kpi.frame}
     designs, errors = {}, {}
-    for crit in ("kpi", "kpi_model") + tuple(f"kpi_model_{b}" for b in budgets) + tuple(f"kpi_model@{r}" for r in rules):
-        if crit.startswith("kpi_model@"):
+    variants = (tuple(f"kpi_model_{b}" for b in budgets) + tuple(f"kpi_model@{r}" for r in rules)
+                + tuple(f"kpi_model#{b}" for b in pose_budgets))
+    for crit in ("kpi", "kpi_model") + variants:
+        if crit.startswith("kpi_model#"):
+            d = pose_budget_design(s, n, scene_criterion(s, "kpi_model", prior), seed, int(crit.split("#")[1]))
+        elif crit.startswith("kpi_model@"):
             d = design(s, n, scene_criterion(s, "kpi_model", prior), seed=seed, certificate=False,
                        settings=SQPSettings(hessian_modification=crit.split("@")[1]))
         elif crit.startswith("kpi_model_"):
@@ -206,7 +226,7 @@ def run_scene(scene_ref: str, model: str, n: int, truths: int, noise: int, seed:
             row[crit][pred] = {"achieved_rms_mm": rms, "se_mm": se, "ratio_to_kpi_fit": ratio,
                                "ratio_se": ratio_se,
                                "better_share": float(np.mean(mse.mean(axis=1) < errors["kpi"]["fit"].mean(axis=1)))}
-            if crit.startswith(("kpi_model_", "kpi_model@")):
+            if crit in variants:
                 ratio, ratio_se = paired_ratio(mse, errors["kpi_model"][pred], seed)
                 row[crit][pred].update(ratio_to_kpi_model=ratio, ratio_to_kpi_model_se=ratio_se, better_than_kpi_model=float(
                     np.mean(mse.mean(axis=1) < errors["kpi_model"][pred].mean(axis=1))))
@@ -284,6 +304,8 @@ def main() -> None:
                     help="the kpi_model designs' prior with a smooth own-angle part of this RMS [arcsec] (0: none)")
     ap.add_argument("--rules", type=lambda t: tuple(t.split(",")), default=(), metavar="RULE,...",
                     help="also the kpi_model design with these Hessian modification rules (block), paired")
+    ap.add_argument("--pose-budgets", type=_budgets, default=(), metavar="N,N,...",
+                    help="also the default kpi_model design with these pose-iteration budgets, paired")
     ap.add_argument("--out", type=Path)
     ap.add_argument("--figure", metavar="SCENE", help="only draw the figure of SCENE from --out")
     args = ap.parse_args()
@@ -295,7 +317,7 @@ def main() -> None:
             print(json.dumps(run_scene(scene, args.model, args.n, args.truths, args.noise, args.seed,
                                        args.compensate, args.out, args.prior_scale, args.frame,
                                        args.budgets, args.motor, args.motor_length, args.smooth,
-                                       args.rules)),
+                                       args.rules, args.pose_budgets)),
                   flush=True)
 
 
