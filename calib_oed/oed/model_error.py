@@ -96,9 +96,11 @@ MODEL_ERROR_ITERATIONS = 60
 #: SQP iterations of a ``kpi_model`` design of n poses: this over n (:func:`exact_iterations`), with the
 #: ratio trust rule and, up to :data:`~calib_oed.oed.model_error_hessian.FULL_COUPLING_MAX_SIZE`, the
 #: whole Hessian. At n = 60, 300 (the SQP's own limit): on the realistic simulator the error falls up to
-#: it, the prediction held (``docs/oed.md``, "The default prior and iteration budget"); above, a cost
-#: rule (an iteration costs about n² at large n); at n = 120 the prediction held, more iterations help.
-MODEL_ERROR_POSE_ITERATIONS = 18000
+#: it, the prediction held (``docs/oed.md``, "The default prior and iteration budget"); above 120, a cost
+#: rule (an iteration costs about n² at large n). Half of it (18000) starved large designs: 500 poses
+#: predicted worse than 120; with this, 250 poses reach 15 % less achieved error on the realistic
+#: simulator at 1.9x the CPU (``docs/benchmarks.md``, "kpi_model's budget above 60 poses").
+MODEL_ERROR_POSE_ITERATIONS = 36000
 #: Most SQP iterations of a ``kpi_model`` design.
 MODEL_ERROR_EXACT_ITERATIONS = 300
 #: Fewest SQP iterations of a large ``kpi_model`` design (its cap before the motor-side part).

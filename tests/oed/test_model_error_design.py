@@ -197,9 +197,9 @@ def test_a_kpi_model_design_has_no_certificate(kr16):
     exact = design_settings(DesignObjective(s.problem, MODEL_ERROR), None, True)
     assert exact.max_iterations == MODEL_ERROR_EXACT_ITERATIONS == 300 and exact.trust_update is None
     assert exact.hessian_modification == "tangent"  # at every size, not "auto"
-    # the budget per pose: 300 up to 60 poses, fewer above, never below the floor
-    assert [exact_iterations(n) for n in (12, 60, 120, 250, 500, 2000)] == [300, 300, 150, 72, 36, MODEL_ERROR_MIN_ITERATIONS]
-    assert design_settings(DesignObjective(s.problem, MODEL_ERROR), None, True, 500).max_iterations == 36
+    # the budget per pose: 300 up to 120 poses, fewer above, never below the floor
+    assert [exact_iterations(n) for n in (12, 60, 120, 250, 500, 2000)] == [300, 300, 300, 144, 72, MODEL_ERROR_MIN_ITERATIONS]
+    assert design_settings(DesignObjective(s.problem, MODEL_ERROR), None, True, 500).max_iterations == 72
     # a limit the user gives (`--iterations`) is kept, and so is a Hessian rule the user gives
     given = design_settings(DesignObjective(s.problem, MODEL_ERROR), SQPSettings(max_iterations=7), True)
     assert (given.max_iterations, given.hessian_modification) == (7, "tangent")
