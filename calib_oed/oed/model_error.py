@@ -94,12 +94,10 @@ PREDICTORS = ("fit", "kriging")
 #: at 60 iterations is within 5 % of the value at 120-270 (``docs/oed.md``).
 MODEL_ERROR_ITERATIONS = 60
 #: SQP iterations of a ``kpi_model`` design of n poses: this over n (:func:`exact_iterations`), with the
-#: ratio trust rule and, up to :data:`~calib_oed.oed.model_error_hessian.FULL_COUPLING_MAX_SIZE`, the
-#: whole Hessian. At n = 60, 300 (the SQP's own limit): on the realistic simulator the error falls up to
-#: it, the prediction held (``docs/oed.md``, "The default prior and iteration budget"); above 120, a cost
-#: rule (an iteration costs about n² at large n). Half of it (18000) starved large designs: 500 poses
-#: predicted worse than 120; with this, 250 poses reach 15 % less achieved error on the realistic
-#: simulator at 1.9x the CPU (``docs/benchmarks.md``, "kpi_model's budget above 60 poses").
+#: ratio trust rule. Up to 120 poses 300 (the SQP's own limit; at n = 60 and 120 the realistic error falls
+#: up to it, the prediction held: ``docs/oed.md``); above, a cost rule (an iteration costs about n²). Half
+#: of it starved large designs (500 poses predicted worse than 120); this takes 15 % off the realistic
+#: error at 250 poses for 1.9x the CPU (``docs/benchmarks.md``, "kpi_model's budget above 60 poses").
 MODEL_ERROR_POSE_ITERATIONS = 36000
 #: Most SQP iterations of a ``kpi_model`` design.
 MODEL_ERROR_EXACT_ITERATIONS = 300

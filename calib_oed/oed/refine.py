@@ -80,7 +80,7 @@ def project_feasible(nlp: DesignProblem, x: np.ndarray, max_iterations: int = 50
     makes the SQP's BFGS start exact, so a few iterations suffice. The BFGS
     matrix is one block per pose (the distance is separable, each constraint row
     is one pose's), so a large design's QPs take the block QP: at 500 poses one
-    dense BFGS block of 3000 variables cost 43 s of ProxQP, the pose blocks 0.4 s
+    dense BFGS block of 3000 variables cost 40 s of ProxQP, the pose blocks 0.3 s
     (``docs/benchmarks.md``, "The projection onto the feasible set").
     """
     def distance(y):
