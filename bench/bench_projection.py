@@ -7,7 +7,7 @@
 pushed off the feasible set by Gaussian angles of standard deviation ``--scale`` rad (seeded), as
 a design SQP that stops at its iteration limit leaves it. Then, in this process, one after the
 other, :func:`calib_oed.oed.refine.project_feasible`'s SQP (min ||y - x||² / 2 on the design
-constraints, its settings) with its BFGS matrix one block per pose (``block_size = nq``: the block
+constraints, its settings ``PROJECTION_SQP``) with its BFGS matrix one block per pose (``block_size = nq``: the block
 QP above ``max_dense_qp_size``) and with one dense block (ProxQP, sparse above that size). Prints per
 run the process CPU, status, iterations, QP backends, largest violation [1] and distance ||y - x||
 [rad], and the largest difference between the two ends [rad].
@@ -22,12 +22,12 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from calib_oed.calibration.workflow import setup
-from calib_oed.feasibility.constraints import FEASIBILITY_TOL
 from calib_oed.feasibility.sampling import sample_feasible
 from calib_oed.oed.objective import DesignObjective
 from calib_oed.oed.problem import DesignProblem
+from calib_oed.oed.refine import PROJECTION_SQP
 from calib_oed.scene.reader import load_scene
-from calib_oed.solver.sqp import SQPSettings, solve_sqp
+from calib_oed.solver.sqp import solve_sqp
 
 
 def main() -> None:
@@ -44,10 +44,9 @@ def main() -> None:
         print(f"n = {args.n} ({x.size} variables): violation of the pushed design {nlp.max_violation(x):.3g}")
         ends = {}
         for label, block in (("pose blocks", nlp.nq), ("one block", None)):
-            settings = SQPSettings(max_iterations=50, step_bound=0.05, tol_feasibility=0.1 * FEASIBILITY_TOL)
             c0 = time.process_time()
             res = solve_sqp(lambda y: (0.5 * float((y - x) @ (y - x)), y - x), x,
-                            constraints=nlp.compute_constraints, bounds=nlp.bounds, settings=settings,
+                            constraints=nlp.compute_constraints, bounds=nlp.bounds, settings=PROJECTION_SQP,
                             block_size=block)
             cpu = time.process_time() - c0
             backends = sorted({r.qp_backend for r in res.history if r.qp_backend})

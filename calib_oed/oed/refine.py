@@ -59,6 +59,10 @@ DESIGN_SQP = SQPSettings(penalty_margin=DESIGN_PENALTY_MARGIN, extrapolate=True,
 #: -0.004 to +0.1 %; the notional90 study 27 % less CPU.
 EXACT_TRUST_UPDATE = "ratio"
 
+#: The projection's SQP (:func:`project_feasible`, its ``max_iterations`` replaced): short steps and a
+#: feasibility tolerance ten times below the one it is judged by.
+PROJECTION_SQP = SQPSettings(max_iterations=50, step_bound=0.05, tol_feasibility=0.1 * FEASIBILITY_TOL)
+
 #: Curvature models of the design SQP: the exact Lagrangian Hessian (default), or damped BFGS.
 HESSIANS = ("exact", "bfgs")
 
@@ -88,8 +92,7 @@ def project_feasible(nlp: DesignProblem, x: np.ndarray, max_iterations: int = 50
         return 0.5 * float(d @ d), d
 
     res = solve_sqp(distance, x, constraints=nlp.compute_constraints, bounds=nlp.bounds,
-                    settings=SQPSettings(max_iterations=max_iterations, step_bound=0.05,
-                                         tol_feasibility=0.1 * FEASIBILITY_TOL), block_size=nlp.nq)
+                    settings=replace(PROJECTION_SQP, max_iterations=max_iterations), block_size=nlp.nq)
     if res.status is SQPStatus.INTERRUPTED:  # Ctrl-C reaches the caller, as outside the SQP
         raise KeyboardInterrupt
     return res.x

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import functools
 from dataclasses import replace
 
 import numpy as np
@@ -97,9 +96,9 @@ def test_the_projection_takes_pose_blocks_and_the_block_qp(kr16_setup, monkeypat
         seen.append((kwargs.get("block_size"), solve(*args, **kwargs)))
         return seen[-1][1]
 
-    settings = functools.partial(SQPSettings, max_dense_qp_size=300)
+    settings = replace(refine.PROJECTION_SQP, max_dense_qp_size=300)
     monkeypatch.setattr(refine, "solve_sqp", spy)
-    monkeypatch.setattr(refine, "SQPSettings", settings)
+    monkeypatch.setattr(refine, "PROJECTION_SQP", settings)
     y = refine.project_feasible(nlp, x)
     block_size, result = seen[0]
     assert block_size == nlp.nq
@@ -107,8 +106,7 @@ def test_the_projection_takes_pose_blocks_and_the_block_qp(kr16_setup, monkeypat
     assert {r.qp_backend for r in result.history if r.qp_backend} == {"block"}
     assert nlp.max_violation(y) <= FEASIBILITY_TOL
     one_block = solve(lambda v: (0.5 * float((v - x) @ (v - x)), v - x), x, constraints=nlp.compute_constraints,
-                      bounds=nlp.bounds, settings=settings(max_iterations=50, step_bound=0.05,
-                                                              tol_feasibility=0.1 * FEASIBILITY_TOL))
+                      bounds=nlp.bounds, settings=settings)
     assert one_block.status.name == "CONVERGED"
     assert {r.qp_backend for r in one_block.history if r.qp_backend} == {"sparse"}
     assert np.abs(y - one_block.x).max() < 1e-5
