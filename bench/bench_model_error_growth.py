@@ -1,7 +1,8 @@
 """The default (``kpi_model``) design's SQP iteration cost against n, in process CPU.
 
     nice -n 10 python bench/bench_model_error_growth.py [--scene fms_kr16] [--growth 60,120,250,500]
-        [--seed 0] [--iterations K] [--full-coupling SIZE]
+        [--seed 0] [--iterations K] [--full-coupling SIZE] [--coupling-rank R]
+        [--doubled FILE [--perturb SIGMA]]
 
 Each n runs in its own process (one BLAS thread), as ``calib-oed design SCENE -n N --no-certificate``
 does: :func:`calib_oed.oed.design.design` with the default criterion. In the child the SQP's phase
@@ -11,7 +12,14 @@ status and iterations, the value [mm²], the process CPU and peak memory, the SQ
 CPU per iteration. ``PYTHONPATH=/other/checkout`` runs that checkout's package. ``--iterations``
 sets the design's SQP iterations at every n (instead of :func:`calib_oed.oed.model_error.exact_iterations`),
 ``--full-coupling`` the largest Hessian given to the SQP whole
-(:data:`calib_oed.oed.model_error_hessian.FULL_COUPLING_MAX_SIZE`; 0: always the lifted form).
+(:data:`calib_oed.oed.model_error_hessian.FULL_COUPLING_MAX_SIZE`; 0: always the lifted form),
+``--coupling-rank`` caps the columns of the lifted form's low-rank factor (by a monkeypatch of
+:func:`calib_oed.oed.model_error_hessian.structured_hessian` in the child; the package keeps
+:data:`~calib_oed.solver.hessian.LIFTED_MAX_RANK_RATIO` of the size). ``--doubled FILE`` starts the SQP
+from a smaller design measured twice (FILE: the ``--json`` output of ``calib-oed design`` on the
+same scene; ``--growth`` then defaults to twice its poses): its poses, then the same poses plus
+seeded normal offsets of ``--perturb`` rad (default 0: exact copies), clipped to the joint limits,
+the first n of them; given as the design's start, so no pool, column generation or exchange.
 """
 
 from __future__ import annotations
@@ -25,21 +33,37 @@ import tempfile
 
 _CHILD = """
 import json, resource, sys, time
+import numpy as np
 time.perf_counter = time.process_time  # the SQP's phases in CPU seconds
 import calib_oed.oed.model_error as me
 import calib_oed.oed.model_error_hessian as meh
 from calib_oed import load_scene
 from calib_oed.calibration.workflow import setup
 from calib_oed.oed.design import design
-scene, n, seed, cap, full = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), int(sys.argv[4]), int(sys.argv[5])
+scene, n, seed, cap, full, rank = (sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), int(sys.argv[4]),
+                                    int(sys.argv[5]), int(sys.argv[6]))
+doubled, perturb = sys.argv[7], float(sys.argv[8])
 if cap > 0:
     me.MODEL_ERROR_EXACT_ITERATIONS = me.MODEL_ERROR_MIN_ITERATIONS = me.MODEL_ERROR_ITERATIONS = cap
 if full >= 0:
     meh.FULL_COUPLING_MAX_SIZE = full
-d = design(setup(load_scene(scene)), n, None, seed=seed, certificate=False)
+if rank > 0:
+    lifted = meh.structured_hessian
+    meh.structured_hessian = lambda h, nv, r=None: lifted(h, nv, r if r is None else min(r, rank))
+s = setup(load_scene(scene))
+start = "exchange"
+if doubled:
+    with open(doubled) as f:
+        q = np.asarray(json.load(f)["configurations_rad"], dtype=float)
+    model = s.problem.robot.model
+    copy = q + perturb * np.random.default_rng(seed).standard_normal(q.shape)
+    start = np.vstack([q, np.clip(copy, model.lowerPositionLimit, model.upperPositionLimit)])[:n]
+d = design(s, n, None, start=start, seed=seed, certificate=False)
 sol, it = d.solver, d.solver.get("iterations") or 0
 times = {k: round(v, 2) for k, v in (sol.get("times") or {}).items()}
-print(json.dumps({"scene": scene, "n": n, "full_coupling_max_size": meh.FULL_COUPLING_MAX_SIZE, "status": str(sol.get("status")), "iterations": it,
+print(json.dumps({"scene": scene, "n": n, "full_coupling_max_size": meh.FULL_COUPLING_MAX_SIZE,
+                  "coupling_rank_cap": rank or None, "doubled": doubled or None, "perturb_rad": perturb,
+                  "start_value_mm2": d.start_value, "status": str(sol.get("status")), "iterations": it,
                   "value_mm2": d.value, "process_cpu_s": round(time.process_time(), 1),
                   "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss // 1024,
                   "sqp_cpu_s": times, "sqp_cpu_per_iteration_s": round(times.get("total", 0.0) / max(it, 1), 3)}))
@@ -54,14 +78,24 @@ def main(argv=None) -> None:
     ap.add_argument("--iterations", type=int, default=0, help="SQP iteration cap (default: the design's)")
     ap.add_argument("--full-coupling", type=int, default=-1, metavar="SIZE",
                     help="largest Hessian the SQP gets whole (default: the package's; 0: always lifted)")
+    ap.add_argument("--coupling-rank", type=int, default=0, metavar="R",
+                    help="cap the lifted form's low-rank columns at R (default: the package's n/3)")
+    ap.add_argument("--doubled", default="", metavar="FILE",
+                    help="start from this design (calib-oed design --json) measured twice")
+    ap.add_argument("--perturb", type=float, default=0.0, metavar="SIGMA",
+                    help="seeded normal offsets [rad] of the second copy (with --doubled)")
     args = ap.parse_args(argv)
+    doubled = os.path.abspath(args.doubled) if args.doubled else ""
+    if doubled and args.growth == ap.get_default("growth"):
+        with open(doubled) as f:
+            args.growth = str(2 * len(json.load(f)["configurations_rad"]))
     env = dict(os.environ, OPENBLAS_NUM_THREADS="1")
     if env.get("PYTHONPATH"):  # absolute: the child runs elsewhere
         env["PYTHONPATH"] = os.pathsep.join(os.path.abspath(p) for p in env["PYTHONPATH"].split(os.pathsep))
     for n in (int(v) for v in args.growth.split(",") if v):
         # cwd: ``-c`` puts the working directory first on sys.path, which would shadow PYTHONPATH
         out = subprocess.run([sys.executable, "-c", _CHILD, args.scene, str(n), str(args.seed), str(args.iterations),
-                              str(args.full_coupling)],
+                              str(args.full_coupling), str(args.coupling_rank), doubled, str(args.perturb)],
                              env=env, capture_output=True, text=True, check=True, cwd=tempfile.gettempdir())
         print(json.dumps(json.loads(out.stdout.strip().splitlines()[-1])), flush=True)
 
