@@ -86,9 +86,13 @@ def main(argv=None) -> None:
                     help="seeded normal offsets [rad] of the second copy (with --doubled)")
     args = ap.parse_args(argv)
     doubled = os.path.abspath(args.doubled) if args.doubled else ""
-    if doubled and args.growth == ap.get_default("growth"):
+    if doubled:
         with open(doubled) as f:
-            args.growth = str(2 * len(json.load(f)["configurations_rad"]))
+            poses = len(json.load(f)["configurations_rad"])
+        if args.growth == ap.get_default("growth"):
+            args.growth = str(2 * poses)
+        if any(int(v) > 2 * poses for v in args.growth.split(",") if v):
+            ap.error(f"--doubled: {args.doubled} has {poses} poses, twice that is below --growth {args.growth}")
     env = dict(os.environ, OPENBLAS_NUM_THREADS="1")
     if env.get("PYTHONPATH"):  # absolute: the child runs elsewhere
         env["PYTHONPATH"] = os.pathsep.join(os.path.abspath(p) for p in env["PYTHONPATH"].split(os.pathsep))

@@ -67,8 +67,8 @@ def exact_hessian(s, q: np.ndarray) -> np.ndarray:
     finally:
         meh.structured_hessian = lifted
     if "h" not in seen:
-        raise SystemExit(f"no exact kpi_model Hessian for this scene (its default criterion: "
-                         f"{objective.criterion.name if hasattr(objective.criterion, 'name') else objective.criterion})")
+        raise SystemExit("this scene's default criterion has no exact kpi_model Hessian "
+                         "(kpi_model with the joint-space prior, position measurements)")
     return seen["h"]
 
 
