@@ -24,7 +24,7 @@ design CPU time (``solver.cpu_seconds``, one BLAS thread).
     nice -n 10 python bench/bench_model_error_design.py [--scenes fms_kr16 ur5_table bench/scenes/ur10_cell.yaml]
         [--model rigid|extended] [-n 60] [--truths 40] [--noise 1] [--seed 0] [--compensate] [--out DIR]
         [--prior-scale F] [--budgets 25,60,300] [--motor ARCSEC] [--motor-length RAD] [--smooth ARCSEC]
-        [--rules block] [--pose-budgets 36000]
+        [--rules block] [--pose-budgets 36000] [--direct]
 
 ``--prior-scale F`` designs ``kpi_model`` with every amplitude of its prior times F (the
 length scales kept): how much a misjudged prior costs.
@@ -48,6 +48,11 @@ prior before its motor-side part.
 this over n iterations, between 25 and 300), everything else the default's, paired with the
 default one as the budgets are.
 
+``--direct`` adds the default ``kpi_model`` design without its staged start (a design of
+:data:`calib_oed.oed.staged.STAGED_MIN_POSES` poses or more starts from a smaller one measured
+twice, :mod:`calib_oed.oed.staged`): the exchange start and the whole budget at ``n``, paired with
+the default one as the budgets are.
+
 ``--rules block`` adds the default ``kpi_model`` design with that rule of the SQP's Hessian
 modification (``SQPSettings.hessian_modification``; the default ``auto`` is the tangent rule at
 60 poses), paired with the default one as the budgets are.
@@ -68,6 +73,7 @@ from threadpoolctl import threadpool_limits
 
 import calib_oed.oed.model_error as me
 import calib_oed.oed.model_error_hessian as meh
+import calib_oed.oed.staged as staged
 from calib_oed import load_scene
 from calib_oed.calibration.identification import identify
 from calib_oed.calibration.joint_prior_choice import joint_prior
@@ -174,6 +180,16 @@ def pose_budget_design(s, n: int, criterion, seed: int, pose_iterations: int):
         me.MODEL_ERROR_POSE_ITERATIONS = old
 
 
+def direct_design(s, n: int, criterion, seed: int):
+    """The default ``kpi_model`` design without its staged start (``--direct``)."""
+    old = staged.STAGED_MIN_POSES
+    staged.STAGED_MIN_POSES = n + 1
+    try:
+        return design(s, n, criterion, seed=seed, certificate=False)
+    finally:
+        staged.STAGED_MIN_POSES = old
+
+
 def with_parts(prior, motor: float | None, motor_length: float, smooth: float | None):
     """``prior`` with its motor-side and smooth parts' RMS set [arcsec] (None: kept)."""
     if (motor is not None or smooth is not None) and not isinstance(prior, JointErrorPrior):
@@ -189,7 +205,8 @@ def with_parts(prior, motor: float | None, motor_length: float, smooth: float | 
 def run_scene(scene_ref: str, model: str, n: int, truths: int, noise: int, seed: int, compensate: bool,
               out: Path | None, prior_scale: float = 1.0, frame: str | None = None,
               budgets: tuple[int, ...] = (), motor: float | None = None, motor_length: float = MOTOR_LENGTH,
-              smooth: float | None = None, rules: tuple[str, ...] = (), pose_budgets: tuple[int, ...] = ()) -> dict:
+              smooth: float | None = None, rules: tuple[str, ...] = (), pose_budgets: tuple[int, ...] = (),
+              direct: bool = False) -> dict:
     scene = load_scene(scene_ref)
     s = setup(extended_scene(scene) if model == "extended" else scene)
     prior = s.scene.model_error if s.scene.model_error is not None else joint_prior(s.problem)
@@ -200,9 +217,11 @@ def run_scene(scene_ref: str, model: str, n: int, truths: int, noise: int, seed:
            "prior": prior.describe(), "frame": frame or s.problem.kpi.frame}
     designs, errors = {}, {}
     variants = (tuple(f"kpi_model_{b}" for b in budgets) + tuple(f"kpi_model@{r}" for r in rules)
-                + tuple(f"kpi_model#{b}" for b in pose_budgets))
+                + tuple(f"kpi_model#{b}" for b in pose_budgets) + (("kpi_model!direct",) if direct else ()))
     for crit in ("kpi", "kpi_model") + variants:
-        if crit.startswith("kpi_model#"):
+        if crit == "kpi_model!direct":
+            d = direct_design(s, n, scene_criterion(s, "kpi_model", prior), seed)
+        elif crit.startswith("kpi_model#"):
             d = pose_budget_design(s, n, scene_criterion(s, "kpi_model", prior), seed, int(crit.split("#")[1]))
         elif crit.startswith("kpi_model@"):
             d = design(s, n, scene_criterion(s, "kpi_model", prior), seed=seed, certificate=False,
@@ -215,7 +234,7 @@ def run_scene(scene_ref: str, model: str, n: int, truths: int, noise: int, seed:
         errors[crit] = achieved_errors(s, d.q, truths, noise, seed, compensate, frame)
         row[crit] = {
             "design_cpu_s": d.solver["cpu_seconds"], "iterations": d.solver.get("iterations"),
-            "status": d.solver.get("status"), "distinct_poses": len(d.multiplicity),
+            "status": d.solver.get("status"), "start": d.solver.get("start"), "distinct_poses": len(d.multiplicity),
             "distinct_positions": d.distinct_positions,
             "predicted_rms_mm": float(np.sqrt(d.criteria["kpi_model"])),
             "noise_only_sigma_mm": float(np.sqrt(d.criteria["kpi"])),
@@ -306,6 +325,8 @@ def main() -> None:
                     help="also the kpi_model design with these Hessian modification rules (block), paired")
     ap.add_argument("--pose-budgets", type=_budgets, default=(), metavar="N,N,...",
                     help="also the default kpi_model design with these pose-iteration budgets, paired")
+    ap.add_argument("--direct", action="store_true",
+                    help="also the default kpi_model design without its staged start, paired")
     ap.add_argument("--out", type=Path)
     ap.add_argument("--figure", metavar="SCENE", help="only draw the figure of SCENE from --out")
     args = ap.parse_args()
@@ -317,7 +338,7 @@ def main() -> None:
             print(json.dumps(run_scene(scene, args.model, args.n, args.truths, args.noise, args.seed,
                                        args.compensate, args.out, args.prior_scale, args.frame,
                                        args.budgets, args.motor, args.motor_length, args.smooth,
-                                       args.rules, args.pose_budgets)),
+                                       args.rules, args.pose_budgets, args.direct)),
                   flush=True)
 
 

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
+from functools import partial
 
 import numpy as np
 from threadpoolctl import threadpool_limits
@@ -30,12 +31,7 @@ from calib_oed.feasibility.margins import margin_report
 from calib_oed.feasibility.sampling import sample_feasible
 from calib_oed.oed import model_error
 from calib_oed.oed.approximate import criterion_kind
-from calib_oed.oed.approximate_pool import (
-    ENRICH_ROUNDS,
-    ApproximatePool,
-    approximate_pool,
-    approximate_start,
-)
+from calib_oed.oed.approximate_pool import ENRICH_ROUNDS, ApproximatePool, approximate_pool
 from calib_oed.oed.certificate import multistart_gap
 from calib_oed.oed.criteria import CRITERIA, make_criterion
 from calib_oed.oed.criterion_base import Criterion
@@ -52,14 +48,13 @@ from calib_oed.oed.refine import (  # noqa: F401 (DESIGN_SQP, HESSIANS, optimise
     project_feasible,
 )
 from calib_oed.oed.result import Design
+from calib_oed.oed.staged import staged_half, staged_settings, staged_starts, start_designs
 from calib_oed.oed.starts import (
     DEFAULT_POOL,
     CandidatePool,
     candidate_pool,
     check_start,
     exchange_start,
-    given_start,
-    heuristic_start,
 )
 from calib_oed.scene.records import Scene
 from calib_oed.solver.sqp import SQPSettings, SQPStatus
@@ -187,20 +182,6 @@ CERTIFICATE_VERIFY = 32
 CERTIFICATE_ROUNDS = 30
 
 
-def _start_designs(s: Setup, objective: DesignObjective, n: int, start, seed: int, n_starts: int,
-                   pool: CandidatePool | None, replicates: int,
-                   approx: ApproximatePool | None) -> list[tuple[int | None, np.ndarray]]:
-    if isinstance(start, str):
-        if start == "exchange" and approx is not None:  # start 0: the rounded approximate design
-            return [(seed + k, approximate_start(objective, approx, n, None if k == 0 else seed + k,
-                                                 replicates)[0]) for k in range(n_starts)]
-        if start == "exchange":
-            return [(seed + k, exchange_start(objective, pool, n, seed + k, replicates)[0])
-                    for k in range(n_starts)]
-        return [(seed + k, heuristic_start(s, n, seed + k)) for k in range(n_starts)]
-    return [(None, given_start(s, start, n))]
-
-
 def design(
     scene: Scene | Setup,
     n: int = 60,
@@ -307,17 +288,24 @@ def design(
         objective = DesignObjective(s.problem, criterion)
         start_objective = DesignObjective(s.problem, "kpi") if objective.needs_design else objective  # kpi's start
         objective.check_design_size(n)
-        needs_pool = (isinstance(start, str) and start == "exchange") or certificate
+        half = staged_half(objective, exact, n, start, settings, aggregate) if refine else 0
+        needs_pool = not half and ((isinstance(start, str) and start == "exchange") or certificate)
         cands = candidate_pool(s, pool, seed, collisions) if needs_pool else None
-        use = refine and isinstance(start, str) and start == "exchange" and aggregate == "mean"
+        use = refine and isinstance(start, str) and start == "exchange" and aggregate == "mean" and not half
         approx, approx_record = (_approximate(s, start_objective, cands, n, collisions, enrich) if use
                                  else (None, {"skipped": "not used by this start"}))
-        starts = _start_designs(s, start_objective, n, start, seed, int(n_starts), cands,
-                                int(replicates), approx)
+        if half:  # a large kpi_model design: half the poses designed, then measured twice (oed/staged.py)
+            starts, staged = staged_starts(partial(
+                design, s, half, criterion, pool=pool, replicates=replicates, enrich=enrich, certificate=False,
+                collisions=collisions, callback=callback, hessian=hessian, position_tol=position_tol),
+                s.feasibility, n, seed, int(n_starts), collisions)
+        else:
+            starts = start_designs(s, start_objective, n, start, seed, int(n_starts), cands, int(replicates), approx)
         if not refine:
             best = _best_start(objective, starts, aggregate)
         else:
             sqp = model_error.design_settings(objective, settings, exact, n, DESIGN_SQP)
+            sqp = staged_settings(sqp) if half else sqp
             best = (optimise_worst_case(s, starts, criterion, collisions, sqp, callback)
                     if aggregate == "max"
                     else optimise_starts(s, starts, criterion, collisions, sqp, callback, hessian, runs))
@@ -341,14 +329,16 @@ def design(
     record.pop("multipliers", None)
     if aggregate == "max" and result is not None:  # the epigraph variable t s [mm²]: bounds every v_i
         record["epigraph_t_mm2"] = float(result.x[-1] * phi0)
-    record["start"] = start if isinstance(start, str) else "given"
+    record["start"] = ("staged" if half else start) if isinstance(start, str) else "given"
+    if half:  # the smaller design(s) the start doubled (oed/staged.py)
+        record["staged"] = staged
     record["pool"] = None if cands is None else cands.to_dict()
     record["approximate"] = approx_record
     if objective.needs_design:  # the model-error prior the design was made for (report units)
         record["model_error"] = objective.criterion.prior.to_dict()
     record["replicates"] = int(replicates)
     record["cpu_seconds"] = design_cpu
-    named = start if isinstance(start, str) else "given"
+    named = record["start"]
     method = f"{named}+sqp" if refine else named
     return evaluate_design(
         s, q, criterion, method=method, start_value=phi0, solver=record,

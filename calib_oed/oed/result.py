@@ -50,7 +50,8 @@ class Design:
         collisions: Whether collision constraints were imposed.
         method: How it was obtained: ``"exchange+sqp"`` (the default pipeline:
             exchange start refined by the SQP), ``"heuristic+sqp"``,
-            ``"given+sqp"``, ``"exchange"`` (selection from a candidate pool
+            ``"given+sqp"``, ``"staged+sqp"`` (a large ``kpi_model`` design from a smaller one
+            measured twice, :mod:`calib_oed.oed.staged`), ``"exchange"`` (selection from a candidate pool
             only), ``"heuristic"`` (random feasible poses) or ``"given"``.
         certificate: The optimality certificate of the design
             (:func:`calib_oed.oed.certificate.certify`): ``efficiency`` (<= 1),

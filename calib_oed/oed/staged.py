@@ -1,0 +1,126 @@
+r"""The starts of the design's SQP, and the staged start of a large ``kpi_model`` design.
+
+:func:`start_designs` builds the named starts (``"exchange"``, ``"heuristic"``) or checks a given
+one. A ``kpi_model`` design of at least :data:`STAGED_MIN_POSES` poses with the exact Hessian and
+the default budget starts instead from a smaller design measured twice (:func:`staged_starts`):
+
+1. the default design of :math:`\lceil n/2\rceil` poses (itself staged when large enough);
+2. its poses, then each again moved by seeded normal offsets of :data:`STAGED_OFFSET` rad
+   (:func:`moved_copy`): an exact copy would stay one, the criterion being symmetric in the two;
+3. :data:`STAGED_ITERATIONS` SQP iterations of the ``n``-pose design from there.
+
+Why (fms_kr16, ``docs/benchmarks.md``, "kpi_model at 500 poses: a smaller design measured
+twice"): at 500 poses an SQP iteration costs about 15 s, and the default budget of 72 iterations
+from the exchange start ends at 1.2929e-4 mm² in 1083 s, while the 250-pose design measured twice
+is already at 8.8293e-5 mm² and 20 iterations from it reach 7.3697e-5 mm² (about 650 s with
+the 250-pose design). At 250 poses from 125 it does not pay (1.2368e-4 against 1.0191e-4 mm²
+direct), so the stage starts at 500 poses, where it was measured.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import replace
+
+import numpy as np
+
+from calib_oed.feasibility.batch_fk import batch_body_states
+from calib_oed.feasibility.constraints import FEASIBILITY_TOL
+from calib_oed.oed.approximate_pool import approximate_start
+from calib_oed.oed.problem import COLLISION_KINDS, NO_COLLISION_KINDS
+from calib_oed.oed.starts import exchange_start, given_start, heuristic_start
+
+#: Fewest poses of a staged ``kpi_model`` design (measured to pay at 500, not at 250).
+STAGED_MIN_POSES = 500
+#: SQP iterations of the ``n``-pose design from the doubled start.
+STAGED_ITERATIONS = 20
+#: Standard deviation of the seeded joint offsets of the moved copy [rad].
+STAGED_OFFSET = 0.01
+#: Draws of a moved pose, each with half the offset of the one before, before it is copied exactly.
+STAGED_DRAWS = 6
+
+
+def start_designs(s, objective, n: int, start, seed: int, n_starts: int, pool, replicates: int,
+                  approx) -> list[tuple[int | None, np.ndarray]]:
+    """The SQP's starts ``(seed, q0)``: ``n_starts`` named ones from ``seed + k`` (the exchange from
+    the rounded approximate design ``approx`` when there is one, else on ``pool``; random feasible
+    poses for ``"heuristic"``), or the given design ``start`` checked."""
+    if isinstance(start, str):
+        if start == "exchange" and approx is not None:  # start 0: the rounded approximate design
+            return [(seed + k, approximate_start(objective, approx, n, None if k == 0 else seed + k,
+                                                 replicates)[0]) for k in range(n_starts)]
+        if start == "exchange":
+            return [(seed + k, exchange_start(objective, pool, n, seed + k, replicates)[0])
+                    for k in range(n_starts)]
+        return [(seed + k, heuristic_start(s, n, seed + k)) for k in range(n_starts)]
+    return [(None, given_start(s, start, n))]
+
+
+def staged_half(objective, exact: bool, n: int, start, settings, aggregate: str) -> int:
+    """Poses of the smaller design a design of ``n`` poses starts from, or 0 when it is not staged:
+    ``kpi_model`` with the exact Hessian (``exact``), the exchange start, the mean aggregate, the
+    default budget (``settings`` None) and ``n`` >= :data:`STAGED_MIN_POSES`."""
+    staged = (exact and getattr(objective, "needs_design", False) and isinstance(start, str)
+              and start == "exchange" and settings is None and aggregate == "mean" and n >= STAGED_MIN_POSES)
+    return -(-int(n) // 2) if staged else 0
+
+
+def staged_settings(settings):
+    """The final stage's SQP settings: ``settings`` with :data:`STAGED_ITERATIONS` iterations."""
+    return replace(settings, max_iterations=STAGED_ITERATIONS)
+
+
+def moved_copy(feasibility, q: np.ndarray, rng: np.random.Generator, collisions: bool = True,
+               offset: float = STAGED_OFFSET, draws: int = STAGED_DRAWS) -> tuple[np.ndarray, int]:
+    """``q`` (m, nq) moved by normal offsets of ``offset`` [rad] from ``rng``, clipped to the joint
+    limits; a moved pose that violates a design row (incidence, and with ``collisions`` the capsule and
+    beam rows) is drawn again with half the offset, ``draws`` times in all, then copied exactly.
+
+    Returns:
+        The copy (m, nq) [rad] and how many of its poses are exact copies.
+    """
+    robot = feasibility.robot
+    kinds = COLLISION_KINDS if collisions else NO_COLLISION_KINDS
+    copy, todo, sigma = q.copy(), np.arange(len(q)), float(offset)
+    for _ in range(int(draws)):
+        if not len(todo):
+            break
+        moved = np.clip(q[todo] + sigma * rng.standard_normal((len(todo), q.shape[1])), robot.lower, robot.upper)
+        values = feasibility.compute_from_states(moved, batch_body_states(robot.model, moved), False, kinds).values
+        ok = np.all(values >= -FEASIBILITY_TOL, axis=1)
+        copy[todo[ok]] = moved[ok]
+        todo, sigma = todo[~ok], 0.5 * sigma
+    return copy, int(len(todo))
+
+
+def staged_starts(half_design: Callable, feasibility, n: int, seed: int, n_starts: int,
+                  collisions: bool = True) -> tuple[list[tuple[int, np.ndarray]], dict]:
+    r"""The doubled starts of a staged design of ``n`` poses, and the record of their first stage.
+
+    Args:
+        half_design: ``half_design(seed=k)`` returns the smaller design
+            (:class:`~calib_oed.oed.result.Design`) from seed ``k``.
+        feasibility: The scene's feasibility model (the moved copy's rows).
+        n: Poses of the design (the first ``n`` of the smaller one's twice).
+        seed: Start ``k`` uses ``seed + k``, for its smaller design and its copy's offsets.
+        n_starts: How many starts.
+        collisions: Whether the copy keeps clear of the capsule and beam rows.
+
+    Raises:
+        KeyboardInterrupt: the smaller design was interrupted (no ``n``-pose design to return).
+    """
+    starts, stages = [], []
+    for k in range(int(n_starts)):
+        d = half_design(seed=seed + k)
+        if d.solver.get("interrupted"):
+            raise KeyboardInterrupt
+        copy, exact = moved_copy(feasibility, d.q, np.random.default_rng(seed + k), collisions)
+        starts.append((seed + k, np.vstack([d.q, copy])[:n]))
+        stages.append({"seed": seed + k, "poses": len(d.q), "value": d.value, "start_value": d.start_value,
+                       "iterations": d.solver.get("iterations"), "cpu_seconds": d.solver.get("cpu_seconds"),
+                       "exact_copies": exact})
+    return starts, {"iterations": STAGED_ITERATIONS, "offset_rad": STAGED_OFFSET, "stages": stages}
+
+
+__all__ = ["STAGED_DRAWS", "STAGED_ITERATIONS", "STAGED_MIN_POSES", "STAGED_OFFSET", "moved_copy",
+           "staged_half", "staged_settings", "staged_starts", "start_designs"]
