@@ -2,7 +2,7 @@
 
     nice -n 10 python bench/bench_model_error_growth.py [--scene fms_kr16] [--growth 60,120,250,500]
         [--seed 0] [--iterations K] [--full-coupling SIZE] [--coupling-rank R]
-        [--doubled FILE [--perturb SIGMA]]
+        [--doubled FILE [--perturb SIGMA]] [--staged-min N] [--staged-iterations K]
 
 Each n runs in its own process (one BLAS thread), as ``calib-oed design SCENE -n N --no-certificate``
 does: :func:`calib_oed.oed.design.design` with the default criterion. In the child the SQP's phase
@@ -20,6 +20,9 @@ from a smaller design measured twice (FILE: the ``--json`` output of ``calib-oed
 same scene; ``--growth`` then defaults to twice its poses): its poses, then the same poses plus
 seeded normal offsets of ``--perturb`` rad (default 0: exact copies), clipped to the joint limits,
 the first n of them; given as the design's start, so no pool, column generation or exchange.
+``--staged-min N`` sets the fewest poses of the package's staged start
+(:data:`calib_oed.oed.staged.STAGED_MIN_POSES`; a number above n: the direct design),
+``--staged-iterations K`` its final stage's iterations (:data:`~calib_oed.oed.staged.STAGED_ITERATIONS`).
 """
 
 from __future__ import annotations
@@ -37,12 +40,15 @@ import numpy as np
 time.perf_counter = time.process_time  # the SQP's phases in CPU seconds
 import calib_oed.oed.model_error as me
 import calib_oed.oed.model_error_hessian as meh
+import calib_oed.oed.staged as staged
 from calib_oed import load_scene
 from calib_oed.calibration.workflow import setup
 from calib_oed.oed.design import design
 scene, n, seed, cap, full, rank = (sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), int(sys.argv[4]),
                                     int(sys.argv[5]), int(sys.argv[6]))
-doubled, perturb = sys.argv[7], float(sys.argv[8])
+doubled, perturb, staged_min, staged_its = sys.argv[7], float(sys.argv[8]), int(sys.argv[9]), int(sys.argv[10])
+staged.STAGED_MIN_POSES = staged_min or staged.STAGED_MIN_POSES
+staged.STAGED_ITERATIONS = staged_its or staged.STAGED_ITERATIONS
 if cap > 0:
     me.MODEL_ERROR_EXACT_ITERATIONS = me.MODEL_ERROR_MIN_ITERATIONS = me.MODEL_ERROR_ITERATIONS = cap
 if full >= 0:
@@ -63,7 +69,7 @@ sol, it = d.solver, d.solver.get("iterations") or 0
 times = {k: round(v, 2) for k, v in (sol.get("times") or {}).items()}
 print(json.dumps({"scene": scene, "n": n, "full_coupling_max_size": meh.FULL_COUPLING_MAX_SIZE,
                   "coupling_rank_cap": rank or None, "doubled": doubled or None, "perturb_rad": perturb,
-                  "start_value_mm2": d.start_value, "status": str(sol.get("status")), "iterations": it,
+                  "staged": sol.get("staged"), "start_value_mm2": d.start_value, "status": str(sol.get("status")), "iterations": it,
                   "value_mm2": d.value, "process_cpu_s": round(time.process_time(), 1),
                   "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss // 1024,
                   "sqp_cpu_s": times, "sqp_cpu_per_iteration_s": round(times.get("total", 0.0) / max(it, 1), 3)}))
@@ -84,6 +90,10 @@ def main(argv=None) -> None:
                     help="start from this design (calib-oed design --json) measured twice")
     ap.add_argument("--perturb", type=float, default=0.0, metavar="SIGMA",
                     help="seeded normal offsets [rad] of the second copy (with --doubled)")
+    ap.add_argument("--staged-min", type=int, default=0, metavar="N",
+                    help="fewest poses of the staged start (default: the package's; above n: the direct design)")
+    ap.add_argument("--staged-iterations", type=int, default=0, metavar="K",
+                    help="SQP iterations of the staged design's final stage (default: the package's)")
     args = ap.parse_args(argv)
     doubled = os.path.abspath(args.doubled) if args.doubled else ""
     if doubled:
@@ -99,7 +109,8 @@ def main(argv=None) -> None:
     for n in (int(v) for v in args.growth.split(",") if v):
         # cwd: ``-c`` puts the working directory first on sys.path, which would shadow PYTHONPATH
         out = subprocess.run([sys.executable, "-c", _CHILD, args.scene, str(n), str(args.seed), str(args.iterations),
-                              str(args.full_coupling), str(args.coupling_rank), doubled, str(args.perturb)],
+                              str(args.full_coupling), str(args.coupling_rank), doubled, str(args.perturb),
+                              str(args.staged_min), str(args.staged_iterations)],
                              env=env, capture_output=True, text=True, check=True, cwd=tempfile.gettempdir())
         print(json.dumps(json.loads(out.stdout.strip().splitlines()[-1])), flush=True)
 

@@ -147,6 +147,10 @@ class Design:
                          f"(weighted as the scene says), max {self.kpi_max_variance:.4g} mm² "
                          f"(sigma {np.sqrt(self.kpi_max_variance):.5f} mm) at {self.kpi_worst}")
         lines.append(self.distinct_line())
+        for stage in (self.solver.get("staged") or {}).get("stages", ()):  # oed/staged.py
+            lines.append(f"  start: the {stage['poses']}-pose design (value {stage['value']:.6g}, "
+                         f"{stage['iterations']} iterations) measured twice, the copy moved "
+                         f"({stage['exact_copies']} poses copied exactly)")
         if self.solver.get("status"):
             lines.append(f"  solver: {self.solver.get('status')}, {self.solver.get('iterations')} "
                          f"iterations, {self.solver.get('message', '')}")

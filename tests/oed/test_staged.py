@@ -100,3 +100,4 @@ def test_a_staged_design_starts_from_half_the_poses_twice(kr16, monkeypatch):
     objective = DesignObjective(kr16.problem, me.scene_criterion(kr16, None))
     assert np.isclose(d.start_value, objective.compute_value(start), rtol=1e-12)
     assert d.value < d.start_value and len(multiplicities(start)) == n - exact
+    assert f"start: the {n // 2}-pose design" in d.summary()
