@@ -223,9 +223,10 @@ def design(
         criterion: A name of :data:`calib_oed.oed.criteria.CRITERIA` or a criterion; None: ``kpi_model``
             where it applies, else ``kpi`` (:func:`calib_oed.oed.model_error.default_criterion`).
         start: ``"exchange"`` (default: the exchange algorithm on the pool, the
-            good basin; a ``kpi_model`` design of 250 poses or more with the default budget starts
-            from the design of half its poses measured twice, :mod:`calib_oed.oed.staged`), ``"heuristic"`` (random feasible poses from ``seed``,
-            the paper's start) or a design (n, nq) [rad].
+            good basin; a ``kpi_model`` design of 250 poses or more with the default budget
+            starts from the design of half its poses measured twice, :mod:`calib_oed.oed.staged`),
+            ``"heuristic"`` (random feasible poses from ``seed``, the paper's start) or a
+            design (n, nq) [rad].
         pool: Size of the random feasible pool drawn from ``seed``, or the
             candidates themselves (N, nq) [rad]; infeasible ones are dropped
             and counted in the record.
