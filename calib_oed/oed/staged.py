@@ -12,12 +12,13 @@ the default budget starts instead from a smaller design measured twice (:func:`s
 Why (fms_kr16, seed 0, ``docs/benchmarks.md``, "The staged start of a large kpi_model design"): at
 500 poses an SQP iteration costs 15-23 s, and the direct design's 72 iterations end where half the
 poses measured twice already are. Side by side on one machine the 500-pose design staged from the
-direct 250-pose one is 8.75e-5 mm² in 947 s of CPU against the direct 1.314e-4 mm² in 1617 s; on
-the realistic simulator (10 truths, paired) the direct design's achieved error is 1.21 +- 0.17
-times the staged one's, the promise held. At 250 poses the staged design's value is 7 % below the direct one's at 57 % of the
-CPU, and on the realistic simulator (20 truths, paired) its achieved error 0.91 +- 0.08 times the
-direct design's, so the stage starts at 250 poses. (On another machine the 125-pose design twice
-with 40 iterations ended 21 % above the direct 250-pose design, with no realistic verdict.)
+direct 250-pose one is 8.75e-5 mm² in 947 s of CPU against the direct 1.314e-4 mm² in 1617 s; on the
+realistic simulator (10 truths, paired) the direct design's achieved error is 1.21 +- 0.17 times the
+staged one's, the promise held. At 250 poses the staged design's value is 7 % below the direct one's
+at 57 % of the CPU, and on the realistic simulator (20 truths, paired) its achieved error is
+0.91 +- 0.08 times the direct design's, so the stage starts at 250 poses. (On another machine the 125-pose
+design twice with 40 iterations ended 21 % above the direct 250-pose design, with no realistic
+verdict.)
 """
 
 from __future__ import annotations
