@@ -181,7 +181,7 @@ def pose_budget_design(s, n: int, criterion, seed: int, pose_iterations: int):
         me.MODEL_ERROR_POSE_ITERATIONS = old
 
 
-def direct_design(s, n: int, criterion, seed: int, staged_start: bool = False):
+def threshold_design(s, n: int, criterion, seed: int, staged_start: bool = False):
     """The default ``kpi_model`` design without its staged start (``--direct``), or with it at any
     size (``staged_start``, ``--staged``)."""
     old = staged.STAGED_MIN_POSES
@@ -219,10 +219,11 @@ def run_scene(scene_ref: str, model: str, n: int, truths: int, noise: int, seed:
            "prior": prior.describe(), "frame": frame or s.problem.kpi.frame}
     designs, errors = {}, {}
     variants = (tuple(f"kpi_model_{b}" for b in budgets) + tuple(f"kpi_model@{r}" for r in rules)
-                + tuple(f"kpi_model#{b}" for b in pose_budgets) + (("kpi_model!direct",) if direct else ()) + (("kpi_model!staged",) if staged_start else ()))
+                + tuple(f"kpi_model#{b}" for b in pose_budgets)
+                + (("kpi_model!direct",) if direct else ()) + (("kpi_model!staged",) if staged_start else ()))
     for crit in ("kpi", "kpi_model") + variants:
         if crit.startswith("kpi_model!"):
-            d = direct_design(s, n, scene_criterion(s, "kpi_model", prior), seed, crit.endswith("staged"))
+            d = threshold_design(s, n, scene_criterion(s, "kpi_model", prior), seed, crit.endswith("staged"))
         elif crit.startswith("kpi_model#"):
             d = pose_budget_design(s, n, scene_criterion(s, "kpi_model", prior), seed, int(crit.split("#")[1]))
         elif crit.startswith("kpi_model@"):

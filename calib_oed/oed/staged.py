@@ -16,9 +16,9 @@ direct 250-pose one is 8.75e-5 mm² in 947 s of CPU against the direct 1.314e-4 
 realistic simulator (10 truths, paired) the direct design's achieved error is 1.21 +- 0.17 times the
 staged one's, the promise held. At 250 poses the staged design's value is 7 % below the direct one's
 at 57 % of the CPU, and on the realistic simulator (20 truths, paired) its achieved error is
-0.91 +- 0.08 times the direct design's, so the stage starts at 250 poses. (On another machine the 125-pose
-design twice with 40 iterations ended 21 % above the direct 250-pose design, with no realistic
-verdict.)
+0.91 +- 0.08 times the direct design's, so the stage starts at 250 poses. (On another machine the
+125-pose design twice with 40 iterations ended 21 % above the direct 250-pose design, with no
+realistic verdict.)
 """
 
 from __future__ import annotations
@@ -29,7 +29,6 @@ from dataclasses import replace
 import numpy as np
 
 from calib_oed.feasibility.batch_fk import batch_body_states
-from calib_oed.feasibility.constraints import FEASIBILITY_TOL
 from calib_oed.oed.approximate_pool import approximate_start
 from calib_oed.oed.problem import COLLISION_KINDS, NO_COLLISION_KINDS
 from calib_oed.oed.starts import exchange_start, given_start, heuristic_start
@@ -90,8 +89,7 @@ def moved_copy(feasibility, q: np.ndarray, rng: np.random.Generator, collisions:
         if not len(todo):
             break
         moved = np.clip(q[todo] + sigma * rng.standard_normal((len(todo), q.shape[1])), robot.lower, robot.upper)
-        values = feasibility.compute_from_states(moved, batch_body_states(robot.model, moved), False, kinds).values
-        ok = np.all(values >= -FEASIBILITY_TOL, axis=1)
+        ok = feasibility.compute_from_states(moved, batch_body_states(robot.model, moved), False, kinds).feasible
         copy[todo[ok]] = moved[ok]
         todo, sigma = todo[~ok], 0.5 * sigma
     return copy, int(len(todo))
