@@ -3,14 +3,18 @@
     nice -n 10 python bench/bench_model_error_growth.py [--scene fms_kr16] [--growth 60,120,250,500]
         [--seed 0] [--iterations K] [--full-coupling SIZE] [--coupling-rank R]
         [--doubled FILE [--perturb SIGMA]] [--staged-min N] [--staged-iterations K]
+        [--criterion kpi_model|kpi_kriging] [--hessian exact|bfgs]
 
 Each n runs in its own process (one BLAS thread), as ``calib-oed design SCENE -n N --no-certificate``
 does: :func:`calib_oed.oed.design.design` with the default criterion. In the child the SQP's phase
 clock (``time.perf_counter``) is the process CPU clock, so its phases (objective, constraints, exact
 Hessian, QP) are CPU seconds, comparable side by side on a shared machine. Reports per n the SQP
 status and iterations, the value [mm²], the process CPU and peak memory, the SQP's phases and its
-CPU per iteration. ``PYTHONPATH=/other/checkout`` runs that checkout's package. ``--iterations``
-sets the design's SQP iterations at every n (instead of :func:`calib_oed.oed.model_error.exact_iterations`),
+CPU per iteration, and beside the peak the package's memory estimate
+(:func:`calib_oed.oed.memory.estimate_memory`, the arrays alone, without the process's own).
+``PYTHONPATH=/other/checkout`` runs that checkout's package. ``--iterations``
+sets the design's SQP iterations at every n (instead of :func:`calib_oed.oed.model_error.exact_iterations`;
+with the staged start those of its smaller designs, the last stage keeps ``--staged-iterations``),
 ``--full-coupling`` the largest Hessian given to the SQP whole
 (:data:`calib_oed.oed.model_error_hessian.FULL_COUPLING_MAX_SIZE`; 0: always the lifted form),
 ``--coupling-rank`` caps the columns of the lifted form's low-rank factor (by a monkeypatch of
@@ -23,6 +27,8 @@ the first n of them; given as the design's start, so no pool, column generation 
 ``--staged-min N`` sets the fewest poses of the package's staged start
 (:data:`calib_oed.oed.staged.STAGED_MIN_POSES`; a number above n: the direct design),
 ``--staged-iterations K`` its final stage's iterations (:data:`~calib_oed.oed.staged.STAGED_ITERATIONS`).
+``--criterion`` designs another model-error criterion than the default, ``--hessian bfgs`` with damped
+BFGS instead of the exact Hessian (neither is staged).
 """
 
 from __future__ import annotations
@@ -44,9 +50,11 @@ import calib_oed.oed.staged as staged
 from calib_oed import load_scene
 from calib_oed.calibration.workflow import setup
 from calib_oed.oed.design import design
+from calib_oed.oed.memory import estimate_memory
 scene, n, seed, cap, full, rank = (sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), int(sys.argv[4]),
                                     int(sys.argv[5]), int(sys.argv[6]))
 doubled, perturb, staged_min, staged_its = sys.argv[7], float(sys.argv[8]), int(sys.argv[9]), int(sys.argv[10])
+criterion, hessian = sys.argv[11] or None, sys.argv[12]
 staged.STAGED_MIN_POSES = staged_min or staged.STAGED_MIN_POSES
 staged.STAGED_ITERATIONS = staged_its or staged.STAGED_ITERATIONS
 if cap > 0:
@@ -64,7 +72,7 @@ if doubled:
     model = s.problem.robot.model
     copy = q + perturb * np.random.default_rng(seed).standard_normal(q.shape)
     start = np.vstack([q, np.clip(copy, model.lowerPositionLimit, model.upperPositionLimit)])[:n]
-d = design(s, n, None, start=start, seed=seed, certificate=False)
+d = design(s, n, criterion, start=start, seed=seed, certificate=False, hessian=hessian)
 sol, it = d.solver, d.solver.get("iterations") or 0
 times = {k: round(v, 2) for k, v in (sol.get("times") or {}).items()}
 print(json.dumps({"scene": scene, "n": n, "full_coupling_max_size": meh.FULL_COUPLING_MAX_SIZE,
@@ -72,6 +80,10 @@ print(json.dumps({"scene": scene, "n": n, "full_coupling_max_size": meh.FULL_COU
                   "staged": sol.get("staged"), "start_value_mm2": d.start_value, "status": str(sol.get("status")), "iterations": it,
                   "value_mm2": d.value, "process_cpu_s": round(time.process_time(), 1),
                   "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss // 1024,
+                  "memory_estimate_mb": round(estimate_memory(n, s.problem.robot.nq, len(s.feasibility.labels),
+                                                              dense=sol.get("hessian") != "exact",
+                                                              coupled=True) / 2**20),
+                  "criterion": d.criterion, "hessian": sol.get("hessian"),
                   "sqp_cpu_s": times, "sqp_cpu_per_iteration_s": round(times.get("total", 0.0) / max(it, 1), 3)}))
 """
 
@@ -94,6 +106,10 @@ def main(argv=None) -> None:
                     help="fewest poses of the staged start (default: the package's; above n: the direct design)")
     ap.add_argument("--staged-iterations", type=int, default=0, metavar="K",
                     help="SQP iterations of the staged design's final stage (default: the package's)")
+    ap.add_argument("--criterion", choices=("kpi_model", "kpi_kriging"), default="",
+                    help="the design criterion (default: the scene's default, kpi_model)")
+    ap.add_argument("--hessian", choices=("exact", "bfgs"), default="exact",
+                    help="the design SQP's Hessian (bfgs: damped BFGS)")
     args = ap.parse_args(argv)
     doubled = os.path.abspath(args.doubled) if args.doubled else ""
     if doubled:
@@ -110,7 +126,7 @@ def main(argv=None) -> None:
         # cwd: ``-c`` puts the working directory first on sys.path, which would shadow PYTHONPATH
         out = subprocess.run([sys.executable, "-c", _CHILD, args.scene, str(n), str(args.seed), str(args.iterations),
                               str(args.full_coupling), str(args.coupling_rank), doubled, str(args.perturb),
-                              str(args.staged_min), str(args.staged_iterations)],
+                              str(args.staged_min), str(args.staged_iterations), args.criterion, args.hessian],
                              env=env, capture_output=True, text=True, check=True, cwd=tempfile.gettempdir())
         print(json.dumps(json.loads(out.stdout.strip().splitlines()[-1])), flush=True)
 

@@ -422,8 +422,8 @@ class DesignMemoryError(DesignError, MemoryError):
         self.available_bytes = float(available_bytes)
         self.largest_n = int(largest_n)
         CalibOedError.__init__(
-            self, f"design: n = {n} poses needs about {needed_bytes / 2**30:.1f} GiB of memory, "
-            f"{available_bytes / 2**30:.1f} GiB are available; the largest n that fits is about "
+            self, f"design: n = {n} poses needs about {needed_bytes / 2**30:.1f} GiB of memory, more than "
+            f"80 % of the {available_bytes / 2**30:.1f} GiB available; the largest n that fits is about "
             f"{largest_n} (or design in batches with `calib-oed sequential`)")
         self.what, self.value, self.valid = "n", n, None
 

@@ -284,7 +284,8 @@ def design(
     exact = (hessian == "exact" and aggregate == "mean"
              and (criterion in EXACT_CRITERIA if isinstance(criterion, str)
                   else has_exact_hessian(criterion)))
-    check_memory(n, s.problem.robot.nq, int(len(s.feasibility.labels)), dense=not exact)
+    check_memory(n, s.problem.robot.nq, int(len(s.feasibility.labels)), dense=not exact,
+                 coupled=getattr(criterion, "needs_design", False))
     t0, cpu0, runs = time.perf_counter(), time.process_time(), []  # runs: (seed, start value, value)
     with threadpool_limits(limits=1):
         objective = DesignObjective(s.problem, criterion)

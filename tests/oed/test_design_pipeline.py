@@ -108,6 +108,27 @@ def test_memory_check_names_the_largest_n(kr16, monkeypatch):
     assert dense.value.largest_n < err.largest_n
 
 
+def test_memory_check_counts_the_coupled_criterion(kr16, monkeypatch):
+    """kpi_model's exact Hessian holds dense (n nv)² arrays (every pose pair): the estimate covers the
+    growth of peak RSS measured on fms_kr16 above the 60-pose process (docs/benchmarks.md, "The memory
+    of a coupled criterion") and refuses a size whose kpi estimate fits."""
+    rows = len(kr16.feasibility.labels)
+    base = 217 * 2**20
+    for n, peak_mib in ((250, 531), (500, 1497), (1000, 4862)):
+        est = memory.estimate_memory(n, 6, rows, dense=False, coupled=True)
+        assert peak_mib * 2**20 - base <= est <= 1.5 * (peak_mib * 2**20 - base)
+        assert est > 10 * memory.estimate_memory(n, 6, rows, dense=False)  # kpi's structured Hessian
+    monkeypatch.setattr(memory, "_available_memory", lambda: 8 * 2**30)
+    memory.check_memory(2000, 6, rows, dense=False)  # the kpi design of 2000 poses fits
+    with pytest.raises(DesignMemoryError) as info:
+        design(kr16, 2000, "kpi_model")
+    err = info.value
+    assert 0 < err.largest_n < 2000 and str(err.largest_n) in str(err)
+    memory.check_memory(err.largest_n, 6, rows, dense=False, coupled=True)
+    with pytest.raises(DesignMemoryError):
+        memory.check_memory(err.largest_n + 1, 6, rows, dense=False, coupled=True)
+
+
 def test_cli_pool_file_replicates_and_no_certificate(tmp_path, kr16, capsys):
     pool = exchange_baseline(kr16, 10, "kpi", pool=200, seed=2).q
     write_design_csv(tmp_path / "pool.csv", kr16.problem.robot, pool)
