@@ -415,15 +415,17 @@ class DesignMemoryError(DesignError, MemoryError):
         needed_bytes: Estimated peak memory of the design [bytes].
         available_bytes: Memory available now [bytes].
         largest_n: Largest number of poses that fits.
+        share: Largest share of the available memory a design may use.
     """
 
-    def __init__(self, n: int, needed_bytes: float, available_bytes: float, largest_n: int):
+    def __init__(self, n: int, needed_bytes: float, available_bytes: float, largest_n: int,
+                 share: float):
         self.needed_bytes = float(needed_bytes)
         self.available_bytes = float(available_bytes)
         self.largest_n = int(largest_n)
         CalibOedError.__init__(
             self, f"design: n = {n} poses needs about {needed_bytes / 2**30:.1f} GiB of memory, more than "
-            f"80 % of the {available_bytes / 2**30:.1f} GiB available; the largest n that fits is about "
+            f"{100 * share:.0f} % of the {available_bytes / 2**30:.1f} GiB available; the largest n that fits is about "
             f"{largest_n} (or design in batches with `calib-oed sequential`)")
         self.what, self.value, self.valid = "n", n, None
 

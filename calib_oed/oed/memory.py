@@ -16,6 +16,8 @@ COUPLING_COLUMNS = 400
 #: With damped BFGS (``kpi_kriging``, ``--hessian bfgs``) the dense estimate's 6 copies: at 500
 #: poses 0.61 GiB peak, 0.40 GiB above the 60-pose process against 0.41 GiB estimated.
 COUPLED_COPIES = 20
+#: Largest share of the available memory a design may be estimated to use.
+MEMORY_SHARE = 0.8
 
 
 def estimate_memory(n: int, nv: int, rows_per_pose: int, dense: bool = True, coupled: bool = False) -> float:
@@ -43,14 +45,14 @@ def check_memory(n: int, nv: int, rows_per_pose: int, dense: bool = True, couple
     :func:`estimate_memory` against the memory available now (``/proc/meminfo`` MemAvailable).
 
     Raises:
-        DesignMemoryError: the estimate exceeds 80 % of the available memory.
+        DesignMemoryError: the estimate exceeds :data:`MEMORY_SHARE` of the available memory.
     """
     available = _available_memory()
     if available is None:
         return
 
     def fits(k: int) -> bool:
-        return estimate_memory(k, nv, rows_per_pose, dense, coupled) <= 0.8 * available
+        return estimate_memory(k, nv, rows_per_pose, dense, coupled) <= MEMORY_SHARE * available
 
     if fits(n):
         return
@@ -58,7 +60,7 @@ def check_memory(n: int, nv: int, rows_per_pose: int, dense: bool = True, couple
     while lo < hi:
         mid = (lo + hi + 1) // 2
         lo, hi = (mid, hi) if fits(mid) else (lo, mid - 1)
-    raise DesignMemoryError(n, estimate_memory(n, nv, rows_per_pose, dense, coupled), available, lo)
+    raise DesignMemoryError(n, estimate_memory(n, nv, rows_per_pose, dense, coupled), available, lo, MEMORY_SHARE)
 
 
 def _available_memory() -> float | None:
