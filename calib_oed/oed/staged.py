@@ -16,9 +16,10 @@ direct 250-pose one is 8.75e-5 mm² in 947 s of CPU against the direct 1.314e-4 
 realistic simulator (10 truths, paired) the direct design's achieved error is 1.21 +- 0.17 times the
 staged one's, the promise held. At 250 poses the staged design's value is 7 % below the direct one's
 at 57 % of the CPU, and on the realistic simulator (20 truths, paired) its achieved error is
-0.91 +- 0.08 times the direct design's, so the stage starts at 250 poses. (On another machine the
-125-pose design twice with 40 iterations ended 21 % above the direct 250-pose design, with no
-realistic verdict.)
+0.91 +- 0.08 times the direct design's, so the stage starts at 250 poses; on ur5_table and on
+fms_kr16 seed 1 (60 truths each) the direct design's is 1.06 +- 0.07 and 1.08 +- 0.06 times the
+staged one's at 60-68 % of the CPU. (On another machine the 125-pose design twice with 40
+iterations ended 21 % above the direct 250-pose design, with no realistic verdict.)
 """
 
 from __future__ import annotations
