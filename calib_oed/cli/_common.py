@@ -260,33 +260,49 @@ def _bars(args) -> bool:
 PROGRESS_LINE_SECONDS = 10.0
 
 
+class _Progress:
+    """The design SQP's progress: a tqdm bar on a terminal, a plain line every
+    :data:`PROGRESS_LINE_SECONDS` otherwise. :meth:`stage` names the poses of the design the
+    records that follow are of (a staged design runs its smaller designs first)."""
+
+    def __init__(self, what: str, bar=None):
+        import time
+
+        self.what, self.bar, self._clock = what, bar, time.perf_counter
+        self.poses, self._last = None, self._clock()
+
+    def stage(self, poses: int) -> None:
+        self.poses = int(poses)
+        if self.bar is not None:
+            self.bar.reset()
+            self.bar.set_description(self._name())
+
+    def _name(self) -> str:
+        return self.what if self.poses is None else f"{self.what}, {self.poses} poses"
+
+    def __call__(self, record) -> None:
+        if self.bar is not None:
+            self.bar.update(1)
+            self.bar.set_postfix(objective=f"{record.objective:.4g}", violation=f"{record.violation:.1e}")
+            return
+        now = self._clock()
+        if now - self._last >= PROGRESS_LINE_SECONDS:
+            self._last = now
+            print(f"{self._name()}: iteration {record.iteration}, objective {record.objective:.4g}, "
+                  f"violation {record.violation:.1e}", file=sys.stderr, flush=True)
+
+
 def _progress(args, what: str):
-    """An SQP iteration callback: a tqdm bar on a terminal, a plain line every
-    :data:`PROGRESS_LINE_SECONDS` otherwise, nothing when quiet; and the bar (or None)."""
+    """An SQP iteration callback (:class:`_Progress`): a tqdm bar on a terminal, plain lines
+    otherwise, nothing when quiet; and the bar (or None)."""
     if getattr(args, "quiet", False) or getattr(args, "json", False):
         return None, None
     if not sys.stderr.isatty():
-        import time
-
-        last = [time.perf_counter()]
-
-        def line(record):
-            now = time.perf_counter()
-            if now - last[0] >= PROGRESS_LINE_SECONDS:
-                last[0] = now
-                print(f"{what}: iteration {record.iteration}, objective {record.objective:.4g}, "
-                      f"violation {record.violation:.1e}", file=sys.stderr, flush=True)
-
-        return line, None
+        return _Progress(what), None
     from tqdm import tqdm
 
     bar = tqdm(desc=what, unit=" it", leave=False, file=sys.stderr)
-
-    def callback(record):
-        bar.update(1)
-        bar.set_postfix(objective=f"{record.objective:.4g}", violation=f"{record.violation:.1e}")
-
-    return callback, bar
+    return _Progress(what, bar), bar
 
 
 def _pool(s, args):

@@ -253,7 +253,9 @@ def design(
         collisions: Impose the capsule and beam constraints (default), or only
             joint limits and incidence.
         settings: SQP settings (default :data:`DESIGN_SQP`).
-        callback: Called with each SQP iteration record.
+        callback: Called with each SQP iteration record. A callback with a ``stage(poses)``
+            method has it called with ``n`` before the design's SQP: a staged design runs its
+            smaller designs first, and their records count iterations from 0 again.
         hessian: ``"exact"`` (default: the exact Lagrangian Hessian, per-pose
             blocks plus the low-rank coupling, where the criterion has one:
             ``kpi``, ``params``, ``D``, ``kpi_model`` with the joint-space prior) or ``"bfgs"`` (damped BFGS).
@@ -309,6 +311,8 @@ def design(
         else:
             sqp = model_error.design_settings(objective, settings, exact, n, DESIGN_SQP)
             sqp = staged_settings(sqp) if half else sqp
+            if callable(getattr(callback, "stage", None)):
+                callback.stage(n)
             best = (optimise_worst_case(s, starts, criterion, collisions, sqp, callback)
                     if aggregate == "max"
                     else optimise_starts(s, starts, criterion, collisions, sqp, callback, hessian, runs))

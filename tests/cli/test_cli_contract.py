@@ -317,8 +317,33 @@ def test_progress_is_plain_lines_without_a_terminal(capsys, monkeypatch):
     callback(Record())
     err = capsys.readouterr().err
     assert err == "kpi-optimal design: iteration 3, objective 0.5, violation 1.0e-09\n"
+    callback.stage(250)  # a staged design names the poses of the design the lines are of
+    callback(Record())
+    assert capsys.readouterr().err == "kpi-optimal design, 250 poses: iteration 3, objective 0.5, violation 1.0e-09\n"
     Args.quiet = True
     assert common._progress(Args(), "x") == (None, None)
+
+
+def test_the_progress_bar_starts_over_at_each_stage():
+    import io
+
+    from tqdm import tqdm
+
+    import calib_oed.cli._common as common
+
+    class Record:
+        iteration, objective, violation = 0, 0.5, 1e-9
+
+    bar = tqdm(desc="kpi_model-optimal design", file=io.StringIO())
+    progress = common._Progress("kpi_model-optimal design", bar)
+    progress(Record())
+    progress(Record())
+    assert bar.n == 2
+    progress.stage(500)
+    assert bar.n == 0 and bar.desc.startswith("kpi_model-optimal design, 500 poses")
+    progress(Record())
+    assert bar.n == 1
+    bar.close()
 
 
 def test_round_trip_is_reported_in_mm():

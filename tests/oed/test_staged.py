@@ -86,7 +86,23 @@ def test_a_staged_design_starts_from_half_the_poses_twice(kr16, monkeypatch):
     monkeypatch.setattr(me, "MODEL_ERROR_EXACT_ITERATIONS", 10)  # a short first stage
     half = design(kr16, n // 2, None, pool=300, seed=1, enrich=False, certificate=False)
     assert half.method == "exchange+sqp"  # below the threshold: the direct design
-    d = design(kr16, n, None, pool=300, seed=1, enrich=False, certificate=False)
+
+    class Progress:  # a callback with a stage hook: told the poses of each SQP's design
+        def __init__(self):
+            self.log = []
+
+        def stage(self, poses):
+            self.log.append(("stage", poses))
+
+        def __call__(self, record):
+            self.log.append(("iteration", record.iteration))
+
+    progress = Progress()
+    d = design(kr16, n, None, pool=300, seed=1, enrich=False, certificate=False, callback=progress)
+    stages = [i for i, (kind, _) in enumerate(progress.log) if kind == "stage"]
+    assert [progress.log[i][1] for i in stages] == [n // 2, n] and stages[0] == 0
+    final = progress.log[stages[1] + 1:]  # the n-pose SQP's records, from iteration 0
+    assert final[0] == ("iteration", 0) and len(final) == d.solver["iterations"]
     assert d.method == "staged+sqp" and d.solver["start"] == "staged" and d.solver["pool"] is None
     stage = d.solver["staged"]["stages"][0]
     assert stage["poses"] == n // 2 and np.isclose(stage["value"], half.value, rtol=1e-12)
