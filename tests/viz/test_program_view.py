@@ -21,7 +21,7 @@ import pinocchio as pin
 import pytest
 import yaml
 from page_commands import by_path, decode_commands, transform  # tests/viz/page_commands.py
-from test_viewer import CHROMIUM_FLAGS, find_chromium  # tests/viz/test_viewer.py
+from test_viewer import PROBE_FLAGS, find_chromium  # tests/viz/test_viewer.py
 
 from calib_oed.cli import EXIT_OK, main
 from calib_oed.exceptions import ProgramError
@@ -226,7 +226,7 @@ def test_animation_plays_in_headless_chromium(kr16_scene, made, tmp_path):
     probe = PROBE.replace("TIMES", json.dumps(times)).replace("PATHS", json.dumps(paths))
     page = tmp_path / "probed.html"
     page.write_text(html.replace("</body>", probe + "</body>"), encoding="utf-8")
-    cmd = [exe, *CHROMIUM_FLAGS, f"--user-data-dir={tmp_path / 'profile'}", "--dump-dom", page.as_uri()]
+    cmd = [exe, *PROBE_FLAGS, f"--user-data-dir={tmp_path / 'profile'}", "--dump-dom", page.as_uri()]
     run = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
     found = re.search(r'<pre id="probe">(.*?)</pre>', run.stdout, re.S)
     assert found, f"the probe did not run (exit {run.returncode}):\n{run.stderr[-2000:]}"
