@@ -3,14 +3,15 @@
     nice -n 10 python bench/bench_model_error_growth.py [--scene fms_kr16] [--growth 60,120,250,500]
         [--seed 0] [--iterations K] [--full-coupling SIZE] [--coupling-rank R]
         [--doubled FILE [--perturb SIGMA]] [--staged-min N] [--staged-iterations K]
-        [--criterion kpi_model|kpi_kriging] [--hessian exact|bfgs]
+        [--criterion kpi_model|kpi_kriging] [--hessian exact|bfgs] [--hessian-lag K]
 
 Each n runs in its own process (one BLAS thread), as ``calib-oed design SCENE -n N --no-certificate``
 does: :func:`calib_oed.oed.design.design` with the default criterion. In the child the SQP's phase
 clock (``time.perf_counter``) is the process CPU clock, so its phases (objective, constraints, exact
 Hessian, QP) are CPU seconds, comparable side by side on a shared machine. Reports per n the SQP
 status and iterations, the value [mm²], the process CPU and peak memory, the SQP's phases and its
-CPU per iteration, and beside the peak the package's memory estimate
+CPU per iteration, its trace (SQP CPU and objective after each iteration; with the staged start
+every stage's, each from 0), and beside the peak the package's memory estimate
 (:func:`calib_oed.oed.memory.estimate_memory`, the arrays alone, without the process's own).
 ``PYTHONPATH=/other/checkout`` runs that checkout's package. ``--iterations``
 sets the design's SQP iterations at every n (instead of :func:`calib_oed.oed.model_error.exact_iterations`;
@@ -28,7 +29,10 @@ the first n of them; given as the design's start, so no pool, column generation 
 (:data:`calib_oed.oed.staged.STAGED_MIN_POSES`; a number above n: the direct design),
 ``--staged-iterations K`` its final stage's iterations (:data:`~calib_oed.oed.staged.STAGED_ITERATIONS`).
 ``--criterion`` designs another model-error criterion than the default, ``--hessian bfgs`` with damped
-BFGS instead of the exact Hessian (neither is staged).
+BFGS instead of the exact Hessian (neither is staged). ``--hessian-lag K`` computes the exact Hessian
+(and its eigendecomposition) at every K-th accepted point only and gives the QPs of the points between
+the last one computed (``SQPSettings.hessian_every = K`` in every design SQP of the child, by a
+monkeypatch of :func:`calib_oed.oed.refine.sqp_settings`; the package's default is 1, every point).
 """
 
 from __future__ import annotations
@@ -54,7 +58,12 @@ from calib_oed.oed.memory import estimate_memory
 scene, n, seed, cap, full, rank = (sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), int(sys.argv[4]),
                                     int(sys.argv[5]), int(sys.argv[6]))
 doubled, perturb, staged_min, staged_its = sys.argv[7], float(sys.argv[8]), int(sys.argv[9]), int(sys.argv[10])
-criterion, hessian = sys.argv[11] or None, sys.argv[12]
+criterion, hessian, lag = sys.argv[11] or None, sys.argv[12], int(sys.argv[13])
+if lag > 1:  # the exact Hessian of every lag-th accepted point (SQPSettings.hessian_every)
+    import dataclasses
+    import calib_oed.oed.refine as refine
+    settings_of = refine.sqp_settings
+    refine.sqp_settings = lambda settings, exact: dataclasses.replace(settings_of(settings, exact), hessian_every=lag)
 staged.STAGED_MIN_POSES = staged_min or staged.STAGED_MIN_POSES
 staged.STAGED_ITERATIONS = staged_its or staged.STAGED_ITERATIONS
 if cap > 0:
@@ -72,7 +81,9 @@ if doubled:
     model = s.problem.robot.model
     copy = q + perturb * np.random.default_rng(seed).standard_normal(q.shape)
     start = np.vstack([q, np.clip(copy, model.lowerPositionLimit, model.upperPositionLimit)])[:n]
-d = design(s, n, criterion, start=start, seed=seed, certificate=False, hessian=hessian)
+trace = []  # (SQP CPU [s], objective) after each iteration
+d = design(s, n, criterion, start=start, seed=seed, certificate=False, hessian=hessian,
+           callback=lambda r: trace.append((round(r.time, 2), r.objective)))
 sol, it = d.solver, d.solver.get("iterations") or 0
 times = {k: round(v, 2) for k, v in (sol.get("times") or {}).items()}
 print(json.dumps({"scene": scene, "n": n, "full_coupling_max_size": meh.FULL_COUPLING_MAX_SIZE,
@@ -83,8 +94,9 @@ print(json.dumps({"scene": scene, "n": n, "full_coupling_max_size": meh.FULL_COU
                   "memory_estimate_mb": round(estimate_memory(n, s.problem.robot.nq, len(s.feasibility.labels),
                                                               dense=sol.get("hessian") != "exact",
                                                               coupled=True) / 2**20),
-                  "criterion": d.criterion, "hessian": sol.get("hessian"),
-                  "sqp_cpu_s": times, "sqp_cpu_per_iteration_s": round(times.get("total", 0.0) / max(it, 1), 3)}))
+                  "criterion": d.criterion, "hessian": sol.get("hessian"), "hessian_lag": max(lag, 1),
+                  "sqp_cpu_s": times, "sqp_cpu_per_iteration_s": round(times.get("total", 0.0) / max(it, 1), 3),
+                  "trace": trace}))
 """
 
 
@@ -110,6 +122,8 @@ def main(argv=None) -> None:
                     help="the design criterion (default: the scene's default, kpi_model)")
     ap.add_argument("--hessian", choices=("exact", "bfgs"), default="exact",
                     help="the design SQP's Hessian (bfgs: damped BFGS)")
+    ap.add_argument("--hessian-lag", type=int, default=1, metavar="K",
+                    help="the exact Hessian at every K-th accepted point, reused between (default 1: every point)")
     args = ap.parse_args(argv)
     doubled = os.path.abspath(args.doubled) if args.doubled else ""
     if doubled:
@@ -126,7 +140,8 @@ def main(argv=None) -> None:
         # cwd: ``-c`` puts the working directory first on sys.path, which would shadow PYTHONPATH
         out = subprocess.run([sys.executable, "-c", _CHILD, args.scene, str(n), str(args.seed), str(args.iterations),
                               str(args.full_coupling), str(args.coupling_rank), doubled, str(args.perturb),
-                              str(args.staged_min), str(args.staged_iterations), args.criterion, args.hessian],
+                              str(args.staged_min), str(args.staged_iterations), args.criterion, args.hessian,
+                              str(args.hessian_lag)],
                              env=env, capture_output=True, text=True, check=True, cwd=tempfile.gettempdir())
         print(json.dumps(json.loads(out.stdout.strip().splitlines()[-1])), flush=True)
 

@@ -92,6 +92,12 @@ class SQPSettings:
         tangent_max_size: Largest number of variables for which ``hessian_modification="auto"``
             takes the tangent rule (1000: 166 poses of 6 joints; ``fms_kr16``'s ``kpi`` design
             took fewer iterations with it at 30-120 poses, more at 250-1000).
+        hessian_every: The exact Hessian (``lagrangian_hessian``, made positive definite) is
+            computed at every ``hessian_every``-th accepted point, counted from the start; the
+            QPs of the points between take the last one computed. 1 (default): at every point.
+            Where the Hessian and its eigendecomposition lead an iteration's cost (``kpi_model``
+            from 250 poses), more iterations of a lagged Hessian fit in the same CPU
+            (``docs/benchmarks.md``, "The exact Hessian every k-th point").
         initial_hessian_scale: :math:`\beta` of :math:`B_0 = \beta I`.
         bfgs_damping: Powell's :math:`\delta \in (0, 1)`: :math:`s^\top r \ge \delta\, s^\top B s`.
         qp_backend: ``"dense"`` (default) or ``"sparse"`` for QPs with a dense
@@ -164,6 +170,7 @@ class SQPSettings:
     hessian_eigenvalue_floor: float = 1e-8
     hessian_modification: str = "auto"
     tangent_max_size: int = 1000
+    hessian_every: int = 1
     initial_hessian_scale: float = 1.0
     bfgs_damping: float = 0.2
     qp_backend: str = "dense"
@@ -196,7 +203,7 @@ class SQPSettings:
             return lambda v: isinstance(v, (int, np.integer)) and v >= low
 
         for name in ("max_iterations", "qp_max_iterations", "max_dense_qp_size", "max_qp_nonzeros",
-                     "block_qp_min_size", "tangent_max_size"):
+                     "block_qp_min_size", "tangent_max_size", "hessian_every"):
             need(name, integer(1), "must be an integer >= 1")
         need("max_backtracks", integer(0), "must be an integer >= 0")
         need("max_qp_rows", lambda v: v is None or integer(1)(v), "must be None (automatic) or an integer >= 1")

@@ -181,10 +181,11 @@ class _SubproblemMixin:
         self.fallback_reason = reason
 
     def _exact_hessian(self):
-        r"""``(H, n_modified)`` from ``lagrangian_hessian`` at :math:`(x_k, \lambda_k)`, or None (reason kept)."""
+        r"""``(H, n_modified)`` from ``lagrangian_hessian`` at :math:`(x_k, \lambda_k)`, or None (reason kept);
+        between every ``hessian_every``-th accepted point the last one computed."""
         key = (self._version, self.lam.tobytes())
-        if key == self._exact_key:
-            return self._exact
+        if key == self._exact_key or (self._exact is not None and self._version % self.s.hessian_every):
+            return self._exact  # this point's, or the last one computed (SQPSettings.hessian_every)
         s, pt = self.s, self.pt
         t = time.perf_counter()
         self._exact, self._exact_key = None, key

@@ -447,6 +447,34 @@ def test_one_penalty_weight_per_row_reaches_the_same_optimum(name):
     assert abs(res.fun - f_star) <= 1e-7 * max(1.0, abs(f_star))
 
 
+def test_a_lagged_exact_hessian_is_computed_every_k_th_point_and_converges():
+    """``hessian_every = k``: ``lagrangian_hessian`` is called at the start and at every k-th accepted
+    point only (the QPs between take the last one); the run still reaches Rosenbrock's minimum."""
+    def objective(x):
+        return 100 * (x[1] - x[0] ** 2) ** 2 + (1 - x[0]) ** 2, np.array(
+            [-400 * x[0] * (x[1] - x[0] ** 2) - 2 * (1 - x[0]), 200 * (x[1] - x[0] ** 2)])
+
+    runs = {}
+    for every in (1, 3):
+        seen = []
+
+        def hessian(x, lam, seen=seen):
+            seen.append(x.copy())
+            return StructuredHessian(np.array([[[1200 * x[0] ** 2 - 400 * x[1] + 2, -400 * x[0]],
+                                                 [-400 * x[0], 200.0]]]))
+
+        res = solve_sqp(objective, np.array([-1.2, 1.0]), lagrangian_hessian=hessian,
+                        settings=SQPSettings(hessian_every=every, trust_update="ratio"))
+        assert res.status is SQPStatus.CONVERGED and res.check(), res.summary()
+        np.testing.assert_allclose(res.x, [1.0, 1.0], atol=1e-6)
+        runs[every] = (res, seen)
+    (res, seen), (lagged, seen3) = runs[1], runs[3]
+    # points 0..A (A accepted steps; the last record, the KKT check, solves a QP at the last one)
+    accepted = [sum(r.step_norm > 0 for r in run.history) for run in (res, lagged)]
+    assert len(seen) == accepted[0] + 1  # every point
+    assert len(seen3) == accepted[1] // 3 + 1 and np.array_equal(seen3[0], [-1.2, 1.0])  # 0, 3, 6, ...
+
+
 def test_max_iterations_is_reported():
     res = solve_sqp(_rosenbrock, np.array([-1.2, 1.0]), settings=SQPSettings(max_iterations=3))
     assert res.status is SQPStatus.MAX_ITERATIONS and res.iterations == 3 and not res.check()
@@ -500,7 +528,7 @@ def test_agrees_with_scipy_slsqp_on_a_random_smooth_problem():
     ("active_margin", -0.1), ("bfgs_damping", 1.0), ("armijo", 0.6), ("backtrack", 1.5),
     ("max_backtracks", -1), ("qp_polish", "yes"), ("step_bound_ratio", 0.5),
     ("qp_eps_abs", 0.0), ("qp_backend", "osqp"), ("trust_update", "nocedal"),
-    ("penalty_weights", "each"),
+    ("penalty_weights", "each"), ("hessian_every", 0),
 ])
 def test_bad_settings_raise_clear_errors(field, value):
     with pytest.raises(SQPSettingsError, match=field) as info:
