@@ -38,6 +38,8 @@ from calib_oed.oed.starts import exchange_start, given_start, heuristic_start
 STAGED_MIN_POSES = 250
 #: SQP iterations of the ``n``-pose design from the doubled start.
 STAGED_ITERATIONS = 20
+#: The ``n``-pose design's exact Hessian at every this many accepted points (``SQPSettings.hessian_every``).
+STAGED_HESSIAN_EVERY = 1
 #: Standard deviation of the seeded joint offsets of the moved copy [rad].
 STAGED_OFFSET = 0.01
 #: Draws of a moved pose, each with half the offset of the one before, before it is copied exactly.
@@ -70,8 +72,9 @@ def staged_half(objective, exact: bool, n: int, start, settings, aggregate: str)
 
 
 def staged_settings(settings):
-    """The final stage's SQP settings: ``settings`` with :data:`STAGED_ITERATIONS` iterations."""
-    return replace(settings, max_iterations=STAGED_ITERATIONS)
+    """The final stage's SQP settings: ``settings`` with :data:`STAGED_ITERATIONS` iterations and the
+    exact Hessian every :data:`STAGED_HESSIAN_EVERY` accepted points."""
+    return replace(settings, max_iterations=STAGED_ITERATIONS, hessian_every=STAGED_HESSIAN_EVERY)
 
 
 def moved_copy(feasibility, q: np.ndarray, rng: np.random.Generator, collisions: bool = True,
@@ -122,8 +125,9 @@ def staged_starts(half_design: Callable, feasibility, n: int, seed: int, n_start
         stages.append({"seed": seed + k, "poses": len(d.q), "value": d.value, "start_value": d.start_value,
                        "iterations": d.solver.get("iterations"), "cpu_seconds": d.solver.get("cpu_seconds"),
                        "exact_copies": exact})
-    return starts, {"iterations": STAGED_ITERATIONS, "offset_rad": STAGED_OFFSET, "stages": stages}
+    return starts, {"iterations": STAGED_ITERATIONS, "hessian_every": STAGED_HESSIAN_EVERY,
+                    "offset_rad": STAGED_OFFSET, "stages": stages}
 
 
-__all__ = ["STAGED_DRAWS", "STAGED_ITERATIONS", "STAGED_MIN_POSES", "STAGED_OFFSET", "moved_copy",
+__all__ = ["STAGED_DRAWS", "STAGED_HESSIAN_EVERY", "STAGED_ITERATIONS", "STAGED_MIN_POSES", "STAGED_OFFSET", "moved_copy",
            "staged_half", "staged_settings", "staged_starts", "start_designs"]

@@ -30,7 +30,8 @@ def test_it_applies_to_large_default_kpi_model_designs_only():
                  (True, BIG, "exchange", None, "max")]:
         assert staged.staged_half(model_error, *args) == 0
     assert staged.staged_half(SimpleNamespace(needs_design=False), True, BIG, "exchange", None, "mean") == 0
-    assert staged.staged_settings(SQPSettings(max_iterations=72)).max_iterations == staged.STAGED_ITERATIONS
+    final = staged.staged_settings(SQPSettings(max_iterations=72))
+    assert final.max_iterations == staged.STAGED_ITERATIONS and final.hessian_every == staged.STAGED_HESSIAN_EVERY
 
 
 def _design_rows(kr16, q):
