@@ -96,8 +96,8 @@ class SQPSettings:
             computed at every ``hessian_every``-th accepted point, counted from the start; the
             QPs of the points between take the last one computed. 1 (default): at every point.
             More iterations fit in the same CPU where the Hessian leads an iteration's cost; for
-            ``kpi_model`` at 250 and 500 poses every third point gained at most 1 % of value at
-            equal CPU (``docs/benchmarks.md``, "The exact Hessian every k-th point").
+            ``kpi_model`` every third point gained about 1 % of value at equal CPU at 500
+            poses and none on average at 250 (``docs/benchmarks.md``, "The exact Hessian every k-th point").
         initial_hessian_scale: :math:`\beta` of :math:`B_0 = \beta I`.
         bfgs_damping: Powell's :math:`\delta \in (0, 1)`: :math:`s^\top r \ge \delta\, s^\top B s`.
         qp_backend: ``"dense"`` (default) or ``"sparse"`` for QPs with a dense
