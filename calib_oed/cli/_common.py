@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -266,10 +267,7 @@ class _Progress:
     records that follow are of (a staged design runs its smaller designs first)."""
 
     def __init__(self, what: str, bar=None):
-        import time
-
-        self.what, self.bar, self._clock = what, bar, time.perf_counter
-        self.poses, self._last = None, self._clock()
+        self.what, self.bar, self.poses, self._last = what, bar, None, time.perf_counter()
 
     def stage(self, poses: int) -> None:
         self.poses = int(poses)
@@ -285,7 +283,7 @@ class _Progress:
             self.bar.update(1)
             self.bar.set_postfix(objective=f"{record.objective:.4g}", violation=f"{record.violation:.1e}")
             return
-        now = self._clock()
+        now = time.perf_counter()
         if now - self._last >= PROGRESS_LINE_SECONDS:
             self._last = now
             print(f"{self._name()}: iteration {record.iteration}, objective {record.objective:.4g}, "
