@@ -55,6 +55,7 @@ from calib_oed.oed.starts import (
     candidate_pool,
     check_start,
     exchange_start,
+    start_enrich,
 )
 from calib_oed.scene.records import Scene
 from calib_oed.solver.sqp import SQPSettings, SQPStatus
@@ -193,7 +194,7 @@ def design(
     n_starts: int = 1,
     refine: bool = True,
     replicates: int = 1,
-    enrich: bool = True,
+    enrich: bool | None = None,
     certificate: bool = True,
     collisions: bool = True,
     settings: SQPSettings | None = None,
@@ -244,9 +245,10 @@ def design(
         position_tol: Reflector positions closer than this [m] are one arm position in the
             record's ``distinct_positions`` (:mod:`calib_oed.oed.positions`, default 1 mm).
         enrich: Add the off-pool local maxima of the approximate design's
-            sensitivity to a random pool before the exchange start (default;
+            sensitivity to a random pool before the exchange start (``True``;
             about 3 s on fms_kr16); ``False``: the approximate design on the pool
-            alone. A given pool is never enriched.
+            alone. None (default): ``True``, except ``kpi_model``'s start
+            (:data:`~calib_oed.oed.starts.MODEL_ERROR_ENRICH`). A given pool is never enriched.
         certificate: Compute the certificate and the efficiency (A criteria
             ``kpi``/``params`` and ``D``, mean aggregate); the record says why
             when it cannot.
@@ -292,6 +294,7 @@ def design(
     with threadpool_limits(limits=1):
         objective = DesignObjective(s.problem, criterion)
         start_objective = DesignObjective(s.problem, "kpi") if objective.needs_design else objective  # kpi's start
+        enrich = start_enrich(objective) if enrich is None else bool(enrich)
         objective.check_design_size(n)
         half = staged_half(objective, exact, n, start, settings, aggregate) if refine else 0
         needs_pool = not half and ((isinstance(start, str) and start == "exchange") or certificate)

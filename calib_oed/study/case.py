@@ -110,7 +110,8 @@ def run_case(case: StudyCase) -> CaseResult:
             for crit in plan.criteria:
                 # the study certifies the case itself (_certified_rows), on its own pool
                 d = design(s, plan.n, crit, start=start, seed=plan.seed, collisions=coll,
-                           settings=settings, certificate=False, enrich=plan.enrich)
+                           settings=settings, certificate=False,
+                           enrich=None if plan.enrich else False)  # True: the library's default
                 if d.interrupted:  # Ctrl-C/SIGTERM in the SQP: a best-so-far design, not this case's
                     raise KeyboardInterrupt
                 rows.append(_row(case, d, "optimal", crit, coll, plan.seed,

@@ -28,6 +28,7 @@ from calib_oed.oed.model_error import (
     exact_iterations,
 )
 from calib_oed.oed.objective import DesignObjective
+from calib_oed.oed.starts import MODEL_ERROR_ENRICH, start_enrich
 from calib_oed.solver.sqp import SQPSettings
 
 
@@ -206,8 +207,14 @@ def test_a_kpi_model_design_has_no_certificate(kr16):
     block = design_settings(DesignObjective(s.problem, MODEL_ERROR), SQPSettings(hessian_modification="block"), True)
     assert block.hessian_modification == "block"
     assert design_settings(DesignObjective(s.problem, "kpi"), None) is None
-    d = design(s, 12, MODEL_ERROR, pool=300, seed=0, enrich=False, settings=SQPSettings(max_iterations=3))
+    d = design(s, 12, MODEL_ERROR, pool=300, seed=0, settings=SQPSettings(max_iterations=3))
     assert d.criterion == MODEL_ERROR and d.value <= d.start_value
+    # its start is kpi's exchange on the random pool alone: no local maxima of kpi's sensitivity
+    # added (MODEL_ERROR_ENRICH, docs/benchmarks.md), where a kpi design's start adds them
+    assert (d.solver["approximate"]["rounds"], d.solver["approximate"]["local_maxima_added"]) == (0, 0)
+    assert d.solver["approximate"]["candidates"] == 300
+    assert not start_enrich(DesignObjective(s.problem, MODEL_ERROR)) and not MODEL_ERROR_ENRICH
+    assert start_enrich(DesignObjective(s.problem, "kpi")) and start_enrich(DesignObjective(s.problem, KRIGING))
     assert d.criteria[MODEL_ERROR] == pytest.approx(d.value, rel=1e-9)
     assert d.criteria[MODEL_ERROR] >= d.criteria["kpi"]  # never below the noise-only criterion
     assert d.certificate["skipped"].startswith("no certificate for the model-error criteria")
