@@ -219,7 +219,7 @@ def run_scene(scene_ref: str, model: str, n: int, truths: int, noise: int, seed:
     if prior_scale != 1.0:
         prior = prior.scaled(prior_scale)
     prior = with_parts(prior, motor, motor_length, smooth)
-    row = {"scene": s.scene.name, "model": model, "n": n, "truths": truths, "noise_draws": noise,
+    row = {"scene": s.scene.name, "model": model, "n": n, "seed": seed, "truths": truths, "noise_draws": noise,
            "prior": prior.describe(), "frame": frame or s.problem.kpi.frame}
     designs, errors = {}, {}
     variants = (tuple(f"kpi_model_{b}" for b in budgets) + tuple(f"kpi_model@{r}" for r in rules)
