@@ -246,7 +246,7 @@ def design(
             record's ``distinct_positions`` (:mod:`calib_oed.oed.positions`, default 1 mm).
         enrich: Add the off-pool local maxima of the approximate design's
             sensitivity to a random pool before the exchange start (``True``;
-            about 3 s on fms_kr16); ``False``: the approximate design on the pool
+            7.5 s of CPU on fms_kr16); ``False``: the approximate design on the pool
             alone. None (default): ``True``, except ``kpi_model``'s start
             (:data:`~calib_oed.oed.starts.MODEL_ERROR_ENRICH`). A given pool is never enriched.
         certificate: Compute the certificate and the efficiency (A criteria
