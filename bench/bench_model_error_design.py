@@ -24,7 +24,7 @@ design CPU time (``solver.cpu_seconds``, one BLAS thread).
     nice -n 10 python bench/bench_model_error_design.py [--scenes fms_kr16 ur5_table bench/scenes/ur10_cell.yaml]
         [--model rigid|extended] [-n 60] [--truths 40] [--noise 1] [--seed 0] [--compensate] [--out DIR]
         [--prior-scale F] [--budgets 25,60,300] [--motor ARCSEC] [--motor-length RAD] [--smooth ARCSEC]
-        [--rules block] [--pose-budgets 36000] [--direct] [--staged] [--pool-only]
+        [--rules block] [--pose-budgets 36000] [--direct] [--staged] [--pool-only] [--enriched]
 
 ``--prior-scale F`` designs ``kpi_model`` with every amplitude of its prior times F (the
 length scales kept): how much a misjudged prior costs.
@@ -57,6 +57,10 @@ its size (:data:`~calib_oed.oed.staged.STAGED_MIN_POSES` lowered to ``n``), pair
 ``--pool-only`` adds the default ``kpi_model`` design whose start is the exchange on the random
 pool alone (``design(..., enrich=False)``: no local maxima of the noise-only sensitivity added to
 the candidates, :mod:`calib_oed.oed.approximate_pool`), paired with the default one as the budgets are.
+Since 23d698e that is the default's own start (``oed.starts.MODEL_ERROR_ENRICH``), so the two designs
+are the same; ``--enriched`` adds the design from the old start instead (``design(..., enrich=True)``:
+the exchange on the pool enriched by the column generation, in a staged start its every stage),
+paired the same way.
 
 ``--rules block`` adds the default ``kpi_model`` design with that rule of the SQP's Hessian
 modification (``SQPSettings.hessian_modification``; the default ``auto`` is the tangent rule at
@@ -212,7 +216,8 @@ def run_scene(scene_ref: str, model: str, n: int, truths: int, noise: int, seed:
               out: Path | None, prior_scale: float = 1.0, frame: str | None = None,
               budgets: tuple[int, ...] = (), motor: float | None = None, motor_length: float = MOTOR_LENGTH,
               smooth: float | None = None, rules: tuple[str, ...] = (), pose_budgets: tuple[int, ...] = (),
-              direct: bool = False, staged_start: bool = False, pool_only: bool = False) -> dict:
+              direct: bool = False, staged_start: bool = False, pool_only: bool = False,
+              enriched: bool = False) -> dict:
     scene = load_scene(scene_ref)
     s = setup(extended_scene(scene) if model == "extended" else scene)
     prior = s.scene.model_error if s.scene.model_error is not None else joint_prior(s.problem)
@@ -225,10 +230,11 @@ def run_scene(scene_ref: str, model: str, n: int, truths: int, noise: int, seed:
     variants = (tuple(f"kpi_model_{b}" for b in budgets) + tuple(f"kpi_model@{r}" for r in rules)
                 + tuple(f"kpi_model#{b}" for b in pose_budgets)
                 + (("kpi_model!direct",) if direct else ()) + (("kpi_model!staged",) if staged_start else ())
-                + (("kpi_model!pool",) if pool_only else ()))
+                + (("kpi_model!pool",) if pool_only else ()) + (("kpi_model!enriched",) if enriched else ()))
     for crit in ("kpi", "kpi_model") + variants:
-        if crit == "kpi_model!pool":
-            d = design(s, n, scene_criterion(s, "kpi_model", prior), seed=seed, certificate=False, enrich=False)
+        if crit in ("kpi_model!pool", "kpi_model!enriched"):
+            d = design(s, n, scene_criterion(s, "kpi_model", prior), seed=seed, certificate=False,
+                       enrich=crit.endswith("enriched"))
         elif crit.startswith("kpi_model!"):
             d = threshold_design(s, n, scene_criterion(s, "kpi_model", prior), seed, crit.endswith("staged"))
         elif crit.startswith("kpi_model#"):
@@ -341,6 +347,8 @@ def main() -> None:
                     help="also the default kpi_model design with the staged start at this n, paired")
     ap.add_argument("--pool-only", action="store_true",
                     help="also the default kpi_model design started from the random pool alone, paired")
+    ap.add_argument("--enriched", action="store_true",
+                    help="also the kpi_model design started from the enriched pool (enrich=True), paired")
     ap.add_argument("--out", type=Path)
     ap.add_argument("--figure", metavar="SCENE", help="only draw the figure of SCENE from --out")
     args = ap.parse_args()
@@ -353,7 +361,7 @@ def main() -> None:
                                        args.compensate, args.out, args.prior_scale, args.frame,
                                        args.budgets, args.motor, args.motor_length, args.smooth,
                                        args.rules, args.pose_budgets, args.direct, args.staged,
-                                       args.pool_only)),
+                                       args.pool_only, args.enriched)),
                   flush=True)
 
 
