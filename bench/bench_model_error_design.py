@@ -25,6 +25,7 @@ design CPU time (``solver.cpu_seconds``, one BLAS thread).
         [--model rigid|extended] [-n 60] [--truths 40] [--noise 1] [--seed 0] [--compensate] [--out DIR]
         [--prior-scale F] [--budgets 25,60,300] [--motor ARCSEC] [--motor-length RAD] [--smooth ARCSEC]
         [--rules block] [--pose-budgets 36000] [--direct] [--staged] [--pool-only] [--enriched]
+        [--starts K]
 
 ``--prior-scale F`` designs ``kpi_model`` with every amplitude of its prior times F (the
 length scales kept): how much a misjudged prior costs.
@@ -61,6 +62,10 @@ Since 23d698e that is the default's own start (``oed.starts.MODEL_ERROR_ENRICH``
 are the same; ``--enriched`` adds the design from the old start instead (``design(..., enrich=True)``:
 the exchange on the pool enriched by the column generation, in a staged start its every stage),
 paired the same way.
+
+``--starts K`` adds the default ``kpi_model`` design run from K seeded starts, the best kept
+(``design(..., n_starts=K)``, ``calib-oed design --starts K``; start k from seed + k, start 0 the
+default's), paired with the default one as the budgets are: what K times the CPU buys.
 
 ``--rules block`` adds the default ``kpi_model`` design with that rule of the SQP's Hessian
 modification (``SQPSettings.hessian_modification``; the default ``auto`` is the tangent rule at
@@ -217,7 +222,7 @@ def run_scene(scene_ref: str, model: str, n: int, truths: int, noise: int, seed:
               budgets: tuple[int, ...] = (), motor: float | None = None, motor_length: float = MOTOR_LENGTH,
               smooth: float | None = None, rules: tuple[str, ...] = (), pose_budgets: tuple[int, ...] = (),
               direct: bool = False, staged_start: bool = False, pool_only: bool = False,
-              enriched: bool = False) -> dict:
+              enriched: bool = False, starts: int = 1) -> dict:
     scene = load_scene(scene_ref)
     s = setup(extended_scene(scene) if model == "extended" else scene)
     prior = s.scene.model_error if s.scene.model_error is not None else joint_prior(s.problem)
@@ -230,9 +235,12 @@ def run_scene(scene_ref: str, model: str, n: int, truths: int, noise: int, seed:
     variants = (tuple(f"kpi_model_{b}" for b in budgets) + tuple(f"kpi_model@{r}" for r in rules)
                 + tuple(f"kpi_model#{b}" for b in pose_budgets)
                 + (("kpi_model!direct",) if direct else ()) + (("kpi_model!staged",) if staged_start else ())
-                + (("kpi_model!pool",) if pool_only else ()) + (("kpi_model!enriched",) if enriched else ()))
+                + (("kpi_model!pool",) if pool_only else ()) + (("kpi_model!enriched",) if enriched else ())
+                + ((f"kpi_model!starts{starts}",) if starts > 1 else ()))
     for crit in ("kpi", "kpi_model") + variants:
-        if crit in ("kpi_model!pool", "kpi_model!enriched"):
+        if crit.startswith("kpi_model!starts"):
+            d = design(s, n, scene_criterion(s, "kpi_model", prior), seed=seed, certificate=False, n_starts=starts)
+        elif crit in ("kpi_model!pool", "kpi_model!enriched"):
             d = design(s, n, scene_criterion(s, "kpi_model", prior), seed=seed, certificate=False,
                        enrich=crit.endswith("enriched"))
         elif crit.startswith("kpi_model!"):
@@ -349,6 +357,8 @@ def main() -> None:
                     help="also the default kpi_model design started from the random pool alone, paired")
     ap.add_argument("--enriched", action="store_true",
                     help="also the kpi_model design started from the enriched pool (enrich=True), paired")
+    ap.add_argument("--starts", type=int, default=1, metavar="K",
+                    help="also the default kpi_model design from K seeded starts, the best kept, paired")
     ap.add_argument("--out", type=Path)
     ap.add_argument("--figure", metavar="SCENE", help="only draw the figure of SCENE from --out")
     args = ap.parse_args()
@@ -361,7 +371,7 @@ def main() -> None:
                                        args.compensate, args.out, args.prior_scale, args.frame,
                                        args.budgets, args.motor, args.motor_length, args.smooth,
                                        args.rules, args.pose_budgets, args.direct, args.staged,
-                                       args.pool_only, args.enriched)),
+                                       args.pool_only, args.enriched, args.starts)),
                   flush=True)
 
 
