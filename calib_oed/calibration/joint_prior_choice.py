@@ -38,8 +38,9 @@ def lever_arms(problem) -> np.ndarray:
 
 def joint_prior(problem, spec=None) -> JointErrorPrior:
     """The joint-space prior of ``problem``: the size-class default (its compliance model's
-    payload) with what ``spec`` (a :class:`~calib_oed.scene.records.JointErrorSpec` or None) sets."""
-    base = JointErrorPrior.default_for(problem.robot, getattr(problem.space, "compliance", None))
+    payload and the reflector nest at the reflectors) with what ``spec`` (a :class:`~calib_oed.scene.records.JointErrorSpec` or None) sets."""
+    base = JointErrorPrior.default_for(problem.robot, getattr(problem.space, "compliance", None),
+                                       problem.space.reflector_offsets(None))
     if spec is None:
         return base
     parts = {name: np.array(getattr(base, name), dtype=float) for name in PARTS}

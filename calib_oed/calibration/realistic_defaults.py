@@ -46,6 +46,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from calib_oed.exceptions import ParameterError
+from calib_oed.model.compliance import NEST_MASS
 from calib_oed.model.size_class import TYPICAL, SizeDefaults, per_joint, size_class_of
 from calib_oed.scene.fields import FieldReader
 from calib_oed.units import ANGLE_UNITS, LENGTH_UNITS
@@ -93,7 +94,7 @@ class RealisticSettings:
     stiffness_spread: float = 0.3
     payload_mass: float | None = None
     payload_com: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    nest_mass: float = 0.3
+    nest_mass: float = NEST_MASS
     joint_cyclic: tuple[float, float] = (30 * ARCSEC, 15 * ARCSEC)
     motor_cyclic: tuple[float, float] = (5 * ARCSEC, 3 * ARCSEC)
     gear_ratios: tuple[float, ...] | None = None

@@ -14,7 +14,8 @@ Gaussian processes,
     \quad [\mathrm{m}^2],
 
 and per joint, with :math:`\Delta = q_k - q'_k` [rad] and :math:`\tau_k` the gravity torque on
-joint k of the nominal arm with the scene's payload (:class:`~calib_oed.model.compliance.GravityLoad`) [N·m],
+joint k of the nominal arm with the scene's payload and the reflector nest of the measurements
+(:class:`~calib_oed.model.compliance.GravityLoad`) [N·m],
 
 .. math::
     k_k(q, q') = a_{1k}^2\cos\Delta + a_{2k}^2\cos 2\Delta
@@ -57,7 +58,10 @@ class of the arm's URDF mass and the published magnitudes of
 15 arcsec amplitude), the motor-side part :data:`MOTOR_RMS` (the motor's own harmonics and
 those of the input stage at the joint, 5 and 3 arcsec amplitude, as one RMS), no smooth part
 (:data:`SMOOTH_SIGMA`), gain errors 5e-5, compliance :math:`\gamma_k = 1/k_k` (the class's
-typical stiffness) with the scene's payload; J2's times :math:`1 - b`, :math:`b` the class's
+typical stiffness) with the scene's payload and the reflector nest
+(:data:`~calib_oed.model.compliance.NEST_MASS` at the reflectors' centroid, as the realistic
+simulator loads the arm: without it a design cancels the deflection of a load the arm does not
+carry, ``docs/oed.md``, "The reflector nest in the prior"); J2's times :math:`1 - b`, :math:`b` the class's
 ``balancer_fraction`` (medium and large arms carry a J2 spring balancer that takes that share of
 the joint's gravity torque, as in the realistic simulator; small arms have none, :math:`b = 0`).
 Measured on the realistic simulator in ``docs/oed.md`` ("The default prior and iteration budget").
@@ -70,7 +74,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from calib_oed.exceptions import ParameterError
-from calib_oed.model.compliance import Compliance, GravityLoad
+from calib_oed.model.compliance import NEST_MASS, Compliance, GravityLoad
 from calib_oed.model.kinematics import compute_tool_kinematics
 from calib_oed.model.size_class import TYPICAL, arm_mass, per_joint, size_class_of
 
@@ -140,15 +144,21 @@ class JointErrorPrior:
         return self.once.size
 
     @classmethod
-    def default_for(cls, robot, payload: Compliance | None = None) -> JointErrorPrior:
-        """The documented default for ``robot`` (module docstring), the payload on its tool."""
+    def default_for(cls, robot, payload: Compliance | None = None, reflectors=None) -> JointErrorPrior:
+        """The documented default for ``robot`` (module docstring), the payload on its tool;
+        ``reflectors`` (k, 3) [m, tool frame]: the nominal reflector centres, the reflector nest
+        (:data:`~calib_oed.model.compliance.NEST_MASS`) joins the load at their centroid, as in
+        the measurements (None: no nest)."""
         model = robot.model
         mass = arm_mass(model)
         size = size_class_of(mass)
         compliance = 1.0 / per_joint(TYPICAL[size].stiffness, model.nv)
         if model.nv >= 2:  # the J2 balancer carries its share of J2's gravity torque
             compliance[1] *= 1.0 - TYPICAL[size].balancer_fraction
-        gravity = GravityLoad(model, robot.tool_frame_id, payload if payload is not None else Compliance())
+        load = payload if payload is not None else Compliance()
+        if reflectors is not None:
+            load = load.with_nest(NEST_MASS, np.mean(np.reshape(reflectors, (-1, 3)), axis=0))
+        gravity = GravityLoad(model, robot.tool_frame_id, load)
         nq = model.nq
         return cls(np.full(nq, PERIODIC_RMS[0]), np.full(nq, PERIODIC_RMS[1]), np.full(nq, SMOOTH_SIGMA),
                    np.full(nq, SMOOTH_LENGTH), np.full(nq, GAIN_SIGMA), compliance, gravity,

@@ -115,14 +115,15 @@ class PoseScale:
     @classmethod
     def from_dict(cls, data, space) -> PoseScale:
         """From :meth:`to_dict`'s form for the nominal robot of ``space`` (a
-        :class:`~calib_oed.model.parameters.ParameterSpace`; its compliance block's payload loads
-        the arm, as for :meth:`JointErrorPrior.default_for`).
+        :class:`~calib_oed.model.parameters.ParameterSpace`; its compliance block's payload and the
+        reflector nest load the arm, as for :func:`~calib_oed.calibration.joint_prior_choice.joint_prior`).
 
         Raises:
             ParameterError: keys missing or values out of range.
         """
         try:
-            base = JointErrorPrior.default_for(space.robot, getattr(space, "compliance", None))
+            base = JointErrorPrior.default_for(space.robot, getattr(space, "compliance", None),
+                                               space.reflector_offsets(None))
             prior = JointErrorPrior.from_dict(data["joint_prior"], base.gravity)
             point = 1e-3 * np.asarray(data["point_mm"], dtype=float).reshape(1, 3)
             robot = space.robot

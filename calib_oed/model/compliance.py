@@ -40,6 +40,11 @@ from calib_oed.exceptions import NonFiniteError, ParameterError, ShapeError
 #: about that of a heavy industrial arm's main axes (1e6..1e7 N·m/rad, i.e.
 #: compliance 0.1..1 mrad/(kN·m)).
 STIFFNESS_RANGE = (1e6, 1e7)
+#: Mass of the reflector nest(s) and stem on the tool during the measurements [kg], at the
+#: reflectors' centroid: a 1.5-inch SMR (about 0.17 kg) in a magnetic nest on a short stem. The
+#: realistic simulator's default (:mod:`calib_oed.calibration.realistic_defaults`) and the design
+#: prior's load (:meth:`calib_oed.measurement.joint_prior.JointErrorPrior.default_for`).
+NEST_MASS = 0.3
 
 
 @dataclass(frozen=True, eq=False)
@@ -96,6 +101,15 @@ class Compliance:
         if self.link_masses is None:
             return "urdf"
         return "scene" if np.any(self.link_masses > 0) else "none"
+
+    def with_nest(self, mass: float, com) -> Compliance:
+        """This load with a point mass ``mass`` [kg] at ``com`` (3,) [m, tool frame] added to the
+        payload (one mass at the common centre of mass; the arm's own weight kept)."""
+        total = self.payload_mass + float(mass)
+        if total <= 0:
+            return self
+        centre = (self.payload_mass * self.payload_com + float(mass) * np.asarray(com, dtype=float)) / total
+        return Compliance(total, centre, self.link_masses, self.link_coms)
 
     def describe(self) -> str:
         """One line for reports (kg, mm)."""
