@@ -156,13 +156,17 @@ class JointErrorPrior:
         if model.nv >= 2:  # the J2 balancer carries its share of J2's gravity torque
             compliance[1] *= 1.0 - TYPICAL[size].balancer_fraction
         load = payload if payload is not None else Compliance()
+        carried = ([] if load.arm_weight == "none" else ["arm"]) + (
+            [f"payload {load.payload_mass:g} kg"] if load.payload_mass > 0 else [])
         if reflectors is not None:
             load = load.with_nest(NEST_MASS, np.mean(np.reshape(reflectors, (-1, 3)), axis=0))
+            carried.append(f"reflector nest {NEST_MASS:g} kg")
         gravity = GravityLoad(model, robot.tool_frame_id, load)
         nq = model.nq
+        source = f"default ({size} arm, {mass:.0f} kg; gravity load: {' + '.join(carried)})"
         return cls(np.full(nq, PERIODIC_RMS[0]), np.full(nq, PERIODIC_RMS[1]), np.full(nq, SMOOTH_SIGMA),
                    np.full(nq, SMOOTH_LENGTH), np.full(nq, GAIN_SIGMA), compliance, gravity,
-                   f"default ({size} arm, {mass:.0f} kg)", np.full(nq, MOTOR_RMS), np.full(nq, MOTOR_LENGTH))
+                   source, np.full(nq, MOTOR_RMS), np.full(nq, MOTOR_LENGTH))
 
     def scaled(self, factor: float) -> JointErrorPrior:
         """Every amplitude times ``factor`` (the length scales kept): a prior that misjudges the

@@ -10,6 +10,7 @@ from calib_oed.calibration.joint_prior_choice import LEVER_CONFIGURATIONS, joint
 from calib_oed.calibration.realistic import sample_truth
 from calib_oed.calibration.workflow import setup
 from calib_oed.measurement.joint_prior import JointErrorPrior, point_jacobians
+from calib_oed.model.compliance import Compliance
 from calib_oed.oed.model_error import scene_criterion
 from calib_oed.scene.reader import load_scene
 from calib_oed.scene.records import JointErrorSpec
@@ -78,3 +79,12 @@ def test_the_prior_loads_the_arm_as_the_realistic_simulator_does(scene):
     np.testing.assert_allclose(prior.gravity.torques(q), truth.compute_gravity_torques(q), rtol=1e-12, atol=1e-12)
     bare = JointErrorPrior.default_for(s.problem.robot, getattr(s.problem.space, "compliance", None))
     assert np.max(np.abs(bare.gravity.torques(q) - truth.compute_gravity_torques(q))) > 0.1  # N m: the nest counts
+
+
+def test_the_prior_says_what_loads_the_arm(kr16):
+    """The record's prior names its gravity load: the arm, a payload if any, the reflector nest."""
+    assert joint_prior(kr16.problem).source.endswith("gravity load: arm + reflector nest 0.3 kg)")
+    bare = JointErrorPrior.default_for(kr16.problem.robot, Compliance(16.0, np.zeros(3)))
+    assert bare.source.endswith("gravity load: arm + payload 16 kg)")
+    alone = Compliance(16.0, np.zeros(3), link_masses=np.zeros(6))
+    assert JointErrorPrior.default_for(kr16.problem.robot, alone).source.endswith("gravity load: payload 16 kg)")
