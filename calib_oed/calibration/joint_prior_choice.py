@@ -37,9 +37,9 @@ def lever_arms(problem) -> np.ndarray:
 
 
 def joint_prior(problem, spec=None) -> JointErrorPrior:
-    """The joint-space prior of ``problem``: the size-class default (its compliance model's
-    payload and the reflector nest at the reflectors) with what ``spec`` (a :class:`~calib_oed.scene.records.JointErrorSpec` or None) sets."""
-    base = JointErrorPrior.default_for(problem.robot, getattr(problem.space, "compliance", None),
+    """The joint-space prior of ``problem``: the size-class default (the arm loaded by the
+    problem's payload, modelled or not, and the reflector nest at the reflectors) with what ``spec`` (a :class:`~calib_oed.scene.records.JointErrorSpec` or None) sets."""
+    base = JointErrorPrior.default_for(problem.robot, getattr(problem, "payload", None),
                                        problem.space.reflector_offsets(None))
     if spec is None:
         return base

@@ -15,6 +15,7 @@ from calib_oed.calibration.covariance import kpi_covariance
 from calib_oed.calibration.kpi import TcpKpi
 from calib_oed.measurement import MeasurementModel
 from calib_oed.measurement.sensitivity import weighted_jacobian
+from calib_oed.model.compliance import Compliance
 from calib_oed.model.identifiability import (
     DEFAULT_TOL,
     Estimability,
@@ -36,6 +37,9 @@ class CalibrationProblem:
         kpi: The key performance indicator.
         generic: The generic design of the gauge rule (default 200 configurations, seed 0).
         tol: Tolerance of the gauge rule.
+        payload: The payload on the tool during the measurements (a scene's ``robot.compliance``
+            payload, modelled or not); None: the compliance model's, if any. It loads the arm in
+            the design prior (:func:`~calib_oed.calibration.joint_prior_choice.joint_prior`).
     """
 
     def __init__(
@@ -45,6 +49,7 @@ class CalibrationProblem:
         kpi: TcpKpi,
         generic: GenericDesignSpec | None = None,
         tol: float = DEFAULT_TOL,
+        payload: Compliance | None = None,
     ):
         if not models:
             raise ValueError("a calibration problem needs at least one measurement model")
@@ -53,6 +58,7 @@ class CalibrationProblem:
         self.kpi = kpi
         self.generic = generic if generic is not None else GenericDesignSpec()
         self.tol = tol
+        self.payload = payload if payload is not None else getattr(space, "compliance", None)
         space.robot.check_configurations(kpi.configurations, "kpi configurations")
 
     @property
@@ -77,7 +83,7 @@ class CalibrationProblem:
             weights=[w.weight for w in scene.kpi.configurations],
         )
         generic = scene.generic_design
-        return cls(space, models, kpi, generic)
+        return cls(space, models, kpi, generic, payload=compliance.payload if compliance is not None else None)
 
     # ------------------------------------------------------------ jacobians
     def weighted_jacobian(self, q: np.ndarray, p: np.ndarray | None = None) -> np.ndarray:

@@ -38,6 +38,7 @@ import numpy as np
 
 from calib_oed.exceptions import ParameterError
 from calib_oed.measurement.joint_prior import JointErrorPrior, PointJacobians
+from calib_oed.model.compliance import Compliance, GravityLoad
 
 MM2_PER_M2 = 1e6
 #: Configuration sets whose v(q) a scale and its copies keep (the fit evaluates the same ones).
@@ -107,26 +108,41 @@ class PoseScale:
                 f"mean {self.mean_variance * MM2_PER_M2:.4g} mm² over the training poses)")
 
     def to_dict(self) -> dict:
-        """JSON form: the weight, the mean variance [mm²], the point [mm] and the joint prior."""
-        return {"kind": "joint_prior", "weight": self.weight,
-                "mean_variance_mm2": self.mean_variance * MM2_PER_M2,
-                "point_mm": (self.points.offsets[0] * 1e3).tolist(), "joint_prior": self.prior.to_dict()}
+        """JSON form: the weight, the mean variance [mm²], the point [mm], the joint prior and the
+        load on the tool its compliance part was computed with (``load``: kg, mm)."""
+        out = {"kind": "joint_prior", "weight": self.weight,
+               "mean_variance_mm2": self.mean_variance * MM2_PER_M2,
+               "point_mm": (self.points.offsets[0] * 1e3).tolist(), "joint_prior": self.prior.to_dict()}
+        load = getattr(self.prior.gravity, "load", None)
+        if load is not None:
+            out["load"] = {"mass_kg": load.payload_mass, "com_mm": (load.payload_com * 1e3).tolist(),
+                           **({"link_masses_kg": load.link_masses.tolist(),
+                               "link_coms_mm": (load.link_coms * 1e3).tolist()} if load.link_masses is not None else {})}
+        return out
 
     @classmethod
     def from_dict(cls, data, space) -> PoseScale:
         """From :meth:`to_dict`'s form for the nominal robot of ``space`` (a
-        :class:`~calib_oed.model.parameters.ParameterSpace`; its compliance block's payload and the
-        reflector nest load the arm, as for :func:`~calib_oed.calibration.joint_prior_choice.joint_prior`).
+        :class:`~calib_oed.model.parameters.ParameterSpace`), the arm loaded as recorded (``load``;
+        a record without it: by ``space``'s compliance payload and the reflector nest).
 
         Raises:
             ParameterError: keys missing or values out of range.
         """
         try:
-            base = JointErrorPrior.default_for(space.robot, getattr(space, "compliance", None),
-                                               space.reflector_offsets(None))
-            prior = JointErrorPrior.from_dict(data["joint_prior"], base.gravity)
-            point = 1e-3 * np.asarray(data["point_mm"], dtype=float).reshape(1, 3)
             robot = space.robot
+            if "load" in data:
+                rec = data["load"]
+                masses = rec.get("link_masses_kg")
+                load = Compliance(float(rec["mass_kg"]), 1e-3 * np.asarray(rec["com_mm"], dtype=float),
+                                  None if masses is None else np.asarray(masses, dtype=float),
+                                  None if masses is None else 1e-3 * np.asarray(rec["link_coms_mm"], dtype=float))
+                gravity = GravityLoad(robot.model, robot.tool_frame_id, load)
+            else:
+                gravity = JointErrorPrior.default_for(robot, getattr(space, "compliance", None),
+                                                      space.reflector_offsets(None)).gravity
+            prior = JointErrorPrior.from_dict(data["joint_prior"], gravity)
+            point = 1e-3 * np.asarray(data["point_mm"], dtype=float).reshape(1, 3)
             return cls(prior, PointJacobians(robot.model, robot.tool_frame_id, point, np.eye(3)),
                        float(data["mean_variance_mm2"]) / MM2_PER_M2, float(data["weight"]))
         except (KeyError, TypeError, ValueError) as exc:

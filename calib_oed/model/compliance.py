@@ -130,6 +130,7 @@ class GravityLoad:
     """
 
     def __init__(self, model: pin.Model, tool_frame_id: int, compliance: Compliance):
+        self.load = compliance
         self.model = model.copy()
         frame = self.model.frames[tool_frame_id]
         if compliance.link_masses is not None:

@@ -66,7 +66,7 @@ def test_the_scene_key_reaches_the_design_criterion(kr16):
     assert prior.source.startswith("scene")
 
 
-@pytest.mark.parametrize("scene", ["fms_kr16", "ur5_table", "bench/scenes/ur10_cell.yaml"])
+@pytest.mark.parametrize("scene", ["fms_kr16", "ur5_table", "fms_kr300", "bench/scenes/ur10_cell.yaml"])
 def test_the_prior_loads_the_arm_as_the_realistic_simulator_does(scene):
     """The prior's gravity torques are those of the realistic arm during the measurements: the
     arm, the payload and the reflector nest (NEST_MASS at the reflectors' centroid). Without the

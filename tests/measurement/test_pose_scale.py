@@ -7,9 +7,11 @@ import pytest
 
 from calib_oed.calibration.hyper_uncertainty import prior_of, theta_of
 from calib_oed.calibration.joint_prior_choice import fitted_model_error, pose_scale
+from calib_oed.calibration.workflow import setup
 from calib_oed.exceptions import ParameterError
 from calib_oed.measurement.base import evaluate_setup
 from calib_oed.measurement.discrepancy import DiscrepancyPrior
+from calib_oed.scene.reader import load_scene
 from tests.conftest import central_difference, relative_error
 
 
@@ -70,3 +72,21 @@ def test_json_keeps_the_scale_for_the_problem(kr16_setup, scale):
     data["pose_scale"] = {"weight": 0.4}
     with pytest.raises(ParameterError, match="point_mm"):
         fitted_model_error(data, kr16_setup.problem.space)
+
+
+def test_json_keeps_the_load_the_scale_was_made_with():
+    """fms_kr300 declares its 300 kg payload with compliance not modelled: the payload is on the
+    arm in the measurements (docs/scenes.md), so it loads the prior's shape, and a fitted model
+    error read back for the scene's parameter space (which has no compliance block) keeps it."""
+    s = setup(load_scene("fms_kr300"))
+    assert s.problem.space.compliance is None
+    q = s.problem.robot.random_configurations(20, 3)
+    sc = pose_scale(s.problem).normalised(q)
+    assert sc.prior.gravity.load.payload_mass == pytest.approx(300.3)  # the payload and the nest
+    prior = DiscrepancyPrior(1e-4, (1.0,) * 6, "matern52").with_scale(sc.with_weight(0.7))
+    data = prior.to_dict()
+    back = fitted_model_error(data, s.problem.space)
+    assert relative_error(back.kernel(q, q), prior.kernel(q, q)) < 1e-12
+    del data["pose_scale"]["load"]  # a record from before the load was written: the space's rule
+    old = fitted_model_error(data, s.problem.space)
+    assert relative_error(old.kernel(q, q), prior.kernel(q, q)) > 1e-3
