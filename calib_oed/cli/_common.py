@@ -383,6 +383,22 @@ def _note_infeasible(s, q, what: str) -> None:
             "(`calib-oed feasibility` lists the margins)"), stacklevel=2)
 
 
+def _note_deflection(s, criterion) -> None:
+    """The :func:`~calib_oed.calibration.joint_prior_choice.deflection_note` of a model-error design."""
+    import warnings
+
+    from calib_oed.calibration.joint_prior_choice import deflection_note, joint_prior
+    from calib_oed.exceptions import CalibOedNote
+    from calib_oed.oed.model_error import KRIGING, MODEL_ERROR, scene_prior
+
+    if criterion not in (MODEL_ERROR, KRIGING):
+        return
+    prior = scene_prior(s)
+    note = deflection_note(s.problem, joint_prior(s.problem) if prior is None else prior)
+    if note is not None:
+        warnings.warn(CalibOedNote(note), stacklevel=2)
+
+
 _LENGTH_UNITS_MM = {"mm": 1.0, "um": 1e-3, "µm": 1e-3, "m": 1e3}
 
 

@@ -16,6 +16,7 @@ from calib_oed.cli._common import (
     _iterate,
     _mesh_check,
     _model_error_warning,
+    _note_deflection,
     _optimise,
     _problem,
     _say,
@@ -65,6 +66,7 @@ def cmd_design(args) -> int:
     criterion = args.criterion or ("kpi" if args.aggregate == "max" else default_criterion(s.scene))
     # the KPI aggregate: --aggregate, else the scene's kpi.aggregate (for criterion kpi)
     aggregate = args.aggregate or (s.scene.kpi.aggregate if criterion == "kpi" else "mean")
+    _note_deflection(s, criterion)
     result = _optimise(s, args, criterion, start, aggregate)
     paths = write_design(args.output, result, s.problem.robot) if args.output else {}
     code = EXIT_INTERRUPTED if result.interrupted else EXIT_OK
@@ -439,3 +441,4 @@ def cmd_sequential(args) -> int:
     if result.check():
         return EXIT_INTERNAL
     return EXIT_OK
+

@@ -205,6 +205,13 @@ class JointErrorPrior:
                    ARCSEC * np.asarray(data.get("motor_arcsec", 0.0), float),
                    1e-3 * np.asarray(data.get("motor_length_mrad", MOTOR_LENGTH * 1e3), float))
 
+    def compute_deflections(self, q: np.ndarray) -> np.ndarray:
+        r"""The compliance part's joint deflections at its RMS compliance, :math:`\gamma\circ\tau(q)`
+        (n, nq) [rad] at the configurations ``q`` (n, nq); zeros without a compliance part."""
+        if self.gravity is None or not np.any(self.compliance > 0):
+            return np.zeros((len(q), self.nq))
+        return self.compliance * self.gravity.torques(q)[:, :self.nq]
+
     def compute_own_variance(self, q: np.ndarray) -> np.ndarray:
         r"""Each joint's angle-error variance :math:`k_k(q, q) = a_1^2 + a_2^2 + s^2 + m^2 + \nu^2 q_k^2
         + \gamma^2\tau_k(q)^2` (n, nq) [rad²] at the configurations ``q`` (n, nq)."""

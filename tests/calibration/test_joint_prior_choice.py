@@ -3,17 +3,25 @@ and the lever-arm conversion of amplitudes at the points checked by a seeded Mon
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
-from calib_oed.calibration.joint_prior_choice import LEVER_CONFIGURATIONS, joint_prior, lever_arms
+from calib_oed.calibration.joint_prior_choice import (
+    DEFLECTION_NOTE,
+    LEVER_CONFIGURATIONS,
+    deflection_note,
+    joint_prior,
+    lever_arms,
+)
 from calib_oed.calibration.realistic import sample_truth
 from calib_oed.calibration.workflow import setup
 from calib_oed.measurement.joint_prior import JointErrorPrior, point_jacobians
 from calib_oed.model.compliance import Compliance
 from calib_oed.oed.model_error import scene_criterion
 from calib_oed.scene.reader import load_scene
-from calib_oed.scene.records import JointErrorSpec
+from calib_oed.scene.records import ComplianceSpec, JointErrorSpec
 
 
 @pytest.fixture(scope="module")
@@ -88,3 +96,22 @@ def test_the_prior_says_what_loads_the_arm(kr16):
     assert bare.source.endswith("gravity load: arm + payload 16 kg)")
     alone = Compliance(16.0, np.zeros(3), link_masses=np.zeros(6))
     assert JointErrorPrior.default_for(kr16.problem.robot, alone).source.endswith("gravity load: payload 16 kg)")
+
+
+def test_deflection_note_where_the_linear_prior_is_not_to_be_trusted():
+    """fms_kr300's declared 300 kg payload (compliance not identified) deflects the joints by more
+    than DEFLECTION_NOTE: a note naming the joint and --compliance. fms_kr16's arm (about 0.2 mrad)
+    gets none, nor does fms_kr300 once compliance is identified (the model then has the deflection)."""
+    s = setup(load_scene("fms_kr300"))
+    prior = joint_prior(s.problem)
+    deflection = np.abs(prior.compute_deflections(s.problem.generic_configurations()))
+    assert deflection.max() > DEFLECTION_NOTE
+    note = deflection_note(s.problem, prior)
+    assert note is not None and "--compliance" in note and "payload 300 kg" in note
+    assert s.problem.robot.joint_names[int(np.argmax(deflection.max(axis=0)))] in note
+    kr16 = setup(load_scene("fms_kr16"))
+    assert deflection_note(kr16.problem, joint_prior(kr16.problem)) is None
+    modelled = setup(dataclasses.replace(s.scene, compliance=ComplianceSpec(True, s.scene.compliance.payload)))
+    assert deflection_note(modelled.problem, joint_prior(modelled.problem)) is None
+    assert deflection_note(s.problem, None) is None  # the isotropic prior has no compliance part
+

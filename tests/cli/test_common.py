@@ -1,13 +1,17 @@
-"""What the commands share (cli/_common.py): the parser of a subcommand, ``--json``/``--quiet``, and
-the model flags (``--joint-gains`` like ``--compliance``)."""
+"""What the commands share (cli/_common.py): the parser of a subcommand, ``--json``/``--quiet``, the
+model flags (``--joint-gains`` like ``--compliance``) and the deflection note of a model-error design."""
 
 from __future__ import annotations
 
 import argparse
 import json
+import warnings
 
+from calib_oed.calibration.workflow import setup
 from calib_oed.cli import EXIT_OK, main
-from calib_oed.cli._common import add_command, add_json_quiet
+from calib_oed.cli._common import _note_deflection, add_command, add_json_quiet
+from calib_oed.exceptions import CalibOedNote
+from calib_oed.scene.reader import load_scene
 
 
 def _extra_parameters(capsys, *flags) -> list[str]:
@@ -35,3 +39,14 @@ def test_add_command_declares_scene_function_and_outputs():
     bare = add_command(sub, "list", len, "lists", scene=False)
     add_json_quiet(bare)
     assert vars(bare.parse_args([])) == {"func": len, "json": False}
+
+
+def test_the_design_command_notes_the_deflection():
+    """``calib-oed design`` says so on stderr before a model-error design (not for ``kpi``)."""
+    s = setup(load_scene("fms_kr300"))
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always")
+        _note_deflection(s, "kpi_model")
+        _note_deflection(s, "kpi")
+    notes = [w for w in seen if issubclass(w.category, CalibOedNote)]
+    assert len(notes) == 1 and "deflect" in str(notes[0].message)
