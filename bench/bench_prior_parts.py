@@ -16,6 +16,12 @@ reflector nest (``compliance, no nest``) and with it (``compliance, nest``, the 
 simulator's nest mass at the reflectors' centroid), whichever the library's default does.
 
     OPENBLAS_NUM_THREADS=1 PYTHONPATH=. python bench/bench_prior_parts.py --scene SCENE [-n 60] [--seed 0] [--truths 40]
+        [--level F] [--no-balancer]
+
+``--level F`` scales every unmodelled part of the truths (the simulator's ``level``; the prior's
+prediction scales with F², so the ratios are those of the linear regime when F is small; the J2
+balancer's deflection, its torque times the compliance, scales with F²);
+``--no-balancer`` leaves the J2 balancer out of the compliance part's truths.
 
 Prints one JSON line: per part the predicted and achieved variance [mm²], the achieved one's
 standard error over truths and their ratio.
@@ -68,10 +74,10 @@ def part_priors(s, prior) -> dict:
     return out
 
 
-def achieved(s, q, switches: dict, truths: int, seed: int) -> np.ndarray:
+def achieved(s, q, switches: dict, truths: int, seed: int, level: float = 1.0) -> np.ndarray:
     """Mean squared KPI error per truth [mm²], noise-free readings of truths with ``switches``."""
     problem, space = s.problem, s.problem.space
-    settings = dataclasses.replace(realistic_settings_from_scene(s.scene), **switches)
+    settings = dataclasses.replace(realistic_settings_from_scene(s.scene), **{"level": level, **switches})
     free = problem.identifiability.free_indices
     out = np.zeros(truths)
     for k in range(truths):
@@ -91,7 +97,10 @@ def main() -> None:
     ap.add_argument("-n", type=int, default=60)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--truths", type=int, default=40)
+    ap.add_argument("--level", type=float, default=1.0, help="scale of the truths' unmodelled parts")
+    ap.add_argument("--no-balancer", action="store_true", help="no J2 balancer in the compliance truths")
     a = ap.parse_args()
+    truths = {k: ({**v, "balancer": False} if a.no_balancer else v) for k, v in TRUTHS.items()}
     s = setup(load_scene(a.scene))
     prior = joint_prior(s.problem)
     d = design(s, a.n, scene_criterion(s, "kpi_model", prior), seed=a.seed, certificate=False)
@@ -99,17 +108,18 @@ def main() -> None:
     base = achieved(s, d.q, {"level": 0.0}, a.truths, a.seed)   # the geometric errors alone: ~0
     noise_only = DesignObjective(s.problem, "kpi").compute_value(d.q)
     row = {"scene": s.scene.name, "n": a.n, "seed": a.seed, "truths": a.truths, "prior": prior.describe(),
-           "predicted_rms_mm": float(np.sqrt(d.criteria["kpi_model"])), "geometric_only_mm2": float(base.mean())}
+           "predicted_rms_mm": float(np.sqrt(d.criteria["kpi_model"])), "geometric_only_mm2": float(base.mean()),
+           "level": a.level, "balancer": not a.no_balancer}
     seen: dict[str, np.ndarray] = {}
     for name, pr in part_priors(s, prior).items():
         truth_name = name.split(",")[0]
         if truth_name not in seen:
-            seen[truth_name] = achieved(s, d.q, TRUTHS[truth_name], a.truths, a.seed) - base
+            seen[truth_name] = achieved(s, d.q, truths[truth_name], a.truths, a.seed, a.level) - base
         got = seen[truth_name]
-        pred = DesignObjective(s.problem, "kpi_model", model_error=pr).compute_value(d.q) - noise_only
+        pred = a.level**2 * (DesignObjective(s.problem, "kpi_model", model_error=pr).compute_value(d.q) - noise_only)
         row[name] = {"predicted_mm2": pred, "achieved_mm2": float(got.mean()),
                      "achieved_se_mm2": float(got.std(ddof=1) / np.sqrt(got.size)), "ratio": float(got.mean() / pred)}
-    got = achieved(s, d.q, TRUTHS["tracker"], a.truths, a.seed) - base
+    got = achieved(s, d.q, truths["tracker"], a.truths, a.seed, a.level) - base
     row["tracker"] = {"predicted_mm2": 0.0, "achieved_mm2": float(got.mean()),
                       "achieved_se_mm2": float(got.std(ddof=1) / np.sqrt(got.size))}
     print(json.dumps(row))
