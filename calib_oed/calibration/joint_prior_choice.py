@@ -27,7 +27,7 @@ STILL_TOL = 1e-9
 #: Configurations of the generic design the lever arms are averaged over.
 LEVER_CONFIGURATIONS = 20
 #: Joint deflection under gravity [rad] from which :func:`deflection_note` warns: the prior is
-#: linear in the deflections, and on ``fms_kr300`` (up to 3.3 mrad, a 300 kg payload, compliance not
+#: linear in the deflections, and on ``fms_kr300`` (up to 3.2 mrad, a 300 kg payload, compliance not
 #: identified) the design's promise was 2.4x optimistic on the realistic simulator, where the
 #: arms of the other shipped scenes (at most 0.8 mrad) keep it (``docs/oed.md``).
 DEFLECTION_NOTE = 1e-3
