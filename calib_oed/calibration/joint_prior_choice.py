@@ -28,8 +28,9 @@ STILL_TOL = 1e-9
 LEVER_CONFIGURATIONS = 20
 #: Joint deflection under gravity [rad] from which :func:`deflection_note` warns: the prior is
 #: linear in the deflections, and on ``fms_kr300`` (up to 3.2 mrad, a 300 kg payload, compliance not
-#: identified) the design's promise was 2.4x optimistic on the realistic simulator, where the
-#: arms of the other shipped scenes (at most 0.8 mrad) keep it (``docs/oed.md``).
+#: identified) the design's promise was 2.4x optimistic on the realistic simulator; the other
+#: shipped scenes' arms deflect by at most 0.4 mrad, the UR10 and Panda cells of ``bench/scenes``
+#: by 0.8, and their promises hold (``docs/oed.md``).
 DEFLECTION_NOTE = 1e-3
 
 
@@ -42,8 +43,9 @@ def lever_arms(problem) -> np.ndarray:
 
 
 def joint_prior(problem, spec=None) -> JointErrorPrior:
-    """The joint-space prior of ``problem``: the size-class default (the arm loaded by the
-    problem's payload, modelled or not, and the reflector nest at the reflectors) with what ``spec`` (a :class:`~calib_oed.scene.records.JointErrorSpec` or None) sets."""
+    """The joint-space prior of ``problem``: the size-class default, the arm loaded by the
+    problem's payload (modelled or not) and the reflector nest at the reflectors, with what
+    ``spec`` (a :class:`~calib_oed.scene.records.JointErrorSpec` or None) sets."""
     base = JointErrorPrior.default_for(problem.robot, getattr(problem, "payload", None),
                                        problem.space.reflector_offsets(None))
     if spec is None:

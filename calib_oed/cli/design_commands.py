@@ -441,4 +441,3 @@ def cmd_sequential(args) -> int:
     if result.check():
         return EXIT_INTERNAL
     return EXIT_OK
-

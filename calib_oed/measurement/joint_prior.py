@@ -14,8 +14,8 @@ Gaussian processes,
     \quad [\mathrm{m}^2],
 
 and per joint, with :math:`\Delta = q_k - q'_k` [rad] and :math:`\tau_k` the gravity torque on
-joint k of the nominal arm with the scene's payload and the reflector nest of the measurements
-(:class:`~calib_oed.model.compliance.GravityLoad`) [N·m],
+joint k of the nominal arm with the scene's payload (modelled or not) and the reflector nest of
+the measurements (:class:`~calib_oed.model.compliance.GravityLoad`) [N·m],
 
 .. math::
     k_k(q, q') = a_{1k}^2\cos\Delta + a_{2k}^2\cos 2\Delta
@@ -58,7 +58,7 @@ class of the arm's URDF mass and the published magnitudes of
 15 arcsec amplitude), the motor-side part :data:`MOTOR_RMS` (the motor's own harmonics and
 those of the input stage at the joint, 5 and 3 arcsec amplitude, as one RMS), no smooth part
 (:data:`SMOOTH_SIGMA`), gain errors 5e-5, compliance :math:`\gamma_k = 1/k_k` (the class's
-typical stiffness) with the scene's payload and the reflector nest
+typical stiffness) with the scene's payload (modelled or not) and the reflector nest
 (:data:`~calib_oed.model.compliance.NEST_MASS` at the reflectors' centroid, as the realistic
 simulator loads the arm: without it a design cancels the deflection of a load the arm does not
 carry, ``docs/oed.md``, "The reflector nest in the prior"); J2's times :math:`1 - b`, :math:`b` the class's

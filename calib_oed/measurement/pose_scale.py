@@ -124,7 +124,8 @@ class PoseScale:
     def from_dict(cls, data, space) -> PoseScale:
         """From :meth:`to_dict`'s form for the nominal robot of ``space`` (a
         :class:`~calib_oed.model.parameters.ParameterSpace`), the arm loaded as recorded (``load``;
-        a record without it: by ``space``'s compliance payload and the reflector nest).
+        a record without it, written before the load was, by ``space``'s compliance payload alone,
+        as it was then made).
 
         Raises:
             ParameterError: keys missing or values out of range.
@@ -139,8 +140,7 @@ class PoseScale:
                                   None if masses is None else 1e-3 * np.asarray(rec["link_coms_mm"], dtype=float))
                 gravity = GravityLoad(robot.model, robot.tool_frame_id, load)
             else:
-                gravity = JointErrorPrior.default_for(robot, getattr(space, "compliance", None),
-                                                      space.reflector_offsets(None)).gravity
+                gravity = JointErrorPrior.default_for(robot, getattr(space, "compliance", None)).gravity
             prior = JointErrorPrior.from_dict(data["joint_prior"], gravity)
             point = 1e-3 * np.asarray(data["point_mm"], dtype=float).reshape(1, 3)
             return cls(prior, PointJacobians(robot.model, robot.tool_frame_id, point, np.eye(3)),

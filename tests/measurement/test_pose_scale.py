@@ -87,6 +87,6 @@ def test_json_keeps_the_load_the_scale_was_made_with():
     data = prior.to_dict()
     back = fitted_model_error(data, s.problem.space)
     assert relative_error(back.kernel(q, q), prior.kernel(q, q)) < 1e-12
-    del data["pose_scale"]["load"]  # a record from before the load was written: the space's rule
+    del data["pose_scale"]["load"]  # a record from before the load was written: its rule, no payload
     old = fitted_model_error(data, s.problem.space)
     assert relative_error(old.kernel(q, q), prior.kernel(q, q)) > 1e-3
