@@ -9,7 +9,8 @@ poses, an identification (``identify``, linear loss) and the TCP error at the wo
 configurations. **Paired**: both designs meet the same truths and the same noise draws, so
 their ratio is judged per truth; its standard error is a seeded bootstrap over truths.
 
-``--model extended`` identifies joint compliance under gravity (payload: the reflector nest of
+``--model compliance`` identifies joint compliance with the scene's own ``robot.compliance``
+payload (what ``--compliance`` does; ``fms_kr300``, ``fms_kr500``). ``--model extended`` identifies joint compliance under gravity (payload: the reflector nest of
 the simulator at the reflectors' centroid) and a gain for every joint as well (scene keys
 ``robot.compliance`` and ``robot.joint_gains``), so the designs and the fit have those
 parameters; ``rigid`` (default) the scene as it is. ``--compensate`` also reports the
@@ -22,7 +23,7 @@ its predicted value (sqrt of ``kpi_model``), distinct joint vectors and arm posi
 design CPU time (``solver.cpu_seconds``, one BLAS thread).
 
     nice -n 10 python bench/bench_model_error_design.py [--scenes fms_kr16 ur5_table bench/scenes/ur10_cell.yaml]
-        [--model rigid|extended] [-n 60] [--truths 40] [--noise 1] [--seed 0] [--compensate] [--out DIR]
+        [--model rigid|extended|compliance] [-n 60] [--truths 40] [--noise 1] [--seed 0] [--compensate] [--out DIR]
         [--prior-scale F] [--budgets 25,60,300] [--motor ARCSEC] [--motor-length RAD] [--smooth ARCSEC]
         [--rules block] [--pose-budgets 36000] [--direct] [--staged] [--pool-only] [--enriched]
         [--starts K]
@@ -107,7 +108,7 @@ from calib_oed.oed.refine import EXACT_TRUST_UPDATE
 from calib_oed.scene.records import ComplianceSpec
 from calib_oed.solver.settings import SQPSettings
 
-MODELS = ("rigid", "extended")
+MODELS = ("rigid", "extended", "compliance")
 BOOTSTRAP = 2000
 
 
@@ -118,6 +119,13 @@ def extended_scene(scene):
     payload = Compliance(nest, offsets.mean(axis=0))
     return dataclasses.replace(scene, compliance=ComplianceSpec(True, payload),
                                joint_gains=JointGains.all_joints(scene.robot.nq))
+
+
+def compliance_scene(scene):
+    """``scene`` with its own ``robot.compliance`` block identified (``--compliance``: its payload)."""
+    if scene.compliance is None:
+        raise SystemExit(f"--model compliance: scene {scene.name} has no robot.compliance block")
+    return dataclasses.replace(scene, compliance=ComplianceSpec(True, scene.compliance.payload))
 
 
 def achieved_errors(s, q: np.ndarray, truths: int, noise: int, seed: int, compensate: bool,
@@ -224,7 +232,8 @@ def run_scene(scene_ref: str, model: str, n: int, truths: int, noise: int, seed:
               direct: bool = False, staged_start: bool = False, pool_only: bool = False,
               enriched: bool = False, starts: int = 1) -> dict:
     scene = load_scene(scene_ref)
-    s = setup(extended_scene(scene) if model == "extended" else scene)
+    s = setup(extended_scene(scene) if model == "extended" else compliance_scene(scene) if model == "compliance"
+              else scene)
     prior = s.scene.model_error if s.scene.model_error is not None else joint_prior(s.problem)
     if prior_scale != 1.0:
         prior = prior.scaled(prior_scale)
