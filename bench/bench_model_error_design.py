@@ -10,8 +10,9 @@ configurations. **Paired**: both designs meet the same truths and the same noise
 their ratio is judged per truth; its standard error is a seeded bootstrap over truths.
 
 ``--model compliance`` identifies joint compliance with the scene's own ``robot.compliance``
-payload (what ``--compliance`` does; ``fms_kr300``, ``fms_kr500``). ``--model extended`` identifies joint compliance under gravity (payload: the reflector nest of
-the simulator at the reflectors' centroid) and a gain for every joint as well (scene keys
+payload (what ``--compliance`` does; ``fms_kr300``, ``fms_kr500``). ``--model extended``
+identifies joint compliance under gravity (payload: the reflector nest of the simulator at the
+reflectors' centroid) and a gain for every joint as well (scene keys
 ``robot.compliance`` and ``robot.joint_gains``), so the designs and the fit have those
 parameters; ``rigid`` (default) the scene as it is. ``--compensate`` also reports the
 calibration plus the model error's conditional mean at the working configurations

@@ -64,11 +64,8 @@ def part_priors(s, prior) -> dict:
     out = {"all": prior, **{k: dataclasses.replace(prior, **v) for k, v in only.items()}}
     robot, space = s.problem.robot, s.problem.space
     payload = getattr(space, "compliance", None) or Compliance()
-    nest = realistic_settings_from_scene(s.scene).nest_mass
-    centre = np.mean(space.reflector_offsets(None), axis=0)
-    total = payload.payload_mass + nest
-    loaded = Compliance(total, (payload.payload_mass * payload.payload_com + nest * centre) / total,
-                        payload.link_masses, payload.link_coms)
+    loaded = payload.with_nest(realistic_settings_from_scene(s.scene).nest_mass,
+                               np.mean(space.reflector_offsets(None), axis=0))
     for name, load in (("compliance, no nest", payload), ("compliance, nest", loaded)):
         out[name] = dataclasses.replace(out["compliance"], gravity=GravityLoad(robot.model, robot.tool_frame_id, load))
     return out
@@ -79,14 +76,14 @@ def achieved(s, q, switches: dict, truths: int, seed: int, level: float = 1.0) -
     problem, space = s.problem, s.problem.space
     settings = dataclasses.replace(realistic_settings_from_scene(s.scene), **{"level": level, **switches})
     free = problem.identifiability.free_indices
+    w = problem.kpi.weights
+    w = np.ones(len(problem.kpi.configurations)) if w is None else np.asarray(w, dtype=float)
     out = np.zeros(truths)
     for k in range(truths):
         truth = sample_truth(s, np.random.default_rng([seed, k]), settings)
         meas = realistic_measure.measure(truth, problem.models, q, np.random.default_rng([seed, k, 0, 1]))
         p_hat = identify(space, meas.blocks, free).p
         err = (problem.kpi.compute_values(space, p_hat) - truth.compute_kpi_values(problem.kpi)) * 1e3
-        w = problem.kpi.weights
-        w = np.ones(len(err)) if w is None else np.asarray(w, dtype=float)
         out[k] = float(w @ np.sum(err**2, axis=1) / (3 * w.sum()))
     return out
 

@@ -27,11 +27,11 @@ STILL_TOL = 1e-9
 #: Configurations of the generic design the lever arms are averaged over.
 LEVER_CONFIGURATIONS = 20
 #: Joint deflection under gravity [rad] from which :func:`deflection_note` warns: the prior is
-#: linear in the deflections, and on ``fms_kr300`` (up to 3.2 mrad, a 300 kg payload, compliance not
-#: identified) the design's promise was 2.4x optimistic on the realistic simulator, on ``fms_kr500``
-#: (6.0 mrad, 500 kg) 12x; the other
-#: shipped scenes' arms deflect by at most 0.4 mrad, the UR10 and Panda cells of ``bench/scenes``
-#: by 0.8, and their promises hold (``docs/oed.md``).
+#: linear in the deflections. On ``fms_kr300`` (up to 3.2 mrad, a 300 kg payload, compliance not
+#: identified) the design's promise was 2.4x optimistic on the realistic simulator, on
+#: ``fms_kr500`` (6.0 mrad, 500 kg) 12x; the other shipped scenes' arms deflect by at most
+#: 0.4 mrad, the UR10 and Panda cells of ``bench/scenes`` by 0.8, and their promises hold
+#: (``docs/oed.md``).
 DEFLECTION_NOTE = 1e-3
 
 

@@ -113,11 +113,8 @@ class PoseScale:
         out = {"kind": "joint_prior", "weight": self.weight,
                "mean_variance_mm2": self.mean_variance * MM2_PER_M2,
                "point_mm": (self.points.offsets[0] * 1e3).tolist(), "joint_prior": self.prior.to_dict()}
-        load = getattr(self.prior.gravity, "load", None)
-        if load is not None:
-            out["load"] = {"mass_kg": load.payload_mass, "com_mm": (load.payload_com * 1e3).tolist(),
-                           **({"link_masses_kg": load.link_masses.tolist(),
-                               "link_coms_mm": (load.link_coms * 1e3).tolist()} if load.link_masses is not None else {})}
+        if self.prior.gravity is not None:
+            out["load"] = self.prior.gravity.load.to_dict()
         return out
 
     @classmethod
@@ -133,12 +130,7 @@ class PoseScale:
         try:
             robot = space.robot
             if "load" in data:
-                rec = data["load"]
-                masses = rec.get("link_masses_kg")
-                load = Compliance(float(rec["mass_kg"]), 1e-3 * np.asarray(rec["com_mm"], dtype=float),
-                                  None if masses is None else np.asarray(masses, dtype=float),
-                                  None if masses is None else 1e-3 * np.asarray(rec["link_coms_mm"], dtype=float))
-                gravity = GravityLoad(robot.model, robot.tool_frame_id, load)
+                gravity = GravityLoad(robot.model, robot.tool_frame_id, Compliance.from_dict(data["load"]))
             else:
                 gravity = JointErrorPrior.default_for(robot, getattr(space, "compliance", None)).gravity
             prior = JointErrorPrior.from_dict(data["joint_prior"], gravity)

@@ -111,6 +111,21 @@ class Compliance:
         centre = (self.payload_mass * self.payload_com + float(mass) * np.asarray(com, dtype=float)) / total
         return Compliance(total, centre, self.link_masses, self.link_coms)
 
+    def to_dict(self) -> dict:
+        """JSON form (kg, mm): ``mass_kg``, ``com_mm`` and, with link masses, ``link_masses_kg`` and ``link_coms_mm``."""
+        out = {"mass_kg": self.payload_mass, "com_mm": (self.payload_com * 1e3).tolist()}
+        if self.link_masses is not None:
+            out.update(link_masses_kg=self.link_masses.tolist(), link_coms_mm=(self.link_coms * 1e3).tolist())
+        return out
+
+    @classmethod
+    def from_dict(cls, data: dict) -> Compliance:
+        """From :meth:`to_dict`'s form (KeyError, TypeError, ValueError on a malformed mapping)."""
+        masses = data.get("link_masses_kg")
+        return cls(float(data["mass_kg"]), 1e-3 * np.asarray(data["com_mm"], dtype=float),
+                   None if masses is None else np.asarray(masses, dtype=float),
+                   None if masses is None else 1e-3 * np.asarray(data["link_coms_mm"], dtype=float))
+
     def describe(self) -> str:
         """One line for reports (kg, mm)."""
         com = np.round(self.payload_com * 1e3, 1).tolist()
@@ -130,7 +145,7 @@ class GravityLoad:
     """
 
     def __init__(self, model: pin.Model, tool_frame_id: int, compliance: Compliance):
-        self.load = compliance
+        self.load = compliance  # the payload (and link masses) it was made with
         self.model = model.copy()
         frame = self.model.frames[tool_frame_id]
         if compliance.link_masses is not None:

@@ -21,7 +21,7 @@ from calib_oed.calibration.identification import identify
 from calib_oed.calibration.problem import CalibrationProblem
 from calib_oed.calibration.simulation import draw_true_parameters, simulate_observations
 from calib_oed.cli import EXIT_OK, main
-from calib_oed.exceptions import SceneError
+from calib_oed.exceptions import ParameterError, SceneError
 from calib_oed.measurement import evaluate_setup
 from calib_oed.model.compliance import STIFFNESS_RANGE, Compliance, GravityLoad
 from calib_oed.model.parameters import Group, ParameterSpace
@@ -221,3 +221,18 @@ def test_predicted_kpi_covariance_with_compliance_matches_monte_carlo():
     assert 0.85 <= mc.ratio[0] <= 1.15
     assert 0.90 <= mc.coverage[0] <= 0.99
     assert mc.rms_after[0] < 0.05 * mc.rms_before[0]
+
+
+def test_load_json_round_trip_and_the_nest():
+    """``Compliance.to_dict``/``from_dict`` keep the payload and the link masses (kg, mm); a
+    malformed record is a ParameterError; ``with_nest`` adds a point mass at the common centre."""
+    load = Compliance(16.0, np.array([0.0, 0.0, 0.1]), np.arange(1.0, 7.0), np.full((6, 3), 0.05))
+    back = Compliance.from_dict(json.loads(json.dumps(load.to_dict())))
+    assert back.payload_mass == 16.0 and np.allclose(back.payload_com, load.payload_com, atol=1e-15)
+    assert np.array_equal(back.link_masses, load.link_masses) and np.allclose(back.link_coms, load.link_coms)
+    assert Compliance.from_dict(Compliance(2.0).to_dict()).link_masses is None
+    with pytest.raises(ParameterError, match="payload mass"):
+        Compliance.from_dict({"mass_kg": -1.0, "com_mm": [0, 0, 0]})
+    nested = Compliance(16.0, np.zeros(3)).with_nest(0.3, np.array([0.0, 0.0, 0.04]))
+    assert nested.payload_mass == pytest.approx(16.3)
+    assert np.allclose(nested.payload_com, [0.0, 0.0, 0.3 * 0.04 / 16.3])
