@@ -151,14 +151,16 @@ def diagnose(space: ParameterSpace, mset: MeasurementSet, base_rms_mm: float, li
         return rigid_registration(world_pts, measured).rms_mm
 
     for factor, text in ((1e-3, "units: the positions are 1000 times too large (the file holds mm "
-                                "but says m: fix its '# units:' line or pass --length-unit mm)"),
+                                "but is read as m: fix its '# units:' line, or give --length-unit mm "
+                                "if it has none)"),
                          (1e3, "units: the positions are 1000 times too small (the file holds m "
-                               "but says mm: fix its '# units:' line or pass --length-unit m)")):
+                               "but is read as mm: fix its '# units:' line, or give --length-unit m "
+                               "if it has none)")):
         causes.append(Cause("units", text, rms(world, eta * factor)))
     for factor, text in ((np.pi / 180, "units: the joint angles look like degrees read as radians "
-                                       "(fix the '# units:' line or pass --angle-unit deg)"),
+                                       "(fix the '# units:' line, or give --angle-unit deg if it has none)"),
                          (180 / np.pi, "units: the joint angles look like radians read as degrees "
-                                       "(fix the '# units:' line or pass --angle-unit rad)")):
+                                       "(fix the '# units:' line, or give --angle-unit rad if it has none)")):
         causes.append(Cause("units", text, rms(predicted_points(space, q * factor, refl), eta)))
     # every mirror fits equally well (two mirrors differ by a rotation, which the tracker
     # pose absorbs): the one whose fitted tracker pose is nearest the scene's is meant

@@ -51,6 +51,7 @@ from calib_oed.calibration.sensor_file import (
     read_sensor_compliance,
     read_sensor_gains,
     read_sensor_yaml,
+    sensor_robot,
 )
 from calib_oed.calibration.trust import compensate
 from calib_oed.calibration.verdict import read_identification
@@ -157,7 +158,8 @@ def find_calibration_files(path: str | os.PathLike, robot_name: str) -> dict[str
     the sensor YAML next to it.
 
     Raises:
-        ExportError: the files are not there (the message lists what was found).
+        ExportError: the files are not there (the message lists what was found), or they are
+            another robot's (the sensor file's ``robot``).
     """
     path = Path(path)
     if not path.exists():
@@ -178,6 +180,10 @@ def find_calibration_files(path: str | os.PathLike, robot_name: str) -> dict[str
     urdf = path if path.is_file() else pick(folder / f"{robot_name}_calibrated.urdf", "*.urdf",
                                             "calibrated URDF")
     sensor = pick(folder / f"{robot_name}_sensor.yaml", "*_sensor.yaml", "sensor YAML")
+    identified = sensor_robot(sensor)
+    if identified is not None and identified != robot_name:
+        raise ExportError(f"{path}: a calibration of robot {identified!r}, not of this scene's robot "
+                          f"{robot_name!r}; give the folder `calib-oed identify -o DIR` wrote for this scene")
     return {"urdf": urdf, "sensor": sensor}
 
 

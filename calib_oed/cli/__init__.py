@@ -306,6 +306,9 @@ def build_parser() -> argparse.ArgumentParser:
                    "next --batch poses to DIR/next.csv (no simulation)")
     p.add_argument("--length-unit", choices=("m", "mm"), help="with --measured: if the file states no units")
     p.add_argument("--angle-unit", choices=("rad", "deg"), help="with --measured: if the file states no units")
+    p.add_argument("--max-registration-rms", type=float, default=10.0, metavar="MM",
+                   help="with --measured: as identify's, the plausibility limit of the tracker "
+                   "registration before the fit (default 10 mm)")
     p.add_argument("--initial", type=_positive_int, default=15,
                    help="poses measured first (default 15)")
     p.add_argument("--initial-design", default="heuristic", choices=("heuristic", "optimal"),

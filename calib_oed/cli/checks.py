@@ -71,7 +71,7 @@ def _dropped(args, given: set[str]) -> None:
         raise ArgumentError(f"{command}: --seed {args.seed} and the design file {design}: the seed draws "
                             "the random design only; leave out --seed (or the design)")
     for cmd, needed, options in (("evaluate", "certificate", ("pool", "seed")),
-                                 ("sequential", "measured", ("length_unit", "angle_unit"))):
+                                 ("sequential", "measured", ("length_unit", "angle_unit", "max_registration_rms"))):
         for dest in options if command == cmd and not getattr(args, needed, None) else ():
             if dest in given:
                 raise ArgumentError(f"{command}: {_flag(dest)} acts only with {_flag(needed)}; add "

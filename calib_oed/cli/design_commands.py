@@ -333,6 +333,7 @@ def cmd_feasibility(args) -> int:
 
 def _sequential_step(s, args, settings) -> int:
     """One step of a real sequential calibration: identify from the file, then stop or propose."""
+    from calib_oed.calibration.sanity import check_measurements
     from calib_oed.calibration.workflow import identify_measurements, read_scene_measurements
     from calib_oed.io.atomic import atomic_write_text
     from calib_oed.io.design_file import write_design_csv
@@ -340,6 +341,8 @@ def _sequential_step(s, args, settings) -> int:
 
     units = {k: v for k, v in (("length_unit", args.length_unit), ("angle_unit", args.angle_unit)) if v}
     mset = read_scene_measurements(s, args.measured, **units)
+    # the data fit the scene (units, axes, joint order) before a fit says stop or go on, as identify's
+    check_measurements(s.problem.space, mset, args.max_registration_rms * 1e-3, s.reflector_names)
     _, first = np.unique(mset.q, axis=0, return_index=True)
     q = mset.q[np.sort(first)]  # the measured configurations, in measurement order
     result = identify_measurements(s, mset)

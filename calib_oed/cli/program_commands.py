@@ -76,8 +76,10 @@ def cmd_program(args) -> int:
         from calib_oed.program.krl import check_module_name
 
         check_module_name(args.name)
+    if args.dwell is not None and not (np.isfinite(args.dwell) and args.dwell >= 0):
+        raise ProgramError("--dwell", args.dwell, "expected a settle and measure time in seconds >= 0")
     q = read_design_file(args.design, scene.robot, controller=scene.controller)
-    settings = program_settings_from_scene(scene, home=_home(args.home, scene.robot),
+    settings = program_settings_from_scene(scene, home=_home(args.home, scene.robot), dwell=args.dwell,
                                            planner_iterations=args.planner_iterations,
                                            skip_unreachable=not args.strict, wrap=args.wrap)
     _say(args, f"ordering and checking {len(q)} poses of {args.design} in scene {scene.name!r} ...")

@@ -225,6 +225,10 @@ class _Reader:
             if flag is None:
                 if key not in self.units:
                     missing.append(key)
+            elif flag in tables[key] and self.units.get(key, flag) != flag:
+                self.problem(self.units_line, f"--{key}-unit {flag} ({key}_unit={flag!r}) contradicts the "
+                             f"file's '# units:' line ({key}={self.units[key]}): the option is for a file "
+                             "that states no units; leave it out, or fix the line if the file is wrong")
             elif flag in tables[key]:
                 self.units[key] = flag
             else:
@@ -238,7 +242,8 @@ class _Reader:
                      "the column header")
             self.problem(None, f"the {' and '.join(missing)} unit"
                          f"{'s are' if len(missing) > 1 else ' is'} not given: {where}, or pass "
-                         f"{' and '.join(f'{k}_unit=...' for k in missing)}; "
+                         f"{' and '.join(f'--{k}-unit' for k in missing)} on the command line "
+                         f"({', '.join(f'{k}_unit=...' for k in missing)} in Python); "
                          + "; ".join(f"valid {k} units are {', '.join(map(repr, tables[k]))}"
                                      for k in missing))
         if any(k not in self.units for k in tables):
@@ -412,8 +417,9 @@ def read_measurements(
         robot: The measured robot; its joint names are the joint columns.
         reflector_names: Names of the reflectors, index ``j`` = reflector ``j``
             of the parameter space.
-        length_unit: ``"m"`` or ``"mm"``; overrides the file's ``# units:`` line.
-        angle_unit: ``"rad"`` or ``"deg"``; overrides the file's ``# units:`` line.
+        length_unit: ``"m"`` or ``"mm"``, for a file whose ``# units:`` line gives none (one
+            that contradicts the line is a problem: which of the two is wrong is not known).
+        angle_unit: ``"rad"`` or ``"deg"``, likewise.
         check_limits: Reject joint values outside ``robot.lower``/``robot.upper``.
         controller: The scene's controller convention; used only when the file
             says ``# joints: controller`` (an error without it).

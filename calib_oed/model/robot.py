@@ -302,13 +302,14 @@ def _reduce_to_chain(full: pin.Model, locks: Mapping[str, float], mimic: set[str
         raise UnsupportedModelError(
             f"{where}: joints {bad} are not single-coordinate revolute or prismatic joints "
             "(continuous joints have two coordinates in Pinocchio); give them limits as "
-            "'revolute' joints in the URDF, or lock them with lock_joints={name: value}"
+            "'revolute' joints in the URDF, or lock them (the scene's robot.lock_joints: "
+            "{name: value}; lock_joints= in Python)"
         )
     on_chain_mimic = sorted(set(model.names[1:]) & mimic)
     if on_chain_mimic:
         raise UnsupportedModelError(
             f"{where}: mimic joints {on_chain_mimic} cannot be calibrated as independent joints; "
-            "lock them with lock_joints={name: value}"
+            "lock them (the scene's robot.lock_joints: {name: value}; lock_joints= in Python)"
         )
     branches = [
         model.names[i] for i in range(1, model.njoints) if model.parents[i] != i - 1

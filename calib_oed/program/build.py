@@ -202,11 +202,14 @@ def build_program(scene, q: np.ndarray, settings: ProgramSettings | None = None,
     clearance = checker.clearance(nodes)
     for k in np.flatnonzero(clearance < -settings.move_tolerance):
         value, row = checker.worst(nodes[k])
-        what = "home" if k == 0 else f"pose {k}"
-        raise ProgramError(what, f"{row} {value * 1e3:.1f} mm", "in collision by the scene's capsule "
-                           "model (margin included): the design does not fit this scene (check it "
-                           "with `calib-oed evaluate`)" if k else "in collision by the scene's capsule "
-                           "model: choose another --home")
+        degrees = ", ".join(f"{v:.6g}" for v in np.rad2deg(nodes[k]))
+        collides = (f"in collision by the scene's capsule model (margin included): {row} "
+                    f"{value * 1e3:.1f} mm")
+        if k:
+            raise ProgramError(f"pose {k}", f"{degrees} deg", f"{collides}; the design does not fit "
+                               "this scene (check it with `calib-oed evaluate`)")
+        raise ProgramError("home", f"{degrees} deg", f"{collides}; {note.removeprefix('home: ')}: "
+                           "give a collision-free home (--home, or program.home in the scene)")
     moves = _Moves(nodes, checker, dyn, settings, scene.feasibility.margins.joint)
     n = len(q)
     limit = 10 * n + 10

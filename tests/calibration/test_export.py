@@ -286,3 +286,15 @@ def test_a_one_line_urdf_is_written_indented():
     text = _document(root)
     assert text.count("\n") >= 5 and '\n  <joint name="j" type="revolute">\n    <parent' in text
     assert etree.tostring(etree.fromstring(text), method="c14n") != b""  # still well-formed
+
+
+def test_a_calibration_of_another_robot_is_refused_by_its_sensor_file(tmp_path):
+    from calib_oed.calibration.validation import find_calibration_files
+
+    space = make_space(load_robot("ur5"))
+    paths = export_calibration(space, random_parameters(space, 9), tmp_path)
+    assert find_calibration_files(tmp_path, "ur5") == paths
+    assert find_calibration_files(paths["urdf"], "ur5") == paths
+    # validate, compensate and table name the mismatch instead of failing on the other URDF's joints
+    with pytest.raises(ExportError, match="a calibration of robot 'ur5', not of this scene's robot 'panda'"):
+        find_calibration_files(tmp_path, "panda")

@@ -37,6 +37,24 @@ def test_program_text_output_and_home(design, capsys):
                  "--dwell", "1"]) == EXIT_OK
     out = capsys.readouterr().out
     assert "estimated cycle time" in out and "nothing written" in out
+    assert "dwell 1.00 s per pose" in out  # --dwell reaches the program
+
+
+def test_dwell_reaches_every_measurement(design, tmp_path, capsys):
+    out = tmp_path / "prog"
+    assert main(["program", "fms_kr16", str(design), "--dwell", "3.5", "-o", str(out), "--json"]) == EXIT_OK
+    assert json.loads(capsys.readouterr().out)["dwell_s"] == 3.5
+    rows = [r.split(",") for r in (out / "calib_program.csv").read_text().splitlines() if not r.startswith("#")]
+    dwells = [r[3] for r in rows[1:] if r[1] == "pose"]
+    assert len(dwells) == 6 and set(dwells) == {"3.50"}
+
+
+def test_a_home_in_collision_names_its_angles_and_the_pair(design, capsys):
+    assert main(["program", "fms_kr16", str(design), "--home=-4,31,90,-134,-60,254"]) == EXIT_BAD_INPUT
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1
+    assert "home = '-4, 31, 90, -134, -60, 254 deg': in collision by the scene's capsule model" in err
+    assert "floor" in err and "given (program.home or --home)" in err and "--home, or program.home" in err
 
 
 @pytest.mark.parametrize("argv, message", [
@@ -44,6 +62,8 @@ def test_program_text_output_and_home(design, capsys):
     (["--home", "0,0,0,0,0,400"], "outside the joint limits"),
     (["--name", "9bad"], "--name"),
     (["--format", "krl", "--name", "end"], "KRL keyword"),
+    (["--dwell", "-1"], "--dwell = -1.0: expected a settle and measure time in seconds >= 0"),
+    (["--dwell", "nan"], "--dwell = nan"),
 ])
 def test_bad_input_is_one_line(design, capsys, argv, message):
     assert main(["program", "fms_kr16", str(design), *argv]) == EXIT_BAD_INPUT

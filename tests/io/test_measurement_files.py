@@ -160,11 +160,15 @@ def test_units_from_flags_equal_units_from_header(kr16):
     np.testing.assert_array_equal(spaced.q, from_header.q)
 
 
-def test_flags_override_header(kr16):
-    mset = read_text(kr16_text("1,0,0,0,0,0,smr0,1,2,3", units="# units: length=m angle=rad"),
-                     kr16, length_unit="mm", angle_unit="deg")
-    np.testing.assert_allclose(mset.q[0, 0], np.pi / 180, rtol=1e-15)
-    np.testing.assert_allclose(mset.positions[0], [1e-3, 2e-3, 3e-3], rtol=1e-15)
+def test_a_flag_that_contradicts_the_units_line_is_a_problem(kr16):
+    text = kr16_text("1,0,0,0,0,0,smr0,1,2,3", units="# units: length=m angle=rad")
+    problems = problems_of(text, kr16, length_unit="mm", angle_unit="deg")
+    assert len(problems) == 2 and all(line == 1 for line, _ in problems)
+    assert "--length-unit mm (length_unit='mm') contradicts" in problems[0][1] and "length=m)" in problems[0][1]
+    assert "--angle-unit deg (angle_unit='deg') contradicts" in problems[1][1]
+    # a flag that agrees with the line changes nothing
+    same = read_text(text, kr16, length_unit="m", angle_unit="rad")
+    np.testing.assert_array_equal(same.positions, read_text(text, kr16).positions)
 
 
 def test_flag_supplies_what_the_units_line_leaves_out(kr16):
@@ -182,6 +186,7 @@ def test_missing_units(kr16):
     assert "length and angle units are not given" in message
     assert "# units: length=mm angle=deg" in message
     assert "length_unit=" in message and "angle_unit=" in message
+    assert "--length-unit and --angle-unit on the command line" in message
     assert "'m', 'mm'" in message and "'rad', 'deg'" in message
 
 

@@ -228,7 +228,7 @@ def test_optimal_initial_design_starts_lower(kr16):
 
 def test_cli_sequential_step_on_measured_data(capsys, tmp_path, kr16):
     """--measured: identify from a real (here simulated) file, then propose the next batch or stop."""
-    from calib_oed.cli import EXIT_OK, main
+    from calib_oed.cli import EXIT_BAD_INPUT, EXIT_OK, main
     from calib_oed.io.design_file import read_design_csv
 
     meas = tmp_path / "m.csv"
@@ -251,3 +251,13 @@ def test_cli_sequential_step_on_measured_data(capsys, tmp_path, kr16):
                  "-o", str(tmp_path / "done")]) == EXIT_OK
     assert "reached: stop measuring" in capsys.readouterr().out
     assert not (tmp_path / "done" / "next.csv").exists()
+    # data that do not fit the scene (y and z swapped) stop before the fit, as identify does
+    swapped = tmp_path / "swapped.csv"
+    swapped.write_text(meas.read_text().replace(",reflector,x,y,z", ",reflector,x,z,y"))
+    assert main(["sequential", "fms_kr16", "--target-sigma", "1mm", "--measured", str(swapped),
+                 "-o", str(tmp_path / "swapped_step")]) == EXIT_BAD_INPUT
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "swapped or mirrored position columns" in err
+    assert not (tmp_path / "swapped_step").exists()
+    assert main(["sequential", "fms_kr16", "--target-sigma", "1mm", "--max-registration-rms", "5"]) == EXIT_BAD_INPUT
+    assert "--max-registration-rms acts only with --measured" in capsys.readouterr().err
