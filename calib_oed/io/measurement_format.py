@@ -31,8 +31,9 @@ File format, version 1 (also in ``docs/data_format.md``)::
     :func:`write_measurements`; any version other than 1 is an error.
   - ``# units: length=<m|mm> angle=<rad|deg>``: the file's units, both keys
     required, separated by spaces or commas. The keyword arguments
-    ``length_unit=`` and ``angle_unit=`` of :func:`read_measurements` override
-    it or stand in for it; without either the file is rejected.
+    ``length_unit=`` and ``angle_unit=`` of :func:`read_measurements` (``--length-unit``,
+    ``--angle-unit``) stand in for a missing line or key; one that contradicts the line is
+    an error; without either the file is rejected.
   - ``# robot: <name>``: the robot measured; when given, it must be the name of the
     robot the file is read for (case ignored).
   - ``# joints: controller [<name>]``: the joint columns hold **controller**
