@@ -79,7 +79,7 @@ def cmd_compensate(args) -> int:
     from calib_oed.io.atomic import atomic_write_files
     from calib_oed.model.parameters import ParameterSpace
     from calib_oed.program.compensate import compensate_program
-    from calib_oed.program.parse.files import program_files, read_program
+    from calib_oed.program.parse.files import check_written_for, program_files, read_program
     from calib_oed.scene.reader import load_scene
 
     scene = load_scene(args.scene)
@@ -102,6 +102,7 @@ def cmd_compensate(args) -> int:
                                 "identified no joint compliance, so the payload changes nothing; leave it out")
     cal_files = loaded.files
     parsed, encodings = read_program(args.program, scene.robot.joint_names)
+    check_written_for(parsed, scene.robot.joint_names, scene.controller)
     result = compensate_program(parsed, scene.robot, loaded.robot, uncertainty=loaded.uncertainty,
                                 controller=scene.controller, tool=_frame(args.tool, "--tool"),
                                 base=_frame(args.base, "--base"), home=problem.kpi.configurations[0],

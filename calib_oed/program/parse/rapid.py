@@ -76,11 +76,11 @@ def _groups(text: str, start: int, file: str) -> list[tuple[int, int]]:
 def _target(text, start, file, name, kind) -> Target:
     groups = _groups(text, start, file)
     if kind == "joint":
-        nums = numbers_in(text, *groups[0]) if groups else []
+        nums = numbers_in(text, *groups[0], file) if groups else []
         if len(nums) != 6:
             raise ProgramError("program", file, f"{name}: a jointtarget needs [[rax_1..rax_6], [eax..]]")
     else:
-        nums = (numbers_in(text, *groups[0]) + numbers_in(text, *groups[1])) if len(groups) >= 2 else []
+        nums = (numbers_in(text, *groups[0], file) + numbers_in(text, *groups[1], file)) if len(groups) >= 2 else []
         if len(nums) != 7:
             raise ProgramError("program", file, f"{name}: a robtarget needs [[x, y, z], [q1, q2, q3, q4], ...]")
     end = text.find(";", _bracket_end(text, start, file))
@@ -92,7 +92,7 @@ def _confdata(text: str, groups: list[tuple[int, int]], file: str, name: str) ->
     """A robtarget's ``confdata`` ``[cf1, cf4, cf6, cfx]`` as declared (integers), or () if absent."""
     if len(groups) < 3:
         return ()
-    cf = [n.value for n in numbers_in(text, *groups[2])]
+    cf = [n.value for n in numbers_in(text, *groups[2], file)]
     if len(cf) != 4 or any(v != int(v) for v in cf):
         raise ProgramError("program", file, f"{name}: a robtarget's confdata needs 4 integers "
                            f"[cf1, cf4, cf6, cfx], has {cf}")
@@ -106,7 +106,7 @@ def _frame(text, start, file, what) -> pin.SE3:
     for g0, _g1 in groups:
         inner = _groups(text, g0, file)
         if len(inner) == 2:
-            nums = numbers_in(text, *inner[0]) + numbers_in(text, *inner[1])
+            nums = numbers_in(text, *inner[0], file) + numbers_in(text, *inner[1], file)
             if len(nums) == 7:
                 poses.append(from_quaternion_mm(*[n.value for n in nums]))
     if what == "tooldata" and poses:

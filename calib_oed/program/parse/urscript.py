@@ -57,7 +57,7 @@ def _code_only(text: str) -> str:
 
 def _literal(text: str, bracket: int, file: str, name: str, pose: bool) -> Target:
     end = text.find("]", bracket)
-    nums = numbers_in(text, bracket + 1, end)
+    nums = numbers_in(text, bracket + 1, end, file)
     if len(nums) != 6:
         raise ProgramError("program", file, f"{name}: {'p[x, y, z, rx, ry, rz]' if pose else '[q1..q6]'} "
                            f"needs 6 numbers, has {len(nums)}")

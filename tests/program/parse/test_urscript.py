@@ -67,3 +67,10 @@ def test_moves_in_comments_and_strings_are_not_code():
     assert [(t.name, t.line, t.values[0]) for t in parsed.targets] == [("home", 3, 0.1),
                                                                        ("line 8", 7, 0.4)]
     assert parsed.notes == ()
+
+
+@pytest.mark.parametrize("line", ["movej([-0.44, -1.69.6187, 1.2, 0, 1.5, 0])",
+                                  "movej([-0.443734 -1.696187, 1.2, 0, 1.5, 0])"])
+def test_a_garbled_joint_list_is_refused_not_read_by_its_numbers(line):
+    with pytest.raises(ProgramError, match="'f.script:2': not a comma-separated list of numbers"):
+        urscript.parse({"f.script": f"def f():\n  {line}\nend\n"})
