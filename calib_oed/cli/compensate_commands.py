@@ -57,6 +57,23 @@ def _deflection_text(loaded) -> str:
     return "compensated with " + "; ".join(parts)
 
 
+def _note_negative_compliance(loaded, joint_names) -> None:
+    """A note when the calibration's joint compliance is negative somewhere: a negative stiffness is
+    not physical (identify calls it implausible), and its deflection can make the targets worse."""
+    import warnings
+
+    from calib_oed.exceptions import CalibOedNote
+
+    c = None if loaded.deflection is None else loaded.deflection.compliance
+    negative = [f"{name} ({1.0 / v:.3g} N·m/rad)" for name, v in zip(joint_names, [] if c is None else c, strict=False)
+                if v < 0]
+    if negative:
+        warnings.warn(CalibOedNote(
+            f"the calibration's joint compliance is negative on {', '.join(negative)}: a negative stiffness is not "
+            "physical (it absorbs an error the model has no term for), and compensating with it can move the "
+            "targets the wrong way; identify without --compliance, or with more poses"), stacklevel=2)
+
+
 def _frame(text: str | None, option: str):
     if text is None:
         return None
@@ -101,6 +118,7 @@ def cmd_compensate(args) -> int:
         raise CompensationError(f"--payload-kg {args.working_payload_kg:g}: the calibration {loaded.files['sensor']} "
                                 "identified no joint compliance, so the payload changes nothing; leave it out")
     cal_files = loaded.files
+    _note_negative_compliance(loaded, scene.robot.joint_names)
     parsed, encodings = read_program(args.program, scene.robot.joint_names)
     check_written_for(parsed, scene.robot.joint_names, scene.controller)
     result = compensate_program(parsed, scene.robot, loaded.robot, uncertainty=loaded.uncertainty,

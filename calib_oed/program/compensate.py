@@ -72,6 +72,8 @@ class CompensatedProgram:
             against :math:`q^0` (Cartesian KRL, RAPID and TP targets; empty: nothing).
         branch: Per target, how the configuration the file declares differs from that of the
             nominal solution :math:`q^0` (KRL ``S``/``T``; empty: the same, or none declared).
+        limits: Per target, the compensated joints beyond the robot's joint limits (empty: none),
+            which the controller refuses.
     """
 
     parsed: ParsedProgram
@@ -82,6 +84,7 @@ class CompensatedProgram:
     sources: dict[str, str]
     configuration: tuple[tuple[str, ...], ...] = ()
     branch: tuple[str, ...] = ()
+    limits: tuple[str, ...] = ()
 
     @property
     def names(self) -> list[str]:
@@ -100,6 +103,8 @@ class CompensatedProgram:
                 line += "; NOT compensated (left as written)"
             if self.branch and self.branch[i]:
                 line = (line + "; " if line else f"{name}: ") + self.branch[i]
+            if self.limits and self.limits[i]:
+                line = (line + "; " if line else f"{name}: ") + self.limits[i]
             if self._configuration(i):
                 line = (line + "; " if line else f"{name}: ") + (
                     "the controller configuration changes (" + "; ".join(self._configuration(i))
@@ -119,6 +124,7 @@ class CompensatedProgram:
                          "joint_correction_deg": float(np.degrees(np.abs(c.correction[i]).max())),
                          "sigma_min": float(c.sigma_min[i]), "in_range": bool(c.in_range[i]),
                          "configuration_changes": list(self._configuration(i)),
+                         "beyond_joint_limits": (self.limits[i] or None) if self.limits else None,
                          "declared_configuration": (self.branch[i] or None) if self.branch else None}
                         for i, t in enumerate(self.parsed.targets)],
         }
@@ -218,10 +224,13 @@ def compensate_program(parsed: ParsedProgram, nominal: Robot, calibrated: Robot,
     shift = np.array([1e3 * np.linalg.norm(cal.compute_pose(q).translation - nom.compute_pose(q).translation)
                       for q in q0])
     configuration, branch = _configuration_checks(parsed, nominal, q0, comp, controller)
+    limits = tuple(_beyond_limits(nominal, comp.q[i]) if comp.converged[i] else "" for i in range(n))
     values, comments = {}, {}
     short = lang.name == "tp"
     for i, target in enumerate(parsed.targets):
         flags = [] if comp.converged[i] else ["NOT compensated: inverse kinematics failed"]
+        if limits[i]:
+            flags.append("beyond a joint limit" if not short else "LIMIT")
         if configuration[i]:
             flags.append("CONF" if short else "controller configuration changes: " + ", ".join(configuration[i]))
         if branch[i]:
@@ -238,7 +247,17 @@ def compensate_program(parsed: ParsedProgram, nominal: Robot, calibrated: Robot,
         pred = None if comp.predicted_mm is None else float(comp.predicted_mm[i])
         comments[i] = _comment(target.name, pred, flags, short)
     texts = rewrite(parsed, values, comments)
-    return CompensatedProgram(parsed, texts, comp, comp.converged.copy(), shift, sources, configuration, branch)
+    return CompensatedProgram(parsed, texts, comp, comp.converged.copy(), shift, sources, configuration, branch,
+                              limits)
+
+
+def _beyond_limits(robot: Robot, q: np.ndarray) -> str:
+    """The joints of ``q`` [rad] beyond ``robot``'s limits, as a note (empty: none)."""
+    out = [f"{name} {np.degrees(v):.3f} deg {'<' if v < lo else '>'} {np.degrees(lo if v < lo else hi):.3f} deg"
+           for name, v, lo, hi in zip(robot.joint_names, q, robot.lower, robot.upper, strict=True)
+           if not lo - 1e-12 <= v <= hi + 1e-12]
+    return ("compensated joints beyond the robot's joint limits (" + ", ".join(out)
+            + "): the controller refuses this target") if out else ""
 
 
 def _declared_branch(nom: TcpKinematics, arm: ConfigurationKinematics, pose: pin.SE3, q: np.ndarray,

@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import json
+import warnings
 
 import numpy as np
 import pytest
 
 from calib_oed.cli import main
+from calib_oed.exceptions import CalibOedNote
 from tests.calibration.test_compensation_files import write_calibration
 from tests.program.parse import samples
 
@@ -223,3 +225,21 @@ def test_targets_outside_the_measured_joint_ranges_are_named(tmp_path, capsys):
                  "--json"]) == 0
     data = json.loads(capsys.readouterr().out)
     assert [t["in_range"] for t in data["targets"]] == [True, False]
+
+
+def test_a_negative_compliance_is_named():
+    """A negative identified compliance is a negative stiffness (identify calls it implausible):
+    compensate says so, as compensating with it can move the targets the wrong way."""
+    from types import SimpleNamespace
+
+    from calib_oed.cli.compensate_commands import _note_negative_compliance
+
+    names = [f"joint_a{i}" for i in range(1, 7)]
+    loaded = SimpleNamespace(deflection=SimpleNamespace(compliance=np.array([0, -2e-6, 4e-6, 0, 0, 0])))
+    with pytest.warns(CalibOedNote, match=r"negative on joint_a2 \(-5e\+05 N·m/rad\): a negative stiffness"):
+        _note_negative_compliance(loaded, names)
+    for quiet in (SimpleNamespace(deflection=None), SimpleNamespace(deflection=SimpleNamespace(compliance=None)),
+                  SimpleNamespace(deflection=SimpleNamespace(compliance=np.array([0, 2e-6, 4e-6, 0, 0, 0])))):
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            _note_negative_compliance(quiet, names)

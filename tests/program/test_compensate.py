@@ -262,3 +262,28 @@ def test_both_points_of_a_circular_move_are_compensated(robots):
     result = compensate_program(parsed, robot, cal, home=np.radians([10.0, -80.0, 95.0, 0.0, 30.0, 0.0]))
     _check_bytes("krl", parsed, result)
     _check_reached("krl", parsed, result, robot, cal, TOOL, BASE)
+
+
+def test_a_target_compensated_beyond_a_joint_limit_is_named_as_such(robots):
+    """A joint target at the robot's limit may be corrected past it: the controller would refuse
+    it, and the program says so (not only "outside the calibrated range")."""
+    robot, cal = robots["kr16"]
+    rows = []
+    for j in range(6):
+        for limit in (robot.lower, robot.upper):
+            q = (robot.lower + robot.upper) / 2
+            q[j] = limit[j]
+            rows.append(q)
+    text = "step," + ",".join(f"{j}_rad" for j in robot.joint_names) + "\n" + "".join(
+        f"{k + 1}," + ",".join(f"{v:.12f}" for v in q) + "\n" for k, q in enumerate(rows))
+    result = compensate_program(csv_targets.parse({"p.csv": text}, robot.joint_names), robot, cal)
+    beyond = [(i, line) for i, line in enumerate(result.limits) if line]
+    assert beyond  # some correction crosses a limit (the joint offsets of a random calibration)
+    for i, line in beyond:
+        q = result.compensation.q[i]
+        assert np.any((q < robot.lower) | (q > robot.upper)) and "the controller refuses this target" in line
+        assert any(f"{i + 1}: " in issue and "beyond the robot's joint limits" in issue for issue in result.issues())
+    inside = [i for i, line in enumerate(result.limits) if not line and result.changed[i]]  # compensated ones
+    q_in = result.compensation.q[inside]
+    assert np.all((q_in >= robot.lower - 1e-12) & (q_in <= robot.upper + 1e-12))
+    assert result.to_dict()["targets"][beyond[0][0]]["beyond_joint_limits"] == beyond[0][1]

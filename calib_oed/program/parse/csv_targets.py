@@ -10,6 +10,8 @@ ry_deg, rz_deg`` (fixed XYZ angles, :math:`R = R_z(rz)R_y(ry)R_x(rx)`). A ``name
 
 from __future__ import annotations
 
+import math
+
 from calib_oed.exceptions import ProgramError
 from calib_oed.program.parse.poses import from_euler_mm_deg, in_order, to_euler_mm_deg
 from calib_oed.program.parse.scan import Number
@@ -29,6 +31,20 @@ def _cells(line: str, offset: int) -> list[Number]:
         out.append(Number(start + lead, start + lead + len(stripped), stripped))
         start += len(cell) + 1
     return out
+
+
+#: Largest difference [deg] between a joint's ``_deg`` cell and its ``_rad`` cell: the writer's rounding
+#: is 5e-5 deg; a hand edit of one column only is far above it.
+DEG_RAD_TOL = 1e-3
+
+
+def _agree(file: str, i: int, joint_names, nums) -> None:
+    n = len(joint_names)
+    for name, rad, deg in zip(joint_names, nums[:n], nums[n:], strict=True):
+        if abs(math.degrees(rad.value) - deg.value) > DEG_RAD_TOL:
+            raise ProgramError("program", file, f"line {i + 1}: {name}_deg {deg.text} and {name}_rad {rad.text} "
+                               f"(= {math.degrees(rad.value):.4f} deg) disagree: edit both columns, or delete "
+                               "one of them")
 
 
 def parse(texts: dict[str, str], joint_names) -> ParsedProgram:
@@ -65,6 +81,8 @@ def parse(texts: dict[str, str], joint_names) -> ParsedProgram:
                 if groups:
                     nums = tuple(cells[header.index(c)] for cols, _ in groups for c in cols)
                     [n.value for n in nums]
+                    if len(groups) == 2:  # both written from the same joints: an edit of one is refused
+                        _agree(file, i, joint_names, nums)
                     unit = "+".join(u for _, u in groups)
                     targets.append(Target(name, "joint", file, i, nums, unit=unit, commented=not pose))
             except ValueError as exc:

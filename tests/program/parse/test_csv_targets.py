@@ -21,6 +21,9 @@ def test_joint_columns_in_both_units_are_one_target():
     text = header + "\n1," + ",".join(["10.0"] * 6 + ["0.17453"] * 6) + "\n"
     (target,) = csv_targets.parse({"p.csv": text}, JOINTS).targets
     assert target.unit == "rad+deg" and len(target.numbers) == 12 and target.values[0] == 0.17453
+    edited = text.replace("1,10.0,10.0", "1,10.0,20.0")  # joint_a2_deg edited, its _rad not
+    with pytest.raises(ProgramError, match=r"line 2: joint_a2_deg 20.0 and joint_a2_rad 0.17453 \(= 9.9998 deg\) disagree"):
+        csv_targets.parse({"p.csv": edited}, JOINTS)
 
 
 @pytest.mark.parametrize("text, message", [
