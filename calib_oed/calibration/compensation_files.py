@@ -92,7 +92,8 @@ def load_calibration(space: ParameterSpace, folder: str | os.PathLike) -> tuple[
         folder: The folder ``calib-oed identify -o DIR`` wrote, or its URDF.
 
     Raises:
-        ExportError: files missing; CompensationError: another robot's calibration, joint
+        ExportError: files missing, or another robot's (the sensor file's ``robot``);
+            CompensationError: another robot's calibration (its joint placements), joint
             compliance or gains, or an ``identification.json`` that does not fit the scene;
             InputFileError: an ``identification.json`` that is not a regular file or is larger
             than :data:`~calib_oed.scene.yaml_file.MAX_TEXT_BYTES` (the bound ``validate`` reads it with).

@@ -12,7 +12,7 @@ from calib_oed.calibration.export import export_calibration
 from calib_oed.calibration.identification import identify
 from calib_oed.calibration.problem import CalibrationProblem
 from calib_oed.calibration.simulation import draw_true_parameters, simulate_observations
-from calib_oed.exceptions import CompensationError
+from calib_oed.exceptions import CompensationError, ExportError
 from calib_oed.scene.reader import load_scene
 
 
@@ -50,6 +50,10 @@ def test_without_identification_json_there_is_no_prediction(tmp_path):
 def test_another_scenes_calibration_is_refused(tmp_path):
     write_calibration(tmp_path)
     other = CalibrationProblem.from_scene(load_scene("fms_kr300"))
+    with pytest.raises(ExportError, match="a calibration of robot 'kr16', not of this scene's robot 'kr300'"):
+        load_calibration(other.space, tmp_path)  # named by the sensor file's robot
+    sensor = tmp_path / "kr16_sensor.yaml"
+    sensor.write_text(sensor.read_text().replace("robot: kr16\n", ""))  # without it: by the joint placements
     with pytest.raises(CompensationError, match="not a calibration of this robot"):
         load_calibration(other.space, tmp_path)
     data = json.loads((tmp_path / "identification.json").read_text())
