@@ -121,6 +121,7 @@ def _load(path: Path) -> dict:
         raise ExportError(f"cannot read sensor file {path}: {exc}") from exc
     return data if isinstance(data, dict) else {}
 
+
 def sensor_robot(path: str | os.PathLike) -> str | None:
     """The name of the robot a sensor file was identified for (its ``robot`` key), or None."""
     name = _load(Path(path)).get("robot")

@@ -65,8 +65,9 @@ def _note_negative_compliance(loaded, joint_names) -> None:
     from calib_oed.exceptions import CalibOedNote
 
     c = None if loaded.deflection is None else loaded.deflection.compliance
-    negative = [f"{name} ({1.0 / v:.3g} N·m/rad)" for name, v in zip(joint_names, [] if c is None else c, strict=False)
-                if v < 0]
+    if c is None:
+        return
+    negative = [f"{name} ({1.0 / v:.3g} N·m/rad)" for name, v in zip(joint_names, c, strict=True) if v < 0]
     if negative:
         warnings.warn(CalibOedNote(
             f"the calibration's joint compliance is negative on {', '.join(negative)}: a negative stiffness is not "
@@ -96,7 +97,7 @@ def cmd_compensate(args) -> int:
     from calib_oed.io.atomic import atomic_write_files
     from calib_oed.model.parameters import ParameterSpace
     from calib_oed.program.compensate import compensate_program
-    from calib_oed.program.parse.files import check_written_for, program_files, read_program
+    from calib_oed.program.parse.files import program_files, read_program
     from calib_oed.scene.reader import load_scene
 
     scene = load_scene(args.scene)
@@ -120,7 +121,6 @@ def cmd_compensate(args) -> int:
     cal_files = loaded.files
     _note_negative_compliance(loaded, scene.robot.joint_names)
     parsed, encodings = read_program(args.program, scene.robot.joint_names)
-    check_written_for(parsed, scene.robot.joint_names, scene.controller)
     result = compensate_program(parsed, scene.robot, loaded.robot, uncertainty=loaded.uncertainty,
                                 controller=scene.controller, tool=_frame(args.tool, "--tool"),
                                 base=_frame(args.base, "--base"), home=problem.kpi.configurations[0],

@@ -30,6 +30,7 @@ and turns (:func:`_declared_branch`), and a target still on another branch is na
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 
 import numpy as np
@@ -42,6 +43,7 @@ from calib_oed.calibration.compensation import (
     calibrated_kinematics,
     compensate_joints,
 )
+from calib_oed.exceptions import ProgramError
 from calib_oed.model.arm_configuration import (
     VENDORS,
     ConfigurationKinematics,
@@ -53,6 +55,7 @@ from calib_oed.model.controller import ControllerConvention
 from calib_oed.model.deflected_kinematics import JointDeflection
 from calib_oed.model.inverse_kinematics import IkSettings, TcpKinematics
 from calib_oed.model.robot import Robot
+from calib_oed.program.format_common import CONTROLLER_VALUES, URDF_VALUES
 from calib_oed.program.parse.targets import ParsedProgram, Target, rewrite
 
 
@@ -192,7 +195,12 @@ def compensate_program(parsed: ParsedProgram, nominal: Robot, calibrated: Robot,
             ranges): targets outside it are named; None: the joint limits.
         deflection: The calibration's joint compliance (with the scene's payload) and gains,
             or None (:func:`~calib_oed.calibration.compensation.compensate_joints`).
+
+    Raises:
+        ProgramError: a program ``calib-oed program`` wrote for other joints or the other joint
+            convention (:func:`check_written_for`).
     """
+    check_written_for(parsed, nominal.joint_names, controller)
     settings = settings or IkSettings()
     sources = {"tool": "file" if parsed.tool is not None else "given" if tool is not None else "none (the tool frame)",
                "base": "file" if parsed.base is not None else "given" if base is not None else "none (the world)"}
@@ -249,6 +257,44 @@ def compensate_program(parsed: ParsedProgram, nominal: Robot, calibrated: Robot,
     texts = rewrite(parsed, values, comments)
     return CompensatedProgram(parsed, texts, comp, comp.converged.copy(), shift, sources, configuration, branch,
                               limits)
+
+
+#: The header line of a program calib_oed wrote (:func:`~calib_oed.program.format_common.header_lines`).
+_WRITTEN = re.compile(rf"joint values: ({URDF_VALUES}|{CONTROLLER_VALUES}) in [^,\n]+, in the order ([^\n]+?)\s*$",
+                      re.MULTILINE)
+_CONTROLLER = re.compile(r"by the scene's controller (\S+)")
+
+
+def check_written_for(parsed: ParsedProgram, joint_names, controller) -> None:
+    """A program calib_oed wrote says in its header which robot's joints it lists and in which
+    convention (URDF angles or a controller's values): both must be this scene's, or its joint
+    values would be read as other joints or in another convention (tens of mm off, no error).
+    A header without that line (another writer, or edited out) is not checked.
+
+    Raises:
+        ProgramError: another robot's joints, or the other convention, named with the fix.
+    """
+    for file, text in parsed.texts.items():
+        m = _WRITTEN.search(text)
+        if m is None:
+            continue
+        written = [n.strip() for n in m.group(2).split(",")]
+        if written != list(joint_names):
+            raise ProgramError("program", file, f"written for a robot with the joints {', '.join(written)}, "
+                               f"not this scene's ({', '.join(joint_names)}): compensate it with the scene "
+                               "it was written for")
+        said = _CONTROLLER.search(text)
+        if m.group(1) == CONTROLLER_VALUES and controller is None:
+            name = said.group(1) if said else "?"
+            raise ProgramError("program", file, f"its joint values are those of controller {name}, and this scene has "
+                               "no controller: block to map them to URDF angles: use the scene it was written with")
+        if m.group(1) == URDF_VALUES and controller is not None:
+            raise ProgramError("program", file, "its joint values are URDF joint angles, and this scene's "
+                               f"controller {controller.name} would read them as its own: use the scene it "
+                               "was written with")
+        if said is not None and controller is not None and said.group(1) != controller.name:
+            raise ProgramError("program", file, f"its joint values are those of controller {said.group(1)}, not of "
+                               f"this scene's controller {controller.name}: use the scene it was written with")
 
 
 def _beyond_limits(robot: Robot, q: np.ndarray) -> str:

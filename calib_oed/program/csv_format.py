@@ -15,7 +15,7 @@ from typing import NamedTuple
 import numpy as np
 
 from calib_oed.exceptions import ProgramError
-from calib_oed.program.format_common import DEG_DECIMALS, header_lines, steps
+from calib_oed.program.format_common import CONTROLLER_VALUES, DEG_DECIMALS, header_lines, steps
 from calib_oed.program.records import Program
 
 #: Radians are written with 10 decimals: the CSV is also the exact record of the program.
@@ -107,7 +107,7 @@ def read_program_csv(where: str | os.PathLike, joint_names, controller=None) -> 
     if bad or len(body) < 2 or not np.all(np.isfinite(q)):
         raise ProgramError("program", str(path), "rows must be home, via or pose targets with finite "
                            f"joint values (at least two){': unknown kinds ' + str(bad) if bad else ''}")
-    if any("controller joint values" in ln for ln in header):
+    if any(CONTROLLER_VALUES in ln for ln in header):
         if controller is None:
             raise ProgramError("program", str(path), "the file holds controller joint values but the "
                                "scene has no controller: block to map them back to URDF angles")

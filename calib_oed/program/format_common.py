@@ -119,14 +119,20 @@ def degrees(q: np.ndarray) -> list[str]:
     return [f"{v:.{DEG_DECIMALS}f}" for v in np.rad2deg(np.asarray(q, dtype=float))]
 
 
+#: How a program's header names its joint values (:func:`header_lines`; read back by
+#: :func:`calib_oed.program.csv_format.read_program_csv` and :func:`calib_oed.program.compensate.check_written_for`).
+URDF_VALUES = "URDF joint angles"
+CONTROLLER_VALUES = "controller joint values"
+
+
 def header_lines(program: Program, units: str) -> list[str]:
     """The header every file carries (without comment markers)."""
     t = program.cycle_times
     joints = ", ".join(program.joint_names)
     ctrl = program.controller
-    convention = ([f"joint values: controller joint values in {units}, in the order {joints}",
+    convention = ([f"joint values: {CONTROLLER_VALUES} in {units}, in the order {joints}",
                    f"from the URDF angles q by the scene's {ctrl.describe()}"] if ctrl else
-                  [f"joint values: URDF joint angles in {units}, in the order {joints}",
+                  [f"joint values: {URDF_VALUES} in {units}, in the order {joints}",
                    "no controller block in the scene: no controller signs, zero offsets or axis",
                    "couplings are applied; check them against the controller before running"])
     return [

@@ -19,7 +19,6 @@ are written back byte for byte.
 from __future__ import annotations
 
 import os
-import re
 from pathlib import Path
 
 from calib_oed.exceptions import ProgramError
@@ -83,40 +82,3 @@ def read_program(path: str | os.PathLike, joint_names) -> tuple[ParsedProgram, d
 
 __all__ = ["EXTENSIONS", "program_files", "read_program"]
 
-
-#: The header line calib_oed writes into every program (:func:`calib_oed.program.format_common.header_lines`).
-_WRITTEN = re.compile(r"joint values: (URDF joint angles|controller joint values) in [^,\n]+, in the order ([^\n]+?)\s*$",
-                      re.MULTILINE)
-_CONTROLLER = re.compile(r"by the scene's controller (\S+)")
-
-
-def check_written_for(parsed: ParsedProgram, joint_names, controller) -> None:
-    """A program calib_oed wrote says in its header which robot's joints it lists and in which
-    convention (URDF angles or a controller's values): both must be this scene's, or its joint
-    values would be read as other joints or in another convention (tens of mm off, no error).
-    A header without that line (another writer, or edited out) is not checked.
-
-    Raises:
-        ProgramError: another robot's joints, or the other convention, named with the fix.
-    """
-    for file, text in parsed.texts.items():
-        m = _WRITTEN.search(text)
-        if m is None:
-            continue
-        written = [n.strip() for n in m.group(2).split(",")]
-        if written != list(joint_names):
-            raise ProgramError("program", file, f"written for a robot with the joints {', '.join(written)}, "
-                               f"not this scene's ({', '.join(joint_names)}): compensate it with the scene "
-                               "it was written for")
-        said = _CONTROLLER.search(text)
-        if m.group(1) == "controller joint values" and controller is None:
-            name = said.group(1) if said else "?"
-            raise ProgramError("program", file, f"its joint values are those of controller {name}, and this scene has "
-                               "no controller: block to map them to URDF angles: use the scene it was written with")
-        if m.group(1) == "URDF joint angles" and controller is not None:
-            raise ProgramError("program", file, "its joint values are URDF joint angles, and this scene's "
-                               f"controller {controller.name} would read them as its own: use the scene it "
-                               "was written with")
-        if said is not None and controller is not None and said.group(1) != controller.name:
-            raise ProgramError("program", file, f"its joint values are those of controller {said.group(1)}, not of "
-                               f"this scene's controller {controller.name}: use the scene it was written with")

@@ -17,6 +17,8 @@ from calib_oed.exceptions import ProgramError
 #: A decimal number as the controller languages write them (no exponent in target values), whole:
 #: not the head of a longer token (``-6.11`` of a garbled ``-6.11.68`` is no number).
 NUMBER = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?(?![\w.])"
+#: A list of numbers and nothing else: commas between, a bracket at each end at most.
+_LIST = re.compile(rf"\s*\[?\s*(?:{NUMBER}\s*(?:,\s*{NUMBER}\s*)*)?\]?\s*")
 
 
 @dataclass(frozen=True)
@@ -40,15 +42,10 @@ def numbers_in(text: str, start: int, end: int, file: str | None = None) -> list
     ``file`` and the line, where reading only its numbers would move the robot elsewhere."""
     nums = [Number(start + m.start(), start + m.end(), m.group())
             for m in re.finditer(rf"(?<![\w.]){NUMBER}", text[start:end])]
-    if file is not None:
-        cuts = [start] + [k for n in nums for k in (n.start, n.end)] + [end]
-        gaps = [text[cuts[k]:cuts[k + 1]] for k in range(0, len(cuts), 2)]
-        ok = ([re.fullmatch(r"\s*\[?\s*", gaps[0]), re.fullmatch(r"\s*\]?\s*", gaps[-1])] if nums else
-              [re.fullmatch(r"\s*\[?\s*\]?\s*", gaps[0])]) + [re.fullmatch(r"\s*,\s*", g) for g in gaps[1:-1]]
-        if not all(ok):
-            shown = " ".join(text[start:end].split())
-            raise ProgramError("program", f"{file}:{line_of(text, start) + 1}", "not a comma-separated list of "
-                               f"numbers ({shown[:60]!r}): a garbled or hand-edited target is not read")
+    if file is not None and not _LIST.fullmatch(text, start, end):
+        shown = " ".join(text[start:end].split())
+        raise ProgramError("program", f"{file}:{line_of(text, start) + 1}", "not a comma-separated list of "
+                           f"numbers ({shown[:60]!r}): a garbled or hand-edited target is not read")
     return nums
 
 
